@@ -1,0 +1,1 @@
+"""The dexmon application: session loop, prediction, alerts, run file, replay, CLI."""
