@@ -1,0 +1,448 @@
+"""The job file (TOML): what is on the machine, what runs, what to watch for.
+
+A job names the controller, the program, where the work is (work offset), the stock,
+fixtures, tools, design model, resolution, tolerances, travel limits, how far to look
+ahead and what to do on a finding. Example (every table optional except what the command
+needs; paths are relative to the job file's folder)::
+
+    [controller]
+    url = "grbl:///dev/ttyUSB0?baud=115200"
+    poll_hz = 50
+
+    [program]
+    path = "part.nc"
+    dialect = "grbl"            # or "linuxcnc"
+
+    work_offset = [0, 0, 0]     # work zero in machine coords (mm), or "controller"
+
+    [stock]                     # in work coordinates, mm
+    box = [0, 0, 0, 60, 40, 20] # or: cylinder = [cx, cy, radius, z0, z1]; or: stl = "stock.stl"
+    offset = [0, 0, 0]          # moves an STL into place
+
+    [[fixtures]]
+    name = "clamp"
+    box = [-5, 15, 20, 15, 25, 28]   # or stl = "vise.stl" (+ offset)
+
+    [tools]
+    table = "tools.tbl"         # LinuxCNC tool table; and/or inline tools:
+    1 = "flat:6:L=20"
+    [tools.2]
+    spec = "ball:6:L=20"
+    shank = [6, 30]             # diameter, length (mm)
+    holder = [25, 40]
+
+    [design]
+    stl = "design.stl"
+
+    resolution = 0.2            # dexel spacing, mm
+    [tolerance]
+    gouge = 0.05                # gouge band, mm
+    interest = 1.0              # range of interest, mm
+    [limits]                    # machine travel limits (machine coords, mm)
+    x = [-300, 0]
+    [lookahead]
+    seconds = 5
+    mm = 100
+    [alerts]
+    actions = ["log", "bell"]   # "feed_hold" lets dexmon hold the feed on a finding
+
+Errors name the file, the key and what was expected:
+``job.toml: [stock] box: expected 6 numbers (mm), got "abc"``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from sim.errors import InputError
+from sim.tolerance import Tolerance
+
+ALERT_ACTIONS = ("log", "bell", "feed_hold")
+DIALECTS = ("linuxcnc", "grbl")
+AXES = ("x", "y", "z")
+
+
+class JobError(InputError):
+    """A job file or job flag that is not what was expected."""
+
+
+@dataclass(frozen=True)
+class Solid:
+    """A placed solid: a box, a Z-axis cylinder or an STL, in work coordinates (mm).
+
+    ``box`` is (x0, y0, z0, x1, y1, z1); ``cylinder`` is (cx, cy, radius, z0, z1);
+    ``stl`` a path, moved by ``offset`` (3,) mm.
+    """
+
+    kind: str
+    box: tuple[float, ...] | None = None
+    cylinder: tuple[float, ...] | None = None
+    stl: Path | None = None
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    name: str = ""
+
+    def bounds(self):
+        """(lo (3,), hi (3,)) in mm, or None for an STL (known once loaded)."""
+        o = self.offset
+        if self.kind == "box":
+            b = self.box
+            return (b[0] + o[0], b[1] + o[1], b[2] + o[2]), (b[3] + o[0], b[4] + o[1], b[5] + o[2])
+        if self.kind == "cylinder":
+            cx, cy, r, z0, z1 = self.cylinder
+            return (cx - r + o[0], cy - r + o[1], z0 + o[2]), (cx + r + o[0], cy + r + o[1], z1 + o[2])
+        return None
+
+
+@dataclass(frozen=True)
+class ToolDef:
+    """One tool: its spec (``ball:6:L=20``) and optional shank/holder (diameter, length) mm."""
+
+    number: int
+    spec: str
+    shank: tuple[float, float] | None = None
+    holder: tuple[float, float] | None = None
+
+
+@dataclass
+class Job:
+    """Everything a session needs to know besides the live states."""
+
+    source: Path | None = None          # the job file, when there is one
+    text: str = ""                      # its TOML text (recorded in the run file)
+    controller: str | None = None       # controller URL
+    poll_hz: float = 50.0
+    program: Path | None = None
+    dialect: str = "linuxcnc"
+    work_offset: tuple[float, float, float] | None = (0.0, 0.0, 0.0)  # None: from the controller
+    stock: Solid | None = None
+    fixtures: list[Solid] = field(default_factory=list)
+    tools: dict[int, ToolDef] = field(default_factory=dict)
+    default_tool: ToolDef | None = None  # used for any tool number not in ``tools``
+    tool_table: Path | None = None
+    design: Solid | None = None
+    resolution: float = 0.5
+    tolerance: Tolerance = field(default_factory=Tolerance)
+    limits: dict[str, tuple[float, float]] = field(default_factory=dict)
+    horizon_s: float = 5.0
+    horizon_mm: float | None = None
+    alerts: tuple[str, ...] = ("log",)
+
+    def tool(self, number: int) -> ToolDef | None:
+        """The tool for tool number ``number`` (the default tool when it is not listed)."""
+        return self.tools.get(int(number), self.default_tool)
+
+    @property
+    def feed_hold(self) -> bool:
+        return "feed_hold" in self.alerts
+
+
+# --- parsing helpers: each names file, table and key --------------------------------------
+
+class _Ctx:
+    def __init__(self, name: str, base: Path):
+        self.name = name
+        self.base = base
+
+    def err(self, where: str, expected: str, got=None) -> JobError:
+        tail = "" if got is None else f", got {_show(got)}"
+        return JobError(f"{where}: expected {expected}{tail}", self.name)
+
+    def numbers(self, value, n: int, where: str, what: str = "mm") -> tuple[float, ...]:
+        given = value
+        if isinstance(value, str):
+            value = _split_numbers(value)
+        if not isinstance(value, (list, tuple)) or len(value) != n:
+            raise self.err(where, f"{n} numbers ({what})", given)
+        out = []
+        for v in value:
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise self.err(where, f"{n} numbers ({what})", given)
+            out.append(float(v))
+        return tuple(out)
+
+    def positive(self, value, where: str, what: str = "mm") -> float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not (value > 0) \
+                or not math.isfinite(value):
+            raise self.err(where, f"a positive number ({what})", value)
+        return float(value)
+
+    def path(self, value, where: str, must_exist: bool = True) -> Path:
+        if not isinstance(value, str) or not value:
+            raise self.err(where, "a file path", value)
+        p = Path(value).expanduser()
+        if not p.is_absolute():
+            p = self.base / p
+        if must_exist and not p.is_file():
+            raise JobError(f"{where}: file {str(p)!r} not found", self.name)
+        return p
+
+    def table(self, value, where: str) -> dict:
+        if not isinstance(value, dict):
+            raise self.err(where, "a table", value)
+        return value
+
+    def no_unknown(self, table: dict, known, where: str) -> None:
+        extra = sorted(set(table) - set(known))
+        if extra:
+            raise JobError(f"{where}: unknown key {extra[0]!r}; expected one of {', '.join(sorted(known))}",
+                           self.name)
+
+
+def _show(v) -> str:
+    return f'"{v}"' if isinstance(v, str) else repr(v)
+
+
+def _split_numbers(text: str):
+    try:
+        return [float(t) for t in text.replace(";", ",").split(",") if t.strip()]
+    except ValueError:
+        return text
+
+
+def _solid(ctx: _Ctx, t: dict, where: str, allow=("box", "cylinder", "stl")) -> Solid:
+    t = ctx.table(t, where)
+    ctx.no_unknown(t, set(allow) | {"offset", "name"}, where)
+    given = [k for k in allow if k in t]
+    if len(given) != 1:
+        raise JobError(f"{where or 'solid'}: expected exactly one of {', '.join(allow)}, got "
+                       f"{', '.join(given) or 'none'}", ctx.name)
+    kind = given[0]
+    offset = ctx.numbers(t.get("offset", [0, 0, 0]), 3, f"{where} offset".strip())
+    name = str(t.get("name", ""))
+    if kind == "box":
+        b = ctx.numbers(t["box"], 6, f"{where} box".strip(), "mm: x0, y0, z0, x1, y1, z1")
+        if not (b[3] > b[0] and b[4] > b[1] and b[5] > b[2]):
+            raise ctx.err(f"{where} box".strip(), "x0 < x1, y0 < y1, z0 < z1", list(b))
+        return Solid("box", box=b, offset=offset, name=name)
+    if kind == "cylinder":
+        c = ctx.numbers(t["cylinder"], 5, f"{where} cylinder".strip(), "mm: cx, cy, radius, z0, z1")
+        if not (c[2] > 0 and c[4] > c[3]):
+            raise ctx.err(f"{where} cylinder".strip(), "radius > 0 and z0 < z1", list(c))
+        return Solid("cylinder", cylinder=c, offset=offset, name=name)
+    return Solid("stl", stl=ctx.path(t["stl"], f"{where} stl".strip()), offset=offset, name=name)
+
+
+def parse_solid_spec(spec: str, where: str, base: Path = Path(".")) -> Solid:
+    """A solid from a flag: ``box:x0,y0,z0,x1,y1,z1``, ``cylinder:cx,cy,r,z0,z1`` or ``stl:PATH``
+    (a bare path ending in .stl is an STL too). ``where`` names the flag in errors."""
+    kind, _, rest = spec.partition(":")
+    if kind not in ("box", "cylinder", "stl") and spec.lower().endswith(".stl"):
+        kind, rest = "stl", spec
+    if kind not in ("box", "cylinder", "stl"):
+        raise JobError(f"expected box:x0,y0,z0,x1,y1,z1, cylinder:cx,cy,r,z0,z1 or stl:PATH, got {_show(spec)}",
+                       where)
+    return _solid(_Ctx(where, base), {kind: rest}, "", allow=(kind,))
+
+
+def _tool(ctx: _Ctx, number: int, value, where: str) -> ToolDef:
+    if isinstance(value, str):
+        return ToolDef(number, _spec(ctx, value, where))
+    t = ctx.table(value, where)
+    ctx.no_unknown(t, {"spec", "shank", "holder"}, where)
+    if "spec" not in t:
+        raise ctx.err(f"{where} spec", 'a tool spec like "ball:6:L=20"')
+    shank = ctx.numbers(t["shank"], 2, f"{where} shank", "mm: diameter, length") if "shank" in t else None
+    holder = ctx.numbers(t["holder"], 2, f"{where} holder", "mm: diameter, length") if "holder" in t else None
+    for dims, key in ((shank, "shank"), (holder, "holder")):
+        if dims is not None and not (dims[0] > 0 and dims[1] > 0):
+            raise ctx.err(f"{where} {key}", "positive diameter and length (mm)", list(dims))
+    return ToolDef(number, _spec(ctx, t["spec"], f"{where} spec"), shank, holder)
+
+
+def _spec(ctx: _Ctx, value, where: str) -> str:
+    if not isinstance(value, str) or ":" not in value:
+        raise ctx.err(where, 'a tool spec like "flat:6" or "ball:6:L=20"', value)
+    return value.strip()
+
+
+def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) -> Job:
+    """Parse job TOML ``text``; ``name`` is used in errors, ``base`` resolves relative paths."""
+    base = Path(".") if base is None else base
+    ctx = _Ctx(name, base)
+    try:
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise JobError(f"not valid TOML ({exc})", name) from None
+    known = {"controller", "program", "work_offset", "stock", "fixtures", "tools", "design",
+             "resolution", "tolerance", "limits", "lookahead", "alerts"}
+    ctx.no_unknown(doc, known, "top level")
+    job = Job(text=text)
+
+    if "controller" in doc:
+        t = ctx.table(doc["controller"], "[controller]")
+        ctx.no_unknown(t, {"url", "poll_hz"}, "[controller]")
+        if "url" in t:
+            if not isinstance(t["url"], str) or "://" not in t["url"]:
+                raise ctx.err("[controller] url", 'a controller URL like "grbl:///dev/ttyUSB0"', t["url"])
+            job.controller = t["url"]
+        if "poll_hz" in t:
+            job.poll_hz = ctx.positive(t["poll_hz"], "[controller] poll_hz", "Hz")
+
+    if "program" in doc:
+        t = doc["program"]
+        if isinstance(t, str):
+            t = {"path": t}
+        t = ctx.table(t, "[program]")
+        ctx.no_unknown(t, {"path", "dialect"}, "[program]")
+        if "path" in t:
+            job.program = ctx.path(t["path"], "[program] path")
+        if "dialect" in t:
+            if t["dialect"] not in DIALECTS:
+                raise ctx.err("[program] dialect", " or ".join(DIALECTS), t["dialect"])
+            job.dialect = t["dialect"]
+
+    if "work_offset" in doc:
+        v = doc["work_offset"]
+        job.work_offset = None if v == "controller" else ctx.numbers(v, 3, "work_offset",
+                                                                      'mm, or "controller"')
+
+    if "stock" in doc:
+        job.stock = _solid(ctx, doc["stock"], "[stock]")
+    if "fixtures" in doc:
+        fx = doc["fixtures"]
+        if not isinstance(fx, list):
+            raise ctx.err("[[fixtures]]", "an array of tables ([[fixtures]])", fx)
+        job.fixtures = [_solid(ctx, f, f"[[fixtures]] #{k + 1}", allow=("box", "stl"))
+                        for k, f in enumerate(fx)]
+    if "design" in doc:
+        job.design = _solid(ctx, doc["design"], "[design]", allow=("stl", "box"))
+
+    if "tools" in doc:
+        t = ctx.table(doc["tools"], "[tools]")
+        for key, value in t.items():
+            if key == "table":
+                job.tool_table = ctx.path(value, "[tools] table")
+            elif key == "default":
+                job.default_tool = _tool(ctx, 0, value, "[tools] default")
+            elif key.isdigit():
+                job.tools[int(key)] = _tool(ctx, int(key), value, f"[tools] {key}")
+            else:
+                raise JobError(f'[tools]: unknown key {key!r}; expected "table", "default" or a tool number',
+                               name)
+
+    if "resolution" in doc:
+        job.resolution = ctx.positive(doc["resolution"], "resolution")
+
+    if "tolerance" in doc:
+        t = ctx.table(doc["tolerance"], "[tolerance]")
+        ctx.no_unknown(t, {"gouge", "undercut", "interest"}, "[tolerance]")
+        job.tolerance = dataclasses.replace(
+            job.tolerance, **{k: ctx.positive(v, f"[tolerance] {k}") for k, v in t.items()})
+
+    if "limits" in doc:
+        t = ctx.table(doc["limits"], "[limits]")
+        ctx.no_unknown(t, AXES, "[limits]")
+        for axis, v in t.items():
+            lo, hi = ctx.numbers(v, 2, f"[limits] {axis}", "mm: min, max")
+            if not lo < hi:
+                raise ctx.err(f"[limits] {axis}", "min < max", v)
+            job.limits[axis] = (lo, hi)
+
+    if "lookahead" in doc:
+        t = ctx.table(doc["lookahead"], "[lookahead]")
+        ctx.no_unknown(t, {"seconds", "mm"}, "[lookahead]")
+        if "seconds" in t:
+            job.horizon_s = ctx.positive(t["seconds"], "[lookahead] seconds", "s")
+        if "mm" in t:
+            job.horizon_mm = ctx.positive(t["mm"], "[lookahead] mm")
+
+    if "alerts" in doc:
+        t = ctx.table(doc["alerts"], "[alerts]")
+        ctx.no_unknown(t, {"actions"}, "[alerts]")
+        acts = t.get("actions", [])
+        if not isinstance(acts, list) or any(a not in ALERT_ACTIONS for a in acts):
+            raise ctx.err("[alerts] actions", f"a list of {', '.join(ALERT_ACTIONS)}", acts)
+        job.alerts = tuple(acts)
+    return job
+
+
+def load_job(path: str | Path) -> Job:
+    """Read and parse a job file; relative paths in it resolve against its folder."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise JobError("job file not found", str(path)) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise JobError(f"cannot read the job file ({exc})", str(path)) from None
+    job = parse_job_text(text, name=path.name if path.parent == Path(".") else str(path),
+                         base=path.resolve().parent)
+    job.source = path
+    return job
+
+
+# --- command-line flags -----------------------------------------------------------------
+
+def add_job_arguments(parser) -> None:
+    """The flags that override a job file (or make a job without one)."""
+    g = parser.add_argument_group("job (override the job file)")
+    g.add_argument("--program", help="G-code program file")
+    g.add_argument("--dialect", choices=DIALECTS, help="G-code dialect")
+    g.add_argument("--controller", help="controller URL, e.g. grbl:///dev/ttyUSB0")
+    g.add_argument("--stock", help="box:x0,y0,z0,x1,y1,z1 | cylinder:cx,cy,r,z0,z1 | stl:PATH (work coords, mm)")
+    g.add_argument("--fixture", action="append", default=None, help="box:... or stl:PATH; repeatable")
+    g.add_argument("--tool", help="tool spec used for every tool number, e.g. ball:6:L=20")
+    g.add_argument("--tool-table", help="LinuxCNC tool table")
+    g.add_argument("--design", help="design model STL")
+    g.add_argument("--resolution", type=float, help="dexel spacing, mm")
+    g.add_argument("--gouge-tol", type=float, help="gouge band, mm")
+    g.add_argument("--horizon", type=float, help="look-ahead horizon, s")
+    g.add_argument("--horizon-mm", type=float, help="look-ahead horizon, mm of path")
+    g.add_argument("--work-offset", help='work zero in machine coords "x,y,z" (mm) or "controller"')
+    g.add_argument("--feed-hold", action="store_true", default=None,
+                   help="hold the feed when a finding is predicted (off unless given)")
+
+
+def job_from_args(args, job_path: str | Path | None = None) -> Job:
+    """Load ``job_path`` (if any) and apply the flags in ``args`` over it."""
+    job = load_job(job_path) if job_path else Job()
+    ctx = _Ctx("command line", Path("."))
+    g = lambda name: getattr(args, name, None)  # noqa: E731
+    if g("program"):
+        job.program = ctx.path(g("program"), "--program")
+    if g("dialect"):
+        job.dialect = g("dialect")
+    if g("controller"):
+        job.controller = g("controller")
+    if g("stock"):
+        job.stock = parse_solid_spec(g("stock"), "--stock")
+    if g("fixture"):
+        job.fixtures = [parse_solid_spec(s, "--fixture") for s in g("fixture")]
+    if g("tool"):
+        job.default_tool = ToolDef(0, _spec(_Ctx("--tool", Path(".")), g("tool"), "value"))
+        job.tools = {}
+    if g("tool_table"):
+        job.tool_table = ctx.path(g("tool_table"), "--tool-table")
+    if g("design"):
+        spec = g("design")
+        job.design = parse_solid_spec(spec if ":" in spec and not spec.lower().endswith(".stl")
+                                      else f"stl:{spec}", "--design")
+    if g("resolution") is not None:
+        job.resolution = ctx.positive(g("resolution"), "--resolution")
+    if g("gouge_tol") is not None:
+        job.tolerance = dataclasses.replace(job.tolerance, gouge=ctx.positive(g("gouge_tol"), "--gouge-tol"))
+    if g("horizon") is not None:
+        job.horizon_s = ctx.positive(g("horizon"), "--horizon", "s")
+    if g("horizon_mm") is not None:
+        job.horizon_mm = ctx.positive(g("horizon_mm"), "--horizon-mm")
+    if g("work_offset"):
+        v = g("work_offset")
+        job.work_offset = None if v == "controller" else ctx.numbers(v, 3, "--work-offset", 'mm, or "controller"')
+    if g("feed_hold"):
+        job.alerts = tuple(dict.fromkeys(job.alerts + ("feed_hold",)))
+    return job
+
+
+def require(job: Job, *what: str) -> None:
+    """Raise a clear error when the job lacks a piece the command needs."""
+    flags = {"program": "--program", "stock": "--stock", "controller": "--controller"}
+    for w in what:
+        if getattr(job, w) is None:
+            where = str(job.source) if job.source else "command line"
+            raise JobError(f"no {w}: give [{w}] in the job file or {flags.get(w, '--' + w)}", where)
+    if "tools" in what and not job.tools and job.default_tool is None and job.tool_table is None:
+        raise JobError("no tool: give [tools] in the job file or --tool", str(job.source or "command line"))

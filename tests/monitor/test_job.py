@@ -1,0 +1,158 @@
+"""Job file: every table parsed, errors name file/key/expected, flags override the file."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+
+from monitor.job import Job, JobError, add_job_arguments, job_from_args, load_job, parse_job_text, require
+
+FULL = """
+work_offset = [-200, -100, -50]
+resolution = 0.2
+
+[controller]
+url = "grbl+socket://127.0.0.1:2000"
+poll_hz = 25
+
+[program]
+path = "part.nc"
+dialect = "grbl"
+
+[stock]
+box = [0, 0, 0, 60, 40, 20]
+
+[[fixtures]]
+name = "clamp"
+box = [-5, 15, 20, 15, 25, 28]
+
+[[fixtures]]
+stl = "vise.stl"
+offset = [1, 2, 3]
+
+[tools]
+table = "tools.tbl"
+1 = "flat:6:L=20"
+[tools.2]
+spec = "ball:6:L=20"
+shank = [6, 30]
+holder = [25, 40]
+
+[design]
+stl = "design.stl"
+
+[tolerance]
+gouge = 0.05
+interest = 2
+
+[limits]
+x = [-300, 0]
+z = [-100, 0]
+
+[lookahead]
+seconds = 3
+mm = 80
+
+[alerts]
+actions = ["log", "bell", "feed_hold"]
+"""
+
+
+@pytest.fixture
+def job_dir(tmp_path):
+    for name in ("part.nc", "vise.stl", "tools.tbl", "design.stl", "stock.stl"):
+        (tmp_path / name).write_text("x")
+    (tmp_path / "job.toml").write_text(FULL)
+    return tmp_path
+
+
+def test_full_job(job_dir):
+    job = load_job(job_dir / "job.toml")
+    assert job.controller == "grbl+socket://127.0.0.1:2000" and job.poll_hz == 25
+    assert job.program == job_dir / "part.nc" and job.dialect == "grbl"
+    assert job.work_offset == (-200, -100, -50)
+    assert job.stock.kind == "box" and job.stock.bounds() == ((0, 0, 0), (60, 40, 20))
+    assert [f.kind for f in job.fixtures] == ["box", "stl"]
+    assert job.fixtures[0].name == "clamp" and job.fixtures[1].offset == (1, 2, 3)
+    assert job.fixtures[1].stl == job_dir / "vise.stl"
+    assert job.tool_table == job_dir / "tools.tbl"
+    assert job.tool(1).spec == "flat:6:L=20" and job.tool(2).shank == (6, 30) and job.tool(2).holder == (25, 40)
+    assert job.tool(3) is None
+    assert job.design.stl == job_dir / "design.stl"
+    assert job.resolution == 0.2
+    assert job.tolerance.gouge == 0.05 and job.tolerance.interest == 2
+    assert job.limits == {"x": (-300, 0), "z": (-100, 0)}
+    assert job.horizon_s == 3 and job.horizon_mm == 80
+    assert job.feed_hold and job.text == FULL
+
+
+@pytest.mark.parametrize("text, message", [
+    ('[stock]\nbox = "abc"', r'job.toml: \[stock\] box: expected 6 numbers \(mm.*got "abc"'),
+    ('[stock]\nbox = [0, 0, 0, 1, 1]', r"\[stock\] box: expected 6 numbers"),
+    ('[stock]\nbox = [0, 0, 5, 1, 1, 1]', r"\[stock\] box: expected x0 < x1"),
+    ('[stock]\nbox = [0,0,0,1,1,1]\ncylinder = [0,0,1,0,1]', r"\[stock\]: expected exactly one of"),
+    ('[stock]\nsphere = 3', r"\[stock\]: unknown key 'sphere'"),
+    ('resolution = -1', r"resolution: expected a positive number \(mm\), got -1"),
+    ('resolution = true', r"resolution: expected a positive number"),
+    ('[controller]\nurl = "ttyUSB0"', r"\[controller\] url: expected a controller URL"),
+    ('[program]\npath = "missing.nc"', r"\[program\] path: file .*missing.nc.* not found"),
+    ('[program]\ndialect = "fanuc"', r"\[program\] dialect: expected linuxcnc or grbl"),
+    ('[tools]\n1 = "ball"', r'\[tools\] 1: expected a tool spec'),
+    ('[tools]\n[tools.2]\nspec = "ball:6"\nshank = [6]', r"\[tools\] 2 shank: expected 2 numbers"),
+    ('[tools]\nfoo = 1', r"\[tools\]: unknown key 'foo'"),
+    ('[limits]\nx = [5, 1]', r"\[limits\] x: expected min < max"),
+    ('[limits]\nw = [0, 1]', r"\[limits\]: unknown key 'w'"),
+    ('[alerts]\nactions = ["siren"]', r"\[alerts\] actions: expected a list of log, bell, feed_hold"),
+    ('[lookahead]\nseconds = 0', r"\[lookahead\] seconds: expected a positive number \(s\)"),
+    ('work_offset = "here"', r'work_offset: expected 3 numbers \(mm, or "controller"\), got "here"'),
+    ('stock = [', r"job.toml: not valid TOML"),
+    ('colour = 1', r"top level: unknown key 'colour'"),
+])
+def test_errors_name_key_and_expectation(tmp_path, text, message):
+    with pytest.raises(JobError, match=message):
+        parse_job_text(text, "job.toml", tmp_path)
+
+
+def test_work_offset_from_controller_and_cylinder(tmp_path):
+    job = parse_job_text('work_offset = "controller"\n[stock]\ncylinder = [10, 10, 5, 0, 20]', "j", tmp_path)
+    assert job.work_offset is None
+    assert job.stock.bounds() == ((5, 5, 0), (15, 15, 20))
+
+
+def _args(argv):
+    p = argparse.ArgumentParser()
+    add_job_arguments(p)
+    return p.parse_args(argv)
+
+
+def test_flags_override_file(job_dir):
+    args = _args(["--stock", "box:0,0,0,10,10,10", "--tool", "bull:8:1", "--resolution", "0.5",
+                  "--horizon", "7", "--gouge-tol", "0.1", "--work-offset", "controller"])
+    job = job_from_args(args, job_dir / "job.toml")
+    assert job.stock.box == (0, 0, 0, 10, 10, 10)
+    assert job.tool(1).spec == "bull:8:1" and job.tool(99).spec == "bull:8:1"
+    assert job.resolution == 0.5 and job.horizon_s == 7 and job.tolerance.gouge == 0.1
+    assert job.work_offset is None
+    assert job.program == job_dir / "part.nc"  # kept from the file
+
+
+def test_job_from_flags_alone(job_dir):
+    args = _args(["--program", str(job_dir / "part.nc"), "--stock", "cylinder:0,0,10,0,5",
+                  "--tool", "flat:6", "--design", str(job_dir / "design.stl"), "--feed-hold"])
+    job = job_from_args(args)
+    assert job.source is None and job.program == job_dir / "part.nc"
+    assert job.stock.kind == "cylinder" and job.design.kind == "stl" and job.feed_hold
+    require(job, "program", "stock", "tools")
+    with pytest.raises(JobError, match="no controller: give \\[controller\\] in the job file or --controller"):
+        require(job, "controller")
+
+
+def test_bad_flag_names_flag():
+    with pytest.raises(JobError, match=r'--stock: box: expected 6 numbers .*got "1,2"'):
+        job_from_args(_args(["--stock", "box:1,2"]))
+    with pytest.raises(JobError, match=r"--stock: expected box:"):
+        job_from_args(_args(["--stock", "sphere:3"]))
+    with pytest.raises(JobError, match="job file not found"):
+        job_from_args(_args([]), "nope.toml")
+    assert isinstance(job_from_args(_args([])), Job)
