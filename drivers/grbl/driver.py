@@ -1,0 +1,731 @@
+"""GRBL 1.1 driver over any pyserial port: device, pseudo-terminal or ``socket://``.
+
+A reader thread stamps every received line with ``time.monotonic()`` as its bytes
+arrive, parses it (:mod:`drivers.grbl.protocol`) and routes it: status reports become
+:class:`MachineState`, ``ok``/``error:N`` acknowledge the oldest line in flight, pushes
+(``ALARM:N``, ``[MSG:]``, banner ...) are recorded. When the port vanishes the reader
+reconnects with backoff; meanwhile :meth:`GrblController.poll` returns DISCONNECTED
+states and the gap is recorded in :attr:`GrblController.gaps`.
+
+URLs (see :func:`from_url`)::
+
+    grbl:///dev/ttyUSB0?baud=115200&rate=20     serial device (or pty path)
+    grbl+pty:///dev/pts/5                         pseudo-terminal
+    grbl+socket://127.0.0.1:2323?rate=50          TCP (pyserial socket://)
+    grbl+rfc2217://host:port                      any other pyserial URL scheme
+
+Query parameters: ``baud`` (115200), ``rate`` (status polls per second, 20, at most
+50), ``timeout`` (s to wait for a reply, 2), ``reset`` (1: soft reset on connect unless
+the machine is moving; 0: never), ``reconnect`` (1).
+"""
+
+from __future__ import annotations
+
+import collections
+import select
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Callable, Iterable, Iterator
+from urllib.parse import parse_qsl, urlsplit
+
+import serial
+
+from drivers.errors import ConnectionLost, DriverError, ProtocolError
+from drivers.grbl import protocol as p
+from drivers.state import Controller, MachineState, RunState
+
+MAX_RATE_HZ = 50.0
+DEFAULT_RATE_HZ = 20.0
+_MOVING = (RunState.RUN, RunState.HOLD, RunState.JOG, RunState.HOME)
+
+
+class GrblError(DriverError):
+    """GRBL refused a line with ``error:N``."""
+
+    def __init__(self, line: str, code: int):
+        self.line = line
+        self.code = code
+        self.meaning = p.ERROR_MEANINGS.get(code, f"unknown error code {code}")
+        super().__init__(f"GRBL refused {line!r}: error:{code} ({self.meaning})")
+
+
+class GrblAlarm(DriverError):
+    """The controller entered the alarm state (``ALARM:N``)."""
+
+    def __init__(self, code: int, where: str = ""):
+        self.code = code
+        self.meaning = p.ALARM_MEANINGS.get(code, f"unknown alarm code {code}")
+        super().__init__(f"GRBL ALARM:{code} ({self.meaning}){' ' + where if where else ''}")
+
+
+class Command:
+    """One line in GRBL's RX buffer awaiting its ``ok``/``error:N``.
+
+    ``replies`` collects the lines GRBL printed before the acknowledgement (``$$``
+    settings, ``[GC:...]`` ...). ``t_sent``/``t_done`` are ``time.monotonic()`` seconds.
+    """
+
+    __slots__ = ("text", "nbytes", "t_sent", "t_done", "replies", "result", "failure", "_done", "index")
+
+    def __init__(self, text: str, index: int | None = None):
+        self.text = text
+        self.nbytes = len(text) + 1
+        self.index = index
+        self.t_sent = 0.0
+        self.t_done = 0.0
+        self.replies: list[p.Message] = []
+        self.result: p.Message | None = None
+        self.failure: DriverError | None = None
+        self._done = threading.Event()
+
+    @property
+    def done(self) -> bool:
+        return self._done.is_set()
+
+    def wait(self, timeout: float | None = None) -> list[p.Message]:
+        """Wait for the acknowledgement; return the replies, raise GrblError on ``error:N``."""
+        if not self._done.wait(timeout):
+            raise DriverError(f"GRBL: no reply to {self.text!r} within {timeout:g} s")
+        if self.failure is not None:
+            raise self.failure
+        if isinstance(self.result, p.Error):
+            raise GrblError(self.text, self.result.code)
+        return self.replies
+
+    def _finish(self, result: p.Message | None, failure: DriverError | None, t: float) -> None:
+        self.result, self.failure, self.t_done = result, failure, t
+        self._done.set()
+
+
+@dataclass
+class StreamResult:
+    """What happened to a streamed program.
+
+    ``errors``: (index in ``lines``, line text, error code, meaning) per refused line.
+    ``stopped``: why the stream stopped early (alarm, reset, connection lost) or None.
+    """
+
+    sent: int = 0
+    acked: int = 0
+    errors: list[tuple[int, str, int, str]] = field(default_factory=list)
+    alarm: int | None = None
+    stopped: str | None = None
+    t_start: float = 0.0
+    t_end: float = 0.0
+
+    @property
+    def completed(self) -> bool:
+        return self.stopped is None
+
+
+@dataclass(frozen=True)
+class Gap:
+    """A time the port was away: ``t_lost``/``t_back`` monotonic seconds, and why."""
+
+    t_lost: float
+    t_back: float
+    reason: str
+    polls_missed: int = 0
+    lines_lost: int = 0
+
+    def __iter__(self):  # unpacks as (t_lost, t_back)
+        return iter((self.t_lost, self.t_back))
+
+
+class GrblController(Controller):
+    """A GRBL 1.1 controller on a pyserial port.
+
+    Parameters
+    ----------
+    port : str
+        pyserial port name or URL (``/dev/ttyUSB0``, ``socket://host:port`` ...).
+    baud : int
+    rate : float
+        Status polls per second for :meth:`states` (default 20, at most 50).
+    timeout : float
+        Seconds to wait for a reply or the banner.
+    reset_on_connect : bool
+        Soft-reset (Ctrl-X) during the handshake, unless a status report shows the
+        machine moving (a reset in motion would lose position: ALARM:3).
+    reconnect : bool
+        Reopen the port with backoff when it vanishes.
+    """
+
+    def __init__(self, port: str, baud: int = 115200, rate: float = DEFAULT_RATE_HZ, timeout: float = 2.0,
+                 reset_on_connect: bool = True, reconnect: bool = True, url: str | None = None,
+                 backoff: tuple[float, float] = (0.05, 2.0)):
+        if not 0 < rate <= MAX_RATE_HZ:
+            raise DriverError(f"GRBL {port}: rate must be in (0, {MAX_RATE_HZ:g}] polls/s, got {rate:g}")
+        self.port = port
+        self.url = url or port
+        self.baud = int(baud)
+        self.rate = float(rate)
+        self.timeout = float(timeout)
+        self.reset_on_connect = reset_on_connect
+        self.reconnect = reconnect
+        self.backoff = backoff
+        self.rx_size = p.RX_BUFFER_SIZE
+        self.planner_blocks: int | None = None
+        # learned from the controller
+        self.settings: dict[int, float] = {}
+        self.offsets: dict[str, tuple[float, ...]] = {}
+        self.parser_state: p.ParserState | None = None
+        self.version: p.Version | None = None
+        self.options: p.Options | None = None
+        self.banner: p.Banner | None = None
+        self.probe: p.Probe | None = None
+        # records of the run
+        self.messages: collections.deque[tuple[float, p.Message]] = collections.deque(maxlen=1000)
+        self.garbage: collections.deque[tuple[float, str, str]] = collections.deque(maxlen=200)
+        self.alarms: list[tuple[float, int]] = []
+        self.gaps: list[Gap] = []
+        self.unexpected_acks = 0
+        self.on_state: Callable[[MachineState], None] | None = None
+        self.on_message: Callable[[float, p.Message], None] | None = None
+        # machinery
+        self._ser = None
+        self._asm = p.LineAssembler()
+        self._cond = threading.Condition()
+        self._write_lock = threading.Lock()
+        self._pending: collections.deque[Command] = collections.deque()
+        self._in_flight = 0
+        self._state: MachineState | None = None
+        self._status_seq = 0
+        self._banner_seq = 0
+        self._alarm: int | None = None
+        self._alarm_seq = 0
+        self._connected = False
+        self._closing = threading.Event()
+        self._reader: threading.Thread | None = None
+        self._t_lost: float | None = None
+        self._lost_reason = ""
+        self._polls_missed = 0
+        self._lines_lost = 0
+
+    # ------------------------------------------------------------------ connection
+
+    def _open_port(self):
+        try:
+            ser = serial.serial_for_url(self.port, baudrate=self.baud, timeout=0, write_timeout=self.timeout)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise ConnectionLost(f"GRBL: cannot open {self.port!r}: {exc}") from exc
+        return ser
+
+    def connect(self) -> None:
+        """Open the port, start the reader and do the handshake.
+
+        Handshake: wait for a banner or a status report (``?``), soft reset unless the
+        machine is moving, then ``$I``, ``$$``, ``$#``, ``$G``.
+        """
+        if self._reader is not None:
+            return
+        self._closing.clear()
+        self._ser = self._open_port()
+        self._connected = True
+        self._reader = threading.Thread(target=self._read_loop, name=f"grbl-reader {self.port}", daemon=True)
+        self._reader.start()
+        try:
+            self._handshake()
+        except BaseException:
+            self.close()
+            raise
+
+    def _handshake(self) -> None:
+        deadline = time.monotonic() + self.timeout
+        with self._cond:
+            seq0, b0 = self._status_seq, self._banner_seq
+        # an Arduino resets when its port opens: the banner comes ~1.1 s later; a running
+        # controller answers '?' at once
+        while True:
+            self.write_realtime(p.RT_STATUS)
+            with self._cond:
+                self._cond.wait_for(lambda: self._status_seq > seq0 or self._banner_seq > b0, 0.25)
+                answered = self._status_seq > seq0 or self._banner_seq > b0
+            if answered:
+                break
+            if time.monotonic() > deadline:
+                raise DriverError(
+                    f"GRBL {self.port}: no status report or banner within {self.timeout:g} s "
+                    f"(is a GRBL 1.1 controller there at {self.baud} baud?)"
+                )
+        state = self._state
+        moving = state is not None and state.state in _MOVING
+        if self.reset_on_connect and not moving:
+            self.soft_reset(wait=True)
+        for query in ("$I", "$$", "$#", "$G"):
+            try:
+                self.command(query)
+            except GrblError as exc:
+                # e.g. error:8 while a job runs: keep going with what we know
+                self.messages.append((time.monotonic(), p.Feedback(str(exc), "dexmon", str(exc))))
+        self.poll()
+
+    def close(self) -> None:
+        self._closing.set()
+        reader, self._reader = self._reader, None
+        ser = self._ser
+        if ser is not None:
+            try:
+                ser.close()
+            except Exception:  # noqa: BLE001 - closing a port that may be half gone
+                pass
+        if reader is not None and reader is not threading.current_thread():
+            reader.join(2.0)
+        with self._cond:
+            self._connected = False
+            self._fail_pending(ConnectionLost(f"GRBL {self.port}: closed"))
+            self._cond.notify_all()
+
+    @property
+    def connected(self) -> bool:
+        return self._connected
+
+    # ------------------------------------------------------------------ reader
+
+    def _read_loop(self) -> None:
+        while not self._closing.is_set():
+            ser = self._ser
+            try:
+                data = _read_some(ser, 0.05)
+            except Exception as exc:  # noqa: BLE001 - any failure of the port means it is gone
+                if self._closing.is_set():
+                    return
+                self._lost(f"{type(exc).__name__}: {exc}")
+                if not self.reconnect or not self._reconnect_loop():
+                    return
+                continue
+            if not data:
+                continue
+            t = time.monotonic()
+            for line in self._asm.feed(data):
+                self._handle_line(line, t)
+
+    def _handle_line(self, line: str, t: float) -> None:
+        try:
+            msg = p.parse_line(line)
+        except ProtocolError as exc:
+            self.garbage.append((t, line, str(exc)))
+            return
+        if isinstance(msg, p.StatusReport):
+            self._on_status(msg, t)
+            return
+        self.messages.append((t, msg))
+        with self._cond:
+            if isinstance(msg, (p.Ok, p.Error)):
+                if self._pending:
+                    cmd = self._pending.popleft()
+                    self._in_flight -= cmd.nbytes
+                    cmd._finish(msg, None, t)
+                else:
+                    self.unexpected_acks += 1
+            elif isinstance(msg, p.Alarm):
+                self._alarm = msg.code
+                self._alarm_seq += 1
+                self.alarms.append((t, msg.code))
+            elif isinstance(msg, p.Banner):
+                # a reset flushes GRBL's RX buffer and planner: lines in flight are gone
+                self.banner = msg
+                self._banner_seq += 1
+                self._fail_pending(DriverError(f"GRBL {self.port}: controller reset ({msg.raw})"))
+            else:
+                if self._pending:
+                    self._pending[0].replies.append(msg)
+                if isinstance(msg, p.Setting):
+                    self.settings[msg.number] = msg.value
+                elif isinstance(msg, p.Offset):
+                    self.offsets[msg.name] = msg.values
+                elif isinstance(msg, p.ParserState):
+                    self.parser_state = msg
+                elif isinstance(msg, p.Version):
+                    self.version = msg
+                elif isinstance(msg, p.Options):
+                    self.options = msg
+                    if msg.rx_size:
+                        self.rx_size = msg.rx_size
+                    if msg.blocks:
+                        self.planner_blocks = msg.blocks
+                elif isinstance(msg, p.Probe):
+                    self.probe = msg
+            self._cond.notify_all()
+        if self.on_message is not None:
+            self.on_message(t, msg)
+
+    def _on_status(self, report: p.StatusReport, t: float) -> None:
+        prev = self._state
+        state = p.status_to_state(report, self.settings, prev.wco if prev else None, t, prev=prev, alarm=self._alarm)
+        with self._cond:
+            self._state = state
+            self._status_seq += 1
+            self._cond.notify_all()
+        if self.on_state is not None:
+            self.on_state(state)
+
+    def _fail_pending(self, failure: DriverError) -> None:
+        t = time.monotonic()
+        while self._pending:
+            self._pending.popleft()._finish(None, failure, t)
+        self._in_flight = 0
+
+    # ------------------------------------------------------------------ reconnect
+
+    def _lost(self, reason: str) -> None:
+        t = time.monotonic()
+        with self._cond:
+            self._connected = False
+            self._t_lost = t
+            self._lost_reason = reason
+            self._polls_missed = 0
+            self._lines_lost = len(self._pending)
+            self._fail_pending(ConnectionLost(f"GRBL {self.port}: connection lost ({reason})"))
+            self._cond.notify_all()
+        try:
+            self._ser.close()
+        except Exception:  # noqa: BLE001
+            pass
+        self._asm.reset()
+
+    def _reconnect_loop(self) -> bool:
+        delay, max_delay = self.backoff
+        while not self._closing.is_set():
+            try:
+                ser = self._open_port()
+            except ConnectionLost:
+                if self._closing.wait(delay):  # backoff pacing, interruptible by close()
+                    return False
+                delay = min(max_delay, delay * 2)
+                continue
+            with self._cond:
+                self._ser = ser
+                self._connected = True
+                self.gaps.append(Gap(self._t_lost, time.monotonic(), self._lost_reason,
+                                     self._polls_missed, self._lines_lost))
+                self._cond.notify_all()
+            return True
+        return False
+
+    # ------------------------------------------------------------------ writing
+
+    def _write(self, data: bytes) -> None:
+        if not self._connected:
+            raise ConnectionLost(f"GRBL {self.port}: not connected")
+        try:
+            with self._write_lock:
+                self._ser.write(data)
+        except Exception as exc:  # noqa: BLE001 - the reader notices and reconnects
+            raise ConnectionLost(f"GRBL {self.port}: write failed ({exc})") from exc
+
+    def write_realtime(self, byte: bytes) -> None:
+        """Send one real-time byte (``?`` ``!`` ``~`` 0x18, overrides); GRBL acts at once."""
+        if len(byte) != 1 or byte[0] not in p.REALTIME_BYTES:
+            raise ValueError(f"not a GRBL real-time byte: {byte!r}")
+        self._write(byte)
+
+    def send(self, line: str, index: int | None = None, block: bool = True) -> Command:
+        """Send one line under the character-counting protocol and return its :class:`Command`.
+
+        Waits (up to ``timeout``) until the unacknowledged bytes plus this line fit in
+        GRBL's RX buffer (``rx_size - 1`` bytes). Does not wait for the ``ok``.
+        """
+        text = line.strip()
+        try:
+            data = (text + "\n").encode("ascii")
+        except UnicodeEncodeError:
+            raise DriverError(f"GRBL: line {text!r} is not ASCII") from None
+        if len(data) > self.rx_size - 1:
+            raise DriverError(f"GRBL: line {text!r} is {len(data)} bytes with newline; at most {self.rx_size - 1}")
+        cmd = Command(text, index)
+        with self._cond:
+            ok = self._cond.wait_for(
+                lambda: not self._connected or self._in_flight + cmd.nbytes <= self.rx_size - 1,
+                self.timeout if block else 0,
+            )
+            if not self._connected:
+                raise ConnectionLost(f"GRBL {self.port}: not connected; {text!r} not sent")
+            if not ok:
+                raise DriverError(f"GRBL: RX buffer still full after {self.timeout:g} s; {text!r} not sent")
+            cmd.t_sent = time.monotonic()
+            self._pending.append(cmd)
+            self._in_flight += cmd.nbytes
+            try:
+                self._write(data)
+            except ConnectionLost:
+                self._pending.remove(cmd)
+                self._in_flight -= cmd.nbytes
+                raise
+        return cmd
+
+    def command(self, line: str, timeout: float | None = None) -> list[p.Message]:
+        """Send a line, wait for its ``ok`` and return the replies before it (raises GrblError)."""
+        return self.send(line).wait(self.timeout if timeout is None else timeout)
+
+    def stream(self, lines: Iterable[str], mode: str = "counting", timeout: float | None = None,
+               on_ack: Callable[[Command], None] | None = None) -> StreamResult:
+        """Stream a program; return what happened.
+
+        ``mode`` ``"counting"`` keeps the RX buffer full (sum of unacknowledged line
+        lengths ≤ ``rx_size - 1``); ``"send-response"`` sends a line only after the
+        previous one was acknowledged. Blank and comment-only lines and ``%`` are not sent.
+        Refused lines (``error:N``) are recorded and the stream goes on (as UGS does);
+        an ``ALARM``, a reset or a lost connection stop it. ``timeout`` bounds the wait
+        for each acknowledgement (a motion line's ``ok`` waits for planner room).
+        """
+        if mode not in ("counting", "send-response"):
+            raise ValueError(f"stream mode must be 'counting' or 'send-response', got {mode!r}")
+        wait = max(self.timeout, 30.0) if timeout is None else timeout
+        res = StreamResult(t_start=time.monotonic())
+        with self._cond:
+            alarm0, banner0 = self._alarm_seq, self._banner_seq
+        sent: list[Command] = []
+
+        def collect(upto: int) -> None:
+            # account acknowledgements of sent[:upto] in order
+            while res.acked < upto and sent[res.acked].done:
+                cmd = sent[res.acked]
+                if cmd.failure is None:
+                    res.acked += 1
+                    if isinstance(cmd.result, p.Error):
+                        res.errors.append((cmd.index, cmd.text, cmd.result.code, p.ERROR_MEANINGS.get(cmd.result.code, "")))
+                    if on_ack is not None:
+                        on_ack(cmd)
+                else:
+                    return
+
+        def interrupted() -> str | None:
+            if self._alarm_seq != alarm0:
+                res.alarm = self._alarm
+                return f"ALARM:{self._alarm}"
+            if self._banner_seq != banner0:
+                return "controller reset"
+            if not self._connected:
+                return "connection lost"
+            return None
+
+        for index, raw in enumerate(lines):
+            text = _clean_line(raw)
+            if not text:
+                continue
+            cmd = Command(text, index)
+            if len(text) + 1 > self.rx_size - 1:
+                raise DriverError(f"GRBL: program line {index + 1} is {len(text) + 1} bytes; at most {self.rx_size - 1}")
+            with self._cond:
+                ok = self._cond.wait_for(
+                    lambda: interrupted() is not None
+                    or (self._in_flight + cmd.nbytes <= self.rx_size - 1
+                        and (mode == "counting" or not self._pending)),
+                    wait,
+                )
+                why = interrupted()
+            if why is not None:
+                res.stopped = why
+                break
+            if not ok:
+                res.stopped = f"no acknowledgement within {wait:g} s"
+                break
+            try:
+                sent.append(self.send(text, index))
+            except DriverError as exc:
+                res.stopped = str(exc)
+                break
+            res.sent += 1
+            collect(len(sent))
+        if res.stopped is None:
+            with self._cond:
+                self._cond.wait_for(lambda: interrupted() is not None or all(c.done for c in sent), wait)
+                why = interrupted()
+            if why is not None:
+                res.stopped = why
+            elif not all(c.done for c in sent):
+                res.stopped = f"no acknowledgement within {wait:g} s"
+        collect(len(sent))
+        res.t_end = time.monotonic()
+        return res
+
+    # ------------------------------------------------------------------ state
+
+    @property
+    def last_state(self) -> MachineState | None:
+        return self._state
+
+    def poll(self, timeout: float | None = None) -> MachineState:
+        """Ask ``?`` and return the report it brings, stamped at arrival.
+
+        While the port is away: a DISCONNECTED state at the last known position. When no
+        report comes (GRBL does not answer during homing): the last state, unchanged.
+        """
+        timeout = min(self.timeout, 0.5) if timeout is None else timeout
+        with self._cond:
+            seq = self._status_seq
+            connected = self._connected
+        if connected:
+            try:
+                self._write(p.RT_STATUS)
+            except ConnectionLost:
+                connected = False
+        if not connected:
+            self._polls_missed += 1
+            return self._disconnected_state()
+        with self._cond:
+            got = self._cond.wait_for(lambda: self._status_seq > seq or not self._connected, timeout)
+            state = self._state
+            if not self._connected:
+                self._polls_missed += 1
+                return self._disconnected_state()
+        if state is None:
+            raise DriverError(f"GRBL {self.port}: no status report within {timeout:g} s")
+        if not got:
+            self._polls_missed += 1
+        return state
+
+    def _disconnected_state(self) -> MachineState:
+        last = self._state
+        t = time.monotonic()
+        if last is None:
+            return MachineState(t=t, mpos=(0.0,) * 6, state=RunState.DISCONNECTED, raw="port lost")
+        return MachineState(t=t, mpos=last.mpos, wco=last.wco, state=RunState.DISCONNECTED,
+                            overrides=last.overrides, line=last.line, raw=f"port lost: {self._lost_reason}")
+
+    def states(self, period: float | None = None) -> Iterator[MachineState]:
+        """Yield a polled state every ``period`` s (default ``1/rate``) until closed."""
+        period = 1.0 / self.rate if period is None else max(float(period), 1.0 / MAX_RATE_HZ)
+        next_t = time.monotonic()
+        while not self._closing.is_set():
+            yield self.poll()
+            next_t += period
+            delay = next_t - time.monotonic()
+            if delay > 0:
+                self._closing.wait(delay)  # pacing the poll loop
+            else:
+                next_t = time.monotonic()
+
+    def wait_for_state(self, predicate: Callable[[MachineState], bool], timeout: float) -> MachineState:
+        """Poll until ``predicate(state)`` holds; return that state (DriverError on timeout)."""
+        deadline = time.monotonic() + timeout
+        period = 1.0 / MAX_RATE_HZ
+        while True:
+            s = self.poll()
+            if predicate(s):
+                return s
+            if time.monotonic() > deadline:
+                raise DriverError(f"GRBL {self.port}: state {s.state.value} did not reach the expected one "
+                                  f"within {timeout:g} s")
+            self._closing.wait(period)
+
+    # ------------------------------------------------------------------ real-time commands
+
+    def feed_hold(self) -> None:
+        self.write_realtime(p.RT_FEED_HOLD)
+
+    def resume(self) -> None:
+        self.write_realtime(p.RT_CYCLE_START)
+
+    def soft_reset(self, wait: bool = True) -> p.Banner | None:
+        """Ctrl-X: GRBL stops at once (ALARM:3 if moving) and prints its banner."""
+        with self._cond:
+            b0 = self._banner_seq
+        self.write_realtime(p.RT_SOFT_RESET)
+        if not wait:
+            return None
+        with self._cond:
+            if not self._cond.wait_for(lambda: self._banner_seq > b0, self.timeout):
+                raise DriverError(f"GRBL {self.port}: no banner within {self.timeout:g} s after soft reset "
+                                  f"(is it a GRBL 1.1 controller at {self.baud} baud?)")
+        return self.banner
+
+    def unlock(self) -> None:
+        """``$X``: leave the alarm state."""
+        self.command("$X")
+
+    def _set_override(self, kind: str, target: int) -> int:
+        idx = {"feed": 0, "rapid": 1, "spindle": 2}[kind]
+        state = self.poll()
+        current = state.overrides[idx]
+        for byte in p.override_steps(current, target, kind):
+            before = current
+            self.write_realtime(byte)
+            # identical override bytes in one burst may count once: wait until each shows
+            deadline = time.monotonic() + 0.5
+            while time.monotonic() < deadline:
+                current = self.poll().overrides[idx]
+                if current != before:
+                    break
+        return current
+
+    def set_feed_override(self, percent: int) -> int:
+        """Bring the feed override to ``percent`` (10..200); returns the value GRBL reports."""
+        return self._set_override("feed", percent)
+
+    def set_rapid_override(self, percent: int) -> int:
+        """Rapid override 100, 50 or 25 %."""
+        return self._set_override("rapid", percent)
+
+    def set_spindle_override(self, percent: int) -> int:
+        """Spindle override 10..200 %."""
+        return self._set_override("spindle", percent)
+
+
+def _read_some(ser, wait: float) -> bytes:
+    """Bytes available on ``ser`` within ``wait`` s (b"" when none); raises when the port is gone."""
+    if ser is None or not ser.is_open:
+        raise ConnectionLost("port closed")
+    try:
+        fd = ser.fileno()
+    except Exception:  # noqa: BLE001 - URL handlers without a descriptor (loop://)
+        fd = None
+    if fd is None:
+        ser.timeout = wait
+        data = ser.read(1)
+        ser.timeout = 0
+        return data + ser.read(4096) if data else data
+    ready, _, _ = select.select([fd], [], [], wait)
+    if not ready:
+        return b""
+    data = ser.read(4096)
+    if not data:
+        raise ConnectionLost("port readable but returned no data (device disconnected)")
+    return data
+
+
+def _clean_line(raw: str) -> str:
+    text = raw.strip()
+    if not text or text.startswith("%") or text.startswith(";"):
+        return ""
+    if text.startswith("(") and text.endswith(")") and text.count("(") == 1:
+        return ""
+    return text
+
+
+def from_url(url: str) -> GrblController:
+    """A :class:`GrblController` for ``url`` (not connected). See the module docstring."""
+    parts = urlsplit(url)
+    scheme = parts.scheme
+    params = dict(parse_qsl(parts.query, keep_blank_values=True))
+    if scheme in ("grbl", "grbl+pty"):
+        port = parts.path if not parts.netloc else parts.netloc + parts.path
+        if not port:
+            raise DriverError(f"controller URL {url!r}: expected a device path, e.g. grbl:///dev/ttyUSB0")
+    elif scheme.startswith("grbl+"):
+        inner = scheme[5:]
+        port = f"{inner}://{parts.netloc}{parts.path}"
+        if not parts.netloc:
+            raise DriverError(f"controller URL {url!r}: expected host:port, e.g. grbl+socket://127.0.0.1:2323")
+    else:
+        raise DriverError(f"controller URL {url!r}: not a GRBL URL (grbl://, grbl+socket://, grbl+pty://)")
+    known = {"baud": int, "rate": float, "timeout": float, "reset": int, "reconnect": int}
+    kw = {}
+    for key, value in params.items():
+        if key not in known:
+            raise DriverError(f"controller URL {url!r}: unknown parameter {key!r}; expected one of {', '.join(known)}")
+        try:
+            kw[key] = known[key](value)
+        except ValueError:
+            raise DriverError(f"controller URL {url!r}: parameter {key}={value!r} is not a number") from None
+    return GrblController(
+        port,
+        baud=kw.get("baud", 115200),
+        rate=kw.get("rate", DEFAULT_RATE_HZ),
+        timeout=kw.get("timeout", 2.0),
+        reset_on_connect=bool(kw.get("reset", 1)),
+        reconnect=bool(kw.get("reconnect", 1)),
+        url=url,
+    )
