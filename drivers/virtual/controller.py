@@ -1,0 +1,259 @@
+"""``VirtualController``: a whole controller in-process, executing a program on a
+:class:`~drivers.virtual.machine.VirtualMachine` in real time, N x faster, or stepped.
+
+URL form (see :mod:`drivers.registry`)::
+
+    virtual:///abs/path/job.nc?speed=10&rate=20&faults=drop:0.05,alarm=30:1&clock=sim
+    virtual://relative/job.nc?speed=4
+    virtual://?rate=50            (no program: an idle machine)
+
+Query keys: ``speed`` (simulated s per wall s, or per poll period with ``clock=sim``),
+``rate`` (poll rate, Hz), ``clock`` (``wall`` or ``sim``), ``faults`` (see
+:mod:`drivers.virtual.faults`), ``max_rate``/``accel`` (comma lists per axis, mm/min and
+mm/s^2), ``travel`` (``none`` for no soft limits, or the GRBL travel per axis, giving
+``[-travel, 0]``).
+"""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+from urllib.parse import parse_qs, unquote, urlsplit
+
+import numpy as np
+
+from drivers.errors import ConnectionLost, DriverError
+from drivers.state import Controller, MachineState, RunState
+from drivers.virtual.faults import (
+    REPLY_DROP,
+    REPLY_GARBLE,
+    REPLY_LATE,
+    FaultInjector,
+    FaultPlan,
+    ReplyDropped,
+    garbled_error,
+)
+from drivers.virtual.machine import MachineConfig, MachineLocked, VirtualMachine
+from drivers.virtual.runner import RealTimeRunner
+from sim.gcode.moves import MOVE_DTYPE
+
+
+def load_moves(program) -> tuple[np.ndarray, str]:
+    """Move table (MOVE_DTYPE) and a name from a path, a ``Program`` or a move table."""
+    if program is None:
+        from sim.gcode.moves import empty_moves
+
+        return empty_moves(0), "(no program)"
+    if isinstance(program, np.ndarray):
+        if program.dtype != MOVE_DTYPE:
+            raise DriverError(f"virtual controller: move table has dtype {program.dtype}, expected MOVE_DTYPE")
+        return program, "(move table)"
+    if isinstance(program, (str, Path)):
+        try:
+            from sim.gcode import load_program  # the one allowed drivers -> sim.gcode arrow
+        except ImportError as exc:
+            raise DriverError(f"virtual controller: G-code interpreter not available ({exc})") from exc
+        return np.asarray(load_program(program).moves), str(program)
+    moves = getattr(program, "moves", None)
+    if moves is None:
+        raise DriverError(f"virtual controller: cannot run {type(program).__name__}; expected a path, Program or move table")
+    return np.asarray(moves), getattr(program, "name", "(program)")
+
+
+class VirtualController(Controller):
+    """A controller that runs ``program`` on a simulated machine.
+
+    Parameters
+    ----------
+    program : path, ``sim.gcode`` Program, MOVE_DTYPE array, or None (idle machine)
+    speed : float, time scale (> 0)
+    rate : float, poll rate (Hz) used by :meth:`states` and, with ``clock="sim"``, the
+        simulated step of each :meth:`poll` (``speed / rate`` seconds)
+    clock : ``"wall"`` (a :class:`RealTimeRunner` thread) or ``"sim"`` (deterministic:
+        time moves only when polled)
+    config : MachineConfig
+    faults : FaultPlan, spec string or None
+    """
+
+    def __init__(self, program=None, speed: float = 1.0, rate: float = 20.0, clock: str = "wall",
+                 config: MachineConfig | None = None, faults=None, url: str = ""):
+        if clock not in ("wall", "sim"):
+            raise DriverError(f"virtual controller: clock={clock!r}; expected 'wall' or 'sim'")
+        if not speed > 0 or not rate > 0:
+            raise DriverError(f"virtual controller: speed and rate must be > 0 (got speed={speed}, rate={rate})")
+        self.moves, self.name = load_moves(program)
+        self.speed = float(speed)
+        self.rate = float(rate)
+        self.clock = clock
+        self.config = config or MachineConfig()
+        self.faults = FaultInjector(faults if isinstance(faults, FaultPlan) else FaultPlan.parse(faults))
+        self.url = url or f"virtual://{self.name}"
+        self.vm: VirtualMachine | None = None
+        self._runner: RealTimeRunner | None = None
+        self._next_row = 0
+        self._connected = False
+        self._late_wait = threading.Event()
+        self.events: list[tuple[float, str, object]] = []
+
+    # ------------------------------------------------------------------ lifecycle
+    def connect(self) -> None:
+        start = self.moves["start"][0] if len(self.moves) else None
+        self.vm = VirtualMachine(self.config, position=start)
+        self.vm.on_event = self._record
+        self._next_row = 0
+        self._connected = True
+        if self.clock == "wall":
+            self._runner = RealTimeRunner(self.vm, speed=self.speed, on_tick=self._tick).start()
+        else:
+            self._tick(self.vm)
+
+    def close(self) -> None:
+        self._connected = False
+        self._late_wait.set()
+        if self._runner is not None:
+            self._runner.stop()
+            self._runner = None
+
+    @property
+    def done(self) -> bool:
+        """True once every row was queued and the machine stands idle (or in alarm)."""
+        vm = self.vm
+        if vm is None:
+            return False
+        with vm.lock:
+            if vm.state == RunState.ALARM:
+                return True
+            return self._next_row >= len(self.moves) and not vm.busy
+
+    # ------------------------------------------------------------------ polling
+    def poll(self) -> MachineState:
+        if not self._connected or self.vm is None:
+            raise ConnectionLost(f"{self.url}: not connected")
+        vm = self.vm
+        if self._runner is not None and self._runner.error is not None:
+            raise DriverError(f"{self.url}: virtual machine stopped: {self._runner.error}")
+        if self.clock == "sim":
+            with vm.lock:
+                self._tick(vm)
+                vm.advance(self.speed / self.rate)
+        with vm.lock:
+            t = vm.time
+        if self.faults.disconnected(t):
+            raise ConnectionLost(f"{self.url}: link down (fault injection at t={self.faults.plan.disconnect:g} s)")
+        fault = self.faults.reply_fault()
+        if fault == REPLY_DROP:
+            raise ReplyDropped(f"{self.url}: no reply to the status request (fault injection)")
+        if fault == REPLY_LATE:
+            late = self.faults.plan.late_s
+            if self.clock == "sim":
+                with vm.lock:
+                    vm.advance(late * self.speed)
+            else:
+                self._late_wait.wait(late)  # the reply is late: the caller waits with it
+        with vm.lock:
+            state = vm.snapshot()
+        if fault == REPLY_GARBLE:
+            raw = self.faults.garble_bytes(_status_text(state).encode())
+            raise garbled_error(self.url, raw)
+        return state
+
+    # ------------------------------------------------------------------ commands
+    def feed_hold(self) -> None:
+        with self._machine() as vm:
+            vm.feed_hold()
+
+    def resume(self) -> None:
+        with self._machine() as vm:
+            vm.resume()
+
+    def _machine(self):
+        if self.vm is None or not self._connected:
+            raise ConnectionLost(f"{self.url}: not connected")
+        vm = self.vm
+
+        class _Held:
+            def __enter__(self_inner):
+                vm.lock.acquire()
+                return vm
+
+            def __exit__(self_inner, *exc):
+                vm.lock.release()
+                return False
+
+        return _Held()
+
+    # ------------------------------------------------------------------ internals
+    def _tick(self, vm: VirtualMachine) -> None:
+        """Feed program rows into free planner blocks; fire a scheduled alarm. Under vm.lock."""
+        code = self.faults.due_alarm(vm.time)
+        if code is not None:
+            vm.raise_alarm(code)
+        if vm.state in (RunState.ALARM, RunState.JOG):
+            return
+        free = vm.planner_free()
+        if free and self._next_row < len(self.moves):
+            chunk = self.moves[self._next_row:self._next_row + free]
+            try:
+                vm.queue(chunk)
+            except MachineLocked:
+                return
+            self._next_row += len(chunk)
+
+    def _record(self, name: str, payload) -> None:
+        if name == "block_done":
+            payload = int(payload["line"])
+        self.events.append((self.vm.time if self.vm else 0.0, name, payload))
+        if len(self.events) > 10000:
+            del self.events[:5000]
+
+
+def _status_text(st: MachineState) -> str:
+    pos = ",".join(f"{v:.3f}" for v in st.mpos[:3])
+    return f"<{st.state.value}|MPos:{pos}|FS:{st.feed:.0f},{st.spindle:.0f}>\r\n"
+
+
+def _floats(text: str, key: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise DriverError(f"virtual URL: {key}={text!r}: expected comma-separated numbers") from None
+
+
+def from_url(url: str) -> VirtualController:
+    """Build a :class:`VirtualController` from a ``virtual://`` URL (see module doc)."""
+    parts = urlsplit(url)
+    path = unquote(parts.netloc + parts.path)
+    query = {k: v[-1] for k, v in parse_qs(parts.query, keep_blank_values=True).items()}
+    known = {"speed", "rate", "clock", "faults", "max_rate", "accel", "travel"}
+    unknown = sorted(set(query) - known)
+    if unknown:
+        raise DriverError(f"virtual URL {url!r}: unknown option {unknown[0]!r}; expected one of {', '.join(sorted(known))}")
+    try:
+        speed = float(query.get("speed", 1.0))
+        rate = float(query.get("rate", 20.0))
+    except ValueError:
+        raise DriverError(f"virtual URL {url!r}: speed and rate must be numbers") from None
+    cfg_kw = {}
+    if "max_rate" in query:
+        cfg_kw["max_rate"] = _floats(query["max_rate"], "max_rate")
+    if "accel" in query:
+        cfg_kw["accel"] = _floats(query["accel"], "accel")
+    if "travel" in query:
+        if query["travel"].lower() == "none":
+            cfg_kw.update(travel_min=None, travel_max=None)
+        else:
+            tr = _floats(query["travel"], "travel")
+            cfg_kw.update(travel_min=tuple(-abs(v) for v in tr), travel_max=tuple(0.0 for _ in tr))
+    if "accel" in cfg_kw and "max_rate" not in cfg_kw or "max_rate" in cfg_kw and "accel" not in cfg_kw:
+        n = len(cfg_kw.get("accel", cfg_kw.get("max_rate")))
+        cfg_kw.setdefault("max_rate", (500.0,) * n)
+        cfg_kw.setdefault("accel", (10.0,) * n)
+    try:
+        config = MachineConfig(**cfg_kw)
+    except ValueError as exc:
+        raise DriverError(f"virtual URL {url!r}: {exc}") from None
+    program = path or None
+    if program is not None and not Path(program).is_file():
+        raise DriverError(f"virtual URL {url!r}: program file {program!r} not found")
+    return VirtualController(program, speed=speed, rate=rate, clock=query.get("clock", "wall"),
+                             config=config, faults=query.get("faults"), url=url)

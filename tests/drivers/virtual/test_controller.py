@@ -1,0 +1,128 @@
+"""VirtualController: stepped (deterministic) and wall-clock runs, URLs, faults."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+
+from drivers.errors import ConnectionLost, DriverError, ProtocolError
+from drivers.registry import open_controller
+from drivers.state import RunState
+from drivers.virtual.controller import VirtualController
+from drivers.virtual.faults import FaultInjector, FaultPlan, FaultSpecError, ReplyDropped
+from drivers.virtual.machine import MachineConfig
+from tests.drivers.virtual.helpers import line, rapid, rows
+
+FREE = MachineConfig(travel_min=None, travel_max=None)
+
+
+def program(n=40):
+    pts = [line(((i % 2) * 10.0, i * 1.0, 0), 600) for i in range(1, n + 1)]
+    return rows(rapid((0, 0, 5)), *pts)
+
+
+def test_sim_clock_runs_whole_program_deterministically():
+    def run():
+        c = VirtualController(program(), speed=1.0, rate=50, clock="sim", config=FREE)
+        c.connect()
+        states = [c.poll()]
+        while not c.done:
+            states.append(c.poll())
+            assert len(states) < 100000
+        c.close()
+        return states, c
+
+    a, ca = run()
+    b, _ = run()
+    assert [s.mpos for s in a] == [s.mpos for s in b]
+    assert a[-1].mpos[:2] == pytest.approx((0.0, 40.0))
+    assert a[-1].state == RunState.IDLE
+    # the times step by one period
+    assert a[1].t - a[0].t == pytest.approx(1 / 50)
+    lines_seen = {s.line for s in a if s.line}
+    assert lines_seen == set(range(1, 42))
+    assert [p for _, name, p in ca.events if name == "block_done"] == list(range(1, 42))
+
+
+def test_speed_scales_simulated_step():
+    c = VirtualController(program(), speed=10.0, rate=20, clock="sim", config=FREE)
+    c.connect()
+    s1 = c.poll()
+    s2 = c.poll()
+    assert s2.t - s1.t == pytest.approx(0.5)
+
+
+def test_wall_clock_runs_and_holds():
+    c = VirtualController(rows(line((-100, 0, 0), 600)), speed=20.0, clock="wall", config=FREE)
+    moved = threading.Event()
+    with c:
+        for st in c.states(0.005):
+            if st.mpos[0] < -10:
+                moved.set()
+                break
+        assert moved.is_set()
+        c.feed_hold()
+        for st in c.states(0.005):
+            if st.state == RunState.HOLD and st.substate == 0:
+                break
+        held = c.poll().mpos
+        c.resume()
+        for st in c.states(0.005):
+            if st.state == RunState.IDLE:
+                break
+        assert st.mpos[0] == pytest.approx(-100.0)
+        assert held[0] > -100.0
+
+
+def test_open_controller_url(tmp_path):
+    c = open_controller("virtual://?speed=5&rate=10&clock=sim&travel=none")
+    assert isinstance(c, VirtualController) and c.speed == 5.0 and c.config.travel_min is None
+    with pytest.raises(DriverError, match="unknown option 'sped'"):
+        open_controller("virtual://?sped=5")
+    with pytest.raises(DriverError, match="not found"):
+        open_controller(f"virtual://{tmp_path}/missing.nc")
+    with pytest.raises(DriverError, match="clock"):
+        open_controller("virtual://?clock=moon")
+    with pytest.raises(FaultSpecError, match="bad item"):
+        open_controller("virtual://?faults=explode:1")
+
+
+def test_fault_plan_parse_and_determinism():
+    plan = FaultPlan.parse("drop=0.1, garble:0.2,late=0.05,alarm=3.5:2,disconnect=1,disconnect_for=0.5,seed=9")
+    assert (plan.drop, plan.garble, plan.late, plan.alarm, plan.alarm_code, plan.seed) == (0.1, 0.2, 0.05, 3.5, 2, 9)
+    a = FaultInjector(plan)
+    b = FaultInjector(plan)
+    da = [a.reply_fault() for _ in range(2000)]
+    assert da == [b.reply_fault() for _ in range(2000)]
+    assert da.count("drop") == pytest.approx(200, abs=45)
+    assert da.count("garble") == pytest.approx(400, abs=60)
+    g = a.garble_bytes(b"<Idle|MPos:0.000,0.000,0.000>\r\n")
+    assert g.endswith(b"\r\n") and g != b"<Idle|MPos:0.000,0.000,0.000>\r\n"
+    with pytest.raises(FaultSpecError, match="not a number"):
+        FaultPlan.parse("drop=lots")
+    with pytest.raises(FaultSpecError, match="probability"):
+        FaultPlan.parse("drop=2")
+
+
+def test_faults_in_controller_poll():
+    c = VirtualController(program(), clock="sim", rate=50, config=FREE,
+                          faults="drop=0.2,garble=0.2,late=0.2,disconnect=0.5,disconnect_for=1,alarm=3:1,seed=1")
+    c.connect()
+    kinds = {"ok": 0, "drop": 0, "garble": 0, "lost": 0}
+    last = None
+    for _ in range(200):
+        try:
+            last = c.poll()
+            kinds["ok"] += 1
+        except ReplyDropped:
+            kinds["drop"] += 1
+        except ProtocolError as exc:
+            assert exc.raw
+            kinds["garble"] += 1
+        except ConnectionLost:
+            kinds["lost"] += 1
+    assert all(kinds.values())
+    assert c.faults.counts["disconnect"] == 1
+    assert last.state == RunState.ALARM and last.alarm == 1
+    assert c.done
