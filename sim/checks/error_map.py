@@ -1,0 +1,393 @@
+"""Milling error against the design (Huang & Oliver 1994, section 3.2).
+
+The design is ray-cast into the stock's frame: every ray keeps its sorted crossings with
+the design surface and the triangle (hence the surface normal) of each. A dexel point of
+the milled model (a segment face at parameter ``s`` on ray ``r``) gets a signed error:
+
+* sign: negative (gouge) when the point lies inside the design solid, i.e. material was
+  removed that belongs to the part; positive (undercut, material left) when outside;
+* size: first the distance ``dv`` along the ray to the nearest crossing, times
+  ``|n . d|`` of its triangle (Huang's estimate from the ray interval and the design
+  normal); points whose ``dv`` reaches past ``refine_fraction`` of the tolerance are then
+  refined to the exact closest-point distance to the mesh (a numba near-point search over
+  triangles binned in the frame plane; the same answer as ``trimesh.proximity``).
+  The true distance never exceeds ``dv`` (the crossing is a surface point), so points
+  with ``dv`` inside the tolerance are inside it for certain.
+
+A closed mesh is a solid by ray parity. An open sheet (like the corpus' carpet1.stl)
+is taken as a height field seen along the rays: the design is what lies below its
+topmost crossing.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from sim.checks import design_kernels as K
+from sim.checks.findings import Finding
+from sim.errors import InputError
+from sim.frame import Frame
+from sim.tolerance import DEFAULT, Tolerance
+
+#: RGB colours of the error map (Huang & Oliver Fig. 12)
+GREEN = (40, 190, 60)
+TOOL_COLOR = (235, 200, 40)  # the paper's yellow tool colour
+BLUE_LIGHT = (150, 200, 255)
+BLUE_DARK = (10, 40, 170)
+RED_LIGHT = (255, 170, 90)
+RED_DARK = (170, 0, 0)
+
+
+def load_mesh(mesh_or_path):
+    """A trimesh.Trimesh from a mesh or an STL/OBJ path (InputError naming the file)."""
+    import trimesh
+
+    if isinstance(mesh_or_path, trimesh.Trimesh):
+        return mesh_or_path
+    path = Path(mesh_or_path)
+    if not path.is_file():
+        raise InputError("design file not found", where=str(path))
+    try:
+        mesh = trimesh.load(str(path), force="mesh")
+    except Exception as exc:  # trimesh raises many kinds; the user needs one line
+        raise InputError(f"cannot read a triangle mesh ({exc})", where=str(path)) from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise InputError("no triangles in the design file", where=str(path))
+    return mesh
+
+
+class DesignModel:
+    """The design surface seen from the rays of a frame.
+
+    Parameters
+    ----------
+    frame : Frame
+        The stock's frame (the design is placed in the same world coordinates).
+    mesh_or_path : trimesh.Trimesh or path
+        The design part. Closed: a solid by parity. Open: a height field along the rays.
+    offset : (3,) mm
+        Translation applied to the mesh first (e.g. a work offset).
+
+    Attributes
+    ----------
+    ptr : int64 (n_rays + 1,)
+        CSR pointer of each ray's crossings.
+    hit_s : float64 (n_hits,)
+        Crossing parameters, sorted per ray, mm.
+    hit_tri : int32 (n_hits,)
+        Triangle of each crossing.
+    normals : float64 (n_tri, 3)
+        Unit face normals of the mesh (world).
+    closed : bool
+        Watertight mesh (parity) or open sheet (height field).
+    """
+
+    def __init__(self, frame: Frame, mesh_or_path, offset=(0.0, 0.0, 0.0), name: str | None = None):
+        mesh = load_mesh(mesh_or_path)
+        self.name = name or (str(mesh_or_path) if not hasattr(mesh_or_path, "faces") else "design")
+        self.frame = frame
+        self.mesh = mesh
+        self.closed = bool(mesh.is_watertight)
+        tri_world = np.asarray(mesh.triangles, np.float64) + np.asarray(offset, np.float64)
+        self.normals = np.asarray(mesh.face_normals, np.float64)
+        self.tri = np.ascontiguousarray(frame.to_local(tri_world))  # (n, 3, 3) u, v, s
+        self.tri_dz = np.abs(self.normals @ frame.direction)  # |n . d| per triangle
+        self.tri_lo = self.tri.min(axis=1)
+        self.tri_hi = self.tri.max(axis=1)
+        self._cast()
+        self._bins_reach = None
+
+    # --- ray casting --------------------------------------------------------------
+    def _cast(self):
+        f = self.frame
+        counts = np.zeros(f.n_rays, np.int64)
+        dummy_f = np.zeros(0)
+        dummy_i = np.zeros(0, np.int32)
+        inclusive = not self.closed
+        K.ray_hits(self.tri, f.nu, f.nv, f.spacing, inclusive, True, counts,
+                   counts, dummy_f, dummy_i)
+        ptr = np.zeros(f.n_rays + 1, np.int64)
+        np.cumsum(counts, out=ptr[1:])
+        hit_s = np.empty(ptr[-1], np.float64)
+        hit_tri = np.empty(ptr[-1], np.int32)
+        counts[:] = 0
+        K.ray_hits(self.tri, f.nu, f.nv, f.spacing, inclusive, False, counts, ptr, hit_s, hit_tri)
+        K.sort_hits(ptr, hit_s, hit_tri)
+        if not self.closed:
+            # height field: keep the topmost crossing of each ray (duplicates at shared
+            # edges of an open sheet collapse into it)
+            has = counts > 0
+            top_k = ptr[1:] - 1
+            new_ptr = np.zeros_like(ptr)
+            np.cumsum(has, out=new_ptr[1:])
+            hit_s = hit_s[top_k[has]]
+            hit_tri = hit_tri[top_k[has]]
+            ptr = new_ptr
+        self.ptr, self.hit_s, self.hit_tri = ptr, hit_s, hit_tri
+
+    def top(self) -> np.ndarray:
+        """Highest design crossing of every ray, float64 (nv, nu) mm; NaN where none."""
+        out = np.full(self.frame.n_rays, np.nan)
+        has = self.ptr[1:] > self.ptr[:-1]
+        out[has] = self.hit_s[self.ptr[1:][has] - 1]
+        return out.reshape(self.frame.shape)
+
+    def inside(self, rays: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """bool (n,): is the point at ``s`` on flat ray ``rays`` inside the design?"""
+        dv, nz, ins, tri = self.vertical(rays, s)
+        return ins
+
+    def vertical(self, rays, s):
+        """Per point: (dv mm, |n.d|, inside bool, triangle int32) of the nearest crossing
+        along its ray (see :func:`design_kernels.vertical_errors`)."""
+        rays = np.ascontiguousarray(rays, np.int64)
+        s = np.ascontiguousarray(s, np.float64)
+        n = rays.size
+        dv = np.empty(n)
+        nz = np.empty(n)
+        ins = np.empty(n, np.bool_)
+        tri = np.empty(n, np.int32)
+        K.vertical_errors(rays, s, self.ptr, self.hit_s, self.hit_tri, self.tri_dz,
+                          not self.closed, dv, nz, ins, tri)
+        return dv, nz, ins, tri
+
+    # --- exact near-point distance ----------------------------------------------------
+    def _binned(self, reach: float):
+        if self._bins_reach is not None and self._bins_reach >= reach:
+            return self._bin_cache
+        f = self.frame
+        ext_u = (f.nu - 1) * f.spacing
+        ext_v = (f.nv - 1) * f.spacing
+        # bins about the size of a typical triangle: fewer bins than that only repeats
+        # big triangles in many lists, more makes every list long
+        typical = float(np.median((self.tri_hi - self.tri_lo)[:, :2].max(axis=1)))
+        bin_size = max(reach, f.spacing, typical, max(ext_u, ext_v) / 1024.0, 1e-3)
+        nbu = int(ext_u // bin_size) + 1
+        nbv = int(ext_v // bin_size) + 1
+        counts = np.zeros(nbu * nbv, np.int64)
+        K.bin_triangles(self.tri, reach, bin_size, nbu, nbv, True, counts, counts, np.zeros(0, np.int32))
+        ptr = np.zeros(nbu * nbv + 1, np.int64)
+        np.cumsum(counts, out=ptr[1:])
+        items = np.empty(ptr[-1], np.int32)
+        counts[:] = 0
+        K.bin_triangles(self.tri, reach, bin_size, nbu, nbv, False, counts, ptr, items)
+        self._bin_cache = (bin_size, nbu, nbv, ptr, items)
+        self._bins_reach = reach
+        return self._bin_cache
+
+    def distance(self, local_pts: np.ndarray, radius) -> np.ndarray:
+        """Exact distance (n,) mm from points in frame-local (u, v, s) coords (n, 3) to the
+        design surface, searched within ``radius`` mm (scalar or (n,)); inf beyond it."""
+        pts = np.ascontiguousarray(local_pts, np.float64).reshape(-1, 3)
+        radius = np.broadcast_to(np.asarray(radius, np.float64), (pts.shape[0],)).copy()
+        reach = float(radius.max()) if radius.size else 0.0
+        bin_size, nbu, nbv, bptr, bitems = self._binned(max(reach, 1e-6))
+        out = np.empty(pts.shape[0])
+        K.near_distances(pts, radius, self.tri, self.tri_lo, self.tri_hi, bin_size, nbu, nbv,
+                         bptr, bitems, out)
+        return out
+
+    # --- the error ------------------------------------------------------------------
+    def errors(self, rays, s, tol: Tolerance = DEFAULT, refine_fraction: float = 0.5,
+               search: float | None = None):
+        """Signed error of dexel points ``(rays[q], s[q])``: float64 (n,) mm.
+
+        Positive = material left (undercut), negative = gouge. Points with
+        ``dv > refine_fraction * min(t_l, t_h)`` get the exact near-point distance,
+        searched within ``search`` mm (default 1.5 x the range of interest); points
+        farther than that keep ``dv`` (they are outside the range of interest anyway).
+        Points on rays that miss the design get ``+inf`` (outside: material where the
+        part has none).
+        """
+        rays = np.asarray(rays, np.int64)
+        s = np.asarray(s, np.float64)
+        dv, nz, ins, tri = self.vertical(rays, s)
+        err = dv * nz
+        search = 1.5 * tol.interest if search is None else float(search)
+        refine = dv > refine_fraction * min(tol.gouge, tol.undercut)
+        refine &= np.isfinite(dv)
+        if refine.any():
+            q = np.nonzero(refine)[0]
+            f = self.frame
+            r = rays[q]
+            local = np.stack([(r % f.nu) * f.spacing, (r // f.nu) * f.spacing, s[q]], axis=1)
+            d = self.distance(local, np.minimum(dv[q], search))
+            exact = np.where(np.isfinite(d), d, dv[q])
+            err[q] = exact
+        err = np.where(ins, -err, err)
+        err[~np.isfinite(dv)] = np.inf
+        return err
+
+
+# --- colours ------------------------------------------------------------------------
+
+def _lerp(c0, c1, t):
+    c0 = np.asarray(c0, np.float64)
+    c1 = np.asarray(c1, np.float64)
+    return c0 + (c1 - c0) * t[..., None]
+
+
+def error_colors(errors, tol: Tolerance = DEFAULT, tool_color=TOOL_COLOR, nan_color=None) -> np.ndarray:
+    """RGB uint8 (..., 3) for signed errors (..., ) mm (Huang & Oliver Fig. 12).
+
+    * ``-t_l <= e <= t_h``: green;
+    * ``t_h < e <= interest``: blues, light at ``t_h`` to dark at the range of interest;
+    * ``-interest <= e < -t_l``: reds, light at ``-t_l`` to dark at ``-interest``; deeper
+      gouges keep the darkest red (a gouge never disappears from the map);
+    * ``e > interest`` (undercut beyond the range of interest): the tool colour;
+    * NaN (not assessed): ``nan_color`` (default the tool colour).
+    """
+    e = np.asarray(errors, np.float64)
+    out = np.empty(e.shape + (3,), np.float64)
+    out[...] = tool_color
+    span_u = max(tol.interest - tol.undercut, 1e-12)
+    span_g = max(tol.interest - tol.gouge, 1e-12)
+    ok = (e >= -tol.gouge) & (e <= tol.undercut)
+    out[ok] = GREEN
+    und = (e > tol.undercut) & (e <= tol.interest)
+    out[und] = _lerp(BLUE_LIGHT, BLUE_DARK, (e[und] - tol.undercut) / span_u)
+    gou = e < -tol.gouge
+    t = np.clip((-e[gou] - tol.gouge) / span_g, 0.0, 1.0)
+    out[gou] = _lerp(RED_LIGHT, RED_DARK, t)
+    out[np.isnan(e)] = tool_color if nan_color is None else nan_color
+    return np.clip(np.rint(out), 0, 255).astype(np.uint8)
+
+
+# --- per-ray error map and findings ---------------------------------------------------
+
+class ErrorMap:
+    """Per-ray worst errors of a milled model against a :class:`DesignModel`.
+
+    ``gouge[j, i]`` is the most negative error of the ray's assessed points (NaN when
+    none), ``excess[j, i]`` the most positive; ``gouge_id``/``excess_id`` the face id (move
+    id) of those points, ``gouge_s``/``excess_s`` their ray parameter. ``gouge_len`` and
+    ``excess_len`` hold, per ray, the distance along the ray from the worst point to the
+    design surface (mm), used for volumes.
+    """
+
+    def __init__(self, frame: Frame):
+        self.frame = frame
+        shape = frame.n_rays
+        self.gouge = np.full(shape, np.nan)
+        self.excess = np.full(shape, np.nan)
+        self.gouge_id = np.zeros(shape, np.int32)
+        self.excess_id = np.zeros(shape, np.int32)
+        self.gouge_s = np.zeros(shape)
+        self.excess_s = np.zeros(shape)
+        self.gouge_len = np.zeros(shape)
+        self.excess_len = np.zeros(shape)
+
+    def worst(self) -> np.ndarray:
+        """Signed error of largest magnitude per ray, float64 (nv, nu) (for colouring)."""
+        g = np.where(np.isnan(self.gouge), 0.0, self.gouge)
+        x = np.where(np.isnan(self.excess), 0.0, self.excess)
+        out = np.where(-g > x, g, x)
+        out[np.isnan(self.gouge) & np.isnan(self.excess)] = np.nan
+        return out.reshape(self.frame.shape)
+
+    def update(self, grid, design: DesignModel, rays, tol: Tolerance, faces: str = "cut") -> np.ndarray:
+        """Re-assess every dexel point of the given flat rays of ``grid``; return the rays
+        (int64) that have an assessed point. ``faces="cut"`` assesses only faces a move
+        made (id != 0, Huang's "updated dexels"); ``"all"`` every face."""
+        rays = np.unique(np.asarray(rays, np.int64))
+        self.gouge[rays] = np.nan
+        self.excess[rays] = np.nan
+        if rays.size == 0:
+            return rays
+        near, far, nid, fid, counts = grid.segments_of(rays)
+        seg_ray = np.repeat(rays, counts)
+        pr = np.concatenate([seg_ray, seg_ray])
+        ps = np.concatenate([near, far]).astype(np.float64)
+        pid = np.concatenate([nid, fid])
+        if faces == "cut":
+            keep = pid != 0
+            pr, ps, pid = pr[keep], ps[keep], pid[keep]
+        if pr.size == 0:
+            return pr
+        err = design.errors(pr, ps, tol)
+        dv, _, _, _ = design.vertical(pr, ps)
+        # worst (most negative) per ray: sort by ray then error, take the first of each ray
+        o = np.lexsort((err, pr))
+        first = np.ones(o.size, bool)
+        first[1:] = pr[o][1:] != pr[o][:-1]
+        sel = o[first]
+        self.gouge[pr[sel]] = np.minimum(err[sel], 0.0)
+        self.gouge_id[pr[sel]] = pid[sel]
+        self.gouge_s[pr[sel]] = ps[sel]
+        self.gouge_len[pr[sel]] = np.where(err[sel] < 0, dv[sel], 0.0)
+        o = np.lexsort((-err, pr))
+        first = np.ones(o.size, bool)
+        first[1:] = pr[o][1:] != pr[o][:-1]
+        sel = o[first]
+        self.excess[pr[sel]] = np.maximum(err[sel], 0.0)
+        self.excess_id[pr[sel]] = pid[sel]
+        self.excess_s[pr[sel]] = ps[sel]
+        self.excess_len[pr[sel]] = np.where(err[sel] > 0, dv[sel], 0.0)
+        return np.unique(pr)
+
+    def findings(self, tol: Tolerance, move_lines=None, rays=None, undercut: bool = True,
+                 min_rays: int = 1) -> list[Finding]:
+        """Gouge and undercut findings: one per 8-connected region of rays whose worst
+        point is past the tolerance (restricted to ``rays`` when given).
+
+        ``move_lines``: int array indexed by move id giving its program line (0 = stock).
+        Depth: the largest error magnitude (mm). Area: rays x spacing^2 (projected along
+        the rays, mm^2). Volume: sum over the region's rays of the length along the ray
+        beyond the design surface x spacing^2 (mm^3). Position: the worst point (world).
+        Regions of fewer than ``min_rays`` rays are dropped.
+        """
+        from scipy import ndimage
+
+        f = self.frame
+        out: list[Finding] = []
+        sel = None
+        if rays is not None:
+            sel = np.zeros(f.n_rays, bool)
+            sel[np.asarray(rays, np.int64)] = True
+        kinds = [("gouge", -self.gouge, self.gouge_id, self.gouge_s, self.gouge_len, tol.gouge)]
+        if undercut:
+            kinds.append(("undercut", self.excess, self.excess_id, self.excess_s, self.excess_len, tol.undercut))
+        for kind, mag, ids, ss, lens, limit in kinds:
+            bad = np.nan_to_num(mag, nan=-1.0) > limit
+            if sel is not None:
+                bad &= sel
+            if not bad.any():
+                continue
+            labels, n = ndimage.label(bad.reshape(f.shape), structure=np.ones((3, 3), bool))
+            labels = labels.reshape(-1)
+            idx = np.nonzero(labels)[0]
+            lab = labels[idx]
+            o = np.argsort(lab, kind="stable")
+            idx, lab = idx[o], lab[o]
+            starts = np.searchsorted(lab, np.arange(1, n + 1))
+            ends = np.append(starts[1:], idx.size)
+            for a, b in zip(starts, ends):
+                members = idx[a:b]
+                if members.size < min_rays:
+                    continue
+                m = np.nan_to_num(mag[members], nan=-1.0, posinf=np.finfo(float).max)
+                w = members[int(np.argmax(m))]
+                i, j = w % f.nu, w // f.nu
+                pos = f.to_world(np.array([i * f.spacing, j * f.spacing, ss[w]]))
+                mids = np.unique(ids[members])
+                lines = ()
+                line = 0
+                if move_lines is not None:
+                    ml = np.asarray(move_lines)
+                    ok = (mids >= 0) & (mids < ml.size)
+                    lines = tuple(int(x) for x in np.unique(ml[mids[ok]]) if x > 0)
+                    if 0 <= ids[w] < ml.size:
+                        line = int(ml[ids[w]])
+                depth = float(mag[w])
+                out.append(Finding(
+                    kind=kind, line=line, lines=lines, stage=int(ids[w]), position=tuple(pos),
+                    depth=depth if math.isfinite(depth) else float(lens[w]),
+                    area=members.size * f.spacing**2,
+                    volume=float(lens[members].sum()) * f.spacing**2,
+                    stages=tuple(int(x) for x in mids if x > 0),
+                    detail={"rays": int(members.size)},
+                ))
+        return out
