@@ -1,0 +1,148 @@
+"""Alerts: tell the machinist about each finding once — terminal, JSON lines, bell, feed hold.
+
+Findings arrive as JSON-ready dicts (``Finding.to_json()`` plus ``lead_time_s``). The
+look-ahead sees the same problem again on every poll, often with a slightly different
+worst point or line range as more of it enters the horizon, so a finding is *new* only if
+no finding of the same kind already alerted shares a program line with it within
+``radius`` mm (:meth:`Alerter.is_new`).
+
+Feed hold is sent through the controller's ``feed_hold()`` and only when the job turned it
+on (``[alerts] actions = ["feed_hold"]`` or ``--feed-hold``): the monitor never moves the
+machine and never sends anything else.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from typing import Callable, TextIO
+
+import numpy as np
+
+#: the kinds that justify a feed hold (machine or part at risk), when feed hold is enabled
+HOLD_KINDS = frozenset({"gouge", "rapid_into_stock", "holder_contact", "shank_contact",
+                        "above_flute_contact", "fixture_collision", "spindle_stopped_cutting",
+                        "travel_limit", "non_center_cutting_plunge"})
+
+
+def format_finding(f: dict) -> str:
+    """One line for a person: kind, line, position, lead time and the finding's message."""
+    lead = f.get("lead_time_s")
+    when = "now" if lead is None or lead <= 0 else f"in {lead:.1f} s"
+    pos = f.get("position") or []
+    where = ", ".join(f"{v:.2f}" for v in pos) if pos else "?"
+    size = ""
+    if f.get("depth") is not None and f.get("kind") in ("gouge", "undercut"):
+        size = f", {f['depth']:.3f} mm deep"
+    return f"{f.get('kind', '?').upper().replace('_', ' ')} line {f.get('line', '?')} at ({where}){size} — {when}"
+
+
+class Alerter:
+    """Emit each new finding once on every enabled channel.
+
+    Parameters
+    ----------
+    console : rich.console.Console or None
+        Where the terminal alert goes (None: no terminal alerts).
+    json_stream : text stream or None
+        Where JSON lines go (one object per finding, ``"event": "finding"``).
+    bell : bool
+        Ring the terminal bell on a new finding (through ``console``).
+    feed_hold : callable or None
+        Called (no arguments) on a new finding of a :data:`HOLD_KINDS` kind; None when the
+        job did not enable feed hold.
+    run : monitor.runfile.RunWriter or None
+        Findings and alerts are appended to it.
+    radius : float
+        mm within which two findings of one kind sharing a line are the same finding.
+    """
+
+    def __init__(self, console=None, json_stream: TextIO | None = None, bell: bool = False,
+                 feed_hold: Callable[[], None] | None = None, run=None, radius: float = 5.0):
+        self.console = console
+        self.json_stream = json_stream
+        self.bell = bell
+        self.feed_hold = feed_hold
+        self.run = run
+        self.radius = float(radius)
+        self.findings: list[dict] = []  # every alerted finding, in order
+        self.holds_sent = 0
+        self._by_kind: dict[str, list[tuple[frozenset, np.ndarray]]] = {}
+
+    def is_new(self, f: dict) -> bool:
+        """True when no alerted finding of the same kind shares a line with ``f`` within ``radius``."""
+        lines = frozenset(f.get("lines") or ()) | {f.get("line", 0)}
+        pos = _pos(f)
+        for seen_lines, seen_pos in self._by_kind.get(f.get("kind", ""), ()):
+            if seen_lines & lines and (not np.all(np.isfinite(pos)) or not np.all(np.isfinite(seen_pos))
+                                       or float(np.linalg.norm(pos - seen_pos)) <= self.radius):
+                return False
+        return True
+
+    def offer(self, findings, t: float | None = None) -> list[dict]:
+        """Alert the new ones among ``findings`` (dicts); return those alerted."""
+        fresh = []
+        for f in findings:
+            if not self.is_new(f):
+                continue
+            lines = frozenset(f.get("lines") or ()) | {f.get("line", 0)}
+            self._by_kind.setdefault(f.get("kind", ""), []).append((lines, _pos(f)))
+            self.findings.append(f)
+            fresh.append(f)
+            self._emit(f, len(self.findings), t)
+        return fresh
+
+    def _emit(self, f: dict, finding_id: int, t) -> None:
+        text = format_finding(f)
+        if self.run is not None:
+            self.run.append_finding(f, t=t)
+        if self.console is not None:
+            style = "bold red" if f.get("kind") != "undercut" else "yellow"
+            self.console.print(f"[{style}]{_escape(text)}[/{style}]", highlight=False)
+            self._record("terminal", text, t, finding_id)
+            if self.bell:
+                self.console.bell()
+                self._record("bell", "\a", t, finding_id)
+        if self.json_stream is not None:
+            self.json_stream.write(json.dumps({"event": "finding", **f}, default=_default) + "\n")
+            self.json_stream.flush()
+            self._record("json", f.get("kind", ""), t, finding_id)
+        if self.feed_hold is not None and f.get("kind") in HOLD_KINDS:
+            try:
+                self.feed_hold()
+                self.holds_sent += 1
+                self._record("feed_hold", f"feed hold sent for {f.get('kind')} at line {f.get('line')}",
+                             t, finding_id)
+            except Exception as exc:  # a failed hold must be said loudly, not crash the monitor
+                msg = f"FEED HOLD FAILED: {exc}"
+                if self.console is not None:
+                    self.console.print(f"[bold red]{_escape(msg)}[/bold red]")
+                else:
+                    print(msg, file=sys.stderr)
+                self._record("feed_hold", msg, t, finding_id)
+
+    def _record(self, channel: str, text: str, t, finding_id: int) -> None:
+        if self.run is not None:
+            self.run.append_alert(channel, text, t=t, finding_id=finding_id)
+
+
+def _pos(f: dict) -> np.ndarray:
+    p = f.get("position")
+    try:
+        a = np.asarray(p, np.float64).reshape(3)
+    except (TypeError, ValueError):
+        a = np.full(3, math.nan)
+    return a
+
+
+def _escape(text: str) -> str:
+    return text.replace("[", "\\[")
+
+
+def _default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)

@@ -1,0 +1,65 @@
+"""Alerts: each finding once on every channel; feed hold only when enabled."""
+
+from __future__ import annotations
+
+import io
+import json
+
+from rich.console import Console
+
+from monitor.alerts import Alerter, format_finding
+from monitor.runfile import RunReader, RunWriter
+
+
+def gouge(line=12, pos=(10.0, 5.0, -1.0), lead=2.5, lines=None):
+    return {"kind": "gouge", "line": line, "lines": lines or [line], "position": list(pos),
+            "depth": 0.5, "lead_time_s": lead}
+
+
+def test_each_finding_alerted_once_across_polls(tmp_path):
+    out, term = io.StringIO(), io.StringIO()
+    run = RunWriter(tmp_path / "r.sqlite")
+    a = Alerter(console=Console(file=term, width=200), json_stream=out, run=run)
+    # the look-ahead reports the same gouge on every poll, drifting a little and growing
+    polls = [[gouge(lead=3.0)], [gouge(lead=2.9, pos=(10.4, 5, -1))],
+             [gouge(line=13, lines=[12, 13], lead=2.8, pos=(11, 5, -1)),
+              {"kind": "rapid_into_stock", "line": 20, "position": [30, 5, 0], "lead_time_s": 6.0}],
+             [gouge(lead=2.7)]]
+    fresh = [a.offer(p, t=k * 0.02) for k, p in enumerate(polls)]
+    assert [len(f) for f in fresh] == [1, 0, 1, 0]
+    assert fresh[2][0]["kind"] == "rapid_into_stock"
+    lines = [json.loads(x) for x in out.getvalue().splitlines()]
+    assert [x["kind"] for x in lines] == ["gouge", "rapid_into_stock"]
+    assert all({"kind", "line", "position", "lead_time_s"} <= set(x) for x in lines)
+    assert term.getvalue().count("GOUGE line 12") == 1 and "in 3.0 s" in term.getvalue()
+    # same kind and line but far away is a different finding
+    assert len(a.offer([gouge(pos=(60, 5, -1))])) == 1
+    run.close()
+    r = RunReader(tmp_path / "r.sqlite")
+    assert [f["kind"] for f in r.findings()] == ["gouge", "rapid_into_stock", "gouge"]
+    channels = [x["channel"] for x in r.alerts()]
+    assert channels.count("terminal") == 3 and channels.count("json") == 3
+
+
+def test_feed_hold_only_when_enabled_and_failures_reported():
+    calls = []
+    a = Alerter(feed_hold=lambda: calls.append(1))
+    a.offer([gouge(), {"kind": "undercut", "line": 3, "position": [0, 0, 0]}])
+    assert calls == [1]  # the undercut is a quality note, not a reason to stop
+    assert Alerter().offer([gouge()])  # no hold callable: nothing to call
+
+    def broken():
+        raise RuntimeError("port closed")
+    term = io.StringIO()
+    b = Alerter(console=Console(file=term, width=200), feed_hold=broken)
+    b.offer([gouge()])
+    assert "FEED HOLD FAILED: port closed" in term.getvalue()
+
+
+def test_bell_and_format():
+    term = io.StringIO()
+    a = Alerter(console=Console(file=term, width=200, force_terminal=True), bell=True)
+    a.offer([gouge()])
+    assert "\a" in term.getvalue()
+    assert format_finding({"kind": "fixture_collision", "line": 7, "position": [1, 2, 3],
+                           "lead_time_s": 0}).startswith("FIXTURE COLLISION line 7 at (1.00, 2.00, 3.00)")
