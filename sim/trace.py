@@ -1,0 +1,1029 @@
+"""Blasquez & Poiraudeau's traces of a dexel model: rebuild or picture any stage of a run.
+
+* :class:`ZTrace` (the *complete* trace, rules 1-5): every change of every ray, stamped
+  with the stage that made it. The whole model (a :class:`~sim.grid.DexelGrid`) is rebuilt
+  at any stage ``n`` ray for ray, so a simulation can carry on from there with another
+  program. :meth:`ZTrace.z_elements` lists a ray's Z elements with their creation and
+  deletion stages exactly as in the paper.
+* :class:`TimeTrace` (the *fast* trace, rule 6): the history of the visible surface (the
+  last FarZ and the id of the move that made it) of each ray; the heights picture at any
+  stage, and animation forwards and backwards in time proportional to the changes shown.
+* Beyond the paper: periodic keyframes, so a rebuild costs the changes since the nearest
+  keyframe rather than the length of the run.
+
+Stages are integers chosen by the caller (a move number, a sync step ...) that never
+decrease from one :meth:`record` to the next; stage ``n`` means "after every record with
+stage <= n". The trace at construction holds the model at ``stage`` (normally 0).
+
+Storage. A trace is a log of *blocks*, one per :meth:`record`. Within a block, rays whose
+only change is the last FarZ (the usual 3-axis cut, rule 5) store just the new value and
+face id; any other change (rules 2-4: segments created, deleted or shortened from the
+near side) stores the ray's new segment list. Serialised (:meth:`to_arrays`,
+:meth:`chunk_since`) ray indices and face ids are run-length coded; everything is plain
+numpy arrays (no pickle) so a run file stores them as raw bytes + dtype + shape, and a
+sequence of chunks cut short anywhere rebuilds up to its last complete stage.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim import dexel_store as ds
+from sim import trace_kernels as tk
+from sim.errors import InputError
+from sim.frame import Frame
+from sim.grid import DexelGrid
+from sim.tolerance import DEFAULT, Tolerance
+
+__all__ = ["ZTrace", "TimeTrace", "Trace", "same_model", "model_difference",
+           "changed_rays_of", "frame_to_array", "frame_from_array"]
+
+
+# --- small helpers ----------------------------------------------------------------------
+
+class _Column:
+    """A growable 1-D array (capacity doubling), so appends are amortised O(1)."""
+
+    __slots__ = ("buf", "n")
+
+    def __init__(self, dtype, capacity: int = 1024):
+        self.buf = np.empty(capacity, dtype)
+        self.n = 0
+
+    def append(self, values: np.ndarray) -> None:
+        m = values.size
+        if self.n + m > self.buf.size:
+            new = np.empty(max(2 * self.buf.size, self.n + m), self.buf.dtype)
+            new[:self.n] = self.buf[:self.n]
+            self.buf = new
+        self.buf[self.n:self.n + m] = values
+        self.n += m
+
+    def push(self, value) -> None:
+        if self.n == self.buf.size:
+            new = np.empty(2 * self.buf.size, self.buf.dtype)
+            new[:self.n] = self.buf
+            self.buf = new
+        self.buf[self.n] = value
+        self.n += 1
+
+    @property
+    def a(self) -> np.ndarray:
+        """The filled part (a view; valid until the next append)."""
+        return self.buf[:self.n]
+
+    @property
+    def nbytes(self) -> int:
+        return self.n * self.buf.itemsize
+
+
+def frame_to_array(frame: Frame) -> np.ndarray:
+    """A frame as 12 float64: origin(3), direction(3), u(3), spacing, nu, nv."""
+    return np.concatenate([frame.origin, frame.direction, frame.u,
+                           [frame.spacing, frame.nu, frame.nv]]).astype(np.float64)
+
+
+def frame_from_array(a: np.ndarray, where: str = "trace") -> Frame:
+    a = np.asarray(a, np.float64).reshape(-1)
+    if a.size != 12 or not np.all(np.isfinite(a)):
+        raise InputError(f"frame must be 12 finite numbers, got {a.size}", where)
+    return Frame(a[0:3], a[3:6], a[6:9], float(a[9]), int(a[10]), int(a[11]))
+
+
+def _runs_of_consecutive(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Code ``x`` (int) as runs ``x = start, start+1, ...``: (starts, lengths) int32."""
+    x = np.asarray(x, np.int64)
+    if x.size == 0:
+        return np.zeros(0, np.int32), np.zeros(0, np.int32)
+    brk = np.nonzero(np.diff(x) != 1)[0] + 1
+    first = np.concatenate([[0], brk])
+    lens = np.diff(np.concatenate([first, [x.size]]))
+    return x[first].astype(np.int32), lens.astype(np.int32)
+
+
+def _expand_consecutive(starts: np.ndarray, lens: np.ndarray) -> np.ndarray:
+    lens = np.asarray(lens, np.int64)
+    total = int(lens.sum())
+    if total == 0:
+        return np.zeros(0, np.int64)
+    offs = np.cumsum(lens) - lens
+    return np.repeat(np.asarray(starts, np.int64) - offs, lens) + np.arange(total)
+
+
+def _runs_of_equal(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Run-length code ``x``: (values, lengths int32)."""
+    x = np.asarray(x)
+    if x.size == 0:
+        return x[:0].copy(), np.zeros(0, np.int32)
+    brk = np.nonzero(x[1:] != x[:-1])[0] + 1
+    first = np.concatenate([[0], brk])
+    lens = np.diff(np.concatenate([first, [x.size]]))
+    return x[first].copy(), lens.astype(np.int32)
+
+
+def _expand_equal(values: np.ndarray, lens: np.ndarray) -> np.ndarray:
+    return np.repeat(values, np.asarray(lens, np.int64))
+
+
+def _pack_column(out: dict, name: str, x: np.ndarray) -> None:
+    """Store ``x`` raw, or run-length coded (``name.rv``/``name.rl``) when that is smaller."""
+    vals, lens = _runs_of_equal(x)
+    if vals.nbytes + lens.nbytes < x.nbytes:
+        out[name + ".rv"] = vals
+        out[name + ".rl"] = lens
+    else:
+        out[name] = np.ascontiguousarray(x)
+
+
+def _unpack_column(arrays: dict, name: str, dtype, size: int, where: str) -> np.ndarray:
+    if name in arrays:
+        x = np.asarray(arrays[name])
+    elif name + ".rv" in arrays and name + ".rl" in arrays:
+        x = _expand_equal(np.asarray(arrays[name + ".rv"]), np.asarray(arrays[name + ".rl"]))
+    else:
+        raise InputError(f"missing array {name!r}", where)
+    if x.size != size:
+        raise InputError(f"array {name!r} has {x.size} values, expected {size}", where)
+    return x.astype(dtype, copy=False)
+
+
+def _get(arrays: dict, name: str, dtype, where: str, required: bool = True) -> np.ndarray:
+    if name not in arrays:
+        if not required:
+            return np.zeros(0, dtype)
+        raise InputError(f"missing array {name!r}", where)
+    x = np.asarray(arrays[name]).reshape(-1)
+    if x.dtype.kind != np.dtype(dtype).kind and x.size:
+        raise InputError(f"array {name!r} has dtype {x.dtype}, expected {np.dtype(dtype)}", where)
+    return x.astype(dtype, copy=False)
+
+
+def changed_rays_of(cut_result, first: int = 0, last: int | None = None) -> np.ndarray:
+    """Flat ray indices changed by moves ``first .. last-1`` of a ``sim.cut.CutResult``.
+
+    Reads ``changed_ptr`` (n+1,) and ``changed_rays``; returns sorted unique int64.
+    """
+    ptr = np.asarray(cut_result.changed_ptr)
+    last = len(ptr) - 1 if last is None else last
+    rays = np.asarray(cut_result.changed_rays)[int(ptr[first]):int(ptr[last])]
+    return np.unique(rays.astype(np.int64))
+
+
+def model_difference(a: DexelGrid, b: DexelGrid, ids: bool = True) -> np.ndarray:
+    """Flat indices of the rays where two models on the same frame differ.
+
+    Compares segment counts, values (exactly, float32) and, when ``ids``, face ids.
+    """
+    if not a.frame.same_rays(b.frame):
+        raise InputError("models are on different dexel frames")
+    rays = np.arange(a.frame.n_rays)
+    na, fa, nia, fia, ca = a.segments_of(rays)
+    nb_, fb, nib, fib, cb = b.segments_of(rays)
+    bad = ca != cb
+    if not bad.any():
+        seg_bad = (na != nb_) | (fa != fb)
+        if ids:
+            seg_bad |= (nia != nib) | (fia != fib)
+        owner = np.repeat(rays, ca)
+        bad[owner[seg_bad]] = True
+    return np.nonzero(bad)[0]
+
+
+def same_model(a: DexelGrid, b: DexelGrid, ids: bool = True) -> bool:
+    """True when two models hold the same segments (and face ids) on every ray."""
+    return model_difference(a, b, ids).size == 0
+
+
+def _check_stage(last: int, stage: int) -> int:
+    stage = int(stage)
+    if stage < last:
+        raise InputError(f"trace stages must not decrease: got stage {stage} after {last}")
+    return stage
+
+
+def _rays_arg(rays, n_rays: int) -> np.ndarray:
+    if rays is None:
+        return np.arange(n_rays, dtype=np.int64)
+    rays = np.unique(np.asarray(rays, np.int64).reshape(-1))
+    if rays.size and (rays[0] < 0 or rays[-1] >= n_rays):
+        raise InputError(f"ray index out of range 0..{n_rays - 1}")
+    return rays
+
+
+def _store_snapshot(store: dict) -> dict:
+    """A copy of a store with the pool trimmed to what is in use."""
+    top = int(store["pool_top"][0])
+    out = {}
+    for k, v in store.items():
+        if k.startswith("pool_") and k != "pool_top":
+            out[k] = v[:max(top, 16)].copy()
+        else:
+            out[k] = v.copy()
+    return out
+
+
+def _store_copy(snap: dict, spare: int) -> dict:
+    """A working copy of a snapshot with ``spare`` free pool slots."""
+    top = int(snap["pool_top"][0])
+    out = {}
+    for k, v in snap.items():
+        if k.startswith("pool_") and k != "pool_top":
+            w = np.zeros(max(top + spare, 1024), v.dtype)
+            w[:top] = v[:top]
+            out[k] = w
+        else:
+            out[k] = v.copy()
+    return out
+
+
+@dataclass
+class _Keyframe:
+    block: int  # number of blocks applied
+    stage: int
+    data: object
+
+
+# --- the z-trace --------------------------------------------------------------------------
+
+class ZTrace:
+    """Complete trace of a dexel model (Blasquez & Poiraudeau rules 1-5) with keyframes.
+
+    Parameters
+    ----------
+    grid : DexelGrid
+        The model at ``stage``; the trace keeps its own copy (the state it last saw) so
+        :meth:`record` knows what each ray was before.
+    stage : int
+        The stage of ``grid`` (normally 0: the stock).
+    keyframe_every : int, optional
+        Take a keyframe (a copy of the model) after this many recorded ray changes;
+        default ``2 * n_rays``. Keyframes are an in-memory index, not serialised.
+    max_keyframes : int
+        When exceeded, every other keyframe is dropped and the spacing doubles, so memory
+        stays bounded on long runs.
+    """
+
+    def __init__(self, grid: DexelGrid, stage: int = 0, keyframe_every: int | None = None,
+                 max_keyframes: int = 24):
+        self.frame = grid.frame
+        self.tol = grid.tol
+        self.n_rays = grid.frame.n_rays
+        self._mirror = grid.copy()
+        self.first_stage = int(stage)
+        self.keyframe_every = int(keyframe_every or 2 * self.n_rays)
+        self.max_keyframes = int(max_keyframes)
+        self._init = _store_snapshot(grid.store)
+        self._keyframes = [_Keyframe(0, self.first_stage, self._init)]
+        self._since_key = 0
+        self.truncated = False
+        # block columns
+        self._stage = _Column(np.int64)
+        self._f_ptr = _Column(np.int64)
+        self._g_ptr = _Column(np.int64)
+        self._gs_ptr = _Column(np.int64)
+        for c in (self._f_ptr, self._g_ptr, self._gs_ptr):
+            c.push(0)
+        # event columns
+        self._f_ray = _Column(np.int32, 1 << 16)
+        self._f_val = _Column(np.float32, 1 << 16)
+        self._f_id = _Column(np.int32, 1 << 16)
+        self._g_ray = _Column(np.int32)
+        self._g_count = _Column(np.int16)
+        self._g_near = _Column(np.float32)
+        self._g_far = _Column(np.float32)
+        self._g_nid = _Column(np.int32)
+        self._g_fid = _Column(np.int32)
+
+    # --- recording ------------------------------------------------------------------
+    @property
+    def n_blocks(self) -> int:
+        return self._stage.n
+
+    @property
+    def stages(self) -> np.ndarray:
+        """Stage of every recorded block, int64 (n_blocks,), non-decreasing."""
+        return self._stage.a.copy()
+
+    @property
+    def last_stage(self) -> int:
+        return int(self._stage.a[-1]) if self._stage.n else self.first_stage
+
+    @property
+    def n_changes(self) -> int:
+        """Ray changes recorded (far-only edits plus general rewrites)."""
+        return self._f_ray.n + self._g_ray.n
+
+    def record(self, grid: DexelGrid, rays=None, stage: int | None = None) -> int:
+        """Record the changes of ``rays`` (flat indices; None = all) of ``grid`` as ``stage``.
+
+        ``rays`` may over-cover (unchanged rays are skipped) but must include every ray that
+        changed since the last record. Returns the number of rays that changed.
+        """
+        stage = self.last_stage + 1 if stage is None else _check_stage(self.last_stage, stage)
+        if not grid.frame.same_rays(self.frame):
+            raise InputError("recorded grid is not on the trace's dexel frame")
+        rays = _rays_arg(rays, self.n_rays)
+        kind = np.empty(rays.size, np.int8)
+        fval = np.empty(rays.size, np.float32)
+        fid = np.empty(rays.size, np.int32)
+        n_far, n_gen = tk.diff_rays(grid.S, self._mirror.S, rays, kind, fval, fid)
+        if n_far == rays.size:
+            f_ray, f_val, f_id = rays, fval, fid
+        else:
+            m = kind == tk.FAR_ONLY
+            f_ray, f_val, f_id = rays[m], fval[m], fid[m]
+        tk.set_last_far(self._mirror.S, f_ray, f_val, f_id)
+        self._f_ray.append(f_ray)
+        self._f_val.append(f_val)
+        self._f_id.append(f_id)
+        if n_gen:
+            g_ray = rays[kind == tk.GENERAL]
+            gn, gf, gni, gfi, gc = grid.segments_of(g_ray)
+            self._mirror._write_rays(g_ray, gc, gn, gf, gni, gfi)
+            self._g_ray.append(g_ray)
+            self._g_count.append(gc.astype(np.int16))
+            self._g_near.append(gn)
+            self._g_far.append(gf)
+            self._g_nid.append(gni)
+            self._g_fid.append(gfi)
+        self._close_block(stage)
+        return int(n_far + n_gen)
+
+    def _close_block(self, stage: int) -> None:
+        self._stage.push(stage)
+        self._f_ptr.push(self._f_ray.n)
+        self._g_ptr.push(self._g_ray.n)
+        self._gs_ptr.push(self._g_near.n)
+        self._since_key += (self._f_ptr.a[-1] - self._f_ptr.a[-2]) + (self._g_ptr.a[-1] - self._g_ptr.a[-2])
+        if self._since_key >= self.keyframe_every:
+            self._take_keyframe()
+
+    def _take_keyframe(self) -> None:
+        self._keyframes.append(_Keyframe(self.n_blocks, self.last_stage, _store_snapshot(self._mirror.store)))
+        self._since_key = 0
+        if len(self._keyframes) > self.max_keyframes:
+            # keep the stock and every other one: memory bounded, spacing doubles
+            self._keyframes = [self._keyframes[0]] + self._keyframes[2::2]
+            self.keyframe_every *= 2
+
+    def _append_blocks(self, stage, f_n, g_n, f_ray, f_val, f_id, g_ray, g_count, gsegs) -> None:
+        """Append decoded blocks in bulk, then bring the mirror (and keyframes) up to date."""
+        b0 = self.n_blocks
+        self._stage.append(stage)
+        self._f_ptr.append(self._f_ptr.a[-1] + np.cumsum(f_n))
+        self._g_ptr.append(self._g_ptr.a[-1] + np.cumsum(g_n))
+        seg_n = np.zeros(g_n.size, np.int64)
+        if g_count.size:
+            seg_cum = np.concatenate([[0], np.cumsum(g_count.astype(np.int64))])
+            ends = np.cumsum(g_n)
+            seg_n = np.diff(np.concatenate([[0], seg_cum[ends]]))
+        self._gs_ptr.append(self._gs_ptr.a[-1] + np.cumsum(seg_n))
+        self._f_ray.append(f_ray.astype(np.int32))
+        self._f_val.append(f_val)
+        self._f_id.append(f_id.astype(np.int32))
+        self._g_ray.append(g_ray.astype(np.int32))
+        self._g_count.append(g_count.astype(np.int16))
+        for col, x in zip((self._g_near, self._g_far, self._g_nid, self._g_fid), gsegs):
+            col.append(x)
+        # replay into the mirror, stopping where a keyframe falls due
+        changes = np.cumsum(f_n + g_n)
+        b, done = b0, 0
+        while b < self.n_blocks:
+            due = np.searchsorted(changes, done + self.keyframe_every - self._since_key, side="left")
+            stop = min(b0 + int(due) + 1, self.n_blocks)
+            self._replay(self._mirror, b, stop)
+            new_done = int(changes[stop - b0 - 1])
+            self._since_key += new_done - done
+            done, b = new_done, stop
+            if self._since_key >= self.keyframe_every:
+                self._keyframes.append(_Keyframe(b, int(self._stage.a[b - 1]), _store_snapshot(self._mirror.store)))
+                self._since_key = 0
+                if len(self._keyframes) > self.max_keyframes:
+                    self._keyframes = [self._keyframes[0]] + self._keyframes[2::2]
+                    self.keyframe_every *= 2
+
+    # --- rebuilding -----------------------------------------------------------------
+    def _blocks_upto(self, stage: int) -> int:
+        return int(np.searchsorted(self._stage.a, int(stage), side="right"))
+
+    def grid_at(self, stage: int) -> DexelGrid:
+        """The model as it was at ``stage`` (a new DexelGrid, ray for ray equal).
+
+        Stages before the first give the initial model; stages after the last, the last.
+        Cost: a copy of the nearest keyframe plus the changes recorded since it.
+        """
+        b = self._blocks_upto(stage)
+        key = self._keyframes[0]
+        for k in self._keyframes:
+            if k.block <= b:
+                key = k
+        spare = 2 * int(self._gs_ptr.a[b] - self._gs_ptr.a[key.block])
+        grid = DexelGrid(self.frame, self.tol, _store_copy(key.data, spare))
+        self._replay(grid, key.block, b)
+        return grid
+
+    def rewind(self, stage: int) -> DexelGrid:
+        """Alias of :meth:`grid_at` for going back in time (keyframes make it cheap)."""
+        return self.grid_at(stage)
+
+    def _replay(self, grid: DexelGrid, b0: int, b1: int) -> None:
+        cols = (self._f_ptr.a, self._f_ray.a, self._f_val.a, self._f_id.a, self._g_ptr.a,
+                self._gs_ptr.a, self._g_ray.a, self._g_count.a, self._g_near.a, self._g_far.a,
+                self._g_nid.a, self._g_fid.a)
+        while b0 < b1:
+            b0 = tk.replay_blocks(grid.S, b0, b1, *cols)
+            if b0 < 0:
+                raise InputError(f"corrupt trace: block {-1 - b0} (stage {self._stage.a[-1 - b0]}) "
+                                 "edits the top of a ray that holds no material")
+            if b0 < b1:
+                ds.grow_pool(grid.store, 2 * int(self._gs_ptr.a[b0 + 1] - self._gs_ptr.a[b0]) + 64)
+
+    def current(self) -> DexelGrid:
+        """A copy of the model at the last recorded stage."""
+        return self._mirror.copy()
+
+    # --- the paper's view: Z elements ---------------------------------------------
+    def ray_history(self, i: int, j: int) -> list[tuple[int, np.ndarray, np.ndarray]]:
+        """States of ray (i, j): a list of ``(stage, segments (k,2) float32, ids (k,2) int32)``,
+        the first at the trace's first stage, then one per stage that changed the ray."""
+        r = int(j) * self.frame.nu + int(i)
+        cur = self._init_ray(r)
+        out = [(self.first_stage, cur[0].copy(), cur[1].copy())]
+        f_hits = np.nonzero(self._f_ray.a == r)[0]
+        g_hits = np.nonzero(self._g_ray.a == r)[0]
+        fb = np.searchsorted(self._f_ptr.a, f_hits, side="right") - 1
+        gb = np.searchsorted(self._g_ptr.a, g_hits, side="right") - 1
+        events = sorted([(int(b), "f", int(q)) for b, q in zip(fb, f_hits)]
+                        + [(int(b), "g", int(q)) for b, q in zip(gb, g_hits)])
+        for b, kind, q in events:
+            segs, ids = out[-1][1].copy(), out[-1][2].copy()
+            if kind == "f":
+                segs[-1, 1] = self._f_val.a[q]
+                ids[-1, 1] = self._f_id.a[q]
+            else:
+                s0 = int(self._gs_ptr.a[b] + self._g_count.a[self._g_ptr.a[b]:q].astype(np.int64).sum())
+                c = int(self._g_count.a[q])
+                segs = np.stack([self._g_near.a[s0:s0 + c], self._g_far.a[s0:s0 + c]], axis=1)
+                ids = np.stack([self._g_nid.a[s0:s0 + c], self._g_fid.a[s0:s0 + c]], axis=1)
+            out.append((int(self._stage.a[b]), segs, ids))
+        return out
+
+    def _init_ray(self, r: int):
+        g = DexelGrid(self.frame, self.tol, self._init)
+        n, f, ni, fi, _ = g.segments_of(np.array([r]))
+        return np.stack([n, f], axis=1), np.stack([ni, fi], axis=1)
+
+    def z_elements(self, i: int, j: int) -> np.ndarray:
+        """Z elements of ray (i, j) as in the paper: a structured array sorted by value with
+        fields ``z`` (float32 mm), ``far`` (bool: a FarZ, else a NearZ), ``face_id`` (int32,
+        the "colour"), ``created`` and ``deleted`` (int64 stages; deleted = 2**62 while alive).
+
+        Rules 2-5 hold: a new segment adds two elements, a deleted one closes two, a moved
+        NearZ or FarZ closes one and adds one. Selecting ``created <= n < deleted`` and
+        pairing in order gives the ray at stage ``n``.
+        """
+        alive: dict[tuple, int] = {}
+        rows: list[list] = []
+        for stage, segs, ids in self.ray_history(i, j):
+            now = {}
+            for (n, f), (ni, fi) in zip(segs.tolist(), ids.tolist()):
+                now[(float(n), False, int(ni))] = None
+                now[(float(f), True, int(fi))] = None
+            for key in list(alive):
+                if key not in now:
+                    rows[alive.pop(key)][4] = stage
+            for key in now:
+                if key not in alive:
+                    alive[key] = len(rows)
+                    rows.append([key[0], key[1], key[2], stage, 2**62])
+        dt = np.dtype([("z", np.float32), ("far", bool), ("face_id", np.int32),
+                       ("created", np.int64), ("deleted", np.int64)])
+        out = np.array([tuple(r) for r in rows], dtype=dt)
+        return np.sort(out, order=["z", "created"])
+
+    # --- size -----------------------------------------------------------------------
+    def nbytes(self) -> int:
+        """Bytes of the recorded log in memory (keyframes and the mirror not counted)."""
+        cols = (self._stage, self._f_ptr, self._g_ptr, self._gs_ptr, self._f_ray, self._f_val,
+                self._f_id, self._g_ray, self._g_count, self._g_near, self._g_far, self._g_nid, self._g_fid)
+        return int(sum(c.nbytes for c in cols))
+
+    def keyframe_nbytes(self) -> int:
+        return int(sum(sum(v.nbytes for v in k.data.values()) for k in self._keyframes[1:]))
+
+    # --- serialisation -------------------------------------------------------------
+    def header_arrays(self) -> dict[str, np.ndarray]:
+        """Frame, tolerance and the model at the first stage (run-length coded where it pays)."""
+        g = DexelGrid(self.frame, self.tol, self._init)
+        n, f, ni, fi, c = g.segments_of(np.arange(self.n_rays))
+        out = {"frame": frame_to_array(self.frame),
+               "tol_length": np.array([self.tol.length]),
+               "first_stage": np.array([self.first_stage], np.int64)}
+        _pack_column(out, "init_count", c.astype(np.int16))
+        _pack_column(out, "init_near", n)
+        _pack_column(out, "init_far", f)
+        _pack_column(out, "init_nid", ni)
+        _pack_column(out, "init_fid", fi)
+        return out
+
+    def chunk_since(self, stage: int | None = None) -> dict[str, np.ndarray]:
+        """The blocks with stage > ``stage`` (all when None) as plain arrays.
+
+        Keys: ``stage`` (B,) int64, ``f_n``/``g_n`` (B,) events per block,
+        ``f_ray_start``/``f_ray_len`` runs of consecutive far-only rays, ``f_val`` float32,
+        ``f_id.rv``/``f_id.rl`` run-length coded face ids, ``g_ray`` int32, ``g_count``
+        int16, ``g_near``/``g_far`` float32, ``g_nid``/``g_fid`` int32.
+        """
+        b0 = 0 if stage is None else self._blocks_upto(stage)
+        return self._blocks_arrays(b0, self.n_blocks)
+
+    def _blocks_arrays(self, b0: int, b1: int) -> dict[str, np.ndarray]:
+        fp, gp, sp = self._f_ptr.a, self._g_ptr.a, self._gs_ptr.a
+        f0, f1, g0, g1, s0, s1 = fp[b0], fp[b1], gp[b0], gp[b1], sp[b0], sp[b1]
+        out = {"stage": self._stage.a[b0:b1].copy(),
+               "f_n": np.diff(fp[b0:b1 + 1]).astype(np.int64),
+               "g_n": np.diff(gp[b0:b1 + 1]).astype(np.int64)}
+        out["f_ray_start"], out["f_ray_len"] = _runs_of_consecutive(self._f_ray.a[f0:f1])
+        out["f_val"] = self._f_val.a[f0:f1].copy()
+        out["f_id.rv"], out["f_id.rl"] = _runs_of_equal(self._f_id.a[f0:f1])
+        out["g_ray"] = self._g_ray.a[g0:g1].copy()
+        out["g_count"] = self._g_count.a[g0:g1].copy()
+        for name, col in (("g_near", self._g_near), ("g_far", self._g_far),
+                          ("g_nid", self._g_nid), ("g_fid", self._g_fid)):
+            out[name] = col.a[s0:s1].copy()
+        return out
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Header and every block in one dict of arrays (see :meth:`from_arrays`)."""
+        return {**self.header_arrays(), **self.chunk_since(None)}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, **kw) -> "ZTrace":
+        return cls.from_chunks([arrays], **kw)
+
+    @classmethod
+    def from_chunks(cls, chunks, where: str = "z-trace", **kw) -> "ZTrace":
+        """Rebuild a trace from a header (the first chunk, or keys in it) and block chunks.
+
+        A chunk whose arrays are cut short keeps its complete blocks; decoding stops there
+        (``.truncated`` is then True). Keyframes are taken again while the log is replayed.
+        """
+        chunks = list(chunks)
+        if not chunks:
+            raise InputError("no trace arrays", where)
+        head = chunks[0]
+        frame = frame_from_array(_get(head, "frame", np.float64, where), where)
+        tol_len = _get(head, "tol_length", np.float64, where, required=False)
+        tol = Tolerance(length=float(tol_len[0])) if tol_len.size else DEFAULT
+        n = frame.n_rays
+        counts = _unpack_column(head, "init_count", np.int64, n, where)
+        if counts.min(initial=0) < 0:
+            raise InputError("negative segment count in init_count", where)
+        total = int(counts.sum())
+        segs = [_unpack_column(head, k, dt, total, where) for k, dt in
+                (("init_near", np.float32), ("init_far", np.float32),
+                 ("init_nid", np.int32), ("init_fid", np.int32))]
+        grid = DexelGrid(frame, tol)
+        grid._write_rays(np.arange(n), counts, *segs)
+        first = _get(head, "first_stage", np.int64, where, required=False)
+        trace = cls(grid, int(first[0]) if first.size else 0, **kw)
+        for k, ch in enumerate(chunks):
+            if "stage" not in ch:
+                continue
+            complete = trace._append_chunk(ch, f"{where} chunk {k}")
+            if not complete:
+                trace.truncated = True
+                break
+        return trace
+
+    def _append_chunk(self, ch: dict, where: str) -> bool:
+        """Decode one chunk's complete blocks into the log; False if some were cut off."""
+        stage = _get(ch, "stage", np.int64, where)
+        f_n = _get(ch, "f_n", np.int64, where)
+        g_n = _get(ch, "g_n", np.int64, where)
+        starts = _get(ch, "f_ray_start", np.int64, where)
+        lens = _get(ch, "f_ray_len", np.int64, where)
+        m = min(starts.size, lens.size)
+        if np.any(lens[:m] < 0):
+            raise InputError("negative run length in f_ray_len", where)
+        f_ray = _expand_consecutive(starts[:m], lens[:m])
+        f_val = _get(ch, "f_val", np.float32, where)
+        idv = _get(ch, "f_id.rv", np.int32, where)
+        idl = _get(ch, "f_id.rl", np.int64, where)
+        m = min(idv.size, idl.size)
+        if np.any(idl[:m] < 0):
+            raise InputError("negative run length in f_id.rl", where)
+        f_id = _expand_equal(idv[:m], idl[:m])
+        g_ray = _get(ch, "g_ray", np.int64, where)
+        g_count = _get(ch, "g_count", np.int16, where)
+        gsegs = [_get(ch, k, dt, where) for k, dt in (("g_near", np.float32), ("g_far", np.float32),
+                                                      ("g_nid", np.int32), ("g_fid", np.int32))]
+        # the blocks complete in every column
+        nb = min(stage.size, f_n.size, g_n.size)
+        if np.any(f_n[:nb] < 0) or np.any(g_n[:nb] < 0) or np.any(g_count < 0):
+            raise InputError("negative event count", where)
+        f_end = np.cumsum(f_n[:nb])
+        g_end = np.cumsum(g_n[:nb])
+        f_have = min(f_ray.size, f_val.size, f_id.size)
+        g_have = min(g_ray.size, g_count.size)
+        seg_cum = np.concatenate([[0], np.cumsum(g_count[:g_have].astype(np.int64))])
+        s_have = min(x.size for x in gsegs)
+        ok = (f_end <= f_have) & (g_end <= g_have)
+        ok &= seg_cum[np.minimum(g_end, g_have)] <= s_have
+        good = nb if ok.all() else int(np.argmin(ok))
+        if good:
+            if stage[0] < self.last_stage or np.any(np.diff(stage[:good]) < 0):
+                raise InputError("trace stages decrease", where)
+            fe, ge = int(f_end[good - 1]), int(g_end[good - 1])
+            if f_ray[:fe].max(initial=0) >= self.n_rays or g_ray[:ge].max(initial=0) >= self.n_rays \
+                    or f_ray[:fe].min(initial=0) < 0 or g_ray[:ge].min(initial=0) < 0:
+                raise InputError("ray index beyond the frame", where)
+            se = int(seg_cum[ge])
+            self._append_blocks(stage[:good], f_n[:good], g_n[:good], f_ray[:fe], f_val[:fe], f_id[:fe],
+                                g_ray[:ge], g_count[:ge], [x[:se] for x in gsegs])
+        used_f = int(f_end[good - 1]) if good else 0
+        used_g = int(g_end[good - 1]) if good else 0
+        return good == nb and used_f == f_have and used_g == g_have
+
+
+# --- the time-trace -----------------------------------------------------------------------
+
+class TimeTrace:
+    """Fast trace (rule 6): the visible surface of every ray through time.
+
+    A time element is (ray, stage, top value, top face id): the last FarZ of the ray from
+    that stage on (NaN where the ray became empty: the background). Pictures at any stage
+    come from the nearest keyframe of the (nv, nu) heights plus the elements since it;
+    :meth:`frames` animates forwards or backwards applying only the elements in between.
+    """
+
+    def __init__(self, grid_or_heights, stage: int = 0, ids: np.ndarray | None = None,
+                 frame: Frame | None = None, keyframe_every: int | None = None,
+                 max_keyframes: int = 64):
+        if isinstance(grid_or_heights, DexelGrid):
+            frame = grid_or_heights.frame
+            top = grid_or_heights.top().reshape(-1).copy()
+            rays = np.arange(frame.n_rays)
+            tid = np.empty(frame.n_rays, np.int32)
+            tk.gather_tops(grid_or_heights.S, rays, np.empty(frame.n_rays, np.float32), tid)
+        else:
+            if frame is None:
+                raise InputError("a TimeTrace made from heights needs its frame")
+            top = np.asarray(grid_or_heights, np.float32).reshape(-1).copy()
+            tid = (np.zeros(frame.n_rays, np.int32) if ids is None
+                   else np.asarray(ids, np.int32).reshape(-1).copy())
+        self.frame = frame
+        self.n_rays = frame.n_rays
+        self.first_stage = int(stage)
+        self._top = top
+        self._top_id = tid
+        self._init = (top.copy(), tid.copy())
+        self.keyframe_every = int(keyframe_every or 4 * self.n_rays)
+        self.max_keyframes = int(max_keyframes)
+        self._keyframes = [_Keyframe(0, self.first_stage, self._init)]
+        self._since_key = 0
+        self.truncated = False
+        self._stage = _Column(np.int64)
+        self._ptr = _Column(np.int64)
+        self._ptr.push(0)
+        self._ray = _Column(np.int32, 1 << 16)
+        self._val = _Column(np.float32, 1 << 16)
+        self._id = _Column(np.int32, 1 << 16)
+        self._prev = _Column(np.float32, 1 << 16)   # previous element: rewinding (doubly linked)
+        self._prev_id = _Column(np.int32, 1 << 16)
+
+    @property
+    def n_blocks(self) -> int:
+        return self._stage.n
+
+    @property
+    def stages(self) -> np.ndarray:
+        return self._stage.a.copy()
+
+    @property
+    def last_stage(self) -> int:
+        return int(self._stage.a[-1]) if self._stage.n else self.first_stage
+
+    @property
+    def n_changes(self) -> int:
+        return self._ray.n
+
+    def record(self, grid: DexelGrid, rays=None, stage: int | None = None) -> int:
+        """Record the visible-surface changes of ``rays`` (None = all) of ``grid``."""
+        stage = self.last_stage + 1 if stage is None else _check_stage(self.last_stage, stage)
+        rays = _rays_arg(rays, self.n_rays)
+        m = rays.size
+        out = (np.empty(m, np.int64), np.empty(m, np.float32), np.empty(m, np.int32),
+               np.empty(m, np.float32), np.empty(m, np.int32))
+        k = tk.top_changes(grid.S, rays, self._top, self._top_id, *out)
+        self._append(stage, *(x[:k] for x in out))
+        return int(k)
+
+    def record_heights(self, heights: np.ndarray, ids: np.ndarray, stage: int | None = None) -> int:
+        """Record a whole new visible surface (nv, nu) heights / face ids (e.g. from a viewer)."""
+        stage = self.last_stage + 1 if stage is None else _check_stage(self.last_stage, stage)
+        h = np.asarray(heights, np.float32).reshape(-1)
+        i = np.asarray(ids, np.int32).reshape(-1)
+        ch = np.nonzero(~((h == self._top) | (np.isnan(h) & np.isnan(self._top))) | (i != self._top_id))[0]
+        prev, prev_id = self._top[ch].copy(), self._top_id[ch].copy()
+        self._top[ch] = h[ch]
+        self._top_id[ch] = i[ch]
+        self._append(stage, ch, h[ch], i[ch], prev, prev_id)
+        return int(ch.size)
+
+    def _append(self, stage, ray, val, tid, prev, prev_id) -> None:
+        self._ray.append(ray.astype(np.int32))
+        self._val.append(val)
+        self._id.append(tid)
+        self._prev.append(prev)
+        self._prev_id.append(prev_id)
+        self._stage.push(stage)
+        self._ptr.push(self._ray.n)
+        self._since_key += ray.size
+        if self._since_key >= self.keyframe_every:
+            self._keyframes.append(_Keyframe(self.n_blocks, stage, (self._top.copy(), self._top_id.copy())))
+            self._since_key = 0
+            if len(self._keyframes) > self.max_keyframes:
+                self._keyframes = [self._keyframes[0]] + self._keyframes[2::2]
+                self.keyframe_every *= 2
+
+    def _blocks_upto(self, stage: int) -> int:
+        return int(np.searchsorted(self._stage.a, int(stage), side="right"))
+
+    def state_at(self, stage: int) -> tuple[np.ndarray, np.ndarray]:
+        """Heights (nv, nu) float32 mm (NaN = no material) and top face ids (nv, nu) int32."""
+        b = self._blocks_upto(stage)
+        key = self._keyframes[0]
+        for k in self._keyframes:
+            if k.block <= b:
+                key = k
+        top, tid = key.data[0].copy(), key.data[1].copy()
+        p0, p1 = int(self._ptr.a[key.block]), int(self._ptr.a[b])
+        tk.scatter_values(top, tid, self._ray.a[p0:p1], self._val.a[p0:p1], self._id.a[p0:p1])
+        return top.reshape(self.frame.shape), tid.reshape(self.frame.shape)
+
+    def heights_at(self, stage: int) -> np.ndarray:
+        """The visible surface at ``stage``: heights (nv, nu) float32 mm, NaN where empty."""
+        return self.state_at(stage)[0]
+
+    def frames(self, first: int, last: int, step: int = 1):
+        """Yield ``(stage, heights, ids)`` from stage ``first`` to ``last`` (both included),
+        every ``step`` stages; backwards when ``last < first``. The yielded arrays are one
+        buffer updated in place (copy to keep). Each step costs the elements in between.
+        """
+        step = max(1, int(step))
+        top, tid = self.state_at(first)
+        top, tid = top.reshape(-1), tid.reshape(-1)
+        shape = self.frame.shape
+        yield int(first), top.reshape(shape), tid.reshape(shape)
+        cur = int(first)
+        direction = 1 if last >= first else -1
+        while cur != last:
+            nxt = cur + direction * step
+            nxt = min(nxt, last) if direction > 0 else max(nxt, last)
+            b_cur, b_nxt = self._blocks_upto(cur), self._blocks_upto(nxt)
+            if direction > 0:
+                p0, p1 = int(self._ptr.a[b_cur]), int(self._ptr.a[b_nxt])
+                tk.scatter_values(top, tid, self._ray.a[p0:p1], self._val.a[p0:p1], self._id.a[p0:p1])
+            else:
+                p0, p1 = int(self._ptr.a[b_nxt]), int(self._ptr.a[b_cur])
+                # undo newest first so each ray ends at its oldest previous value
+                tk.scatter_values(top, tid, self._ray.a[p0:p1][::-1], self._prev.a[p0:p1][::-1],
+                                  self._prev_id.a[p0:p1][::-1])
+            cur = nxt
+            yield cur, top.reshape(shape), tid.reshape(shape)
+
+    def nbytes(self) -> int:
+        """Bytes of the log in memory (values, ids, rays, stages; the rewind links excluded)."""
+        return int(sum(c.nbytes for c in (self._stage, self._ptr, self._ray, self._val, self._id)))
+
+    # --- serialisation --------------------------------------------------------------
+    def header_arrays(self) -> dict[str, np.ndarray]:
+        out = {"frame": frame_to_array(self.frame),
+               "first_stage": np.array([self.first_stage], np.int64)}
+        _pack_column(out, "init_top", self._init[0])
+        _pack_column(out, "init_id", self._init[1])
+        return out
+
+    def chunk_since(self, stage: int | None = None) -> dict[str, np.ndarray]:
+        """Blocks with stage > ``stage`` (all when None): ``stage``, ``t_n`` (B,) int64,
+        ``t_ray_start``/``t_ray_len`` int32 runs, ``t_val`` float32, ``t_id.rv``/``t_id.rl``."""
+        b0 = 0 if stage is None else self._blocks_upto(stage)
+        return self._blocks_arrays(b0, self.n_blocks)
+
+    def _blocks_arrays(self, b0: int, b1: int) -> dict[str, np.ndarray]:
+        p = self._ptr.a
+        p0, p1 = int(p[b0]), int(p[b1])
+        out = {"stage": self._stage.a[b0:b1].copy(), "t_n": np.diff(p[b0:b1 + 1]).astype(np.int64)}
+        out["t_ray_start"], out["t_ray_len"] = _runs_of_consecutive(self._ray.a[p0:p1])
+        out["t_val"] = self._val.a[p0:p1].copy()
+        out["t_id.rv"], out["t_id.rl"] = _runs_of_equal(self._id.a[p0:p1])
+        return out
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        return {**self.header_arrays(), **self.chunk_since(None)}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, **kw) -> "TimeTrace":
+        return cls.from_chunks([arrays], **kw)
+
+    @classmethod
+    def from_chunks(cls, chunks, where: str = "time-trace", **kw) -> "TimeTrace":
+        chunks = list(chunks)
+        if not chunks:
+            raise InputError("no trace arrays", where)
+        head = chunks[0]
+        frame = frame_from_array(_get(head, "frame", np.float64, where), where)
+        top = _unpack_column(head, "init_top", np.float32, frame.n_rays, where)
+        tid = _unpack_column(head, "init_id", np.int32, frame.n_rays, where)
+        first = _get(head, "first_stage", np.int64, where, required=False)
+        trace = cls(top, int(first[0]) if first.size else 0, ids=tid, frame=frame, **kw)
+        for k, ch in enumerate(chunks):
+            if "stage" not in ch:
+                continue
+            if not trace._append_chunk(ch, f"{where} chunk {k}"):
+                trace.truncated = True
+                break
+        return trace
+
+    def _append_chunk(self, ch: dict, where: str) -> bool:
+        stage = _get(ch, "stage", np.int64, where)
+        t_n = _get(ch, "t_n", np.int64, where)
+        starts = _get(ch, "t_ray_start", np.int64, where)
+        lens = _get(ch, "t_ray_len", np.int64, where)
+        m = min(starts.size, lens.size)
+        idv = _get(ch, "t_id.rv", np.int32, where)
+        idl = _get(ch, "t_id.rl", np.int64, where)
+        k = min(idv.size, idl.size)
+        if np.any(lens[:m] < 0) or np.any(idl[:k] < 0) or np.any(t_n < 0):
+            raise InputError("negative count or run length", where)
+        ray = _expand_consecutive(starts[:m], lens[:m])
+        val = _get(ch, "t_val", np.float32, where)
+        tid = _expand_equal(idv[:k], idl[:k]).astype(np.int32)
+        nb = min(stage.size, t_n.size)
+        end = np.cumsum(t_n[:nb])
+        have = min(ray.size, val.size, tid.size)
+        ok = end <= have
+        good = nb if ok.all() else int(np.argmin(ok))
+        used = int(end[good - 1]) if good else 0
+        if good:
+            if np.any(np.diff(stage[:good]) < 0) or stage[0] < self.last_stage:
+                raise InputError("trace stages decrease", where)
+            if ray[:used].max(initial=0) >= self.n_rays or ray[:used].min(initial=0) < 0:
+                raise InputError("ray index beyond the frame", where)
+            self._append_bulk(stage[:good], t_n[:good], ray[:used], val[:used], tid[:used])
+        return good == nb and used == have
+
+    def _append_bulk(self, stage, t_n, ray, val, tid) -> None:
+        """Append decoded blocks; the rewind links and keyframes are rebuilt on the way."""
+        ray = ray.astype(np.int64)
+        end = np.cumsum(t_n)
+        b, o = 0, 0
+        while b < stage.size:
+            due = int(np.searchsorted(end, o + self.keyframe_every - self._since_key, side="left"))
+            stop = min(due + 1, stage.size)
+            e = int(end[stop - 1])
+            prev = np.empty(e - o, np.float32)
+            prev_id = np.empty(e - o, np.int32)
+            tk.chain_prev(self._top, self._top_id, ray[o:e], val[o:e], tid[o:e], prev, prev_id)
+            self._ray.append(ray[o:e].astype(np.int32))
+            self._val.append(val[o:e])
+            self._id.append(tid[o:e])
+            self._prev.append(prev)
+            self._prev_id.append(prev_id)
+            self._stage.append(stage[b:stop])
+            self._ptr.append(self._ptr.a[-1] + np.cumsum(t_n[b:stop]))
+            self._since_key += e - o
+            b, o = stop, e
+            if self._since_key >= self.keyframe_every:
+                self._keyframes.append(_Keyframe(self.n_blocks, self.last_stage,
+                                                 (self._top.copy(), self._top_id.copy())))
+                self._since_key = 0
+                if len(self._keyframes) > self.max_keyframes:
+                    self._keyframes = [self._keyframes[0]] + self._keyframes[2::2]
+                    self.keyframe_every *= 2
+
+
+# --- both traces together -----------------------------------------------------------------
+
+class Trace:
+    """The z-trace and the time-trace of one run, fed together.
+
+    ``record(grid, rays, stage)`` after each cut; ``take_chunk()`` returns the arrays
+    recorded since the previous call (keys prefixed ``z/`` and ``t/``; the first call also
+    carries both headers) for the run file; :meth:`from_chunks` reads them back.
+    """
+
+    def __init__(self, grid: DexelGrid, stage: int = 0, z: bool = True, time: bool = True,
+                 keyframe_every: int | None = None):
+        self.frame = grid.frame
+        self.z = ZTrace(grid, stage, keyframe_every) if z else None
+        self.t = TimeTrace(grid, stage, keyframe_every=keyframe_every) if time else None
+        self._sent_z = 0
+        self._sent_t = 0
+        self._header_sent = False
+
+    @property
+    def last_stage(self) -> int:
+        return (self.z or self.t).last_stage
+
+    @property
+    def truncated(self) -> bool:
+        return bool((self.z and self.z.truncated) or (self.t and self.t.truncated))
+
+    def record(self, grid: DexelGrid, rays=None, stage: int | None = None) -> None:
+        if stage is None:
+            stage = self.last_stage + 1
+        if self.z is not None:
+            self.z.record(grid, rays, stage)
+        if self.t is not None:
+            self.t.record(grid, rays, stage)
+
+    def record_cut(self, grid: DexelGrid, cut_result, stage: int | None = None) -> None:
+        """Record a ``sim.cut.CutResult`` (all its moves) as one stage."""
+        self.record(grid, changed_rays_of(cut_result), stage)
+
+    def grid_at(self, stage: int) -> DexelGrid:
+        if self.z is None:
+            raise InputError("this run has no z-trace: the model cannot be rebuilt")
+        return self.z.grid_at(stage)
+
+    def heights_at(self, stage: int) -> np.ndarray:
+        if self.t is not None:
+            return self.t.heights_at(stage)
+        return self.z.grid_at(stage).top()
+
+    def state_at(self, stage: int) -> tuple[np.ndarray, np.ndarray]:
+        """Heights (nv, nu) and top face ids (nv, nu) at ``stage``."""
+        if self.t is not None:
+            return self.t.state_at(stage)
+        g = self.z.grid_at(stage)
+        top = np.empty(g.frame.n_rays, np.float32)
+        tid = np.empty(g.frame.n_rays, np.int32)
+        tk.gather_tops(g.S, np.arange(g.frame.n_rays), top, tid)
+        return top.reshape(g.frame.shape), tid.reshape(g.frame.shape)
+
+    def take_chunk(self) -> dict[str, np.ndarray]:
+        """Arrays recorded since the last call (headers on the first); {} when nothing new."""
+        out: dict[str, np.ndarray] = {}
+        if not self._header_sent:
+            if self.z is not None:
+                out.update({"z/" + k: v for k, v in self.z.header_arrays().items()})
+            if self.t is not None:
+                out.update({"t/" + k: v for k, v in self.t.header_arrays().items()})
+            self._header_sent = True
+        if self.z is not None and self.z.n_blocks > self._sent_z:
+            out.update({"z/" + k: v for k, v in self.z._blocks_arrays(self._sent_z, self.z.n_blocks).items()})
+            self._sent_z = self.z.n_blocks
+        if self.t is not None and self.t.n_blocks > self._sent_t:
+            out.update({"t/" + k: v for k, v in self.t._blocks_arrays(self._sent_t, self.t.n_blocks).items()})
+            self._sent_t = self.t.n_blocks
+        return out
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        out = {}
+        if self.z is not None:
+            out.update({"z/" + k: v for k, v in self.z.to_arrays().items()})
+        if self.t is not None:
+            out.update({"t/" + k: v for k, v in self.t.to_arrays().items()})
+        return out
+
+    @classmethod
+    def from_chunks(cls, chunks, where: str = "trace") -> "Trace":
+        """Read back chunks of :meth:`take_chunk` / :meth:`to_arrays` (in order)."""
+        chunks = list(chunks)
+        zc = [{k[2:]: v for k, v in c.items() if k.startswith("z/")} for c in chunks]
+        tc = [{k[2:]: v for k, v in c.items() if k.startswith("t/")} for c in chunks]
+        zc = [c for c in zc if c]
+        tc = [c for c in tc if c]
+        self = cls.__new__(cls)
+        self.z = ZTrace.from_chunks(zc, where + " (z)") if zc else None
+        self.t = TimeTrace.from_chunks(tc, where + " (time)") if tc else None
+        if self.z is None and self.t is None:
+            raise InputError("no trace recorded", where)
+        if self.z is not None and self.t is not None:
+            # a stage is complete only when both traces hold it
+            last = min(self.z.last_stage, self.t.last_stage)
+            self.z, self.t = _cut_to(self.z, last), _cut_to(self.t, last)
+        self.frame = (self.z or self.t).frame
+        self._sent_z = self.z.n_blocks if self.z else 0
+        self._sent_t = self.t.n_blocks if self.t else 0
+        self._header_sent = True
+        return self
+
+    @classmethod
+    def from_arrays(cls, arrays: dict) -> "Trace":
+        return cls.from_chunks([arrays])
+
+
+def _cut_to(trace, last_stage: int):
+    """Drop blocks beyond ``last_stage`` (used when one trace was cut shorter than the other)."""
+    if trace.last_stage <= last_stage:
+        return trace
+    b = trace._blocks_upto(last_stage)
+    arrays = {**trace.header_arrays(), **trace._blocks_arrays(0, b)}
+    out = type(trace).from_arrays(arrays)
+    out.truncated = True
+    return out

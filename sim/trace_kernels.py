@@ -1,0 +1,179 @@
+"""numba kernels behind :mod:`sim.trace`: diff a grid against the trace's mirror, replay.
+
+All kernels take dexel stores as the tuple of :func:`sim.dexel_store.store_tuple` and work
+one ray at a time with no allocation per ray.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from sim import dexel_store as ds
+
+#: event kinds found by :func:`diff_rays`
+UNCHANGED = 0
+FAR_ONLY = 1   # Blasquez rule 5: only the last FarZ of the ray changed (value and/or face id)
+GENERAL = 2    # anything else (rules 2-4: segments created, deleted, NearZ moved ...)
+
+
+@nb.njit(cache=True)
+def diff_rays(S_new, S_old, rays, kind, far_val, far_id):
+    """Classify how each ray changed between ``S_old`` (the mirror) and ``S_new``.
+
+    rays : (m,) int64 flat ray indices. Fills ``kind`` (m,) int8 with UNCHANGED / FAR_ONLY /
+    GENERAL and, for FAR_ONLY rays, ``far_val`` (m,) float32 / ``far_id`` (m,) int32 with
+    the new last FarZ. Returns ``(n_far_only, n_general)``.
+    """
+    n_far = 0
+    n_gen = 0
+    for q in range(rays.size):
+        r = rays[q]
+        c_new = S_new[0][r]
+        c_old = S_old[0][r]
+        kind[q] = UNCHANGED
+        if c_new != c_old:
+            kind[q] = GENERAL
+            n_gen += 1
+            continue
+        if c_new == 0:
+            continue
+        differs_below = False
+        for k in range(c_new):
+            n1, f1, ni1, fi1 = ds.get_seg(S_new, r, k)
+            n0, f0, ni0, fi0 = ds.get_seg(S_old, r, k)
+            if n1 != n0 or ni1 != ni0:
+                differs_below = True
+                break
+            if k < c_new - 1 and (f1 != f0 or fi1 != fi0):
+                differs_below = True
+                break
+        if differs_below:
+            kind[q] = GENERAL
+            n_gen += 1
+            continue
+        n1, f1, ni1, fi1 = ds.get_seg(S_new, r, c_new - 1)
+        n0, f0, ni0, fi0 = ds.get_seg(S_old, r, c_new - 1)
+        if f1 != f0 or fi1 != fi0:
+            kind[q] = FAR_ONLY
+            far_val[q] = f1
+            far_id[q] = fi1
+            n_far += 1
+    return n_far, n_gen
+
+
+@nb.njit(cache=True)
+def set_last_far(S, rays, vals, ids):
+    """Set the last FarZ (value, face id) of each ray; rays must hold material."""
+    for q in range(rays.size):
+        r = rays[q]
+        k = S[0][r] - 1
+        if k == 0:
+            S[2][r] = vals[q]
+            S[4][r] = ids[q]
+        else:
+            p = S[5][r] + k - 1
+            S[8][p] = vals[q]
+            S[10][p] = ids[q]
+
+
+@nb.njit(cache=True)
+def replay_blocks(S, b0, b1, f_ptr, f_ray, f_val, f_id, g_ptr, gs_ptr, g_ray, g_count,
+                  g_near, g_far, g_nid, g_fid):
+    """Apply the trace blocks ``b0 <= b < b1`` to store ``S`` in order.
+
+    Within one block the FAR_ONLY and GENERAL rays are disjoint, so each block applies its
+    general rewrites and then its far-only edits. Returns ``b1`` when done, or the index of
+    the block whose rewrite found the pool full (blocks before it are applied; redoing that
+    block after growing the pool is safe because every write sets a whole value), or
+    ``-1 - b`` when block ``b`` edits the FarZ of an empty ray (a corrupt trace).
+    """
+    for b in range(b0, b1):
+        s = gs_ptr[b]
+        for q in range(g_ptr[b], g_ptr[b + 1]):
+            c = g_count[q]
+            if not ds.write_ray(S, g_ray[q], g_near[s:s + c], g_far[s:s + c], g_nid[s:s + c],
+                                g_fid[s:s + c], c):
+                return b
+            s += c
+        for q in range(f_ptr[b], f_ptr[b + 1]):
+            r = f_ray[q]
+            k = S[0][r] - 1
+            if k < 0:
+                return -1 - b
+            if k == 0:
+                S[2][r] = f_val[q]
+                S[4][r] = f_id[q]
+            else:
+                p = S[5][r] + k - 1
+                S[8][p] = f_val[q]
+                S[10][p] = f_id[q]
+    return b1
+
+
+@nb.njit(cache=True)
+def gather_tops(S, rays, top, top_id):
+    """Top (last FarZ) and its face id of each ray; NaN and 0 where the ray is empty."""
+    for q in range(rays.size):
+        r = rays[q]
+        c = S[0][r]
+        if c == 0:
+            top[q] = np.nan
+            top_id[q] = 0
+        else:
+            n, f, ni, fi = ds.get_seg(S, r, c - 1)
+            top[q] = f
+            top_id[q] = fi
+
+
+@nb.njit(cache=True)
+def top_changes(S, rays, cur_top, cur_id, out_ray, out_top, out_id, out_prev, out_prev_id):
+    """Rule 6: rays whose visible surface (last FarZ or emptiness) changed.
+
+    Compares each ray's top in ``S`` with ``cur_top``/``cur_id`` (n_rays,), updates those in
+    place and writes the changes (ray, new top, new id, previous top, previous id) to the
+    ``out_*`` arrays. Returns the number of changes.
+    """
+    m = 0
+    for q in range(rays.size):
+        r = rays[q]
+        c = S[0][r]
+        if c == 0:
+            t = np.float32(np.nan)
+            tid = np.int32(0)
+        else:
+            n, f, ni, fi = ds.get_seg(S, r, c - 1)
+            t = f
+            tid = fi
+        old = cur_top[r]
+        same = (t == old) or (np.isnan(t) and np.isnan(old))
+        if same and tid == cur_id[r]:
+            continue
+        out_ray[m] = r
+        out_top[m] = t
+        out_id[m] = tid
+        out_prev[m] = old
+        out_prev_id[m] = cur_id[r]
+        cur_top[r] = t
+        cur_id[r] = tid
+        m += 1
+    return m
+
+
+@nb.njit(cache=True)
+def scatter_values(dst_val, dst_id, rays, vals, ids):
+    """``dst_val[rays] = vals; dst_id[rays] = ids`` in order (later entries win)."""
+    for q in range(rays.size):
+        dst_val[rays[q]] = vals[q]
+        dst_id[rays[q]] = ids[q]
+
+
+@nb.njit(cache=True)
+def chain_prev(top, top_id, rays, vals, ids, prev, prev_id):
+    """Walk time elements in order: note each ray's previous top, then set the new one."""
+    for q in range(rays.size):
+        r = rays[q]
+        prev[q] = top[r]
+        prev_id[q] = top_id[r]
+        top[r] = vals[q]
+        top_id[r] = ids[q]
