@@ -1,0 +1,392 @@
+"""Material removal: cut a whole move table into a :class:`~sim.grid.DexelGrid` in one call.
+
+How each move row is swept (tip positions from :func:`sim.gcode.moves.tip_positions`):
+
+* RAPID / FEED, top frame, flat / ball / bull / vbit / drill tool: the exact closed-form
+  sweep of :mod:`sim.sweep_kernels` (one compiled loop over the whole batch).
+* ARC_CW / ARC_CCW, same tools: the arc or helix is split into chords whose sagitta is
+  within ``tol.chord`` and each chord is swept exactly (so the result is within
+  ``tol.chord`` of the true swept volume).
+* Anything else (custom or non-convex profiles, frames whose rays are not +Z, tilted
+  axes through :meth:`Cutter.cut_poses`): instances of motion spaced at most
+  ``tol.instance_fraction * spacing`` apart (Huang & Oliver eq. 3-5); arcs are followed
+  along the true arc.
+* DWELL, TOOL_CHANGE, PROBE, PAUSE, END rows remove nothing.
+
+The A B C columns are ignored: moves are 3-axis with the tool axis along +Z. Tilted and
+5-axis poses go through :meth:`Cutter.cut_poses` / :meth:`Cutter.cut_segment` with axes.
+Rapids cut like feeds (the checks decide whether that was allowed); the cutter does not
+judge ``center_cutting`` either.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim import dexel_store as ds
+from sim import sweep
+from sim import sweep_kernels as K
+from sim.errors import InputError
+from sim.gcode.moves import MoveKind, tip_positions
+from sim.grid import DexelGrid
+from sim.tolerance import DEFAULT, Tolerance
+from sim.tools import Body, Tool
+
+_LINEAR_KINDS = (int(MoveKind.RAPID), int(MoveKind.FEED))
+_ARC_KINDS = (int(MoveKind.ARC_CW), int(MoveKind.ARC_CCW))
+_Z_AXIS = np.array([0.0, 0.0, 1.0])
+
+
+@dataclass
+class CutResult:
+    """What a batch cut did.
+
+    removed: float64 (n_moves,) mm^3 removed by each move.
+    changed_ptr: int64 (n_moves + 1,); ``changed_rays[changed_ptr[k]:changed_ptr[k+1]]``
+    are the flat ray indices move ``k`` changed (sorted, unique). Empty when changes were
+    not recorded. seconds: wall time of the cut.
+    """
+
+    removed: np.ndarray
+    changed_ptr: np.ndarray
+    changed_rays: np.ndarray
+    seconds: float
+
+    def changed(self, k: int) -> np.ndarray:
+        """Flat ray indices move ``k`` changed."""
+        return self.changed_rays[self.changed_ptr[k]:self.changed_ptr[k + 1]]
+
+    @property
+    def total_removed(self) -> float:
+        return float(self.removed.sum())
+
+
+class _Work:
+    """Accumulates the pieces a batch is made of: exact segments and instance poses."""
+
+    def __init__(self):
+        self.seg_p0: list[np.ndarray] = []
+        self.seg_p1: list[np.ndarray] = []
+        self.seg_move: list[np.ndarray] = []
+        self.seg_id: list[np.ndarray] = []
+        self.pose_tip: list[np.ndarray] = []
+        self.pose_axis: list[np.ndarray] = []
+        self.pose_move: list[np.ndarray] = []
+        self.pose_id: list[np.ndarray] = []
+
+    def segments(self, p0, p1, move, fid):
+        n = len(p0)
+        self.seg_p0.append(p0)
+        self.seg_p1.append(p1)
+        self.seg_move.append(np.full(n, move, np.int64) if np.isscalar(move) else move)
+        self.seg_id.append(np.full(n, fid, np.int32) if np.isscalar(fid) else fid)
+
+    def poses(self, tips, axes, move, fid):
+        n = len(tips)
+        self.pose_tip.append(tips)
+        self.pose_axis.append(axes)
+        self.pose_move.append(np.full(n, move, np.int64))
+        self.pose_id.append(np.full(n, fid, np.int32))
+
+    @staticmethod
+    def _cat(parts, shape_tail, dtype):
+        if not parts:
+            return np.zeros((0,) + shape_tail, dtype)
+        return np.ascontiguousarray(np.concatenate(parts), dtype=dtype)
+
+    def seg_arrays(self):
+        return (self._cat(self.seg_p0, (3,), np.float64), self._cat(self.seg_p1, (3,), np.float64),
+                self._cat(self.seg_move, (), np.int64), self._cat(self.seg_id, (), np.int32))
+
+    def pose_arrays(self):
+        return (self._cat(self.pose_tip, (3,), np.float64), self._cat(self.pose_axis, (3,), np.float64),
+                self._cat(self.pose_move, (), np.int64), self._cat(self.pose_id, (), np.int32))
+
+
+class Cutter:
+    """Removes a tool's swept volume from a grid, move by move.
+
+    grid: the :class:`DexelGrid` to cut (changed in place). tool: the :class:`Tool`.
+    tools: optional ``{tool number: Tool}``; when given, :meth:`cut_moves` follows the
+    ``tool`` column of the move table (rows whose tool is not in the dict use ``tool``).
+    """
+
+    def __init__(self, grid: DexelGrid, tool: Tool, tol: Tolerance = DEFAULT,
+                 tools: dict[int, Tool] | None = None):
+        if not isinstance(grid, DexelGrid):
+            raise InputError(f"Cutter needs a DexelGrid, got {type(grid).__name__}")
+        if not isinstance(tool, Tool):
+            raise InputError(f"Cutter needs a Tool, got {type(tool).__name__}")
+        self.grid = grid
+        self.tool = tool
+        self.tol = tol
+        self.tools = dict(tools or {})
+
+    # --- public API ---------------------------------------------------------------------
+    def cut_moves(self, moves: np.ndarray, move_ids=None, record_changes: bool = True) -> CutResult:
+        """Cut every row of ``moves`` (MOVE_DTYPE) in order.
+
+        move_ids: int (n,) face ids to write (default row index + 1; 0 is the stock).
+        record_changes: False skips the changed-ray lists (saves memory on long programs).
+        """
+        t0 = time.perf_counter()
+        n = len(moves)
+        ids = self._ids(n, move_ids)
+        removed = np.zeros(n, np.float64)
+        chg_r: list[np.ndarray] = []
+        chg_m: list[np.ndarray] = []
+        multi = np.zeros(n, bool)
+        for lo, hi, tool in self._tool_runs(moves):
+            sub = moves[lo:hi]
+            work = self._plan(sub, np.arange(lo, hi), ids[lo:hi], self._body(tool), multi)
+            r, m = self._execute(work, self._body(tool), removed, probe=False, record=record_changes)
+            chg_r.append(r)
+            chg_m.append(m)
+        ptr, rays = self._csr(n, chg_r, chg_m, multi, record_changes)
+        return CutResult(removed * self.grid.frame.spacing**2, ptr, rays, time.perf_counter() - t0)
+
+    def cut_segment(self, p0, p1, move_id: int, axis=None, axis1=None) -> float:
+        """Cut one straight move of the tip from ``p0`` to ``p1`` ((3,) mm); return mm^3 removed.
+
+        ``axis`` / ``axis1``: tool axis at the start / end (default +Z; 5-axis when they
+        differ or are tilted, swept by instances of motion).
+        """
+        removed = np.zeros(1)
+        work = self._segment_work(p0, p1, move_id, axis, axis1, self.tool)
+        self._execute(work, self.tool, removed, probe=False, record=False)
+        return float(removed[0] * self.grid.frame.spacing**2)
+
+    def cut_poses(self, tips, axes, move_id: int, body: Tool | Body | None = None) -> float:
+        """Cut the tool standing at each pose (tips, axes: (n, 3) world); return mm^3 removed."""
+        body = body or self.tool
+        tips = np.atleast_2d(np.asarray(tips, np.float64))
+        axes = np.broadcast_to(np.asarray(axes, np.float64), tips.shape)
+        work = _Work()
+        work.poses(tips, np.array(axes), 0, int(move_id))
+        removed = np.zeros(1)
+        self._execute(work, body, removed, probe=False, record=False, force_instances=True)
+        return float(removed[0] * self.grid.frame.spacing**2)
+
+    def probe_moves(self, moves: np.ndarray, body: Tool | Body | None = None) -> np.ndarray:
+        """Volume (mm^3, float64 (n,)) of material each move's swept ``body`` would meet.
+
+        The grid is not changed, and every move is measured against the grid as it is
+        now (not after the earlier moves). body: default the cutting part of the tool; or
+        ``tool.shank`` / ``tool.holder`` / any :class:`Body`.
+        """
+        body = body if body is not None else self.tool
+        n = len(moves)
+        out = np.zeros(n)
+        multi = np.zeros(n, bool)
+        ids = np.zeros(n, np.int32)
+        work = self._plan(moves, np.arange(n), ids, body, multi)
+        if sweep.has_exact_sweep(body) and self.grid.frame.is_top:
+            # single-segment moves measure in place; arcs (several chords) on scratch copies
+            p0, p1, sm, sid = work.seg_arrays()
+            single = ~multi[sm]
+            w1 = _Work()
+            w1.segments(p0[single], p1[single], sm[single], sid[single])
+            self._execute(w1, body, out, probe=True, record=False)
+            for k in np.nonzero(multi)[0]:
+                out[k] = self._probe_scratch(moves[k:k + 1], body)[0] / self.grid.frame.spacing**2
+        else:
+            for k in range(n):
+                if moves["kind"][k] in _LINEAR_KINDS + _ARC_KINDS:
+                    out[k] = self._probe_scratch(moves[k:k + 1], body)[0] / self.grid.frame.spacing**2
+        return out * self.grid.frame.spacing**2
+
+    def probe_segment(self, p0, p1, body: Tool | Body | None = None) -> float:
+        """Volume (mm^3) the body swept from tip ``p0`` to ``p1`` would meet; grid unchanged."""
+        body = body if body is not None else self.tool
+        work = self._segment_work(p0, p1, 0, None, None, body)
+        out = np.zeros(1)
+        if work.seg_p0:
+            self._execute(work, body, out, probe=True, record=False)
+            return float(out[0] * self.grid.frame.spacing**2)
+        scratch = self.grid.copy()
+        Cutter(scratch, self.tool, self.tol)._execute(work, body, out, probe=False, record=False)
+        return float(out[0] * self.grid.frame.spacing**2)
+
+    # --- planning -----------------------------------------------------------------------
+    def _ids(self, n, move_ids):
+        if move_ids is None:
+            return np.arange(1, n + 1, dtype=np.int32)
+        ids = np.asarray(move_ids)
+        if ids.shape != (n,):
+            raise InputError(f"move_ids must have shape ({n},), got {ids.shape}")
+        return ids.astype(np.int32)
+
+    def _body(self, tool):
+        return tool
+
+    def _tool_runs(self, moves):
+        """(lo, hi, tool) runs of consecutive rows cut with the same tool."""
+        n = len(moves)
+        if not self.tools or n == 0:
+            yield 0, n, self.tool
+            return
+        col = moves["tool"]
+        cuts = np.nonzero(np.diff(col))[0] + 1
+        bounds = np.concatenate([[0], cuts, [n]])
+        for a, b in zip(bounds[:-1], bounds[1:]):
+            yield int(a), int(b), self.tools.get(int(col[a]), self.tool)
+
+    def _exact(self, body) -> bool:
+        return self.grid.frame.is_top and sweep.has_exact_sweep(body)
+
+    def _step(self) -> float:
+        return self.tol.instance_fraction * self.grid.frame.spacing
+
+    def _plan(self, moves, rows, ids, body, multi) -> _Work:
+        """Turn move rows into exact segments and/or instance poses."""
+        work = _Work()
+        if len(moves) == 0:
+            return work
+        kind = moves["kind"].astype(np.int64)
+        start = tip_positions(moves, "start")
+        end = tip_positions(moves, "end")
+        bad = ~(np.isfinite(start).all(axis=1) & np.isfinite(end).all(axis=1))
+        lin = np.isin(kind, _LINEAR_KINDS) & ~bad
+        arc = np.isin(kind, _ARC_KINDS) & ~bad
+        exact = self._exact(body)
+        length = body.flute_length if isinstance(body, Tool) else body.top
+        if exact:
+            work.segments(start[lin], end[lin], rows[lin], ids[lin])
+        else:
+            for k in np.nonzero(lin)[0]:
+                tips, axes = sweep.instances(start[k], end[k], _Z_AXIS, _Z_AXIS, length, self._step())
+                work.poses(tips, axes, rows[k], ids[k])
+                multi[rows[k]] = True
+        for k in np.nonzero(arc)[0]:
+            center = np.array(moves["center"][k], np.float64)
+            center[2] -= moves["tool_length"][k]
+            cw = kind[k] == int(MoveKind.ARC_CW)
+            plane = int(moves["plane"][k])
+            turns = int(moves["turns"][k]) or 1
+            if exact:
+                pq = sweep.PLANE_AXES[plane][:2]
+                radius = max(float(np.hypot(*(start[k][list(pq)] - center[list(pq)]))), 1e-9)
+                pts = sweep.arc_points(start[k], end[k], center, plane, turns, cw,
+                                       max_step_angle=sweep.chord_step_angle(radius, self.tol.chord))
+                work.segments(pts[:-1], pts[1:], rows[k], ids[k])
+            else:
+                pts = sweep.arc_points(start[k], end[k], center, plane, turns, cw,
+                                       max_step_length=self._step())
+                work.poses(pts, np.broadcast_to(_Z_AXIS, pts.shape).copy(), rows[k], ids[k])
+            multi[rows[k]] = True
+        return work
+
+    def _segment_work(self, p0, p1, move_id, axis, axis1, body) -> _Work:
+        p0 = np.asarray(p0, np.float64).reshape(1, 3)
+        p1 = np.asarray(p1, np.float64).reshape(1, 3)
+        a0 = _Z_AXIS if axis is None else np.asarray(axis, np.float64)
+        a1 = a0 if axis1 is None else np.asarray(axis1, np.float64)
+        work = _Work()
+        vertical = np.allclose(a0 / np.linalg.norm(a0), _Z_AXIS) and np.allclose(a1 / np.linalg.norm(a1), _Z_AXIS)
+        if vertical and self._exact(body):
+            work.segments(p0, p1, 0, int(move_id))
+        else:
+            length = body.flute_length if isinstance(body, Tool) else body.top
+            tips, axes = sweep.instances(p0[0], p1[0], a0, a1, length, self._step())
+            work.poses(tips, axes, 0, int(move_id))
+        return work
+
+    # --- execution ----------------------------------------------------------------------
+    def _execute(self, work: _Work, body, removed, probe: bool, record: bool, force_instances=False):
+        """Run the kernels over the planned work; return changed (rays, moves) arrays."""
+        grid = self.grid
+        f = grid.frame
+        eps = self.tol.length
+        rays_out: list[np.ndarray] = []
+        moves_out: list[np.ndarray] = []
+        p0, p1, sm, sid = work.seg_arrays()
+        if len(p0) and not force_instances:
+            tp = sweep.body_params(body)
+            self._loop(lambda S, st, cr, cm: K.cut_linear_batch(
+                S, f.origin[0], f.origin[1], f.spacing, f.nu, f.nv, p0, p1, sm, sid, tp, eps,
+                probe, record, removed, cr, cm, st), len(p0), record, rays_out, moves_out)
+        tips, axes, pm, pid = work.pose_arrays()
+        if len(tips):
+            prof = sweep.body_profile(body)
+            tips_l = np.ascontiguousarray(f.to_local(tips))
+            axes_l = np.ascontiguousarray(np.stack([axes @ f.u, axes @ f.v, axes @ f.direction], axis=1))
+            axes_l /= np.linalg.norm(axes_l, axis=1, keepdims=True)
+            rmax = float(prof[:, 1].max())
+            self._loop(lambda S, st, cr, cm: K.cut_poses(
+                S, f.spacing, f.nu, f.nv, tips_l, axes_l, pm, pid, prof, rmax, eps, probe, record,
+                removed, cr, cm, st), len(tips), record, rays_out, moves_out)
+        if not rays_out:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        return np.concatenate(rays_out), np.concatenate(moves_out)
+
+    def _loop(self, call, n_items, record, rays_out, moves_out):
+        state = np.array([0, -1, -1, 0], np.int64)
+        cap = 1 << 16 if record else 1
+        chg_r = np.empty(cap, np.int64)
+        chg_m = np.empty(cap, np.int64)
+        while True:
+            status = call(self.grid.S, state, chg_r, chg_m)
+            if status == K.DONE:
+                break
+            if status == K.STOP_POOL:
+                ds.grow_pool(self.grid.store, max(1024, self.grid.store["pool_near"].size))
+            elif status == K.STOP_CHANGES:
+                used = int(state[3])
+                chg_r = np.concatenate([chg_r[:used], np.empty(max(cap, used), np.int64)])
+                chg_m = np.concatenate([chg_m[:used], np.empty(max(cap, used), np.int64)])
+        used = int(state[3])
+        if record:
+            rays_out.append(chg_r[:used].copy())
+            moves_out.append(chg_m[:used].copy())
+
+    def _csr(self, n, chg_r, chg_m, multi, record):
+        ptr = np.zeros(n + 1, np.int64)
+        if not record:
+            return ptr, np.zeros(0, np.int64)
+        rays = np.concatenate(chg_r) if chg_r else np.zeros(0, np.int64)
+        mv = np.concatenate(chg_m) if chg_m else np.zeros(0, np.int64)
+        # sorted unique (move, ray) pairs: several chords / instances of one move may
+        # change the same ray
+        if multi.any():
+            key = np.unique(mv * self.grid.frame.n_rays + rays)
+            mv = key // self.grid.frame.n_rays
+            rays = key - mv * self.grid.frame.n_rays
+        # else: the kernels emit moves in order and each move's rays in increasing order
+        np.cumsum(np.bincount(mv, minlength=n), out=ptr[1:])
+        return ptr, rays
+
+    def _probe_scratch(self, moves, body) -> np.ndarray:
+        """Probe by cutting a scratch copy of the rays the moves can reach (length units)."""
+        f = self.grid.frame
+        start = tip_positions(moves, "start")
+        end = tip_positions(moves, "end")
+        pts = np.concatenate([start, end])
+        if moves["kind"][0] in _ARC_KINDS:
+            c = np.array(moves["center"][0], np.float64)
+            r = float(np.linalg.norm(start[0] - np.where(np.isfinite(c), c, start[0])))
+            pts = np.concatenate([pts, c[None, :] - r, c[None, :] + r])
+            pts = pts[np.isfinite(pts).all(axis=1)]
+        prof = body.profile
+        reach = float(prof[:, 1].max()) + float(prof[-1, 0])
+        local = f.to_local(pts)
+        lo = np.floor((local[:, :2].min(axis=0) - reach) / f.spacing).astype(int)
+        hi = np.ceil((local[:, :2].max(axis=0) + reach) / f.spacing).astype(int) + 1
+        i0, j0 = max(lo[0], 0), max(lo[1], 0)
+        i1, j1 = min(hi[0], f.nu), min(hi[1], f.nv)
+        if i1 <= i0 or j1 <= j0:
+            return np.zeros(1)
+        scratch = self.grid.window(i0, i1, j0, j1)
+        sub = Cutter(scratch, self.tool, self.tol)
+        res = sub._cut_with(moves, body)
+        return res
+
+    def _cut_with(self, moves, body) -> np.ndarray:
+        removed = np.zeros(len(moves))
+        multi = np.zeros(len(moves), bool)
+        work = self._plan(moves, np.arange(len(moves)), np.zeros(len(moves), np.int32), body, multi)
+        self._execute(work, body, removed, probe=False, record=False)
+        return removed

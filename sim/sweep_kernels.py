@@ -1,0 +1,480 @@
+"""Compiled kernels: the interval a tool (or its swept volume) occupies on each dexel ray.
+
+Two families:
+
+* **Exact linear sweeps** (:func:`linear_interval`, :func:`cut_linear_batch`): rays along
+  +Z (``Frame.top``), tool axis along +Z, a straight move of the tip from ``P0`` to ``P1``.
+  The swept body meets a vertical ray at ``(x, y)`` in one interval ``[lo, hi]``:
+  ``hi`` is the top of the body at an end of the part of the move where the ray is within
+  the body's radius, and ``lo = min_s z(s) + h*(d(s))`` where ``s`` is the distance
+  travelled in XY, ``d(s)`` the distance from the ray to the axis and ``h*`` the lowest
+  height of the tool at that distance. ``z + h*(d)`` is convex in ``s`` for the convex
+  tools, so the minimum is found in closed form (flat: an end of the range; ball: the
+  capsule, ``s* = a - rho * dz / |P1 - P0|``; vbit/drill: the same with the cone slope)
+  or, for the bull-nose torus, by golden-section search of that convex function to
+  ~1e-12 of the range (evaluated at both ends too, so the result is never above the
+  true minimum by more than the search bracket).
+
+* **Instances of motion** (:func:`pose_intervals`, :func:`cut_poses`): any frame, any tool
+  axis, any profile of revolution (a polyline of frusta, Huang & Oliver eq. 3-5). Each
+  frustum piece meets a line in one interval found from one quadratic; the pieces'
+  intervals are merged per ray.
+
+All lengths mm. Per-ray arithmetic is float64; values written to the store are rounded
+to float32 *before* comparing with the stored faces, so repeating a cut changes nothing.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from sim import dexel_store as ds
+
+CODE_FLAT = 0
+CODE_BALL = 1
+CODE_BULL = 2
+CODE_CONE = 3
+
+#: layout of the float64 parameter vector of a body for the exact linear kernel
+#: [code, R, rc, cot_half_angle, h_off (bottom above the tip), h_top, Rc (largest radius)]
+N_PARAMS = 7
+
+DONE = 0
+STOP_POOL = 1
+STOP_CHANGES = 2
+
+_GOLDEN_STEPS = 64
+_INV_PHI = 0.6180339887498949
+
+
+@nb.njit(cache=True, inline="always")
+def _hstar(code, R, rc, cot, d):
+    """Lowest height of the tool above its tip at distance ``d`` from the axis."""
+    if code == CODE_FLAT:
+        return 0.0
+    if code == CODE_BALL:
+        q = R * R - d * d
+        return R - math.sqrt(q if q > 0.0 else 0.0)
+    if code == CODE_BULL:
+        a0 = R - rc
+        if d <= a0:
+            return 0.0
+        t = d - a0
+        q = rc * rc - t * t
+        return rc - math.sqrt(q if q > 0.0 else 0.0)
+    return d * cot
+
+
+@nb.njit(cache=True)
+def linear_interval(tp, x0, y0, z0, dz, ell, ux, uy, rx, ry):
+    """Interval ``(lo, hi)`` (mm) of a vertical ray within the body swept along one move.
+
+    ``tp`` body parameters (see ``N_PARAMS``); the move starts at tip ``(x0, y0, z0)``,
+    runs ``ell`` mm in XY along unit ``(ux, uy)`` and ``dz`` in Z; the ray is at
+    ``(x0 + rx, y0 + ry)``. Returns ``lo > hi`` when the ray misses the body.
+    """
+    code = int(tp[0])
+    R = tp[1]
+    rc = tp[2]
+    cot = tp[3]
+    h_off = tp[4]
+    h_top = tp[5]
+    Rc = tp[6]
+    a = rx * ux + ry * uy      # along the move
+    e = -rx * uy + ry * ux     # across it
+    q = Rc * Rc - e * e
+    if q < 0.0:
+        return 1.0, 0.0
+    rho_c = math.sqrt(q)
+    if ell <= 0.0:
+        if a * a > q:
+            return 1.0, 0.0
+        z_lo = z0 if dz > 0.0 else z0 + dz
+        z_hi = z0 + dz if dz > 0.0 else z0
+        return z_lo + h_off + _hstar(code, R, rc, cot, math.sqrt(a * a + e * e)), z_hi + h_top
+    s_lo = a - rho_c
+    if s_lo < 0.0:
+        s_lo = 0.0
+    s_hi = a + rho_c
+    if s_hi > ell:
+        s_hi = ell
+    if s_lo > s_hi:
+        return 1.0, 0.0
+    m = dz / ell
+    za = z0 + m * s_lo
+    zb = z0 + m * s_hi
+    hi = (za if za > zb else zb) + h_top
+    if code == CODE_FLAT:
+        return (za if za < zb else zb) + h_off, hi
+    if code == CODE_BALL or code == CODE_CONE:
+        if code == CODE_BALL:
+            rho = math.sqrt(max(R * R - e * e, 0.0))
+            s = a - rho * dz / math.sqrt(ell * ell + dz * dz)
+        else:
+            # d/ds [m s + cot sqrt(e^2 + (a-s)^2)] = 0  ->  (a-s)/d = m / cot
+            g = m / cot
+            if g >= 1.0:
+                s = s_hi
+            elif g <= -1.0:
+                s = s_lo
+            else:
+                s = a - abs(e) * g / math.sqrt(1.0 - g * g)
+        if s < s_lo:
+            s = s_lo
+        elif s > s_hi:
+            s = s_hi
+        w = a - s
+        return z0 + m * s + h_off + _hstar(code, R, rc, cot, math.sqrt(e * e + w * w)), hi
+    # bull-nose: golden-section search of the convex lower envelope
+    e2 = e * e
+    fa = za + _hstar(code, R, rc, cot, math.sqrt(e2 + (a - s_lo) ** 2))
+    fb = zb + _hstar(code, R, rc, cot, math.sqrt(e2 + (a - s_hi) ** 2))
+    best = fa if fa < fb else fb
+    lo_s = s_lo
+    hi_s = s_hi
+    c1 = hi_s - _INV_PHI * (hi_s - lo_s)
+    c2 = lo_s + _INV_PHI * (hi_s - lo_s)
+    f1 = z0 + m * c1 + _hstar(code, R, rc, cot, math.sqrt(e2 + (a - c1) ** 2))
+    f2 = z0 + m * c2 + _hstar(code, R, rc, cot, math.sqrt(e2 + (a - c2) ** 2))
+    for _ in range(_GOLDEN_STEPS):
+        if hi_s - lo_s < 1e-13:
+            break
+        if f1 <= f2:
+            hi_s = c2
+            c2 = c1
+            f2 = f1
+            c1 = hi_s - _INV_PHI * (hi_s - lo_s)
+            f1 = z0 + m * c1 + _hstar(code, R, rc, cot, math.sqrt(e2 + (a - c1) ** 2))
+        else:
+            lo_s = c1
+            c1 = c2
+            f1 = f2
+            c2 = lo_s + _INV_PHI * (hi_s - lo_s)
+            f2 = z0 + m * c2 + _hstar(code, R, rc, cot, math.sqrt(e2 + (a - c2) ** 2))
+    if f1 < best:
+        best = f1
+    if f2 < best:
+        best = f2
+    return best + h_off, hi
+
+
+@nb.njit(cache=True)
+def overlap_length(S, r, lo, hi):
+    """Length (mm) of material of ray ``r`` inside ``[lo, hi]``."""
+    total = 0.0
+    for k in range(S[0][r]):
+        n, f, nid, fid = ds.get_seg(S, r, k)
+        a = max(np.float64(n), lo)
+        b = min(np.float64(f), hi)
+        if b > a:
+            total += b - a
+    return total
+
+
+@nb.njit(cache=True)
+def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps, probe,
+                     record, removed, chg_ray, chg_move, state):
+    """Sweep the body ``tp`` along each straight tip move ``P0[k] -> P1[k]`` and cut it.
+
+    S: store tuple; grid rays at ``(gx0 + i*sp, gy0 + j*sp)``, ``nu x nv`` of them.
+    P0, P1: float64 (n, 3) tip positions, mm. seg_move: int64 (n,) index of the output
+    move each segment belongs to; seg_id: int32 (n,) face id it writes.
+    probe: measure the overlap instead of cutting. record: log changed rays.
+    removed: float64 (n_moves,) accumulates removed (or overlapping) *length* (mm).
+    chg_ray / chg_move: int64 buffers of changed rays; state: int64 [k, j, i, n_changed]
+    where to resume. Returns DONE, STOP_POOL (grow the pool, call again) or STOP_CHANGES
+    (grow the buffers, call again); the state says where it stopped.
+    """
+    Rc = tp[6]
+    n = P0.shape[0]
+    k0 = state[0]
+    j_resume = state[1]
+    i_resume = state[2]
+    nchg = state[3]
+    for k in range(k0, n):
+        x0 = P0[k, 0]
+        y0 = P0[k, 1]
+        z0 = P0[k, 2]
+        dx = P1[k, 0] - x0
+        dy = P1[k, 1] - y0
+        dz = P1[k, 2] - z0
+        ell = math.sqrt(dx * dx + dy * dy)
+        if ell > 1e-9:
+            ux = dx / ell
+            uy = dy / ell
+        else:
+            ell = 0.0
+            ux = 1.0
+            uy = 0.0
+        xmin = min(x0, x0 + dx)
+        xmax = max(x0, x0 + dx)
+        ymin = min(y0, y0 + dy)
+        ymax = max(y0, y0 + dy)
+        jlo = max(0, int(math.ceil((ymin - Rc - gy0) / sp)))
+        jhi = min(nv - 1, int(math.floor((ymax + Rc - gy0) / sp)))
+        resuming = k == k0 and j_resume >= 0
+        if resuming:
+            jlo = j_resume
+        mv = seg_move[k]
+        fid = seg_id[k]
+        for j in range(jlo, jhi + 1):
+            y = gy0 + j * sp
+            dym = ymin - y
+            if y - ymax > dym:
+                dym = y - ymax
+            if dym < 0.0:
+                dym = 0.0
+            if dym > Rc:
+                continue
+            w = math.sqrt(Rc * Rc - dym * dym)
+            ilo = max(0, int(math.ceil((xmin - w - gx0) / sp)))
+            ihi = min(nu - 1, int(math.floor((xmax + w - gx0) / sp)))
+            if resuming and j == j_resume and i_resume > ilo:
+                ilo = i_resume
+            ry = y - y0
+            base = j * nu
+            for i in range(ilo, ihi + 1):
+                r = base + i
+                c = S[0][r]
+                if c == 0:
+                    continue
+                lo, hi = linear_interval(tp, x0, y0, z0, dz, ell, ux, uy, gx0 + i * sp - x0, ry)
+                if lo >= hi:
+                    continue
+                lo = np.float64(np.float32(lo))
+                hi = np.float64(np.float32(hi))
+                if c == 1 and (lo >= S[2][r] or hi <= S[1][r]):
+                    continue
+                if probe:
+                    removed[mv] += overlap_length(S, r, lo, hi)
+                    continue
+                if record and nchg >= chg_ray.size:
+                    state[0] = k
+                    state[1] = j
+                    state[2] = i
+                    state[3] = nchg
+                    return STOP_CHANGES
+                got = ds.subtract_interval(S, r, lo, hi, fid, eps)
+                if got == ds.POOL_FULL:
+                    state[0] = k
+                    state[1] = j
+                    state[2] = i
+                    state[3] = nchg
+                    return STOP_POOL
+                if got > 0.0:
+                    removed[mv] += got
+                    if record:
+                        chg_ray[nchg] = r
+                        chg_move[nchg] = mv
+                        nchg += 1
+    state[0] = n
+    state[1] = -1
+    state[2] = -1
+    state[3] = nchg
+    return DONE
+
+
+# --- instances of motion: any frame, any axis, any profile ----------------------------
+
+@nb.njit(cache=True)
+def _piece_interval(prof, k, h0, az, wx2wy2, out):
+    """Interval of sigma (= s - tip_s) where the line is inside frustum piece ``k``.
+
+    The line's axial height is ``h0 + sigma*az`` and its squared distance from the axis
+    ``wx2wy2 + sigma^2 - h^2``. Writes ``out[0], out[1]``; returns False when empty.
+    """
+    hk = prof[k, 0]
+    hk1 = prof[k + 1, 0]
+    if hk1 - hk <= 0.0:
+        return False
+    rk = prof[k, 1]
+    rk1 = prof[k + 1, 1]
+    beta = (rk1 - rk) / (hk1 - hk)
+    alpha = rk - beta * hk
+    inf = np.inf
+    # slab hk <= h0 + sigma*az <= hk1
+    if abs(az) > 1e-12:
+        sa = (hk - h0) / az
+        sb = (hk1 - h0) / az
+        if sa > sb:
+            sa, sb = sb, sa
+    else:
+        if h0 < hk or h0 > hk1:
+            return False
+        sa = -inf
+        sb = inf
+    # radius along the line: c0 + c1*sigma
+    c0 = alpha + beta * h0
+    c1 = beta * az
+    A2 = (1.0 - az * az) - c1 * c1
+    B = -2.0 * h0 * az - 2.0 * c0 * c1
+    C = wx2wy2 - h0 * h0 - c0 * c0
+    lo = -inf
+    hi = inf
+    if abs(A2) < 1e-12:
+        if abs(B) < 1e-12:
+            if C > 0.0:
+                return False
+        elif B > 0.0:
+            hi = -C / B
+        else:
+            lo = -C / B
+    else:
+        disc = B * B - 4.0 * A2 * C
+        if A2 > 0.0:
+            if disc < 0.0:
+                return False
+            sq = math.sqrt(disc)
+            lo = (-B - sq) / (2.0 * A2)
+            hi = (-B + sq) / (2.0 * A2)
+        elif disc >= 0.0:
+            sq = math.sqrt(disc)
+            r1 = (-B + sq) / (2.0 * A2)
+            r2 = (-B - sq) / (2.0 * A2)  # r1 <= r2 since A2 < 0
+            left = min(sb, r1) >= sa   # (-inf, r1] meets the slab
+            right = max(sa, r2) <= sb  # [r2, inf) meets the slab
+            if left and right:
+                lo = -inf
+                hi = inf
+            elif left:
+                hi = r1
+            elif right:
+                lo = r2
+            else:
+                return False
+    if lo < sa:
+        lo = sa
+    if hi > sb:
+        hi = sb
+    if hi <= lo:
+        return False
+    out[0] = lo
+    out[1] = hi
+    return True
+
+
+@nb.njit(cache=True)
+def pose_intervals(prof, tip, axis, px, py, out):
+    """Intervals of a ray inside one tool pose, in frame-local coordinates.
+
+    prof: float64 (k, 2) profile (h, r); tip: (3,) local (u, v, s) of the tip; axis: (3,)
+    unit axis in local coordinates; the ray is ``(px, py, s)``. Writes merged, sorted
+    intervals of ``s`` into ``out`` (float64 (k, 2)) and returns how many.
+    """
+    wx = px - tip[0]
+    wy = py - tip[1]
+    h0 = wx * axis[0] + wy * axis[1]
+    wx2wy2 = wx * wx + wy * wy
+    az = axis[2]
+    buf = np.empty(2)
+    m = 0
+    for k in range(prof.shape[0] - 1):
+        if _piece_interval(prof, k, h0, az, wx2wy2, buf):
+            lo = buf[0] + tip[2]
+            hi = buf[1] + tip[2]
+            # insert sorted by lo
+            q = m
+            while q > 0 and out[q - 1, 0] > lo:
+                out[q, 0] = out[q - 1, 0]
+                out[q, 1] = out[q - 1, 1]
+                q -= 1
+            out[q, 0] = lo
+            out[q, 1] = hi
+            m += 1
+    if m <= 1:
+        return m
+    w = 0
+    for q in range(1, m):
+        if out[q, 0] <= out[w, 1] + 1e-9:
+            if out[q, 1] > out[w, 1]:
+                out[w, 1] = out[q, 1]
+        else:
+            w += 1
+            out[w, 0] = out[q, 0]
+            out[w, 1] = out[q, 1]
+    return w + 1
+
+
+@nb.njit(cache=True)
+def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, probe, record,
+              removed, chg_ray, chg_move, state):
+    """Cut (or probe) one tool instance per row of ``tips``/``axes`` (frame-local, mm).
+
+    Rays are at local ``(i*sp, j*sp)``. Other arguments and the return value as for
+    :func:`cut_linear_batch`; ``prof`` is the body profile (k, 2) of (h, r) and ``rmax``
+    its largest radius.
+    """
+    n = tips.shape[0]
+    top_h = prof[prof.shape[0] - 1, 0]
+    bot_h = prof[0, 0]
+    ivs = np.empty((prof.shape[0], 2))
+    k0 = state[0]
+    j_resume = state[1]
+    i_resume = state[2]
+    nchg = state[3]
+    for k in range(k0, n):
+        tip = tips[k]
+        ax = axes[k]
+        ua = tip[0] + bot_h * ax[0]
+        ub = tip[0] + top_h * ax[0]
+        va = tip[1] + bot_h * ax[1]
+        vb = tip[1] + top_h * ax[1]
+        ilo = max(0, int(math.ceil((min(ua, ub) - rmax) / sp)))
+        ihi = min(nu - 1, int(math.floor((max(ua, ub) + rmax) / sp)))
+        jlo = max(0, int(math.ceil((min(va, vb) - rmax) / sp)))
+        jhi = min(nv - 1, int(math.floor((max(va, vb) + rmax) / sp)))
+        resuming = k == k0 and j_resume >= 0
+        if resuming:
+            jlo = j_resume
+        mv = pose_move[k]
+        fid = pose_id[k]
+        for j in range(jlo, jhi + 1):
+            i_start = ilo
+            if resuming and j == j_resume and i_resume > ilo:
+                i_start = i_resume
+            for i in range(i_start, ihi + 1):
+                r = j * nu + i
+                if S[0][r] == 0:
+                    continue
+                m = pose_intervals(prof, tip, ax, i * sp, j * sp, ivs)
+                if m == 0:
+                    continue
+                if record and nchg >= chg_ray.size:
+                    state[0] = k
+                    state[1] = j
+                    state[2] = i
+                    state[3] = nchg
+                    return STOP_CHANGES
+                changed = False
+                for q in range(m):
+                    lo = np.float64(np.float32(ivs[q, 0]))
+                    hi = np.float64(np.float32(ivs[q, 1]))
+                    if probe:
+                        removed[mv] += overlap_length(S, r, lo, hi)
+                        continue
+                    got = ds.subtract_interval(S, r, lo, hi, fid, eps)
+                    if got == ds.POOL_FULL:
+                        if changed and record:
+                            chg_ray[nchg] = r
+                            chg_move[nchg] = mv
+                            nchg += 1
+                        state[0] = k
+                        state[1] = j
+                        state[2] = i
+                        state[3] = nchg
+                        return STOP_POOL
+                    if got > 0.0:
+                        removed[mv] += got
+                        changed = True
+                if changed and record:
+                    chg_ray[nchg] = r
+                    chg_move[nchg] = mv
+                    nchg += 1
+    state[0] = n
+    state[1] = -1
+    state[2] = -1
+    state[3] = nchg
+    return DONE
