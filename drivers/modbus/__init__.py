@@ -1,0 +1,2 @@
+"""Modbus CNC controllers (the only package that imports pymodbus): register maps,
+the polling driver and the server peer that exposes the virtual machine."""
