@@ -1,0 +1,233 @@
+"""Van Hook's image-space shaded display, straight from the dexels (numpy + numba, no VTK).
+
+The picture is the dexel grid seen along its rays: one pixel per ray, the visible surface
+is each ray's last FarZ (Blasquez rule 6). Normals come from finite differences of the
+heights, shading is Lambert plus ambient with a light direction, faces can be coloured by
+the id of the move that made them (Van Hook's "attribute per dixel"). The tool is drawn
+*inverse-shaded*: the lower face of the cutter is lit with its normals turned inward, so it
+looks exactly like the surface it is about to leave (Van Hook's negative solid).
+
+Images are RGB uint8 ``(nv, nu, 3)`` with +v (usually +Y) pointing up the picture, so row 0
+is the ray row ``j = nv - 1``.
+"""
+
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+#: default light: from the upper left, in front (a unit vector towards the light)
+LIGHT = (-0.45, 0.55, 0.70)
+BACKGROUND = (28, 30, 36)
+STOCK_COLOR = (178, 184, 196)
+TOOL_COLOR = (235, 200, 40)
+PATH_COLOR = (40, 220, 240)
+FINDING_COLOR = (240, 40, 40)
+PALETTE_SIZE = 64
+
+
+def id_palette(n: int = PALETTE_SIZE, seed: int = 7) -> np.ndarray:
+    """A fixed palette of ``n`` distinguishable muted colours, uint8 (n, 3); entry 0 is the stock."""
+    rng = np.random.default_rng(seed)
+    h = (np.arange(n) * 0.618033988749895) % 1.0
+    s = 0.35 + 0.25 * rng.random(n)
+    v = np.full(n, 0.85)
+    i = np.floor(h * 6).astype(int) % 6
+    f = h * 6 - np.floor(h * 6)
+    p, q, t = v * (1 - s), v * (1 - f * s), v * (1 - (1 - f) * s)
+    rgb = np.choose(i[:, None], [np.stack(c, 1) for c in
+                                 ((v, t, p), (q, v, p), (p, v, t), (p, q, v), (t, p, v), (v, p, q))])
+    out = np.clip(rgb * 255, 0, 255).astype(np.uint8)
+    out[0] = STOCK_COLOR
+    return out
+
+
+def _unit(v) -> np.ndarray:
+    v = np.asarray(v, np.float64).reshape(3)
+    n = np.linalg.norm(v)
+    if not np.isfinite(n) or n == 0:
+        raise ValueError(f"light direction must be a non-zero 3-vector, got {v.tolist()}")
+    return v / n
+
+
+@nb.njit(cache=True)
+def _shade(h, spacing, zscale, lx, ly, lz, ambient, inverse, ids, palette, base, bg, out):
+    """Shade heights ``h`` (nv, nu) into ``out`` (nv, nu, 3) uint8, flipped so +v is up."""
+    nv, nu = h.shape
+    use_ids = ids.shape[0] == nv
+    npal = palette.shape[0]
+    inv2 = 0.5 / spacing
+    for j in range(nv):
+        row = nv - 1 - j
+        for i in range(nu):
+            z = h[j, i]
+            if np.isnan(z):
+                out[row, i, 0] = bg[0]
+                out[row, i, 1] = bg[1]
+                out[row, i, 2] = bg[2]
+                continue
+            # central differences, one-sided at edges and next to empty rays
+            il = i - 1 if i > 0 and not np.isnan(h[j, i - 1]) else i
+            ir = i + 1 if i < nu - 1 and not np.isnan(h[j, i + 1]) else i
+            jd = j - 1 if j > 0 and not np.isnan(h[j - 1, i]) else j
+            ju = j + 1 if j < nv - 1 and not np.isnan(h[j + 1, i]) else j
+            gx = 0.0
+            gy = 0.0
+            if ir != il:
+                gx = (h[j, ir] - h[j, il]) * zscale / ((ir - il) * spacing)
+            if ju != jd:
+                gy = (h[ju, i] - h[jd, i]) * zscale / ((ju - jd) * spacing)
+            nx = -gx
+            ny = -gy
+            nz = 1.0
+            if inverse:  # Van Hook's tool: normals turned inside, then seen from outside
+                nx = gx
+                ny = gy
+            norm = np.sqrt(nx * nx + ny * ny + nz * nz)
+            d = (nx * lx + ny * ly + nz * lz) / norm
+            if d < 0.0:
+                d = 0.0
+            k = ambient + (1.0 - ambient) * d
+            if use_ids:
+                c = ids[j, i] % npal
+                r = palette[c, 0]
+                g = palette[c, 1]
+                b = palette[c, 2]
+            else:
+                r = base[0]
+                g = base[1]
+                b = base[2]
+            out[row, i, 0] = min(255, int(r * k + 0.5))
+            out[row, i, 1] = min(255, int(g * k + 0.5))
+            out[row, i, 2] = min(255, int(b * k + 0.5))
+
+
+def shade(heights: np.ndarray, spacing: float, light=LIGHT, ambient: float = 0.22,
+          ids: np.ndarray | None = None, palette: np.ndarray | None = None,
+          color=STOCK_COLOR, background=BACKGROUND, zscale: float = 1.0,
+          out: np.ndarray | None = None) -> np.ndarray:
+    """Shaded picture of a height field seen from above.
+
+    heights : (nv, nu) float, mm along the ray (NaN = no material: background).
+    spacing : ray spacing, mm. ids : optional (nv, nu) int face ids coloured through
+    ``palette`` (uint8 (k, 3), default :func:`id_palette`); otherwise every face is
+    ``color``. ``light`` points towards the light; ``ambient`` in [0, 1]. ``zscale``
+    exaggerates relief. Returns RGB uint8 (nv, nu, 3) (``out`` reused when given).
+    """
+    h = np.ascontiguousarray(heights, dtype=np.float32)
+    if h.ndim != 2:
+        raise ValueError(f"heights must be (nv, nu), got shape {h.shape}")
+    L = _unit(light)
+    if out is None or out.shape != h.shape + (3,):
+        out = np.empty(h.shape + (3,), np.uint8)
+    idarr = np.zeros((0, 0), np.int32) if ids is None else np.ascontiguousarray(ids, dtype=np.int32)
+    pal = id_palette() if palette is None else np.ascontiguousarray(palette, dtype=np.uint8)
+    _shade(h, float(spacing), float(zscale), L[0], L[1], L[2], float(ambient), False, idarr, pal,
+           np.asarray(color, np.float64), np.asarray(background, np.uint8), out)
+    return out
+
+
+# --- overlays ---------------------------------------------------------------------------
+
+def to_pixels(frame, points: np.ndarray) -> np.ndarray:
+    """World points (k, 3) -> float (k, 2) of (column, row) in the picture of ``frame``."""
+    loc = frame.to_local(np.asarray(points, np.float64).reshape(-1, 3))
+    col = loc[:, 0] / frame.spacing
+    row = (frame.nv - 1) - loc[:, 1] / frame.spacing
+    return np.stack([col, row], axis=1)
+
+
+def draw_tool(image: np.ndarray, frame, heights: np.ndarray, tip, tool, light=LIGHT,
+              ambient: float = 0.22, color=TOOL_COLOR, alpha: float = 0.75) -> np.ndarray:
+    """Draw the cutter at tip position ``tip`` (x, y, z mm), inverse-shaded, in place.
+
+    ``tool`` has ``cutting_radius`` and ``lowest_height(d)`` (a :class:`sim.tools.Tool`) or is
+    a float radius (a flat end mill). Where the tool's lower face is below the material it
+    is drawn opaque (it is cutting there); elsewhere blended by ``alpha``; the rim is
+    outlined. Returns ``image``.
+    """
+    radius = float(getattr(tool, "cutting_radius", tool))
+    lowest = getattr(tool, "lowest_height", lambda d: np.zeros_like(d))
+    tip = np.asarray(tip, np.float64).reshape(3)
+    c = frame.to_local(tip)
+    sp = frame.spacing
+    i0 = max(int(np.floor((c[0] - radius) / sp)) - 1, 0)
+    i1 = min(int(np.ceil((c[0] + radius) / sp)) + 2, frame.nu)
+    j0 = max(int(np.floor((c[1] - radius) / sp)) - 1, 0)
+    j1 = min(int(np.ceil((c[1] + radius) / sp)) + 2, frame.nv)
+    if i1 <= i0 or j1 <= j0:
+        return image
+    u = np.arange(i0, i1) * sp - c[0]
+    v = np.arange(j0, j1) * sp - c[1]
+    d = np.hypot(u[None, :], v[:, None])
+    inside = d <= radius
+    face = np.where(inside, c[2] + np.nan_to_num(lowest(d), nan=0.0), np.nan).astype(np.float32)
+    L = _unit(light)
+    patch = np.empty(face.shape + (3,), np.uint8)
+    _shade(face, sp, 1.0, L[0], L[1], L[2], float(ambient), True, np.zeros((0, 0), np.int32),
+           id_palette(1), np.asarray(color, np.float64), np.zeros(3, np.uint8), patch)
+    patch = patch[::-1]  # _shade flips; the window rows are ray rows
+    mat = np.asarray(heights, np.float32)[j0:j1, i0:i1]
+    cutting = inside & (face < np.nan_to_num(mat, nan=-np.inf))
+    a = np.where(cutting, 1.0, np.where(inside, alpha, 0.0))[..., None]
+    rows = (frame.nv - 1) - np.arange(j0, j1)
+    region = image[rows[:, None], np.arange(i0, i1)[None, :]].astype(np.float32)
+    blended = region * (1 - a) + patch.astype(np.float32) * a
+    rim = inside & (d > radius - 1.5 * sp)
+    blended[rim] = np.asarray(color, np.float32) * 0.45
+    image[rows[:, None], np.arange(i0, i1)[None, :]] = np.clip(blended + 0.5, 0, 255).astype(np.uint8)
+    return image
+
+
+def draw_polyline(image: np.ndarray, frame, points: np.ndarray, color=PATH_COLOR) -> np.ndarray:
+    """Draw the path through world ``points`` (k, 3) onto the picture, in place."""
+    px = to_pixels(frame, points)
+    if len(px) < 2:
+        return image
+    a, b = px[:-1], px[1:]
+    steps = np.maximum(np.ceil(np.abs(b - a).max(axis=1)), 1).astype(np.int64)
+    seg = np.repeat(np.arange(len(a)), steps + 1)
+    t = np.concatenate([np.arange(s + 1) / s for s in steps])
+    p = a[seg] + (b[seg] - a[seg]) * t[:, None]
+    col = np.rint(p[:, 0]).astype(np.int64)
+    row = np.rint(p[:, 1]).astype(np.int64)
+    ok = (col >= 0) & (col < image.shape[1]) & (row >= 0) & (row < image.shape[0])
+    image[row[ok], col[ok]] = color
+    return image
+
+
+def draw_markers(image: np.ndarray, frame, points: np.ndarray, color=FINDING_COLOR,
+                 size: int | None = None) -> np.ndarray:
+    """Mark world ``points`` (k, 3) with rings of ``size`` pixels radius (default scales
+    with the picture), in place."""
+    size = int(size or max(6, max(image.shape[:2]) // 90))
+    px = to_pixels(frame, points)
+    ang = np.linspace(0, 2 * np.pi, max(16, 8 * size), endpoint=False)
+    for rad in (size, size - 1):
+        col = np.rint(px[:, :1] + rad * np.cos(ang)[None, :]).astype(np.int64).ravel()
+        row = np.rint(px[:, 1:] + rad * np.sin(ang)[None, :]).astype(np.int64).ravel()
+        ok = (col >= 0) & (col < image.shape[1]) & (row >= 0) & (row < image.shape[0])
+        image[row[ok], col[ok]] = color
+    return image
+
+
+def picture(heights: np.ndarray, frame, ids: np.ndarray | None = None, tool=None, tip=None,
+            path_ahead: np.ndarray | None = None, findings: np.ndarray | None = None,
+            light=LIGHT, out: np.ndarray | None = None, **shade_kw) -> np.ndarray:
+    """The full live frame: shaded model, path ahead, tool inverse-shaded, findings ringed.
+
+    ``findings`` are world positions (k, 3). Returns RGB uint8 (nv, nu, 3).
+    """
+    img = shade(heights, frame.spacing, light=light, ids=ids, out=out, **shade_kw)
+    if path_ahead is not None and len(path_ahead) > 1:
+        draw_polyline(img, frame, path_ahead)
+    if tool is not None and tip is not None:
+        draw_tool(img, frame, heights, tip, tool, light=light)
+    if findings is not None and len(findings):
+        draw_markers(img, frame, findings)
+    return img
+
+
+def save_png(image: np.ndarray, path) -> None:
+    import imageio.v3 as iio
+    iio.imwrite(path, np.ascontiguousarray(image), extension=".png")
