@@ -264,6 +264,12 @@ class VirtualMachine:
             return 1 if self.speed > _V_EPS else 0
         return None
 
+    def velocity(self) -> np.ndarray:
+        """Axis velocities now, shape (6,) float64, mm/min (deg/min for A B C)."""
+        if self.speed <= _V_EPS or not self._blocks or self._blocks[0].action != "move":
+            return np.zeros(6)
+        return self._blocks[0].unit * self.speed * 60.0
+
     def snapshot(self) -> MachineState:
         """The machine's state now; ``t`` is simulated seconds + ``t0``."""
         row = self._row
