@@ -288,10 +288,14 @@ class ErrorMap:
         out[np.isnan(self.gouge) & np.isnan(self.excess)] = np.nan
         return out.reshape(self.frame.shape)
 
-    def update(self, grid, design: DesignModel, rays, tol: Tolerance, faces: str = "cut") -> np.ndarray:
+    def update(self, grid, design: DesignModel, rays, tol: Tolerance, faces: str = "cut",
+               design_rays=None) -> np.ndarray:
         """Re-assess every dexel point of the given flat rays of ``grid``; return the rays
         (int64) that have an assessed point. ``faces="cut"`` assesses only faces a move
-        made (id != 0, Huang's "updated dexels"); ``"all"`` every face."""
+        made (id != 0, Huang's "updated dexels"); ``"all"`` every face.
+
+        ``design_rays``: a function mapping ``grid`` ray indices to the design's (when
+        ``grid`` is a window of the design's frame, as in look-ahead)."""
         rays = np.unique(np.asarray(rays, np.int64))
         self.gouge[rays] = np.nan
         self.excess[rays] = np.nan
@@ -307,8 +311,9 @@ class ErrorMap:
             pr, ps, pid = pr[keep], ps[keep], pid[keep]
         if pr.size == 0:
             return pr
-        err = design.errors(pr, ps, tol)
-        dv, _, _, _ = design.vertical(pr, ps)
+        dr = pr if design_rays is None else design_rays(pr)
+        err = design.errors(dr, ps, tol)
+        dv, _, _, _ = design.vertical(dr, ps)
         # worst (most negative) per ray: sort by ray then error, take the first of each ray
         o = np.lexsort((err, pr))
         first = np.ones(o.size, bool)

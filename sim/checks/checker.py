@@ -1,0 +1,229 @@
+"""The one entry point the monitor calls: cut and check, look ahead, assess a whole model."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim.checks import collisions, motion
+from sim.checks.error_map import DesignModel, ErrorMap
+from sim.checks.findings import Finding, merge_findings
+from sim.cut import CutResult, Cutter
+from sim.errors import InputError
+from sim.grid import DexelGrid
+from sim.tolerance import DEFAULT, Tolerance
+from sim.tools import Tool
+
+
+class Checker:
+    """Cuts moves into a stock model and reports what went wrong.
+
+    Parameters
+    ----------
+    stock : DexelGrid
+        The live model (cut in place by :meth:`cut_and_check`).
+    tool : Tool
+        The tool in the spindle (``tools`` maps tool numbers to tools for programs
+        with tool changes; rows use ``tools[row["tool"]]`` when present).
+    design : DesignModel, trimesh.Trimesh or path, optional
+        The part to compare with (gouge during cutting, gouge and undercut after).
+    fixtures : iterable of :class:`collisions.Fixture`
+    limits : dict axis -> (min, max) machine coords, optional
+    tol : Tolerance
+        ``gouge`` = t_l, ``undercut`` = t_h, ``interest`` = range of interest (mm).
+    max_depth_of_cut : float, optional
+        Axial depth of cut limit (mm); the depth-of-cut check runs only when given.
+    max_ramp_deg : float
+        Entries steeper than this are plunges (for tools that do not cut at the centre).
+    min_volume : float, optional
+        Contacts and removals smaller than this (mm^3) are noise; default a tenth of a
+        grid column one spacing high.
+    """
+
+    def __init__(self, stock: DexelGrid, tool: Tool, design=None, fixtures=(), limits=None,
+                 tol: Tolerance = DEFAULT, tools: dict | None = None, max_depth_of_cut: float | None = None,
+                 max_ramp_deg: float = 10.0, min_volume: float | None = None):
+        if not isinstance(stock, DexelGrid):
+            raise InputError(f"Checker needs a DexelGrid stock, got {type(stock).__name__}")
+        self.grid = stock
+        self.frame = stock.frame
+        self.tool = tool
+        self.tools = dict(tools or {})
+        self.tol = tol
+        self.cutter = Cutter(stock, tool, tol, tools=self.tools or None)
+        if design is not None and not isinstance(design, DesignModel):
+            design = DesignModel(self.frame, design)
+        self.design = design
+        self.error_map = ErrorMap(self.frame) if design is not None else None
+        self.fixtures = list(fixtures)
+        self.limits = dict(limits) if limits else None
+        self.max_depth_of_cut = max_depth_of_cut
+        self.max_ramp_deg = max_ramp_deg
+        self.min_volume = (0.1 * self.frame.spacing**3) if min_volume is None else float(min_volume)
+        self._top_bound = collisions.max_top(stock) if self.frame.is_top else np.inf
+        needs_engagement = max_depth_of_cut is not None or any(
+            not t.center_cutting for t in [tool, *self.tools.values()])
+        self.engagement = (motion.Engagement(self.frame, stock.top(), tool)
+                           if needs_engagement and self.frame.is_top else None)
+        self._lines = np.zeros(1, np.int64)  # move id -> program line
+        self.findings: list[Finding] = []
+
+    # --- bookkeeping --------------------------------------------------------------------
+    def _remember_lines(self, moves, ids):
+        if len(ids) == 0:
+            return
+        top = int(ids.max())
+        if top >= self._lines.size:
+            grown = np.zeros(max(top + 1, 2 * self._lines.size), np.int64)
+            grown[: self._lines.size] = self._lines
+            self._lines = grown
+        self._lines[ids] = moves["line"]
+
+    def _tool_of_rows(self, moves) -> list[tuple[Tool, np.ndarray]]:
+        if not self.tools:
+            return [(self.tool, np.arange(len(moves)))]
+        out = []
+        col = moves["tool"]
+        for num in np.unique(col):
+            out.append((self.tools.get(int(num), self.tool), np.nonzero(col == num)[0]))
+        return out
+
+    # --- cutting ------------------------------------------------------------------------
+    def cut_and_check(self, moves: np.ndarray, move_ids=None) -> tuple[CutResult, list[Finding]]:
+        """Cut ``moves`` into the live model and check them.
+
+        Returns the cut result and the findings of this batch (merged). Everything found
+        is also kept in :attr:`findings`.
+        """
+        moves = np.asarray(moves)
+        ids = motion.move_ids_of(moves, move_ids)
+        self._remember_lines(moves, ids)
+        found = self._check_batch(self.grid, self.cutter, moves, ids, self.error_map, self.engagement,
+                                  design_rays=None, top_bound=self._top_bound)
+        res, batch = found
+        self.findings.extend(batch)
+        return res, batch
+
+    def _check_batch(self, grid, cutter, moves, ids, error_map, engagement, design_rays, top_bound):
+        out: list[Finding] = []
+        if self.limits:
+            out += motion.travel_limits(moves, self.limits, ids)
+        for fx in self.fixtures:
+            for tool, rows in self._tool_of_rows(moves):
+                out += fx.check(moves[rows], tool, ids[rows], self.min_volume)
+        if engagement is not None:
+            doc, core = engagement.run(moves)
+            if self.max_depth_of_cut is not None:
+                out += motion.depth_of_cut(moves, doc, self.max_depth_of_cut, ids)
+            for tool, rows in self._tool_of_rows(moves):
+                out += motion.plunges(moves[rows], core[rows], tool, self.max_ramp_deg, move_ids=ids[rows])
+        # non-cutting bodies: probe before the cut; only candidates are verified in order
+        pre = self._body_candidates(grid, cutter, moves, top_bound)
+        snapshot = grid.copy() if pre else None
+        res = cutter.cut_moves(moves, move_ids=ids.astype(np.int32))
+        out += collisions.rapid_into_stock(moves, res.removed, ids, self.min_volume)
+        out += motion.spindle_stopped_cutting(moves, res.removed, ids, self.min_volume)
+        if pre:
+            out += self._replay_contacts(snapshot, moves, ids, pre)
+        if error_map is not None and res.changed_rays.size:
+            rays = error_map.update(grid, self.design, res.changed_rays, self.tol, design_rays=design_rays)
+            if rays.size and np.nanmin(error_map.gouge[rays]) < -self.tol.gouge:
+                out += error_map.findings(self.tol, self._lines, rays=rays, undercut=False)
+        return res, merge_findings(out)
+
+    def _body_candidates(self, grid, cutter, moves, top_bound):
+        """{row: [(kind, body)]} of rows whose non-cutting bodies meet material now."""
+        cand: dict[int, list] = {}
+        for tool, rows in self._tool_of_rows(moves):
+            for kind, body in collisions.contact_bodies(tool):
+                sel = rows[collisions.reachable(moves[rows], body.bottom, top_bound)]
+                if sel.size == 0:
+                    continue
+                vol = cutter.probe_moves(moves[sel], body=body)
+                for k in sel[vol > self.min_volume]:
+                    cand.setdefault(int(k), []).append((kind, body))
+        return cand
+
+    def _replay_contacts(self, snapshot, moves, ids, cand) -> list[Finding]:
+        """Material meets a body at move k if it is there *when k runs*: replay the batch
+        on the snapshot up to each candidate and probe it then."""
+        scratch = Cutter(snapshot, self.tool, self.tol, tools=self.tools or None)
+        out: list[Finding] = []
+        done = 0
+        for k in sorted(cand):
+            if k > done:
+                scratch.cut_moves(moves[done:k], move_ids=ids[done:k].astype(np.int32), record_changes=False)
+                done = k
+            for kind, body in cand[k]:
+                vol = scratch.probe_moves(moves[k:k + 1], body=body)
+                out += collisions.body_findings(moves[k:k + 1], kind, vol, ids[k:k + 1], self.min_volume)
+        return out
+
+    # --- look-ahead -------------------------------------------------------------------------
+    def predict(self, moves: np.ndarray, move_ids=None) -> list[Finding]:
+        """Check ``moves`` on a scratch window of the live model (never changed).
+
+        The window covers the moves' XY extent grown by the largest tool/body radius.
+        Returns the merged findings (not added to :attr:`findings`).
+        """
+        moves = np.asarray(moves)
+        ids = motion.move_ids_of(moves, move_ids)
+        self._remember_lines(moves, ids)
+        if len(moves) == 0:
+            return []
+        f = self.frame
+        if not f.is_top:  # whole-grid scratch copy for frames we cannot window by XY
+            scratch = self.grid.copy()
+            i0 = j0 = 0
+        else:
+            p0, p1, _ = motion.path_polyline(moves, self.tol.chord * 10, which="tip")
+            if p0.shape[0] == 0:
+                scratch = None
+            pts = np.concatenate([p0, p1]) if p0.shape[0] else np.zeros((0, 3))
+            reach = max([self.tool.diameter] + [b.max_radius for _, b in collisions.contact_bodies(self.tool)]
+                        + [t.diameter for t in self.tools.values()]) + 2 * f.spacing
+            if pts.shape[0] == 0:
+                return merge_findings(motion.travel_limits(moves, self.limits, ids) if self.limits else [])
+            i0 = int(np.floor((pts[:, 0].min() - reach - f.origin[0]) / f.spacing))
+            i1 = int(np.ceil((pts[:, 0].max() + reach - f.origin[0]) / f.spacing)) + 1
+            j0 = int(np.floor((pts[:, 1].min() - reach - f.origin[1]) / f.spacing))
+            j1 = int(np.ceil((pts[:, 1].max() + reach - f.origin[1]) / f.spacing)) + 1
+            i0, j0 = max(i0, 0), max(j0, 0)
+            i1, j1 = min(i1, f.nu), min(j1, f.nv)
+            if i1 <= i0 or j1 <= j0:  # entirely off the stock: only the machine checks apply
+                out = motion.travel_limits(moves, self.limits, ids) if self.limits else []
+                for fx in self.fixtures:
+                    out += fx.check(moves, self.tool, ids, self.min_volume)
+                return merge_findings(out)
+            scratch = self.grid.window(i0, i1, j0, j1)
+        sf = scratch.frame
+        nu_full = f.nu
+
+        def to_full(r, _i0=i0, _j0=j0, _nu=sf.nu):
+            return (r // _nu + _j0) * nu_full + (r % _nu + _i0)
+
+        cutter = Cutter(scratch, self.tool, self.tol, tools=self.tools or None)
+        emap = ErrorMap(sf) if self.design is not None else None
+        eng = None
+        if self.engagement is not None and sf.is_top:
+            eng = motion.Engagement(sf, scratch.top(), self.tool)
+        _, found = self._check_batch(scratch, cutter, moves, ids, emap, eng,
+                                     design_rays=to_full if emap is not None else None,
+                                     top_bound=self._top_bound)
+        return found
+
+    # --- after the run ----------------------------------------------------------------------
+    def assess_model(self, faces: str = "cut", undercut: bool = True, min_rays: int = 1) -> list[Finding]:
+        """Whole-model error assessment (Huang & Oliver's post-process): every assessed
+        dexel point of the model against the design; gouge and undercut regions.
+
+        Returns [] without a design.
+        """
+        if self.design is None:
+            return []
+        self.error_map = ErrorMap(self.frame)
+        self.error_map.update(self.grid, self.design, np.arange(self.frame.n_rays), self.tol, faces=faces)
+        return self.error_map.findings(self.tol, self._lines, undercut=undercut, min_rays=min_rays)
+
+    def all_findings(self) -> list[Finding]:
+        """Everything found while cutting, merged."""
+        return merge_findings(self.findings)

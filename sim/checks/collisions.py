@@ -1,0 +1,159 @@
+"""Collision checks: material met by a rapid, by the shank, the holder or the tool above
+its flutes, and any part of the tool entering a fixture.
+
+Volumes come from the cutter: ``Cutter.cut_moves(...).removed`` for what the cutting part
+really removed, ``Cutter.probe_moves(moves, body)`` for what a swept body would meet
+without changing the grid.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim.checks.findings import Finding
+from sim.checks.motion import is_motion, move_ids_of
+from sim.errors import InputError
+from sim.gcode.moves import MoveKind
+from sim.grid import DexelGrid
+from sim.tools import DEFAULT_SHANK_LENGTH, Body, Tool
+
+#: finding kind of each non-cutting body name
+BODY_KINDS = {"shank": "shank_contact", "holder": "holder_contact", "above_flutes": "above_flute_contact"}
+
+
+def _tip(moves, k):
+    tip = np.array(moves["end"][k, :3], np.float64)
+    tip[2] -= moves["tool_length"][k]
+    return tip
+
+
+def rapid_into_stock(moves: np.ndarray, removed, move_ids=None, min_volume: float = 1e-6) -> list[Finding]:
+    """Rapid rows that removed (or would remove) more than ``min_volume`` mm^3."""
+    moves = np.asarray(moves)
+    ids = move_ids_of(moves, move_ids)
+    removed = np.asarray(removed, np.float64)
+    bad = np.nonzero((moves["kind"] == MoveKind.RAPID) & (removed > min_volume))[0]
+    return [Finding(kind="rapid_into_stock", line=int(moves["line"][k]), stage=int(ids[k]),
+                    position=tuple(_tip(moves, k)), volume=float(removed[k]),
+                    message=f"rapid (G0) into material at line {int(moves['line'][k])}: "
+                            f"{float(removed[k]):.3f} mm^3")
+            for k in bad]
+
+
+def above_flute_body(tool: Tool, length: float = DEFAULT_SHANK_LENGTH) -> Body | None:
+    """The tool body between the top of the flutes and the shank (or ``length`` mm of it
+    when no shank is declared): a cylinder of the tool diameter that does not cut.
+    None when the shank starts right at the flute top."""
+    top = tool.shank.bottom if tool.shank is not None else tool.flute_length + length
+    if top - tool.flute_length <= 1e-9:
+        return None
+    return Body.cylinder("above_flutes", tool.diameter, tool.flute_length, top - tool.flute_length)
+
+
+def contact_bodies(tool: Tool) -> list[tuple[str, Body]]:
+    """``(finding kind, body)`` for every non-cutting body of ``tool``, lowest first."""
+    out = []
+    above = above_flute_body(tool)
+    if above is not None:
+        out.append((BODY_KINDS["above_flutes"], above))
+    if tool.shank is not None:
+        out.append((BODY_KINDS["shank"], tool.shank))
+    if tool.holder is not None:
+        out.append((BODY_KINDS["holder"], tool.holder))
+    return out
+
+
+def body_findings(moves: np.ndarray, kind: str, volumes, move_ids=None, min_volume: float = 1e-6,
+                  what: str = "") -> list[Finding]:
+    """One finding per motion row whose body met more than ``min_volume`` mm^3."""
+    moves = np.asarray(moves)
+    ids = move_ids_of(moves, move_ids)
+    volumes = np.asarray(volumes, np.float64)
+    bad = np.nonzero((volumes > min_volume) & is_motion(moves))[0]
+    label = what or kind.replace("_", " ")
+    return [Finding(kind=kind, line=int(moves["line"][k]), stage=int(ids[k]), position=tuple(_tip(moves, k)),
+                    volume=float(volumes[k]),
+                    message=f"{label} at line {int(moves['line'][k])}: {float(volumes[k]):.3f} mm^3",
+                    detail={"group": what} if what else {})
+            for k in bad]
+
+
+def max_top(grid: DexelGrid) -> float:
+    """Highest material point of a top-view grid along the rays (s), -inf when empty."""
+    t = grid.top()
+    return float(np.nanmax(t)) if np.isfinite(t).any() else -np.inf
+
+
+def reachable(moves: np.ndarray, body_bottom: float, top: float) -> np.ndarray:
+    """bool (n,): rows where a body starting ``body_bottom`` mm above the tip can get
+    down to material whose highest point is ``top`` (top-view grids): a cheap filter that
+    spares probing bodies that pass above everything."""
+    zs = np.minimum(moves["start"][:, 2], moves["end"][:, 2]) - moves["tool_length"]
+    return (zs + body_bottom < top) & is_motion(moves)
+
+
+class Fixture:
+    """A clamp, vise jaw or table: a dexel grid the tool must never enter.
+
+    ``grid`` may have its own frame (a box grid over just the fixture)."""
+
+    def __init__(self, name: str, grid: DexelGrid):
+        self.name = name
+        self.grid = grid
+        self._top = max_top(grid) if grid.frame.is_top else np.inf
+
+    @classmethod
+    def box(cls, lo, hi, spacing: float, name: str | None = None) -> "Fixture":
+        """A box fixture ``lo``..``hi`` (machine coords, mm) on its own top-view grid."""
+        from sim.frame import Frame
+        from sim.solids import box_grid
+
+        lo = np.asarray(lo, np.float64)
+        hi = np.asarray(hi, np.float64)
+        if not np.all(hi > lo):
+            raise InputError(f"fixture box must have lo < hi on every axis, got {lo.tolist()} .. {hi.tolist()}")
+        frame = Frame.top(lo[0], lo[1], hi[0], hi[1], spacing)
+        return cls(name or f"box {lo.tolist()}..{hi.tolist()}", box_grid(frame, lo, hi))
+
+    def check(self, moves: np.ndarray, tool: Tool, move_ids=None, min_volume: float = 1e-6) -> list[Finding]:
+        """Moves whose tool (cutting part, shank, holder, body above the flutes) meets the
+        fixture; one finding per move and part, volume = what the part would sweep."""
+        from sim.cut import Cutter
+
+        moves = np.asarray(moves)
+        if len(moves) == 0:
+            return []
+        ids = move_ids_of(moves, move_ids)
+        cutter = Cutter(self.grid, tool)
+        out: list[Finding] = []
+        parts = [("tool", tool, 0.0)] + [(b.name, b, b.bottom) for _, b in contact_bodies(tool)]
+        for name, body, bottom in parts:
+            rows = np.nonzero(reachable(moves, bottom, self._top))[0]
+            rows = rows[_near_xy(moves[rows], self.grid, _radius(body))]
+            if rows.size == 0:
+                continue
+            vol = cutter.probe_moves(moves[rows], body=body)
+            for f in body_findings(moves[rows], "fixture_collision", vol, ids[rows], min_volume,
+                                   what=f"{name} in fixture {self.name}"):
+                out.append(f)
+        return out
+
+
+def _radius(body) -> float:
+    return float(body.cutting_radius if isinstance(body, Tool) else body.max_radius)
+
+
+def _near_xy(moves, grid: DexelGrid, radius: float) -> np.ndarray:
+    """bool (n,): rows whose XY box, grown by ``radius``, overlaps the grid's XY box."""
+    if len(moves) == 0 or not grid.frame.is_top:
+        return np.ones(len(moves), bool)
+    f = grid.frame
+    x0, y0 = f.origin[0], f.origin[1]
+    x1, y1 = x0 + (f.nu - 1) * f.spacing, y0 + (f.nv - 1) * f.spacing
+    s, e = moves["start"], moves["end"]
+    lo_x = np.minimum(s[:, 0], e[:, 0]) - radius
+    hi_x = np.maximum(s[:, 0], e[:, 0]) + radius
+    lo_y = np.minimum(s[:, 1], e[:, 1]) - radius
+    hi_y = np.maximum(s[:, 1], e[:, 1]) + radius
+    arc = np.isin(moves["kind"], [int(MoveKind.ARC_CW), int(MoveKind.ARC_CCW)])
+    return arc | ((hi_x >= x0) & (lo_x <= x1) & (hi_y >= y0) & (lo_y <= y1))
