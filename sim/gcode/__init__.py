@@ -1,5 +1,18 @@
-"""G-code interpreter (LinuxCNC RS274NGC and GRBL 1.1 dialects) producing move tables."""
+"""G-code interpreter (LinuxCNC RS274NGC and GRBL 1.1 dialects) producing move tables.
 
+>>> from sim.gcode import interpret
+>>> prog = interpret("G21 G90 G0 X10\\nG1 Y5 F300\\nM2")
+>>> prog.moves["kind"].tolist()
+[0, 1, 8]
+"""
+
+from sim.gcode.errors import GCodeError
+from sim.gcode.interpreter import Interpreter
 from sim.gcode.moves import MOVE_DTYPE, MoveKind, Plane, empty_moves, tip_positions
+from sim.gcode.program import Program, interpret, load_program
+from sim.gcode.state import ModalState
 
-__all__ = ["MOVE_DTYPE", "MoveKind", "Plane", "empty_moves", "tip_positions"]
+__all__ = [
+    "GCodeError", "Interpreter", "MOVE_DTYPE", "ModalState", "MoveKind", "Plane", "Program",
+    "empty_moves", "interpret", "load_program", "tip_positions",
+]

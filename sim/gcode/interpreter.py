@@ -1,0 +1,950 @@
+"""Execute parsed blocks the way LinuxCNC's rs274ngc (or GRBL 1.1) does; emit move rows.
+
+Internally every length is mm and every position is the machine position of the
+controlled point; the work position is ``machine - g5x - g92 - tool offset``. Words
+are converted from program units (G20/G21) as they are read.
+
+The order of execution within a line is LinuxCNC's: comment, feed mode, F, S, T, M6,
+M3/M4/M5, coolant, dwell, plane, units, cutter comp, tool length, coordinate system,
+path mode, distance mode, retract mode, G10/G28/G30/G92, motion, stop.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+
+from sim.gcode import arcs
+from sim.gcode.errors import GCodeError, LineError
+from sim.gcode.expr import evaluate
+from sim.gcode.moves import COOLANT_FLOOD, COOLANT_MIST, MOVE_DTYPE, MoveKind
+from sim.gcode.parser import AXES, Block, parse_line
+from sim.gcode.state import ModalState
+
+INCH = 25.4
+NAN3 = (math.nan, math.nan, math.nan)
+MAX_STEPS = 20_000_000  # executed blocks before a program is called runaway (o-word loops)
+
+# modal group of each G code (in tenths); 0 = non-modal
+G_GROUP = {
+    0: 1, 10: 1, 20: 1, 30: 1, 382: 1, 383: 1, 384: 1, 385: 1, 730: 1, 800: 1, 810: 1, 820: 1,
+    830: 1, 850: 1, 860: 1, 890: 1,
+    170: 2, 180: 2, 190: 2,
+    900: 3, 910: 3,
+    901: 4, 911: 4,
+    930: 5, 940: 5, 950: 5,
+    200: 6, 210: 6,
+    400: 7, 410: 7, 420: 7,
+    430: 8, 431: 8, 490: 8,
+    980: 10, 990: 10,
+    540: 12, 550: 12, 560: 12, 570: 12, 580: 12, 590: 12, 591: 12, 592: 12, 593: 12,
+    610: 13, 611: 13, 640: 13,
+    970: 14,
+    40: 0, 100: 0, 280: 0, 281: 0, 300: 0, 301: 0, 530: 0, 920: 0, 921: 0, 922: 0, 923: 0,
+}
+GRBL_G = {0, 10, 20, 30, 382, 383, 384, 385, 40, 100, 170, 180, 190, 200, 210, 280, 281, 300, 301,
+          400, 431, 490, 530, 540, 550, 560, 570, 580, 590, 610, 800, 900, 910, 911, 920, 921, 930, 940}
+M_GROUP = {0: 4, 1: 4, 2: 4, 30: 4, 60: 4, 6: 6, 61: 6, 3: 7, 4: 7, 5: 7, 7: 8, 8: 8, 9: 8,
+           48: 9, 49: 9, 50: 9, 51: 9, 52: 9, 53: 9}
+GRBL_M = {0, 1, 2, 30, 3, 4, 5, 8, 9, 56}
+CYCLES = {730, 810, 820, 830, 850, 860, 890}
+MOTION_AXES = {0, 10, 20, 30, 382, 383, 384, 385} | CYCLES
+G0_AXIS_USERS = {100, 280, 300, 920}
+PLANE_AXES = {170: (0, 1, 2), 180: (2, 0, 1), 190: (1, 2, 0)}  # first, second, normal axis
+PLANE_CODE = {170: 0, 180: 1, 190: 2}
+PLANE_OFFSET_WORDS = {170: ("I", "J", "K"), 180: ("K", "I", "J"), 190: ("J", "K", "I")}
+COORD_INDEX = {540: 0, 550: 1, 560: 2, 570: 3, 580: 4, 590: 5, 591: 6, 592: 7, 593: 8}
+ARC_TOL_INCH = 0.0005  # LinuxCNC TOLERANCE_INCH (program inch)
+ARC_TOL_MM = 0.005     # LinuxCNC TOLERANCE_MM
+G83_RAPID_DELTA_INCH = 0.010
+
+
+def _code10(v: float) -> int:
+    return int(round(v * 10.0))
+
+
+class _Params:
+    """LinuxCNC parameter store: numbered (with the offset parameters live) and named."""
+
+    def __init__(self, interp: "Interpreter"):
+        self.it = interp
+        self.numbered: dict[int, float] = {}
+        self.globals: dict[str, float] = {}
+        self.frames: list[dict[str, float]] = [{}]
+
+    # numbered parameters that mirror interpreter state (program units)
+    def get_numbered(self, idx: float) -> float:
+        i = int(round(idx))
+        if abs(idx - i) > 1e-6 or not 1 <= i <= 5602:
+            raise LineError(f"parameter number #{idx:g} out of range 1..5602")
+        it = self.it
+        f = it.factor
+        if 5161 <= i <= 5166:
+            return self._out(it.g28[i - 5161], i - 5161)
+        if 5181 <= i <= 5186:
+            return self._out(it.g30[i - 5181], i - 5181)
+        if 5211 <= i <= 5216:
+            return self._out(it.g92_saved[i - 5211], i - 5211)
+        if i == 5210:
+            return 1.0 if it.g92_enabled else 0.0
+        if i == 5220:
+            return float(it.coord + 1)
+        if 5221 <= i <= 5390:
+            k, a = divmod(i - 5221, 20)
+            if k < 9 and a < 6:
+                return self._out(it.g5x[k][a], a)
+            if k < 9 and a == 9:
+                return 0.0  # rotation
+        if i == 5400:
+            return float(it.tool)
+        if 5401 <= i <= 5406:
+            return self._out(it.tlo[i - 5401], i - 5401)
+        if i == 5410:
+            e = it.tool_table.get(it.tool) if it.tool_table else None
+            return (e.diameter / f) if e else 0.0
+        if 5420 <= i <= 5425:
+            w = it.work()
+            return self._out(w[i - 5420], i - 5420)
+        return self.numbered.get(i, 0.0)
+
+    def _out(self, v: float, axis: int) -> float:
+        return v / self.it.factor if axis < 3 else v
+
+    def _in(self, v: float, axis: int) -> float:
+        return v * self.it.factor if axis < 3 else v
+
+    def set_numbered(self, idx: float, v: float) -> None:
+        i = int(round(idx))
+        if abs(idx - i) > 1e-6 or not 1 <= i <= 5602:
+            raise LineError(f"parameter number #{idx:g} out of range 1..5602")
+        if 5381 <= i <= 5390 or 5420 <= i <= 5428 or i in (5400, 5410) or 5401 <= i <= 5409:
+            raise LineError(f"parameter #{i} is read-only")
+        it = self.it
+        if 5161 <= i <= 5166:
+            it.g28[i - 5161] = self._in(v, i - 5161)
+        elif 5181 <= i <= 5186:
+            it.g30[i - 5181] = self._in(v, i - 5181)
+        elif 5211 <= i <= 5216:
+            it.g92_saved[i - 5211] = self._in(v, i - 5211)
+        elif 5221 <= i <= 5380:
+            k, a = divmod(i - 5221, 20)
+            if a < 6:
+                it.g5x[k][a] = self._in(v, a)
+        self.numbered[i] = v
+
+    def get_named(self, name: str) -> float:
+        if name.startswith("_"):
+            if name in self.globals:
+                return self.globals[name]
+            v = self._predefined(name)
+            if v is None:
+                raise LineError(f"named parameter #<{name}> is not defined")
+            return v
+        frame = self.frames[-1]
+        if name not in frame:
+            raise LineError(f"named parameter #<{name}> is not defined")
+        return frame[name]
+
+    def set_named(self, name: str, v: float) -> None:
+        if name.startswith("_"):
+            self.globals[name] = v
+        else:
+            self.frames[-1][name] = v
+
+    def exists(self, name: str) -> bool:
+        if name.startswith("_"):
+            return name in self.globals or self._predefined(name) is not None
+        return name in self.frames[-1]
+
+    def _predefined(self, name: str):
+        it = self.it
+        w = it.work()
+        axes = {"_x": 0, "_y": 1, "_z": 2, "_a": 3, "_b": 4, "_c": 5}
+        if name in axes:
+            return self._out(w[axes[name]], axes[name])
+        table = {
+            "_metric": 1.0 if it.units == 210 else 0.0,
+            "_imperial": 1.0 if it.units == 200 else 0.0,
+            "_absolute": 1.0 if it.distance == 900 else 0.0,
+            "_incremental": 1.0 if it.distance == 910 else 0.0,
+            "_coord_system": float(it.coord_code) / 10.0,
+            "_feed": it.feed_word,
+            "_rpm": it.spindle,
+            "_current_tool": float(it.tool),
+            "_selected_tool": float(it.selected_tool),
+            "_motion_mode": it.motion / 10.0,
+            "_plane": it.plane / 10.0,
+            "_value": self.globals.get("_value", 0.0),
+            "_value_returned": self.globals.get("_value_returned", 0.0),
+            "_line": float(it.line),
+            "_task": 0.0,
+            "_vmajor": 2.0,
+            "_vminor": 9.0,
+        }
+        return table.get(name)
+
+
+class Interpreter:
+    """A G-code interpreter for one program or one stream of lines.
+
+    ``dialect`` is ``"linuxcnc"`` or ``"grbl"``. ``tool_table`` is ``{number: ToolEntry}``
+    (lengths in mm) or None (any tool allowed, zero offsets). ``var_params`` is
+    ``{parameter: value}`` from a .var file, in ``machine_units``.
+    """
+
+    def __init__(self, dialect: str = "linuxcnc", machine_units: str = "mm", tool_table=None,
+                 var_params: dict | None = None, filename: str = "<string>", block_delete: bool = True):
+        if dialect not in ("linuxcnc", "grbl"):
+            raise GCodeError(f"unknown dialect {dialect!r}: expected 'linuxcnc' or 'grbl'", filename, 0)
+        if machine_units not in ("mm", "inch"):
+            raise GCodeError(f"machine units must be 'mm' or 'inch', got {machine_units!r}", filename, 0)
+        self.dialect = dialect
+        self.grbl = dialect == "grbl"
+        self.machine_units = machine_units
+        self.tool_table = dict(tool_table) if tool_table else {}
+        self.has_tool_table = tool_table is not None
+        self.filename = filename
+        self.files: list[str] = [filename]
+        self.block_delete = block_delete
+        # positions and offsets, mm / degrees
+        self.pos = [0.0] * 6
+        self.g5x = [[0.0] * 6 for _ in range(9)]
+        self.coord = 0
+        self.g92 = [0.0] * 6
+        self.g92_saved = [0.0] * 6
+        self.g92_enabled = False
+        self.tlo = [0.0] * 6
+        self.g28 = [0.0] * 6
+        self.g30 = [0.0] * 6
+        # modal codes (tenths)
+        self.motion = 0
+        self.plane = 170
+        self.distance = 900
+        self.arc_distance = 911
+        self.feed_mode = 940
+        self.units = 210
+        self.factor = 1.0
+        self.comp = 400
+        self.comp_radius = 0.0
+        self.tlo_mode = 490
+        self.path_mode = 610
+        self.retract = 980
+        self.feed_word = 0.0
+        self.feed_set = False
+        self.spindle = 0.0
+        self.spindle_dir = 0
+        self.tool = 0
+        self.selected_tool = 0
+        self.coolant = 0
+        self.cycle_r = None
+        self.cycle_z = None
+        self.cycle_q = None
+        self.cycle_p = 0.0
+        self.cycle_motion = None
+        self.file_index = 0
+        self.line = 0
+        self.ended = False
+        self.messages: list[tuple[int, str]] = []
+        self._rows: list[tuple] = []
+        self._row_line: list[int] = []   # main-file line that caused each row
+        self.main_line = 0
+        self.params = _Params(self)
+        self.comp_engine = None
+        if var_params:
+            self._load_var(var_params)
+
+    # ----------------------------------------------------------------- public helpers
+    @property
+    def coord_code(self) -> int:
+        return (540, 550, 560, 570, 580, 590, 591, 592, 593)[self.coord]
+
+    def offsets(self) -> list[float]:
+        """Total offset machine - work for each axis (mm)."""
+        g = self.g5x[self.coord]
+        return [g[i] + self.g92[i] + self.tlo[i] for i in range(6)]
+
+    def work(self) -> list[float]:
+        off = self.offsets()
+        return [self.pos[i] - off[i] for i in range(6)]
+
+    @property
+    def state(self) -> ModalState:
+        """A snapshot of the modal state (a new object each time)."""
+        off = np.array(self.offsets())
+        pos = np.array(self.pos)
+        return ModalState(
+            motion=self.motion, plane=self.plane, distance=self.distance, arc_distance=self.arc_distance,
+            feed_mode=self.feed_mode, units=self.units, cutter_comp=self.comp, tool_length_mode=self.tlo_mode,
+            coord_system=self.coord_code, path_mode=self.path_mode, retract_mode=self.retract,
+            feed=self.feed_word * self.factor, feed_word=self.feed_word, spindle=self.spindle,
+            spindle_dir=self.spindle_dir, tool=self.tool, selected_tool=self.selected_tool,
+            tool_length=self.tlo[2], comp_radius=self.comp_radius, coolant=self.coolant,
+            position=pos, work_position=pos - off, work_offset=np.array(self.g5x[self.coord]),
+            g92_offset=np.array(self.g92), tool_offset=np.array(self.tlo), file=self.file_index,
+            line=self.line,
+        )
+
+    def modal_key(self) -> tuple:
+        """Cheap tuple that changes whenever anything in :class:`ModalState` but position does."""
+        return (self.motion, self.plane, self.distance, self.arc_distance, self.feed_mode, self.units,
+                self.comp, self.comp_radius, self.tlo_mode, self.coord, self.path_mode, self.retract,
+                self.feed_word, self.spindle, self.spindle_dir, self.tool, self.selected_tool,
+                self.coolant, tuple(self.g5x[self.coord]), tuple(self.g92), tuple(self.tlo))
+
+    def set_work_offset(self, index: int, values, axes: str = "XYZ") -> None:
+        """Set G54..G59.3 (``index`` 1..9; 0 = active) offsets, mm, for the named axes."""
+        k = self.coord if index == 0 else index - 1
+        if not 0 <= k < 9:
+            raise ValueError(f"work offset index {index} out of range 0..9")
+        for a, v in zip(axes, values):
+            self.g5x[k][AXES.index(a)] = float(v)
+
+    def work_offsets(self) -> list[list[float]]:
+        """G54..G59.3 offsets in mm, 9 lists of 6."""
+        return [list(g) for g in self.g5x]
+
+    def set_position(self, machine) -> None:
+        """Set the machine position (mm), e.g. after a jog or a probe."""
+        for i, v in enumerate(machine):
+            self.pos[i] = float(v)
+
+    def set_home(self, which: int, machine) -> None:
+        """Set the stored G28 (``which=28``) or G30 position, machine mm."""
+        target = self.g28 if which == 28 else self.g30
+        for i, v in enumerate(machine):
+            target[i] = float(v)
+
+    def reset_modes(self) -> None:
+        """Program end / soft reset modes (LinuxCNC's and GRBL's M2 defaults)."""
+        self.motion = 10 if not self.grbl else 10
+        self.coord = 0
+        self.plane = 170
+        self.distance = 900
+        self.feed_mode = 940
+        self.comp = 400
+        self.comp_radius = 0.0
+        self.spindle_dir = 0
+        self.coolant = 0
+        self.path_mode = 610
+        self.g92 = [0.0] * 6
+        self.g92_enabled = False
+        if self.comp_engine is not None:
+            self.comp_engine = None
+
+    def take_rows(self) -> np.ndarray:
+        """The rows produced since the last call, as a MOVE_DTYPE array; clears the buffer."""
+        rows = np.array(self._rows, dtype=MOVE_DTYPE) if self._rows else np.zeros(0, MOVE_DTYPE)
+        self._rows.clear()
+        self._row_line.clear()
+        return rows
+
+    def execute_line(self, text: str, line_no: int | None = None, file_index: int = 0) -> np.ndarray:
+        """Execute one streamed line; return the MOVE_DTYPE rows it produced.
+
+        Raises :class:`GCodeError` (with ``grbl_code`` in the grbl dialect) when the
+        controller would refuse the line; the state is then unchanged by the line's
+        motion (parameter settings of LinuxCNC lines are also not applied).
+        """
+        line_no = self.line + 1 if line_no is None else int(line_no)
+        self.line = line_no
+        self.main_line = line_no
+        self._rows.clear()
+        self._row_line.clear()
+        try:
+            if self.grbl and text.lstrip().startswith("%"):
+                raise LineError("'%' is not a G-code command", 1, grbl_code=1)
+            block = parse_line(text, self.dialect)
+            if block.oword is not None:
+                raise LineError("o-word control flow needs the whole program (use load_program/interpret)",
+                                block.oword[3])
+            self.execute_block(block, line_no, file_index)
+        except LineError as exc:
+            self._rows.clear()
+            raise self.error(exc, text, line_no) from None
+        except (ArithmeticError, ValueError, OverflowError) as exc:
+            self._rows.clear()
+            raise self.error(LineError(f"cannot compute this line: {exc}"), text, line_no) from None
+        return self.take_rows()
+
+    def error(self, exc: LineError, text: str, line_no: int, file_index: int | None = None) -> GCodeError:
+        fi = self.file_index if file_index is None else file_index
+        name = self.files[fi] if 0 <= fi < len(self.files) else self.filename
+        code = exc.grbl_code if self.grbl else None
+        if self.grbl and code is None:
+            code = 20
+        return GCodeError(exc.message, name, line_no, exc.column, text, code)
+
+    # ----------------------------------------------------------------- var file
+    def _load_var(self, params: dict) -> None:
+        unit = INCH if self.machine_units == "inch" else 1.0
+        for num, v in params.items():
+            num = int(num)
+            if 5161 <= num <= 5166:
+                a = num - 5161
+                self.g28[a] = v * unit if a < 3 else v
+            elif 5181 <= num <= 5186:
+                a = num - 5181
+                self.g30[a] = v * unit if a < 3 else v
+            elif 5211 <= num <= 5216:
+                a = num - 5211
+                self.g92_saved[a] = v * unit if a < 3 else v
+            elif num == 5210:
+                self.g92_enabled = bool(v)
+            elif num == 5220:
+                k = int(round(v)) - 1
+                if 0 <= k < 9:
+                    self.coord = k
+            elif 5221 <= num <= 5390:
+                k, a = divmod(num - 5221, 20)
+                if k < 9 and a < 6:
+                    self.g5x[k][a] = v * unit if a < 3 else v
+            else:
+                self.params.numbered[num] = v
+        if self.g92_enabled:
+            self.g92 = list(self.g92_saved)
+
+    # ----------------------------------------------------------------- rows
+    def emit(self, kind: int, start, end, center=NAN3, turns: int = 0, feed: float = 0.0,
+             inverse: float = 0.0, dwell: float = 0.0) -> None:
+        off = self.offsets()
+        sw = tuple(start[i] - off[i] for i in range(6))
+        ew = tuple(end[i] - off[i] for i in range(6))
+        self._rows.append((
+            self.file_index, self.line, kind, tuple(start), tuple(end), sw, ew, center,
+            PLANE_CODE[self.plane], turns, feed, inverse, self.spindle, self.spindle_dir, self.tool,
+            self.tlo[2], self.coolant, dwell,
+        ))
+        self._row_line.append(self.main_line)
+
+    # ----------------------------------------------------------------- block execution
+    def evaluate_block(self, block: Block):
+        """(words, g codes, m codes) with every value a float; applies parameter settings."""
+        if not block.has_expr:
+            return block.words, block.g, block.m
+        p = self.params
+        words = {k: evaluate(v, p) for k, v in block.words.items()}
+        g = [(evaluate(v, p), c) for v, c in block.g]
+        m = [(evaluate(v, p), c) for v, c in block.m]
+        if block.assigns:
+            values = []
+            for target, value, col in block.assigns:
+                try:
+                    values.append((target, evaluate(value, p)))
+                except LineError as exc:
+                    exc.column = col
+                    raise
+            for target, v in values:
+                if target[0] == "n":
+                    p.set_named(target[1], v)
+                else:
+                    p.set_numbered(evaluate(target[1], p), v)
+        return words, g, m
+
+    def execute_block(self, block: Block, line_no: int, file_index: int = 0) -> None:
+        """Execute one parsed block (no o-word). Raises LineError."""
+        self.line = line_no
+        self.file_index = file_index
+        if block.message is not None:
+            self.messages.append((line_no, block.message))
+        if block.empty or block.percent or (block.deleted and self.block_delete):
+            return
+        if self.ended:
+            return
+        words, glist, mlist = self.evaluate_block(block)
+        cols = block.cols
+        grbl = self.grbl
+
+        # ---- classify G and M words into modal groups
+        gmodes: dict[int, tuple[int, int]] = {}
+        for v, col in glist:
+            c = _code10(v)
+            if abs(v * 10.0 - c) > 1e-6 or c not in G_GROUP:
+                if grbl:
+                    raise LineError(f"G{v:g} is not a GRBL command", col, 23 if (c // 10 * 10) in GRBL_G and c % 10 else 20)
+                raise LineError(f"unknown G code G{v:g}", col)
+            if grbl and c not in GRBL_G:
+                raise LineError(f"GRBL does not support G{v:g}", col, 20)
+            grp = G_GROUP[c]
+            if grp in gmodes:
+                raise LineError(f"G{v:g} and G{gmodes[grp][0] / 10:g} are in the same modal group", col, 21)
+            gmodes[grp] = (c, col)
+        mmodes: dict[int, tuple[int, int]] = {}
+        both_coolants = False
+        for v, col in mlist:
+            c = int(round(v))
+            if abs(v - c) > 1e-6 or c not in M_GROUP:
+                if grbl:
+                    raise LineError(f"M{v:g} is not a GRBL command", col, 23 if abs(v - c) > 1e-6 else 20)
+                raise LineError(f"unknown M code M{v:g}", col)
+            if grbl and c not in GRBL_M:
+                raise LineError(f"GRBL does not support M{c}", col, 20)
+            grp = M_GROUP[c]
+            if grp in mmodes:
+                if grp == 8 and {c, mmodes[grp][0]} == {7, 8} and not grbl:
+                    both_coolants = True
+                    continue
+                raise LineError(f"M{c} and M{mmodes[grp][0]} are in the same modal group", col, 21)
+            mmodes[grp] = (c, col)
+        if len(mlist) > 4:
+            raise LineError("more than four M words on one line", mlist[4][1])
+
+        used = {"N"}
+        has_axes = any(a in words for a in AXES) or "@" in words or "^" in words
+        g0 = gmodes.get(0)
+        g0code = g0[0] if g0 else None
+        explicit_motion = gmodes.get(1)
+        axis_owner = None  # which code takes the axis words
+        if g0code in G0_AXIS_USERS and has_axes:
+            if explicit_motion and explicit_motion[0] not in (800,):
+                raise LineError("two G codes that both use axis words on one line", explicit_motion[1], 24)
+            axis_owner = g0code
+        if gmodes.get(8, (0,))[0] == 431 and has_axes:
+            if explicit_motion:
+                raise LineError("G43.1 and a motion both use the axis words", explicit_motion[1], 24)
+            axis_owner = 431
+        motion = None
+        if explicit_motion:
+            motion = explicit_motion[0]
+        elif has_axes and axis_owner is None:
+            motion = self.motion
+        if motion == 800 and has_axes and axis_owner is None:
+            col = min(cols.get(a, 10**6) for a in AXES + "@^" if a in words)
+            raise LineError("axis words with no command to use them (G80 is active)", col, 31)
+
+        # ---- 1. feed mode, F, S, T
+        if 5 in gmodes:
+            self.feed_mode = gmodes[5][0]
+        if "F" in words:
+            f = words["F"]
+            if f < 0:
+                raise LineError("F must not be negative", cols["F"], 4)
+            self.feed_word = f
+            self.feed_set = True
+            used.add("F")
+        if "S" in words:
+            s = words["S"]
+            if s < 0:
+                raise LineError("S (spindle speed) must not be negative", cols["S"], 4)
+            self.spindle = s
+            used.add("S")
+        if "T" in words:
+            t = words["T"]
+            used.add("T")
+            if t < 0 or t != int(t):
+                raise LineError(f"T must be a non-negative integer, got {t:g}", cols["T"], 4 if t < 0 else 23)
+            t = int(t)
+            if grbl and t > 255:
+                raise LineError("tool number greater than 255", cols["T"], 38)
+            if not grbl and self.has_tool_table and t != 0 and t not in self.tool_table:
+                raise LineError(f"unknown tool T{t}: it is not in the tool table", cols["T"])
+            self.selected_tool = t
+        # ---- 2. M6 / M61
+        m6 = mmodes.get(6)
+        if m6:
+            if m6[0] == 6:
+                old = list(self.pos)
+                self.tool = self.selected_tool
+                self.emit(MoveKind.TOOL_CHANGE, old, old)
+            else:  # M61 Qn
+                if "Q" not in words:
+                    raise LineError("M61 needs a Q word (tool number)", m6[1])
+                q = words["Q"]
+                used.add("Q")
+                if q < 0 or q != int(q):
+                    raise LineError("M61 Q must be a non-negative integer", cols["Q"])
+                if self.has_tool_table and int(q) != 0 and int(q) not in self.tool_table:
+                    raise LineError(f"unknown tool T{int(q)}: it is not in the tool table", cols["Q"])
+                self.tool = self.selected_tool = int(q)
+        # ---- 3. spindle, coolant
+        sp = mmodes.get(7)
+        if sp:
+            self.spindle_dir = {3: 1, 4: -1, 5: 0}[sp[0]]
+        cool = mmodes.get(8)
+        if cool:
+            if both_coolants:
+                self.coolant = COOLANT_MIST | COOLANT_FLOOD
+            elif cool[0] == 7:
+                self.coolant |= COOLANT_MIST
+            elif cool[0] == 8:
+                self.coolant |= COOLANT_FLOOD
+            else:
+                self.coolant = 0
+        # ---- 4. dwell
+        if g0code == 40:
+            if "P" not in words:
+                raise LineError("G4 needs a P word (seconds)", g0[1], 28)
+            p = words["P"]
+            if p < 0:
+                raise LineError("G4 P must not be negative", cols["P"], 4)
+            used.add("P")
+            here = list(self.pos)
+            self.emit(MoveKind.DWELL, here, here, dwell=p)
+        # ---- 5. plane, units
+        if 2 in gmodes:
+            if self.comp != 400 and gmodes[2][0] != self.plane:
+                raise LineError("cannot change the plane with cutter compensation on", gmodes[2][1])
+            self.plane = gmodes[2][0]
+        if 6 in gmodes:
+            self.units = gmodes[6][0]
+            self.factor = INCH if self.units == 200 else 1.0
+        # ---- 6. cutter compensation
+        if 7 in gmodes:
+            self._set_comp(gmodes[7], words, cols, used)
+        # ---- 7. tool length
+        if 8 in gmodes:
+            self._set_tool_length(gmodes[8], words, cols, used)
+        # ---- 8. coordinate system
+        if 12 in gmodes:
+            c, col = gmodes[12]
+            if self.comp != 400:
+                raise LineError("cannot change the coordinate system with cutter compensation on", col)
+            self.coord = COORD_INDEX[c]
+        # ---- 9. path mode, distance modes, retract mode, spindle mode
+        if 13 in gmodes:
+            self.path_mode = gmodes[13][0]
+            if self.path_mode == 640:
+                used.update(k for k in ("P", "Q") if k in words)
+        if 3 in gmodes:
+            self.distance = gmodes[3][0]
+        if 4 in gmodes:
+            self.arc_distance = gmodes[4][0]
+        if 10 in gmodes:
+            self.retract = gmodes[10][0]
+        # ---- 10. G10 G28 G30 G92 G53
+        g53 = g0code == 530
+        if g0code in (100, 280, 281, 300, 301, 920, 921, 922, 923):
+            self._non_modal(g0code, g0[1], words, cols, used)
+        if g53:
+            eff = motion if motion is not None else self.motion
+            if eff not in (0, 10) or motion is None and has_axes is False:
+                if eff not in (0, 10):
+                    raise LineError("G53 needs G0 or G1 motion", g0[1], 30)
+            if self.distance == 910 and not grbl:
+                raise LineError("G53 cannot be used in incremental (G91) mode", g0[1])
+            if self.comp != 400:
+                raise LineError("G53 cannot be used with cutter compensation on", g0[1])
+        # ---- 11. motion
+        if explicit_motion:
+            self.motion = explicit_motion[0]
+            if motion in CYCLES and grbl:
+                raise LineError("GRBL has no canned cycles", explicit_motion[1], 20)
+            if motion != 800 and motion not in CYCLES:
+                self.cycle_r = self.cycle_z = None
+        if motion is not None and motion != 800 and (has_axes or explicit_motion):
+            self._motion(motion, bool(explicit_motion), words, cols, used, g53, has_axes)
+        # ---- 12. stops
+        stop = mmodes.get(4)
+        if stop:
+            c = stop[0]
+            here = list(self.pos)
+            if c in (2, 30):
+                if self.comp_engine is not None:
+                    self._flush_comp()
+                self.emit(MoveKind.END, here, here)
+                self.reset_modes()
+                self.ended = not grbl
+            else:
+                self.emit(MoveKind.PAUSE, here, here)
+        # ---- unused words
+        for letter in words:
+            if letter not in used:
+                raise LineError(self._unused_message(letter), cols.get(letter, 1), 36 if letter not in AXES else 31)
+
+    def _unused_message(self, letter: str) -> str:
+        if letter in AXES:
+            return f"{letter} word with no command that uses it"
+        uses = {"I": "G2/G3", "J": "G2/G3", "K": "G2/G3", "R": "G2/G3, G10 or a canned cycle",
+                "P": "G4, G10, G2/G3, G64 or G82/G86/G89", "Q": "G73/G83 or M61", "L": "G10 or a canned cycle",
+                "H": "G43", "D": "G41/G42", "@": "a motion", "^": "a motion"}
+        return f"{letter} word with no {uses.get(letter, 'command')} to use it"
+
+    # ----------------------------------------------------------------- modal helpers
+    def _set_comp(self, mode, words, cols, used) -> None:
+        from sim.gcode import comp as compmod
+
+        c, col = mode
+        if c == 400:
+            if self.comp_engine is not None:
+                self._flush_comp()
+            self.comp = 400
+            self.comp_radius = 0.0
+            return
+        if self.comp != 400:
+            raise LineError("cannot turn cutter compensation on when it is already on", col)
+        if self.plane != 170:
+            raise LineError("cutter compensation is only supported in the XY plane (G17)", col)
+        if "D" in words:
+            d = words["D"]
+            used.add("D")
+            if d < 0 or d != int(d):
+                raise LineError("D must be a non-negative integer (tool number)", cols["D"])
+            d = int(d)
+        else:
+            d = self.tool
+        radius = 0.0
+        if d != 0:
+            entry = self.tool_table.get(d)
+            if entry is None:
+                if self.has_tool_table:
+                    raise LineError(f"unknown tool D{d}: it is not in the tool table", cols.get("D", col))
+            else:
+                radius = entry.diameter / 2.0
+        self.comp = c
+        self.comp_radius = radius
+        self.comp_engine = compmod.CompEngine(self, left=(c == 410), radius=radius)
+
+    def _flush_comp(self) -> None:
+        eng = self.comp_engine
+        self.comp_engine = None
+        if eng is not None:
+            eng.flush()
+
+    def _set_tool_length(self, mode, words, cols, used) -> None:
+        c, col = mode
+        if self.comp != 400 and not self.grbl:
+            pass  # LinuxCNC allows G43 with comp on
+        if c == 490:
+            self.tlo = [0.0] * 6
+        elif c == 430:
+            if "H" in words:
+                h = words["H"]
+                used.add("H")
+                if h < 0 or h != int(h):
+                    raise LineError("H must be a non-negative integer (tool number)", cols["H"])
+                h = int(h)
+            else:
+                h = self.tool
+            new = [0.0] * 6
+            if h != 0:
+                entry = self.tool_table.get(h)
+                if entry is None:
+                    if self.has_tool_table:
+                        raise LineError(f"unknown tool H{h}: it is not in the tool table", cols.get("H", col))
+                else:
+                    for k, v in entry.offsets.items():
+                        if k in AXES:
+                            new[AXES.index(k)] = v
+            self.tlo = new
+        else:  # G43.1 dynamic
+            new = list(self.tlo)
+            for i, a in enumerate(AXES):
+                if a in words:
+                    if self.grbl and a != "Z":
+                        raise LineError("G43.1 takes only a Z word", cols[a], 37)
+                    new[i] = words[a] * (self.factor if i < 3 else 1.0)
+                    used.add(a)
+            if self.grbl and "Z" not in words:
+                raise LineError("G43.1 needs a Z word", col, 37)
+            self.tlo = new
+        self.tlo_mode = c
+
+    def _axis_values(self, words, cols, used, absolute_machine: bool = False) -> list:
+        """Target work position (6) from the axis words of this line (G90/G91, polar)."""
+        cur = self.work()
+        target = list(cur)
+        f = self.factor
+        inc = self.distance == 910 and not absolute_machine
+        for i, a in enumerate(AXES):
+            if a in words:
+                v = words[a] * (f if i < 3 else 1.0)
+                target[i] = cur[i] + v if inc else v
+                used.add(a)
+        if "@" in words or "^" in words:
+            if self.plane != 170 or "X" in words or "Y" in words:
+                col = cols.get("@", cols.get("^", 1))
+                raise LineError("polar words @ ^ need G17 and no X or Y word", col)
+            r0 = math.hypot(cur[0], cur[1])
+            t0 = math.atan2(cur[1], cur[0])
+            if inc:
+                r = r0 + words.get("@", 0.0) * f
+                t = t0 + math.radians(words.get("^", 0.0))
+            else:
+                r = words["@"] * f if "@" in words else r0
+                t = math.radians(words["^"]) if "^" in words else t0
+            target[0] = r * math.cos(t)
+            target[1] = r * math.sin(t)
+            used.update(k for k in ("@", "^") if k in words)
+        return target
+
+    def to_machine(self, work) -> list:
+        off = self.offsets()
+        return [work[i] + off[i] for i in range(6)]
+
+    def _non_modal(self, code, col, words, cols, used) -> None:
+        f = self.factor
+        if code == 100:
+            self._g10(col, words, cols, used)
+        elif code in (280, 300):
+            if self.comp != 400:
+                raise LineError(f"G{code // 10} cannot be used with cutter compensation on", col)
+            home = self.g28 if code == 280 else self.g30
+            if any(a in words for a in AXES):
+                mid_work = self._axis_values(words, cols, used)
+                mid = self.to_machine(mid_work)
+                self._rapid_to(mid)
+                end = list(mid)
+                for i, a in enumerate(AXES):
+                    if a in words:
+                        end[i] = home[i]
+                self._rapid_to(end)
+            else:
+                self._rapid_to(list(home))
+        elif code in (281, 301):
+            target = self.g28 if code == 281 else self.g30
+            target[:] = list(self.pos)
+            used.update(a for a in AXES if a in words)  # LinuxCNC ignores axis words here
+        elif code == 920:
+            if not any(a in words for a in AXES):
+                raise LineError("G92 needs at least one axis word", col, 26)
+            g = self.g5x[self.coord]
+            for i, a in enumerate(AXES):
+                if a in words:
+                    v = words[a] * (f if i < 3 else 1.0)
+                    self.g92[i] = self.pos[i] - g[i] - self.tlo[i] - v
+                    used.add(a)
+            self.g92_saved = list(self.g92)
+            self.g92_enabled = True
+        elif code == 921:
+            self.g92 = [0.0] * 6
+            self.g92_saved = [0.0] * 6
+            self.g92_enabled = False
+        elif code == 922:
+            self.g92 = [0.0] * 6
+        elif code == 923:
+            self.g92 = list(self.g92_saved)
+
+    def _g10(self, col, words, cols, used) -> None:
+        f = self.factor
+        if "L" not in words or "P" not in words:
+            raise LineError("G10 needs L and P words", col, 28)
+        used.update(("L", "P"))
+        L = words["L"]
+        P = words["P"]
+        if L != int(L) or int(L) not in (1, 2, 10, 11, 20):
+            raise LineError(f"G10 L{L:g} is not supported (L1, L2, L10, L11, L20)", cols["L"], 20)
+        if P != int(P):
+            raise LineError("G10 P must be an integer", cols["P"], 23)
+        L, P = int(L), int(P)
+        if self.grbl and L not in (2, 20):
+            raise LineError(f"GRBL supports only G10 L2 and L20, not L{L}", cols["L"], 20)
+        if L in (2, 20):
+            if not 0 <= P <= (6 if self.grbl else 9):
+                raise LineError(f"G10 L{L} P must be 0..{6 if self.grbl else 9}", cols["P"], 29)
+            k = self.coord if P == 0 else P - 1
+            if "R" in words:
+                used.add("R")
+                if words["R"] != 0.0:
+                    raise LineError("coordinate system rotation (G10 L2 R) is not supported", cols["R"], 20)
+            g = self.g5x[k]
+            for i, a in enumerate(AXES):
+                if a in words:
+                    v = words[a] * (f if i < 3 else 1.0)
+                    used.add(a)
+                    if L == 2:
+                        g[i] = v
+                    else:
+                        g[i] = self.pos[i] - self.g92[i] - self.tlo[i] - v
+            return
+        # tool table edits
+        if P < 1 and L != 1 or P < 0:
+            raise LineError("G10 L1/L10/L11 P must be a tool number", cols["P"])
+        from sim.tooltable import ToolEntry
+
+        entry = self.tool_table.get(P) or ToolEntry(number=P, pocket=P)
+        offsets = dict(entry.offsets)
+        diameter = entry.diameter
+        if "R" in words:
+            diameter = 2.0 * words["R"] * f
+            used.add("R")
+        for k in ("I", "J", "Q"):
+            if k in words:
+                used.add(k)
+        for i, a in enumerate(AXES):
+            if a in words:
+                v = words[a] * (f if i < 3 else 1.0)
+                used.add(a)
+                if L == 1:
+                    offsets[a] = v
+                elif L == 10:
+                    g = self.g5x[self.coord]
+                    offsets[a] = self.pos[i] - g[i] - self.g92[i] - v
+                else:
+                    g = self.g5x[8]
+                    offsets[a] = self.pos[i] - g[i] - v
+        self.tool_table[P] = replace(entry, diameter=diameter, z_offset=offsets.get("Z", 0.0), offsets=offsets)
+
+    # ----------------------------------------------------------------- motion
+    def _feed_rate(self, col: int, words, length: float) -> tuple[float, float]:
+        """(feed mm/min, inverse-time 1/min) for a feed move of ``length`` mm."""
+        if self.feed_mode == 930:
+            if "F" not in words:
+                raise LineError("inverse time mode (G93) needs an F word on every feed move", col, 22)
+            inv = self.feed_word
+            if inv <= 0:
+                raise LineError("F must be positive in inverse time mode", col, 22)
+            return length * inv, inv
+        if self.grbl and not self.feed_set:
+            raise LineError("undefined feed rate: give an F word", col, 22)
+        feed = self.feed_word * self.factor
+        if self.feed_mode == 950:
+            feed *= self.spindle
+        if feed <= 0:
+            raise LineError("cannot feed with a zero feed rate: give an F word", col, 22)
+        return feed, 0.0
+
+    def _rapid_to(self, end) -> None:
+        start = list(self.pos)
+        self.emit(MoveKind.RAPID, start, end)
+        self.pos = list(end)
+
+    def _line_to(self, end, kind, feed, inverse) -> None:
+        start = list(self.pos)
+        self.emit(kind, start, end, feed=feed, inverse=inverse)
+        self.pos = list(end)
+
+    def _motion(self, motion, explicit, words, cols, used, g53, has_axes) -> None:
+        col = cols.get("G", 1)
+        first_axis_col = min([cols[a] for a in AXES + "@^" if a in cols] or [1])
+        if motion in CYCLES:
+            from sim.gcode.cycles import canned_cycle
+
+            if self.comp != 400:
+                raise LineError("canned cycles cannot be used with cutter compensation on", first_axis_col)
+            canned_cycle(self, motion, words, cols, used)
+            return
+        if g53:
+            target = list(self.pos)
+            f = self.factor
+            for i, a in enumerate(AXES):
+                if a in words:
+                    target[i] = words[a] * (f if i < 3 else 1.0)
+                    used.add(a)
+            end = target
+        else:
+            if motion in (20, 30):
+                end = None
+            else:
+                end = self.to_machine(self._axis_values(words, cols, used))
+        if motion == 0:
+            if self.comp_engine is not None:
+                self.comp_engine.straight(self.work_of(end), rapid=True, col=first_axis_col)
+                return
+            self._rapid_to(end)
+        elif motion == 10:
+            if self.comp_engine is not None:
+                self.comp_engine.straight(self.work_of(end), rapid=False, col=first_axis_col, words=words)
+                return
+            length = math.dist(self.pos[:3], end[:3]) or abs(max((abs(end[i] - self.pos[i]) for i in range(3, 6)), default=0.0))
+            feed, inv = self._feed_rate(first_axis_col, words, length)
+            self._line_to(end, MoveKind.FEED, feed, inv)
+        elif motion in (20, 30):
+            arcs.arc_motion(self, motion == 20, explicit, words, cols, used, has_axes)
+        else:  # probe G38.x: the table assumes the probe travels to the target
+            feed, inv = self._feed_rate(first_axis_col, words, math.dist(self.pos[:3], end[:3]))
+            self._line_to(end, MoveKind.PROBE, feed, inv)
+
+    def work_of(self, machine) -> list:
+        off = self.offsets()
+        return [machine[i] - off[i] for i in range(6)]

@@ -1,0 +1,477 @@
+"""Whole programs: o-word control flow, subroutine files, the Program result.
+
+``load_program(path)`` / ``interpret(text)`` run a program through an
+:class:`~sim.gcode.interpreter.Interpreter` and return a :class:`Program` holding the
+move table, the files it came from, the ``(MSG, ...)`` texts, the modal state history
+and, with ``keep_going=True``, every error instead of only the first.
+"""
+
+from __future__ import annotations
+
+import bisect
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+
+from sim.gcode.errors import GCodeError, LineError
+from sim.gcode.expr import evaluate
+from sim.gcode.interpreter import MAX_STEPS, Interpreter
+from sim.gcode.moves import MOVE_DTYPE
+from sim.gcode.parser import parse_line
+from sim.gcode.state import ModalState
+
+_STRUCT_OPEN = {"SUB", "IF", "WHILE", "DO", "REPEAT"}
+_LOOPS = {"WHILE", "DO", "REPEAT"}
+
+
+@dataclass
+class _Source:
+    """One file's lines, parsed once, with its o-word structure."""
+
+    name: str
+    index: int
+    lines: list
+    blocks: list = field(default_factory=list)   # Block or LineError per line
+    end_of: dict = field(default_factory=dict)   # opening line -> closing line (indices)
+    owner: dict = field(default_factory=dict)    # elseif/else/end/break/continue -> opening line
+    branches: dict = field(default_factory=dict)  # if line -> [elseif/else lines]
+    kind: dict = field(default_factory=dict)     # line -> structural keyword (DOWHILE for do's end)
+    subs: dict = field(default_factory=dict)     # label -> sub line
+    struct_errors: list = field(default_factory=list)  # (line index, LineError)
+    percent_end: int | None = None
+
+
+def _prepare(name: str, index: int, text: str, dialect: str) -> _Source:
+    lines = text.splitlines()
+    src = _Source(name, index, lines)
+    blocks = src.blocks
+    for raw in lines:
+        try:
+            blocks.append(parse_line(raw, dialect))
+        except LineError as exc:
+            blocks.append(exc)
+    # '%' delimiters: a first '%' line means the program ends at the next one
+    first = next((i for i, b in enumerate(blocks) if not (hasattr(b, "empty") and b.empty and not b.percent
+                                                         and b.message is None)), None)
+    if first is not None and not isinstance(blocks[first], LineError) and blocks[first].percent:
+        nxt = next((i for i in range(first + 1, len(blocks))
+                    if not isinstance(blocks[i], LineError) and blocks[i].percent), None)
+        src.percent_end = nxt
+    stack: list[tuple[str, str, int]] = []  # (keyword, label, line index)
+    for i, b in enumerate(blocks):
+        if isinstance(b, LineError) or b.oword is None:
+            continue
+        label, kw, _args, col = b.oword
+        if not isinstance(label, str):
+            if kw in _STRUCT_OPEN or kw.startswith("END") or kw in ("ELSE", "ELSEIF", "BREAK", "CONTINUE"):
+                src.struct_errors.append((i, LineError("a computed o-word label can only be used with call", col)))
+            continue
+        src.kind[i] = kw
+        if kw == "WHILE" and stack and stack[-1][0] == "DO" and stack[-1][1] == label:
+            _, _, opener = stack.pop()
+            src.end_of[opener] = i
+            src.owner[i] = opener
+            src.kind[i] = "DOWHILE"
+            continue
+        if kw in _STRUCT_OPEN:
+            if kw == "SUB":
+                if stack:
+                    src.struct_errors.append((i, LineError(f"o{label} sub inside o{stack[-1][1]} {stack[-1][0].lower()}"
+                                                           " (subroutines cannot nest)", col)))
+                if label in src.subs:
+                    src.struct_errors.append((i, LineError(f"o{label} sub is defined twice (first on line "
+                                                           f"{src.subs[label] + 1})", col)))
+                src.subs.setdefault(label, i)
+            stack.append((kw, label, i))
+            if kw == "IF":
+                src.branches[i] = []
+            continue
+        closers = {"ENDSUB": "SUB", "ENDIF": "IF", "ENDWHILE": "WHILE", "ENDREPEAT": "REPEAT"}
+        if kw in closers or kw in ("ELSE", "ELSEIF"):
+            want = closers.get(kw, "IF")
+            if not stack or stack[-1][0] != want or stack[-1][1] != label:
+                opened = f" (o{stack[-1][1]} {stack[-1][0].lower()} on line {stack[-1][2] + 1} is still open)" if stack else ""
+                src.struct_errors.append((i, LineError(f"o{label} {kw.lower()} without a matching "
+                                                       f"o{label} {want.lower()}{opened}", col)))
+                continue
+            opener = stack[-1][2]
+            src.owner[i] = opener
+            if kw in ("ELSE", "ELSEIF"):
+                br = src.branches[opener]
+                if br and src.kind[br[-1]] == "ELSE":
+                    src.struct_errors.append((i, LineError(f"o{label} {kw.lower()} after o{label} else", col)))
+                br.append(i)
+            else:
+                stack.pop()
+                src.end_of[opener] = i
+            continue
+        if kw in ("BREAK", "CONTINUE"):
+            loop = next((s for s in reversed(stack) if s[1] == label and s[0] in _LOOPS), None)
+            if loop is None:
+                src.struct_errors.append((i, LineError(f"o{label} {kw.lower()} outside an o{label} loop", col)))
+                continue
+            src.owner[i] = loop[2]
+        elif kw == "RETURN":
+            sub = next((s for s in reversed(stack) if s[0] == "SUB"), None)
+            if sub is None or sub[1] != label:
+                src.struct_errors.append((i, LineError(f"o{label} return outside o{label} sub", col)))
+    for kw, label, i in stack:
+        close = {"SUB": "endsub", "IF": "endif", "WHILE": "endwhile", "DO": "while", "REPEAT": "endrepeat"}[kw]
+        col = blocks[i].oword[3]
+        src.struct_errors.append((i, LineError(f"o{label} {kw.lower()} is never closed (no o{label} {close})", col)))
+    src.struct_errors.sort(key=lambda e: e[0])
+    return src
+
+
+class Program:
+    """The result of interpreting a program.
+
+    Attributes
+    ----------
+    moves : MOVE_DTYPE array, one row per motion/dwell/tool change/stop.
+    files : list[str], index = ``moves["file"]`` (0 = main program).
+    errors : list[GCodeError], all errors when ``keep_going`` (else at most one, raised).
+    messages : list[(line, text)] from ``(MSG, ...)`` comments.
+    warnings : list[str], e.g. a program that ends with no M2/M30/%.
+    """
+
+    def __init__(self, moves, files, errors, messages, warnings, snapshots, snapshot_lines, row_main_line,
+                 dialect, machine_units):
+        self.moves = moves
+        self.files = files
+        self.errors = errors
+        self.messages = messages
+        self.warnings = warnings
+        self.dialect = dialect
+        self.machine_units = machine_units
+        self._snapshots = snapshots
+        self._snap_lines = np.maximum.accumulate(np.asarray(snapshot_lines, dtype=np.int64)) if snapshot_lines else np.zeros(0, np.int64)
+        self._row_main = np.maximum.accumulate(np.asarray(row_main_line, dtype=np.int64)) if len(row_main_line) else np.zeros(0, np.int64)
+
+    def __len__(self) -> int:
+        return len(self.moves)
+
+    def __repr__(self) -> str:
+        return f"Program({self.files[0]!r}, {len(self.moves)} moves, {len(self.errors)} errors)"
+
+    def state_at(self, line: int) -> ModalState:
+        """Modal state just after main-file line ``line`` first executed (line 0 = start).
+
+        Position and work position are those at the end of the last move of lines up
+        to ``line``; in o-word loops this is the first pass through the line.
+        """
+        k = int(np.searchsorted(self._snap_lines, line, side="right")) - 1
+        st = self._snapshots[max(k, 0)]
+        st = replace(st, position=st.position.copy(), work_position=st.work_position.copy())
+        r = int(np.searchsorted(self._row_main, line, side="right")) - 1
+        if r >= 0:
+            row = self.moves[r]
+            st.position = np.array(row["end"], dtype=np.float64)
+            st.work_position = st.position - st.work_offset - st.g92_offset - st.tool_offset
+        st.line = int(line)
+        return st
+
+    def linearize(self, tolerance=None) -> np.ndarray:
+        """Arcs -> chords within a chordal tolerance (mm, or a Tolerance); see :mod:`sim.gcode.linearize`."""
+        from sim.gcode.linearize import linearize
+
+        return linearize(self.moves, tolerance)
+
+    def cycle_time(self, machine=None):
+        """(total seconds, per-row seconds) as GRBL would plan it; see :mod:`sim.gcode.timing`."""
+        from sim.gcode.timing import cycle_time
+
+        return cycle_time(self.moves, machine)
+
+
+class _Runner:
+    def __init__(self, it: Interpreter, keep_going: bool, subroutine_path, max_steps: int):
+        self.it = it
+        self.keep_going = keep_going
+        self.errors: list[GCodeError] = []
+        self.sources: list[_Source] = []
+        self.sub_path = [Path(p) for p in (subroutine_path or [])]
+        self.max_steps = max_steps
+        self.snapshots: list[ModalState] = []
+        self.snap_lines: list[int] = []
+        self.last_key = None
+        self.warnings: list[str] = []
+
+    def fail(self, src: _Source, i: int, exc: LineError):
+        err = GCodeError(exc.message, src.name, i + 1, exc.column, src.lines[i] if i < len(src.lines) else "",
+                         exc.grbl_code if self.it.grbl else None)
+        if self.it.grbl and err.grbl_code is None:
+            err.grbl_code = 20
+        if not self.keep_going:
+            raise err
+        self.errors.append(err)
+
+    def snapshot(self):
+        key = self.it.modal_key()
+        if key != self.last_key:
+            self.last_key = key
+            self.snapshots.append(self.it.state)
+            self.snap_lines.append(self.it.main_line)
+
+    def add_source(self, name: str, text: str) -> _Source:
+        src = _prepare(name, len(self.sources), text, self.it.dialect)
+        self.sources.append(src)
+        if src.index >= len(self.it.files):
+            self.it.files.append(name)
+        for i, exc in src.struct_errors:
+            self.fail(src, i, exc)
+        return src
+
+    def find_sub(self, label: str, src: _Source, col: int):
+        for s in (src, *self.sources):
+            if label in s.subs:
+                return s, s.subs[label]
+        dirs = list(self.sub_path) + [Path(self.sources[0].name).parent]
+        for d in dirs:
+            for cand in (d / f"{label}.ngc", d / f"{label}.NGC"):
+                if cand.is_file():
+                    text = cand.read_text(encoding="utf-8", errors="replace")
+                    s = self.add_source(str(cand), text)
+                    if label in s.subs:
+                        return s, s.subs[label]
+        raise LineError(f"o{label} call: no o{label} sub in this program or the subroutine path", col)
+
+    def run(self, main: _Source):
+        it = self.it
+        p = it.params
+        src = main
+        pc = 0
+        depth = 0
+        calls: list[tuple] = []  # (src, return pc, saved #1..#30)
+        repeats: dict = {}
+        steps = 0
+        self.snapshot()
+        end_index = main.percent_end
+        while True:
+            limit = len(src.lines) if not (depth == 0 and src is main and end_index is not None) else end_index
+            if pc >= limit:
+                if depth == 0:
+                    if end_index is None and not it.ended:
+                        self.warnings.append(f"{main.name}: program ends with no M2, M30 or '%'")
+                    break
+                # a subroutine file that runs off its end returns
+                src, pc, saved = calls.pop()
+                depth -= 1
+                p.numbered.update(saved)
+                p.frames.pop()
+                continue
+            steps += 1
+            if steps > self.max_steps:
+                self.fail(src, pc, LineError(f"program ran more than {self.max_steps} blocks: endless o-word loop?"))
+                break
+            if depth == 0:
+                it.main_line = pc + 1
+            b = src.blocks[pc]
+            it.line = pc + 1
+            it.file_index = src.index
+            if isinstance(b, LineError):
+                self.fail(src, pc, b)
+                pc += 1
+                continue
+            if b.oword is None:
+                if b.deleted and it.block_delete or b.empty:
+                    if b.message is not None:
+                        it.messages.append((pc + 1, b.message))
+                    pc += 1
+                    continue
+                n_rows = len(it._rows)
+                try:
+                    it.execute_block(b, pc + 1, src.index)
+                except LineError as exc:
+                    del it._rows[n_rows:], it._row_line[n_rows:]
+                    self.fail(src, pc, exc)
+                except (ArithmeticError, ValueError, OverflowError) as exc:
+                    del it._rows[n_rows:], it._row_line[n_rows:]
+                    self.fail(src, pc, LineError(f"cannot compute this line: {exc}"))
+                self.snapshot()
+                if it.ended:
+                    break
+                pc += 1
+                continue
+            try:
+                nxt = self.control(src, pc, b, calls, repeats, depth)
+            except LineError as exc:
+                self.fail(src, pc, exc)
+                nxt = None
+            if nxt is None:
+                pc += 1
+            else:
+                kind, value = nxt
+                if kind == "jump":
+                    pc = value
+                elif kind == "call":
+                    new_src, new_pc, args = value
+                    saved = {k: p.numbered.get(k, 0.0) for k in range(1, 31)}
+                    calls.append((src, pc + 1, saved))
+                    for k in range(1, 31):
+                        p.numbered[k] = args[k - 1] if k - 1 < len(args) else 0.0
+                    p.frames.append({})
+                    depth += 1
+                    src, pc = new_src, new_pc + 1
+                elif kind == "return":
+                    if not calls:
+                        pc += 1
+                        continue
+                    src, pc, saved = calls.pop()
+                    depth -= 1
+                    p.numbered.update(saved)
+                    p.frames.pop()
+                    if value is not None:
+                        p.globals["_value"] = value
+                        p.globals["_value_returned"] = 1.0
+                    else:
+                        p.globals["_value_returned"] = 0.0
+        return self
+
+    def control(self, src: _Source, i: int, b, calls, repeats, depth):
+        it = self.it
+        p = it.params
+        label, kw, args, col = b.oword
+        if b.message is not None:
+            it.messages.append((i + 1, b.message))
+
+        def cond():
+            if not args:
+                raise LineError(f"o{label} {kw.lower()} needs a [condition]", col)
+            return evaluate(args[0], p) != 0.0
+
+        if i in {e[0] for e in src.struct_errors}:
+            return None
+        if kw == "SUB":
+            return ("jump", src.end_of[i] + 1) if i in src.end_of else None
+        if kw in ("ENDSUB", "RETURN"):
+            if not calls:
+                if kw == "RETURN":
+                    raise LineError(f"o{label} return outside a subroutine call", col)
+                return None
+            value = evaluate(args[0], p) if args else None
+            return ("return", value)
+        if kw == "CALL":
+            if not isinstance(label, str):
+                v = evaluate(label, p)
+                label = str(int(v)) if v == int(v) else f"{v:g}"
+            if depth >= 100:
+                raise LineError("subroutine calls nested more than 100 deep", col)
+            s, line = self.find_sub(label, src, col)
+            values = [evaluate(a, p) for a in args]
+            if len(values) > 30:
+                raise LineError("more than 30 subroutine arguments", col)
+            return ("call", (s, line, values))
+        if kw == "IF":
+            if cond():
+                return None
+            for br in src.branches.get(i, []):
+                bb = src.blocks[br]
+                if src.kind[br] == "ELSE":
+                    return ("jump", br + 1)
+                _l, _k, bargs, bcol = bb.oword
+                if not bargs:
+                    raise LineError(f"o{label} elseif needs a [condition]", bcol)
+                if evaluate(bargs[0], p) != 0.0:
+                    return ("jump", br + 1)
+            return ("jump", src.end_of[i] + 1)
+        if kw in ("ELSEIF", "ELSE"):
+            return ("jump", src.end_of[src.owner[i]] + 1)
+        if kw == "ENDIF":
+            return None
+        if kw == "WHILE":
+            return None if cond() else ("jump", src.end_of[i] + 1)
+        if kw == "ENDWHILE":
+            return ("jump", src.owner[i])
+        if kw == "DO":
+            return None
+        if kw == "DOWHILE":
+            return ("jump", src.owner[i] + 1) if cond() else None
+        if kw == "REPEAT":
+            if not args:
+                raise LineError(f"o{label} repeat needs a [count]", col)
+            n = evaluate(args[0], p)
+            key = (len(calls), src.index, i)
+            if n < 1:
+                repeats.pop(key, None)
+                return ("jump", src.end_of[i] + 1)
+            repeats[key] = int(n)
+            return None
+        if kw == "ENDREPEAT":
+            opener = src.owner[i]
+            key = (len(calls), src.index, opener)
+            left = repeats.get(key, 1) - 1
+            if left > 0:
+                repeats[key] = left
+                return ("jump", opener + 1)
+            repeats.pop(key, None)
+            return None
+        if kw == "BREAK":
+            loop = src.owner[i]
+            repeats.pop((len(calls), src.index, loop), None)
+            return ("jump", src.end_of[loop] + 1)
+        if kw == "CONTINUE":
+            loop = src.owner[i]
+            lk = src.kind[loop]
+            if lk == "WHILE":
+                return ("jump", loop)
+            return ("jump", src.end_of[loop])
+        raise LineError(f"unknown o-word command {kw.lower()}", col)  # pragma: no cover
+
+
+def _read_tool_table(tool_table, machine_units: str):
+    if tool_table is None or isinstance(tool_table, dict):
+        return tool_table
+    from sim.tooltable import read_tool_table
+
+    return read_tool_table(tool_table, units=machine_units)
+
+
+def _read_var(var_file):
+    if var_file is None or isinstance(var_file, dict):
+        return var_file
+    from sim.gcode.varfile import read_var_file
+
+    return read_var_file(var_file)
+
+
+def interpret(text: str, filename: str = "<string>", dialect: str = "linuxcnc", tool_table=None,
+              var_file=None, machine_units: str = "mm", keep_going: bool = False,
+              subroutine_path=None, max_steps: int = MAX_STEPS, block_delete: bool = True,
+              fast: bool = True) -> Program:
+    """Interpret G-code ``text``; return a :class:`Program`.
+
+    ``tool_table`` is a path (LinuxCNC format, in ``machine_units``) or ``{n: ToolEntry}``;
+    ``var_file`` a LinuxCNC .var path or ``{param: value}`` (in ``machine_units``).
+    Raises :class:`GCodeError` at the first error unless ``keep_going``.
+    """
+    table = _read_tool_table(tool_table, machine_units)
+    var = _read_var(var_file)
+    it = Interpreter(dialect=dialect, machine_units=machine_units, tool_table=table, var_params=var,
+                     filename=filename, block_delete=block_delete)
+    runner = _Runner(it, keep_going, subroutine_path, max_steps)
+    main = runner.add_source(filename, text)
+    runner.run(main)
+    if it.comp_engine is not None:
+        try:
+            it._flush_comp()
+        except LineError as exc:
+            runner.fail(main, max(len(main.lines) - 1, 0), exc)
+    moves = np.array(it._rows, dtype=MOVE_DTYPE) if it._rows else np.zeros(0, MOVE_DTYPE)
+    return Program(moves, list(it.files), runner.errors, list(it.messages), runner.warnings,
+                   runner.snapshots, runner.snap_lines, list(it._row_line), dialect, machine_units)
+
+
+def load_program(path, dialect: str = "linuxcnc", tool_table=None, var_file=None, machine_units: str = "mm",
+                 keep_going: bool = False, subroutine_path=None, **kwargs) -> Program:
+    """Read and interpret the G-code file ``path``; see :func:`interpret`."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise GCodeError(f"cannot read program: {exc.strerror or exc}", str(path), 0) from None
+    text = data.decode("utf-8", errors="replace")
+    return interpret(text, filename=str(path), dialect=dialect, tool_table=tool_table, var_file=var_file,
+                     machine_units=machine_units, keep_going=keep_going, subroutine_path=subroutine_path,
+                     **kwargs)
