@@ -50,50 +50,107 @@ def _insertion_sort(buf, m):
 
 
 @nb.njit(cache=True)
-def _breakpoints(nu, nv, offsets, near, far, bp_off, bp_s, fill):
+def _covers(offsets, near, far, r, s):
+    for k in range(offsets[r], offsets[r + 1]):
+        if near[k] < s < far[k]:
+            return True
+    return False
+
+
+@nb.njit(cache=True)
+def _breakpoints(nu, nv, offsets, near, far, bp_off, bp_s, split_q, fill):
     """Sorted distinct segment ends of the (up to) four columns around each corner.
 
     Corner ``(ci, cj)`` (0..nu, 0..nv; flat ``cj*(nu+1) + ci``) sits at grid position
-    ``(ci - 0.5, cj - 0.5)``. Counting pass (``fill`` False) writes the count per corner
-    into ``bp_off[c + 1]``; the filling pass writes values from ``bp_off[c]``.
+    ``(ci - 0.5, cj - 0.5)``; its quadrants are the columns SW=0 ``(ci-1, cj-1)``,
+    SE=1 ``(ci, cj-1)``, NW=2 ``(ci-1, cj)``, NE=3 ``(ci, cj)``. Counting pass (``fill``
+    False) writes the count per corner into ``bp_off[c + 1]``; the filling pass writes
+    values from ``bp_off[c]`` and marks split vertices in ``split_q``.
+
+    Saddles: where only two diagonal columns hold material, four walls meet on the
+    corner line. The faces are paired so every edge has two: at each end of such an
+    interval the faces touching quadrant ``split_q[v]`` use a copy of the vertex (pairing
+    around the material where material ends there, around the empty columns where empty
+    space ends), and if the two ends need different pairings a midpoint shared by all
+    four walls joins them.
     """
     maxc = 0
     for r in range(nu * nv):
         maxc = max(maxc, offsets[r + 1] - offsets[r])
     buf = np.empty(8 * maxc + 1, np.float32)
+    occ = np.empty(8 * maxc + 1, np.int64)
+    cols = np.empty(4, np.int64)
     for cj in range(nv + 1):
         for ci in range(nu + 1):
             m = 0
-            for j in range(cj - 1, cj + 1):
-                if j < 0 or j >= nv:
-                    continue
-                for i in range(ci - 1, ci + 1):
-                    if i < 0 or i >= nu:
-                        continue
-                    r = j * nu + i
+            for q in range(4):
+                i = ci - 1 + (q & 1)
+                j = cj - 1 + (q >> 1)
+                cols[q] = j * nu + i if (0 <= i < nu and 0 <= j < nv) else -1
+                if cols[q] >= 0:
+                    r = cols[q]
                     for k in range(offsets[r], offsets[r + 1]):
                         buf[m] = near[k]
                         buf[m + 1] = far[k]
                         m += 2
             _insertion_sort(buf, m)
-            c = cj * (nu + 1) + ci
             u = 0
-            o = bp_off[c] if fill else 0
             for k in range(m):
                 if k == 0 or buf[k] != buf[k - 1]:
-                    if fill:
-                        bp_s[o + u] = buf[k]
+                    buf[u] = buf[k]
                     u += 1
+            for k in range(u - 1):  # which quadrants hold material between breakpoints
+                mid = 0.5 * (np.float64(buf[k]) + np.float64(buf[k + 1]))
+                mask = 0
+                for q in range(4):
+                    if cols[q] >= 0 and _covers(offsets, near, far, cols[q], mid):
+                        mask |= 1 << q
+                occ[k] = mask
+            c = cj * (nu + 1) + ci
+            o = bp_off[c] if fill else 0
+            pos = 0
+            pending = -1
+            for k in range(u):
+                v = o + pos
+                if fill:
+                    bp_s[v] = buf[k]
+                    if pending >= 0:
+                        split_q[v] = pending
+                pos += 1
+                pending = -1
+                if k < u - 1 and (occ[k] == 6 or occ[k] == 9):
+                    d = occ[k]
+                    below = occ[k - 1] if k > 0 else 0
+                    above = occ[k + 1] if k + 1 < u - 1 else 0
+                    bot_mat = (below & d) != d  # material of the diagonal begins here
+                    top_mat = (above & d) != d  # ... or ends there
+                    qb = (3 if d == 9 else 2) if bot_mat else (2 if d == 9 else 3)
+                    qt = (3 if d == 9 else 2) if top_mat else (2 if d == 9 else 3)
+                    if fill:
+                        split_q[v] = qb
+                    if bot_mat != top_mat:
+                        if fill:
+                            bp_s[o + pos] = np.float32(0.5 * (np.float64(buf[k]) + np.float64(buf[k + 1])))
+                        pos += 1
+                    pending = qt
             if not fill:
-                bp_off[c + 1] = u
+                bp_off[c + 1] = pos
 
 
 @nb.njit(cache=True, inline="always")
-def _vid(bp_off, bp_s, c, s):
-    """Vertex index of value ``s`` on corner ``c`` (it is always present)."""
+def _pos(bp_off, bp_s, c, s):
+    """Index of value ``s`` among corner ``c``'s breakpoints (it is always present)."""
     lo = bp_off[c]
-    hi = bp_off[c + 1]
-    return lo + np.searchsorted(bp_s[lo:hi], s)
+    return lo + np.searchsorted(bp_s[lo:bp_off[c + 1]], s)
+
+
+@nb.njit(cache=True, inline="always")
+def _map(split_q, copy_of, v, mask):
+    """The vertex a face touching quadrants ``mask`` (bits SW, SE, NW, NE) uses for ``v``."""
+    q = split_q[v]
+    if q >= 0 and (mask >> q) & 1:
+        return copy_of[v]
+    return v
 
 
 @nb.njit(cache=True, inline="always")
@@ -107,34 +164,40 @@ def _emit(tris, ids, t, fill, a, b, c, face_id):
 
 
 @nb.njit(cache=True)
-def _strip(bp_off, bp_s, cp, cq, a, b, flip, face_id, tris, ids, t, fill):
+def _strip(V, cp, mp, cq, mq, a, b, flip, face_id, tris, ids, t, fill):
     """Triangulate the wall piece [a, b] between corner lines P (cp) and Q (cq).
 
     Both vertical edges are split at their corners' breakpoints; the triangles zig-zag
-    between the two chains, wound so the normal points from P->Q x (+s) (flip reverses).
+    between the two chains, wound so the normal is (P->Q) x (+s) (``flip`` reverses).
+    ``mp``/``mq`` are the quadrant masks of this wall at P and Q (for split vertices).
     """
-    p = _vid(bp_off, bp_s, cp, a)
-    p_end = _vid(bp_off, bp_s, cp, b)
-    q = _vid(bp_off, bp_s, cq, a)
-    q_end = _vid(bp_off, bp_s, cq, b)
+    bp_off, bp_s, split_q, copy_of = V
+    p = _pos(bp_off, bp_s, cp, a)
+    p_end = _pos(bp_off, bp_s, cp, b)
+    q = _pos(bp_off, bp_s, cq, a)
+    q_end = _pos(bp_off, bp_s, cq, b)
     while p < p_end or q < q_end:
+        vp = _map(split_q, copy_of, p, mp)
+        vq = _map(split_q, copy_of, q, mq)
         if q < q_end and (p == p_end or bp_s[q + 1] <= bp_s[p + 1]):
+            vn = _map(split_q, copy_of, q + 1, mq)
             if flip:
-                t = _emit(tris, ids, t, fill, p, q + 1, q, face_id)
+                t = _emit(tris, ids, t, fill, vp, vn, vq, face_id)
             else:
-                t = _emit(tris, ids, t, fill, p, q, q + 1, face_id)
+                t = _emit(tris, ids, t, fill, vp, vq, vn, face_id)
             q += 1
         else:
+            vn = _map(split_q, copy_of, p + 1, mp)
             if flip:
-                t = _emit(tris, ids, t, fill, p, p + 1, q, face_id)
+                t = _emit(tris, ids, t, fill, vp, vn, vq, face_id)
             else:
-                t = _emit(tris, ids, t, fill, p, q, p + 1, face_id)
+                t = _emit(tris, ids, t, fill, vp, vq, vn, face_id)
             p += 1
     return t
 
 
 @nb.njit(cache=True)
-def _wall(offsets, near, far, nid, fid, rl, rr, cp, cq, side_flip, bp_off, bp_s, tris, ids,
+def _wall(offsets, near, far, nid, fid, rl, rr, cp, mp, cq, mq, side_flip, V, tris, ids,
           t, fill):
     """Walls between column ``rl`` and ``rr`` (-1 = outside the grid): where one holds
     material and the other not. ``side_flip`` picks the winding for material on ``rl``.
@@ -150,11 +213,11 @@ def _wall(offsets, near, far, nid, fid, rl, rr, cp, cq, side_flip, bp_off, bp_s,
     in_l = False
     in_r = False
     state = 0  # 0 none, 1 only l, 2 only r
-    start = 0.0
+    start = np.float32(0.0)
     start_id = 0
     while bl < nl or br < nr:
-        sl = np.inf
-        sr = np.inf
+        sl = np.float32(np.inf)
+        sr = np.float32(np.inf)
         idl = 0
         idr = 0
         if bl < nl:
@@ -183,7 +246,7 @@ def _wall(offsets, near, far, nid, fid, rl, rr, cp, cq, side_flip, bp_off, bp_s,
         if new != state:
             if state != 0:
                 flip = side_flip if state == 1 else not side_flip
-                t = _strip(bp_off, bp_s, cp, cq, start, s, flip, max(start_id, face_id),
+                t = _strip(V, cp, mp, cq, mq, start, s, flip, max(start_id, face_id),
                            tris, ids, t, fill)
             state = new
             start = s
@@ -191,49 +254,51 @@ def _wall(offsets, near, far, nid, fid, rl, rr, cp, cq, side_flip, bp_off, bp_s,
     return t
 
 
+# quadrant bits at a corner: SW=1, SE=2, NW=4, NE=8
+_SW, _SE, _NW, _NE = 1, 2, 4, 8
+
+
 @nb.njit(cache=True)
-def _triangles(nu, nv, offsets, near, far, nid, fid, bp_off, bp_s, tris, ids, fill):
+def _triangles(nu, nv, offsets, near, far, nid, fid, V, tris, ids, fill):
     """Count (``fill`` False) or write all cap and wall triangles; returns the count."""
+    bp_off, bp_s, split_q, copy_of = V
     t = 0
     w = nu + 1
     for j in range(nv):
         for i in range(nu):
             r = j * nu + i
-            c00 = j * w + i
+            c00 = j * w + i  # this column is the NE quadrant of c00, NW of c10, ...
             c10 = c00 + 1
             c01 = c00 + w
             c11 = c01 + 1
             for k in range(offsets[r], offsets[r + 1]):
-                f = far[k]
-                a = _vid(bp_off, bp_s, c00, f)
-                b = _vid(bp_off, bp_s, c10, f)
-                c = _vid(bp_off, bp_s, c11, f)
-                d = _vid(bp_off, bp_s, c01, f)
-                t = _emit(tris, ids, t, fill, a, b, c, fid[k])  # far cap faces +s
-                t = _emit(tris, ids, t, fill, a, c, d, fid[k])
-                n = near[k]
-                a = _vid(bp_off, bp_s, c00, n)
-                b = _vid(bp_off, bp_s, c10, n)
-                c = _vid(bp_off, bp_s, c11, n)
-                d = _vid(bp_off, bp_s, c01, n)
-                t = _emit(tris, ids, t, fill, a, c, b, nid[k])  # near cap faces -s
-                t = _emit(tris, ids, t, fill, a, d, c, nid[k])
+                for s, face_id, up in ((far[k], fid[k], True), (near[k], nid[k], False)):
+                    a = _map(split_q, copy_of, _pos(bp_off, bp_s, c00, s), _NE)
+                    b = _map(split_q, copy_of, _pos(bp_off, bp_s, c10, s), _NW)
+                    c = _map(split_q, copy_of, _pos(bp_off, bp_s, c11, s), _SW)
+                    d = _map(split_q, copy_of, _pos(bp_off, bp_s, c01, s), _SE)
+                    if up:  # far cap faces +s
+                        t = _emit(tris, ids, t, fill, a, b, c, face_id)
+                        t = _emit(tris, ids, t, fill, a, c, d, face_id)
+                    else:
+                        t = _emit(tris, ids, t, fill, a, c, b, face_id)
+                        t = _emit(tris, ids, t, fill, a, d, c, face_id)
     # walls across u: between columns (i, j) and (i+1, j), on corner line i+1
     for j in range(nv):
         for i in range(-1, nu):
             rl = j * nu + i if i >= 0 else -1
             rr = j * nu + i + 1 if i + 1 < nu else -1
             cp = j * w + i + 1
-            t = _wall(offsets, near, far, nid, fid, rl, rr, cp, cp + w, False, bp_off, bp_s,
-                      tris, ids, t, fill)
+            t = _wall(offsets, near, far, nid, fid, rl, rr, cp, _NW | _NE, cp + w, _SW | _SE,
+                      False, V, tris, ids, t, fill)
     # walls across v: between columns (i, j) and (i, j+1), on corner line j+1
     for j in range(-1, nv):
         for i in range(nu):
             rl = j * nu + i if j >= 0 else -1
             rr = (j + 1) * nu + i if j + 1 < nv else -1
             cp = (j + 1) * w + i
-            t = _wall(offsets, near, far, nid, fid, rl, rr, cp, cp + 1, True, bp_off, bp_s,
-                      tris, ids, t, fill)
+            t = _wall(offsets, near, far, nid, fid, rl, rr, cp, _SE | _NE, cp + 1, _SW | _NW,
+                      True, V, tris, ids, t, fill)
     return t
 
 
@@ -241,28 +306,38 @@ def surface_arrays(grid: DexelGrid):
     """The closed column surface as arrays.
 
     Returns ``(vertices, faces, move_id)``: float64 (n_v, 3) world mm, int64 (n_f, 3)
-    vertex indices wound outward, int32 (n_f,) face ids.
+    vertex indices wound outward, int32 (n_f,) face ids. Saddle corners get duplicate
+    vertices (same position) so that every edge joins exactly two faces.
     """
     fr = grid.frame
     nu, nv = fr.nu, fr.nv
     offsets, near, far, nid, fid = _live_segments(grid)
     n_corners = (nu + 1) * (nv + 1)
     bp_off = np.zeros(n_corners + 1, np.int64)
-    empty_s = np.empty(0, np.float32)
-    _breakpoints(nu, nv, offsets, near, far, bp_off, empty_s, False)
+    no_s = np.empty(0, np.float32)
+    no_q = np.empty(0, np.int8)
+    _breakpoints(nu, nv, offsets, near, far, bp_off, no_s, no_q, False)
     np.cumsum(bp_off, out=bp_off)
-    bp_s = np.empty(int(bp_off[-1]), np.float32)
-    _breakpoints(nu, nv, offsets, near, far, bp_off, bp_s, True)
+    n_v = int(bp_off[-1])
+    bp_s = np.empty(n_v, np.float32)
+    split_q = np.full(n_v, -1, np.int8)
+    _breakpoints(nu, nv, offsets, near, far, bp_off, bp_s, split_q, True)
+    split = np.nonzero(split_q >= 0)[0]
+    copy_of = np.full(n_v, -1, np.int64)
+    copy_of[split] = n_v + np.arange(split.size)
+    V = (bp_off, bp_s, split_q, copy_of)
     no_tris = np.empty((0, 3), np.int64)
     no_ids = np.empty(0, np.int32)
-    n_tris = _triangles(nu, nv, offsets, near, far, nid, fid, bp_off, bp_s, no_tris, no_ids, False)
+    n_tris = _triangles(nu, nv, offsets, near, far, nid, fid, V, no_tris, no_ids, False)
     tris = np.empty((n_tris, 3), np.int64)
     ids = np.empty(n_tris, np.int32)
-    _triangles(nu, nv, offsets, near, far, nid, fid, bp_off, bp_s, tris, ids, True)
+    _triangles(nu, nv, offsets, near, far, nid, fid, V, tris, ids, True)
     corner = np.repeat(np.arange(n_corners), np.diff(bp_off))
+    corner = np.concatenate([corner, corner[split]])
+    s = np.concatenate([bp_s, bp_s[split]]).astype(np.float64)
     ci = (corner % (nu + 1)).astype(np.float64) - 0.5
     cj = (corner // (nu + 1)).astype(np.float64) - 0.5
-    local = np.stack([ci * fr.spacing, cj * fr.spacing, bp_s.astype(np.float64)], axis=1)
+    local = np.stack([ci * fr.spacing, cj * fr.spacing, s], axis=1)
     return fr.to_world(local), tris, ids
 
 
