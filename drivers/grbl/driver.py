@@ -181,6 +181,7 @@ class GrblController(Controller):
         self.alarms: list[tuple[float, int]] = []
         self.gaps: list[Gap] = []
         self.unexpected_acks = 0
+        self.max_in_flight = 0  # most bytes ever unacknowledged in GRBL's RX buffer
         self.on_state: Callable[[MachineState], None] | None = None
         self.on_message: Callable[[float, p.Message], None] | None = None
         # machinery
@@ -195,6 +196,7 @@ class GrblController(Controller):
         self._banner_seq = 0
         self._alarm: int | None = None
         self._alarm_seq = 0
+        self._message_seq = 0
         self._connected = False
         self._closing = threading.Event()
         self._reader: threading.Thread | None = None
@@ -281,6 +283,41 @@ class GrblController(Controller):
     def connected(self) -> bool:
         return self._connected
 
+    def wait_connected(self, timeout: float) -> bool:
+        """Wait until the port is (back) up; True if it is."""
+        with self._cond:
+            return self._cond.wait_for(lambda: self._connected or self._closing.is_set(), timeout) and self._connected
+
+    def wait_for_message(self, predicate: Callable[[p.Message], bool], timeout: float,
+                         since: float | None = None) -> p.Message | None:
+        """Wait for a received message (arrived after ``since``, monotonic s) matching
+        ``predicate``; return it, or None on timeout."""
+        since = -1.0 if since is None else since
+
+        def find():
+            for t, m in reversed(self.messages):
+                if t < since:
+                    return None
+                if predicate(m):
+                    return m
+            return None
+
+        with self._cond:
+            found = None
+
+            def check():
+                nonlocal found
+                found = find()
+                return found is not None
+
+            self._cond.wait_for(check, timeout)
+            return found
+
+    def wait_disconnected(self, timeout: float) -> bool:
+        """Wait until the reader notices the port is gone; True if it did."""
+        with self._cond:
+            return self._cond.wait_for(lambda: not self._connected, timeout)
+
     # ------------------------------------------------------------------ reader
 
     def _read_loop(self) -> None:
@@ -310,8 +347,9 @@ class GrblController(Controller):
         if isinstance(msg, p.StatusReport):
             self._on_status(msg, t)
             return
-        self.messages.append((t, msg))
         with self._cond:
+            self.messages.append((t, msg))
+            self._message_seq += 1
             if isinstance(msg, (p.Ok, p.Error)):
                 if self._pending:
                     cmd = self._pending.popleft()
@@ -447,6 +485,7 @@ class GrblController(Controller):
             cmd.t_sent = time.monotonic()
             self._pending.append(cmd)
             self._in_flight += cmd.nbytes
+            self.max_in_flight = max(self.max_in_flight, self._in_flight)
             try:
                 self._write(data)
             except ConnectionLost:

@@ -348,6 +348,11 @@ class GrblPeer:
         for t in list(self._transports):
             t.write(data)
 
+    def inject(self, data: bytes) -> None:
+        """Fault injection: raw bytes to every sender (noise, truncated lines)."""
+        for t in list(self._transports):
+            t.write(data)
+
     def _reply(self, text: str) -> None:
         self._send(text, self._reply_to)
 

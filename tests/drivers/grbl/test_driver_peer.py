@@ -1,0 +1,333 @@
+"""The GRBL driver end to end against the GRBL peer, over a real pty and over TCP."""
+
+from __future__ import annotations
+
+import os
+import threading
+import time
+
+import pytest
+
+from drivers.errors import DriverError
+from drivers.grbl.driver import GrblController, GrblError, from_url
+from drivers.grbl.peer import GrblPeer
+from drivers.registry import open_controller
+from drivers.state import RunState
+from drivers.virtual.machine import MachineConfig, VirtualMachine
+
+FAST = dict(max_rate=(3000.0, 3000.0, 3000.0), accel=(200.0, 200.0, 200.0))
+
+
+def make_vm(travel: float = 200.0) -> VirtualMachine:
+    return VirtualMachine(MachineConfig(travel_min=(-travel,) * 3, travel_max=(travel,) * 3, **FAST))
+
+
+@pytest.fixture
+def peer():
+    peers = []
+
+    def make(vm=None, speed=1.0, **kw):
+        pr = GrblPeer(vm or make_vm(), speed=speed, **kw)
+        peers.append(pr)
+        return pr
+
+    yield make
+    for pr in peers:
+        pr.close()
+
+
+@pytest.fixture(params=["pty", "tcp"])
+def link(request, peer):
+    """(peer, connected controller) over a pty or TCP."""
+    controllers = []
+
+    def make(vm=None, speed=1.0, url_extra="", **kw):
+        pr = peer(vm, speed, **kw)
+        if request.param == "pty":
+            url = f"grbl://{pr.serve_pty()}?rate=50{url_extra}"
+        else:
+            url = f"grbl+socket://127.0.0.1:{pr.serve_tcp()}?rate=50{url_extra}"
+        c = open_controller(url)
+        c.connect()
+        controllers.append(c)
+        return pr, c
+
+    yield make
+    for c in controllers:
+        c.close()
+
+
+def idle(c: GrblController, timeout: float = 10.0):
+    return c.wait_for_state(lambda s: s.state is RunState.IDLE, timeout)
+
+
+def test_handshake_learns_the_controller(link):
+    pr, c = link()
+    assert c.banner.version == "1.1h"
+    assert c.version.version.startswith("1.1h") and c.options.blocks == 15 and c.rx_size == 128
+    assert c.settings[110] == 3000.0 and c.settings[120] == 200.0 and c.settings[130] == 400.0
+    assert c.settings[10] == 1 and c.settings[13] == 0
+    assert set(c.offsets) >= {"G54", "G59", "G28", "G30", "G92", "TLO"}
+    assert c.parser_state.words[:6] == ("G0", "G54", "G17", "G21", "G90", "G94")
+    s = c.poll()
+    assert s.state is RunState.IDLE and s.mpos == (0.0,) * 6
+    assert c.garbage == type(c.garbage)() and c.unexpected_acks == 0
+
+
+def test_status_polling_rate_and_fields(link):
+    pr, c = link()
+    states = []
+    for s in c.states(period=0.02):
+        states.append(s)
+        if len(states) == 12:
+            break
+    ts = [s.t for s in states]
+    assert all(b > a for a, b in zip(ts, ts[1:]))  # stamped at arrival, monotonic
+    assert ts[-1] - ts[0] >= 11 * 0.02 * 0.9
+    # the first reports after a reset carry WCO then Ov, as Grbl 1.1h does
+    assert pr.status_requests >= 12
+
+
+def test_wpos_mask_and_g10_offsets(link):
+    pr, c = link()
+    c.command("$10=0")  # WPos reports: the driver needs WCO to know MPos
+    c.command("G10 L20 P1 X5 Y-2 Z1")
+    s = c.poll()
+    assert "WPos:" in s.raw
+    assert s.mpos[:3] == pytest.approx((0.0, 0.0, 0.0))
+    assert s.wco[:3] == pytest.approx((-5.0, 2.0, -1.0))
+    assert s.wpos[:3] == pytest.approx((5.0, -2.0, 1.0))
+    # most reports carry no WCO: the remembered one keeps converting
+    for _ in range(5):
+        s = c.poll()
+    assert s.mpos[:3] == pytest.approx((0.0, 0.0, 0.0))
+    replies = c.command("$#")
+    g54 = [m for m in replies if getattr(m, "name", "") == "G54"][0]
+    assert g54.values == pytest.approx((-5.0, 2.0, -1.0))
+
+
+@pytest.mark.parametrize("mode", ["counting", "send-response"])
+def test_stream_program(link, mode):
+    pr, c = link(speed=4.0)
+    program = ["G21 G90 (setup)", "; a comment line", "F1500"]
+    program += [f"G1 X{(i % 10) + 1} Y{i // 10}" for i in range(40)]
+    program += ["G0 X0 Y0", "%"]
+    acks = []
+    res = c.stream(program, mode=mode, on_ack=acks.append)
+    assert res.completed and res.errors == [] and res.sent == res.acked == 43
+    assert [a.index for a in acks] == sorted(a.index for a in acks)
+    assert pr.rx_dropped == 0  # never more than GRBL's RX buffer in flight
+    assert c.max_in_flight <= 127
+    if mode == "counting":
+        assert c.max_in_flight > 40  # several lines in the buffer at once
+    else:
+        assert c.max_in_flight <= max(len(l) + 1 for l in program)
+    s = idle(c, 20)
+    assert s.mpos[:2] == pytest.approx((0.0, 0.0))
+    # the peer saw every line (comments stripped by the driver, '%' never sent)
+    assert pr.received_lines[-41:] == [l for l in program if l[0] in "GF"][-41:]
+
+
+def test_stream_reports_refused_lines_and_goes_on(link):
+    pr, c = link(speed=4.0)
+    res = c.stream(["G1 X1", "G1 X1 F300", "G99", "G4", "G1 X2"])
+    assert res.completed
+    assert [(i, code) for i, _, code, _ in res.errors] == [(0, 22), (2, 20), (3, 28)]
+    assert "feed rate" in res.errors[0][3].lower()
+    assert idle(c).mpos[0] == pytest.approx(2.0)
+
+
+def test_system_command_errors(link):
+    pr, c = link()
+    for line, code in (("$H", 5), ("$99=1", 3), ("$110=-1", 4), ("$Q", 3), ("%", 1)):
+        with pytest.raises(GrblError) as info:
+            c.command(line)
+        assert info.value.code == code, line
+    help_ = c.command("$")
+    assert "$J=line" in help_[0].commands
+    assert c.command("$N")[0].raw == "$N0="
+
+
+def test_line_numbers_and_buffer_fields(link):
+    pr, c = link(speed=1.0)
+    c.command("$10=3")  # MPos + Bf
+    c.send("N77 G1 X20 F600")
+    s = c.wait_for_state(lambda s: s.line == 77, 5)
+    assert s.state is RunState.RUN and s.buffer is not None and s.buffer[1] <= 128
+    assert s.feed > 0
+    c.feed_hold()
+    c.wait_for_state(lambda s: s.state is RunState.HOLD and s.substate == 0, 5)
+    c.soft_reset()
+
+
+def test_feed_hold_and_resume(link):
+    vm = VirtualMachine(MachineConfig(max_rate=(3000.0,) * 3, accel=(20.0,) * 3,
+                                      travel_min=(-200.0,) * 3, travel_max=(200.0,) * 3))
+    pr, c = link(vm=vm, speed=1.0)
+    c.send("G1 X100 F1200")
+    c.wait_for_state(lambda s: s.state is RunState.RUN and s.feed >= 600, 5)
+    c.feed_hold()
+    s = c.wait_for_state(lambda s: s.state is RunState.HOLD, 2)
+    assert s.substate in (0, 1)
+    held = c.wait_for_state(lambda s: s.state is RunState.HOLD and s.substate == 0, 5)
+    assert held.feed == 0
+    again = c.poll()
+    assert again.mpos == held.mpos  # stopped on the path
+    c.resume()
+    s = c.wait_for_state(lambda s: s.state is RunState.RUN and s.mpos[0] > held.mpos[0], 5)
+    c.soft_reset()
+
+
+def test_overrides(link):
+    pr, c = link()
+    assert c.set_feed_override(150) == 150
+    assert c.poll().overrides[0] == 150
+    assert c.set_feed_override(37) == 37
+    assert c.set_rapid_override(25) == 25
+    assert c.set_spindle_override(120) == 120
+    assert c.poll().overrides == (37, 25, 120)
+    assert c.set_feed_override(100) == 100
+
+
+def test_soft_limit_alarm_mid_program(link):
+    pr, c = link(vm=make_vm(travel=30.0), speed=4.0)
+    res = c.stream(["G1 X10 F3000", "G1 X20", "G1 X50", "G1 X0", "G1 Y5"])
+    assert not res.completed and res.alarm == 2 and "ALARM:2" in res.stopped
+    s = c.wait_for_state(lambda s: s.state is RunState.ALARM, 5)
+    assert s.alarm == 2 and s.mpos[0] <= 30.0
+    assert any(m.raw == "[MSG:Reset to continue]" for _, m in c.messages)
+    with pytest.raises(DriverError):
+        c.command("G1 X0", timeout=0.3)  # GRBL ignores lines until the reset
+    t_reset = time.monotonic()
+    c.soft_reset()
+    assert c.wait_for_message(lambda m: m.raw == "[MSG:'$H'|'$X' to unlock]", 2, since=t_reset)
+    with pytest.raises(GrblError) as info:
+        c.command("G1 X0")
+    assert info.value.code == 9  # G-code lock in alarm
+    c.unlock()
+    assert c.poll().state is RunState.IDLE
+    c.command("G1 X0 F3000")
+    assert idle(c).mpos[0] == pytest.approx(0.0)
+
+
+def test_ctrl_x_during_motion_is_alarm_3(link):
+    pr, c = link(speed=1.0)
+    c.send("G1 X50 F600")
+    moving = c.wait_for_state(lambda s: s.state is RunState.RUN and s.mpos[0] > 0.5, 5)
+    c.soft_reset()
+    s = c.wait_for_state(lambda s: s.state is RunState.ALARM, 2)
+    assert s.alarm == 3 and s.mpos[0] >= moving.mpos[0]
+    assert c.alarms[-1][1] == 3
+    c.unlock()
+    assert c.poll().state is RunState.IDLE
+
+
+def test_garbage_and_truncated_lines_are_survived(link):
+    pr, c = link()
+    pr.inject(b"\xff\xfe\x00garbage\r\n<Idle|MPos:1.0,2.0\r\nok")  # noise, a cut report, a cut ok
+    pr.inject(b"\r\n")  # ... whose end arrives later: "okok"? no: "ok" then newline
+    pr.inject(b"<Idle|MPos:9,9,9|FS:0,0|Bogus\r\n[MSG:half")
+    pr.inject(b"\r\n")
+    s = c.poll()
+    assert s.state is RunState.IDLE and s.mpos[:3] == (0.0, 0.0, 0.0)
+    raws = [g[1] for g in c.garbage]
+    assert "garbage" in raws and "<Idle|MPos:1.0,2.0" in raws and "<Idle|MPos:9,9,9|FS:0,0|Bogus" in raws
+    assert c.unexpected_acks == 1  # the injected ok with nothing in flight
+    c.command("G1 X1 F3000")
+    assert idle(c).mpos[0] == pytest.approx(1.0)
+
+
+def test_port_vanishes_mid_run_and_comes_back_tcp(peer):
+    pr = peer(speed=1.0)
+    port = pr.serve_tcp()
+    c = from_url(f"grbl+socket://127.0.0.1:{port}?rate=50")
+    c.backoff = (0.02, 0.1)
+    c.connect()
+    try:
+        c.send("G1 X30 F1200")
+        before = c.wait_for_state(lambda s: s.state is RunState.RUN, 5)
+        pr.close_transports()  # cable pulled
+        assert c.wait_disconnected(2)
+        s = c.poll()
+        assert s.state is RunState.DISCONNECTED and s.mpos == c.last_state.mpos
+        assert c.poll().state is RunState.DISCONNECTED
+        pr.serve_tcp(port=port)
+        assert c.wait_connected(5)
+        back = c.poll()
+        assert back.state in (RunState.RUN, RunState.IDLE) and back.mpos[0] > before.mpos[0]
+        assert len(c.gaps) == 1
+        gap = c.gaps[0]
+        t_lost, t_back = gap
+        assert t_back > t_lost and gap.polls_missed >= 2 and "disconnected" in gap.reason.lower()
+        assert idle(c).mpos[0] == pytest.approx(30.0)  # the machine went on while we were away
+    finally:
+        c.close()
+
+
+def test_port_vanishes_and_comes_back_pty(peer, tmp_path):
+    pr = peer(speed=1.0)
+    link_path = str(tmp_path / "ttyGRBL")
+    pr.serve_pty(link=link_path)
+    c = from_url(f"grbl://{link_path}?rate=50")
+    c.backoff = (0.02, 0.1)
+    c.connect()
+    try:
+        c.command("G1 X5 F3000")
+        pr.close_transports()
+        assert c.wait_disconnected(2)
+        assert not os.path.exists(link_path)
+        assert c.poll().state is RunState.DISCONNECTED
+        pr.serve_pty(link=link_path)
+        assert c.wait_connected(5)
+        assert idle(c).mpos[0] == pytest.approx(5.0)
+        assert len(c.gaps) == 1 and c.gaps[0].t_back > c.gaps[0].t_lost
+    finally:
+        c.close()
+
+
+def test_stream_stops_when_connection_is_lost(peer):
+    pr = peer(speed=1.0)
+    port = pr.serve_tcp()
+    c = from_url(f"grbl+socket://127.0.0.1:{port}?rate=50&reconnect=0")
+    c.connect()
+    try:
+        result = {}
+        first_ack = threading.Event()
+
+        def run():
+            result["r"] = c.stream([f"G1 X{i} F600" for i in range(1, 60)], on_ack=lambda cmd: first_ack.set())
+
+        th = threading.Thread(target=run)
+        th.start()
+        assert first_ack.wait(5)
+        pr.close_transports()
+        th.join(10)
+        r = result["r"]
+        assert not r.completed and r.stopped == "connection lost" and 0 < r.acked < 59
+    finally:
+        c.close()
+
+
+def test_connect_to_silence_is_a_clear_error(tmp_path):
+    master, slave = os.openpty()
+    try:
+        c = GrblController(os.ttyname(slave), timeout=0.3, reconnect=False)
+        with pytest.raises(DriverError, match="no status report or banner"):
+            c.connect()
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+def test_url_errors():
+    with pytest.raises(DriverError, match="rate"):
+        from_url("grbl:///dev/ttyUSB0?rate=100")
+    with pytest.raises(DriverError, match="unknown parameter"):
+        from_url("grbl:///dev/ttyUSB0?bogus=1")
+    with pytest.raises(DriverError, match="not a number"):
+        from_url("grbl:///dev/ttyUSB0?baud=fast")
+    with pytest.raises(DriverError, match="host:port"):
+        from_url("grbl+socket://")
+    c = from_url("grbl+socket://localhost:23?baud=9600&rate=10&reset=0")
+    assert c.port == "socket://localhost:23" and c.baud == 9600 and c.rate == 10 and not c.reset_on_connect
+    assert from_url("grbl+pty:///dev/pts/7").port == "/dev/pts/7"
