@@ -1,10 +1,10 @@
 """Alerts: tell the machinist about each finding once — terminal, JSON lines, bell, feed hold.
 
 Findings arrive as JSON-ready dicts (``Finding.to_json()`` plus ``lead_time_s``). The
-look-ahead sees the same problem again on every poll, often with a slightly different
-worst point or line range as more of it enters the horizon, so a finding is *new* only if
-no finding of the same kind already alerted shares a program line with it within
-``radius`` mm (:meth:`Alerter.is_new`).
+look-ahead may see one problem more than once, with a slightly different worst point or
+line range as more of it enters the horizon, so a finding is *new* only if no finding of
+the same kind already alerted lies within ``radius`` mm of it, or within ``line_radius``
+mm while sharing a program line (:meth:`Alerter.is_new`).
 
 Feed hold is sent through the controller's ``feed_hold()`` and only when the job turned it
 on (``[alerts] actions = ["feed_hold"]`` or ``--feed-hold``): the monitor never moves the
@@ -55,17 +55,20 @@ class Alerter:
     run : monitor.runfile.RunWriter or None
         Findings and alerts are appended to it.
     radius : float
-        mm within which two findings of one kind sharing a line are the same finding.
+        mm within which two findings of one kind are the same finding.
+    line_radius : float
+        mm within which two findings of one kind sharing a program line are the same finding.
     """
 
     def __init__(self, console=None, json_stream: TextIO | None = None, bell: bool = False,
-                 feed_hold: Callable[[], None] | None = None, run=None, radius: float = 5.0):
+                 feed_hold: Callable[[], None] | None = None, run=None, radius: float = 5.0, line_radius: float = 25.0):
         self.console = console
         self.json_stream = json_stream
         self.bell = bell
         self.feed_hold = feed_hold
         self.run = run
         self.radius = float(radius)
+        self.line_radius = float(line_radius)
         self.findings: list[dict] = []  # every alerted finding, in order
         self.holds_sent = 0
         self._by_kind: dict[str, list[tuple[frozenset, np.ndarray]]] = {}
@@ -75,8 +78,9 @@ class Alerter:
         lines = frozenset(f.get("lines") or ()) | {f.get("line", 0)}
         pos = _pos(f)
         for seen_lines, seen_pos in self._by_kind.get(f.get("kind", ""), ()):
-            if seen_lines & lines and (not np.all(np.isfinite(pos)) or not np.all(np.isfinite(seen_pos))
-                                       or float(np.linalg.norm(pos - seen_pos)) <= self.radius):
+            known = np.all(np.isfinite(pos)) and np.all(np.isfinite(seen_pos))
+            dist = float(np.linalg.norm(pos - seen_pos)) if known else 0.0
+            if dist <= self.radius or (seen_lines & lines and dist <= self.line_radius):
                 return False
         return True
 

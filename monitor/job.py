@@ -117,7 +117,7 @@ class Job:
     poll_hz: float = 50.0
     program: Path | None = None
     dialect: str = "linuxcnc"
-    work_offset: tuple[float, float, float] | None = (0.0, 0.0, 0.0)  # None: from the controller
+    work_offset: tuple[float, float, float] | None = None  # None: read from the controller (WCO)
     stock: Solid | None = None
     fixtures: list[Solid] = field(default_factory=list)
     tools: dict[int, ToolDef] = field(default_factory=dict)
