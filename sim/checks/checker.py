@@ -144,15 +144,19 @@ class Checker:
         return cand
 
     def _replay_contacts(self, snapshot, moves, ids, cand) -> list[Finding]:
-        """Material meets a body at move k if it is there *when k runs*: replay the batch
-        on the snapshot up to each candidate and probe it then."""
+        """A body meets material at move k if the material is still there when the flutes
+        of move k have passed: replay the batch on the snapshot through each candidate and
+        probe the candidate's body then (so a shank following its flutes down a hole they
+        cut is clear, while a holder landing on the stock is not). Bodies leading the
+        flutes (moving up into material above the tool) are not seen this way."""
         scratch = Cutter(snapshot, self.tool, self.tol, tools=self.tools or None)
         out: list[Finding] = []
         done = 0
         for k in sorted(cand):
-            if k > done:
-                scratch.cut_moves(moves[done:k], move_ids=ids[done:k].astype(np.int32), record_changes=False)
-                done = k
+            if k + 1 > done:
+                scratch.cut_moves(moves[done:k + 1], move_ids=ids[done:k + 1].astype(np.int32),
+                                  record_changes=False)
+                done = k + 1
             for kind, body in cand[k]:
                 vol = scratch.probe_moves(moves[k:k + 1], body=body)
                 out += collisions.body_findings(moves[k:k + 1], kind, vol, ids[k:k + 1], self.min_volume)

@@ -50,8 +50,21 @@ def above_flute_body(tool: Tool, length: float = DEFAULT_SHANK_LENGTH) -> Body |
     return Body.cylinder("above_flutes", tool.diameter, tool.flute_length, top - tool.flute_length)
 
 
-def contact_bodies(tool: Tool) -> list[tuple[str, Body]]:
-    """``(finding kind, body)`` for every non-cutting body of ``tool``, lowest first."""
+#: non-cutting bodies are probed this much (mm) thinner, so that a shank of the cutting
+#: diameter sliding down a hole its own flutes just cut (tangent to the wall on the
+#: boundary rays) is not reported as contact
+CONTACT_CLEARANCE = 0.01
+
+
+def _thinner(body: Body, clearance: float) -> Body:
+    p = np.array(body.profile, np.float64)
+    p[:, 1] = np.maximum(p[:, 1] - clearance, 1e-6)
+    return Body(body.name, p)
+
+
+def contact_bodies(tool: Tool, clearance: float = CONTACT_CLEARANCE) -> list[tuple[str, Body]]:
+    """``(finding kind, body)`` for every non-cutting body of ``tool``, lowest first, each
+    ``clearance`` mm thinner than declared."""
     out = []
     above = above_flute_body(tool)
     if above is not None:
@@ -60,7 +73,7 @@ def contact_bodies(tool: Tool) -> list[tuple[str, Body]]:
         out.append((BODY_KINDS["shank"], tool.shank))
     if tool.holder is not None:
         out.append((BODY_KINDS["holder"], tool.holder))
-    return out
+    return [(kind, _thinner(body, clearance)) for kind, body in out]
 
 
 def body_findings(moves: np.ndarray, kind: str, volumes, move_ids=None, min_volume: float = 1e-6,

@@ -141,6 +141,8 @@ def describe(f: Finding) -> str:
     if not math.isnan(f.volume):
         sizes.append(f"volume {f.volume:.4f} mm^3")
     what = f.kind.replace("_", " ")
+    if f.detail.get("group"):
+        what += f" ({f.detail['group']})"
     return f"{what} at {where} ({pos})" + (": " + ", ".join(sizes) if sizes else "")
 
 
