@@ -1,0 +1,212 @@
+"""``dexmon replay``: rebuild, picture or export any stage of a recorded run.
+
+    dexmon replay RUN                                  summary: stages, findings, trace sizes
+    dexmon replay RUN --stage N --png out.png [--3d]   picture of stage N (N = end: last)
+    dexmon replay RUN --from A --to B --gif out.gif | --mp4 out.mp4
+    dexmon replay RUN --findings                       findings with their lines
+    dexmon replay RUN --export-stl N out.stl           the model at stage N as an STL mesh
+    dexmon replay RUN --view                           interactive 3-D window with a stage slider
+
+Pictures and animations come from the traces stored in the run file; nothing is
+re-simulated. Stages may be written as integers, ``end`` or fractions like ``1/4``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from fractions import Fraction
+
+import numpy as np
+
+from sim.errors import InputError
+
+HELP = "rebuild, picture or export any stage of a recorded run"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("run", help="run file (.dexrun / SQLite) written by live or dry-run")
+    parser.add_argument("--stage", default=None, help="stage to picture: N, 'end' or a fraction like 1/2")
+    parser.add_argument("--png", default=None, metavar="OUT.png", help="write a picture of --stage")
+    parser.add_argument("--3d", dest="three_d", action="store_true",
+                        help="the --png is a pyvista 3-D view (default: Van Hook's shaded top view)")
+    parser.add_argument("--from", dest="first", default=None, help="first stage of an animation")
+    parser.add_argument("--to", dest="last", default=None, help="last stage of an animation (may be before --from)")
+    parser.add_argument("--gif", default=None, metavar="OUT.gif", help="write the animation as a GIF")
+    parser.add_argument("--mp4", default=None, metavar="OUT.mp4", help="write the animation as an MP4")
+    parser.add_argument("--fps", type=float, default=10.0, help="animation frames per second (default 10)")
+    parser.add_argument("--frames", type=int, default=120, help="at most this many animation frames (default 120)")
+    parser.add_argument("--size", type=int, default=800, help="pictures at most this many pixels a side (default 800)")
+    parser.add_argument("--findings", action="store_true", help="list the findings with their lines")
+    parser.add_argument("--export-stl", nargs=2, default=None, metavar=("N", "OUT.stl"),
+                        help="write the model at stage N as an STL mesh")
+    parser.add_argument("--view", action="store_true", help="open an interactive 3-D window with a stage slider")
+    parser.add_argument("--json", action="store_true", help="print JSON lines instead of text")
+
+
+def parse_stage(text, last: int, first: int = 0, where: str = "--stage") -> int:
+    """``N``, ``end``/``last``, ``start`` or a fraction ``a/b`` of the run -> a stage number."""
+    s = str(text).strip().lower()
+    if s in ("end", "last"):
+        return int(last)
+    if s in ("start", "first"):
+        return int(first)
+    try:
+        if "/" in s or "." in s:
+            f = Fraction(s)
+            if not 0 <= f <= 1:
+                raise ValueError
+            return int(first + round(f * (last - first)))
+        n = int(s)
+    except (ValueError, ZeroDivisionError):
+        raise InputError(f"expected a stage number, 'end' or a fraction like 1/4, got {text!r}", where) from None
+    if n < 0:
+        raise InputError(f"stage must be >= 0, got {n}", where)
+    return n
+
+
+def finding_positions(findings: list[dict]) -> np.ndarray:
+    pts = [f.get("position") for f in findings]
+    pts = [p[:3] for p in pts if isinstance(p, (list, tuple)) and len(p) >= 3]
+    return np.asarray(pts, np.float64).reshape(-1, 3)
+
+
+def stage_picture(view, stage: int, max_size: int = 800, three_d: bool = False, findings: bool = True):
+    """RGB uint8 picture of ``stage`` of a :class:`monitor.trace_io.RunView`."""
+    from monitor.render.animate import frame_picture, reduce_factor
+
+    tr = view.trace
+    info = view.stage_info(stage)
+    tool = view.tool()
+    tip = info.get("tip")
+    marks = finding_positions(view.findings) if findings else None
+    if three_d:
+        from monitor.render import view3d
+
+        grid = tr.grid_at(stage)
+        path = path_points(view)
+        return view3d.render_png(grid, None, tool=tool, tip=tip, path=path, findings=marks,
+                                 window_size=(max_size, max_size))
+    heights, ids = tr.state_at(stage)
+    k = reduce_factor(tr.frame.shape, max_size)
+    return frame_picture(heights, ids, tr.frame, k, tool=tool,
+                         tip=tip if tip is not None and np.all(np.isfinite(tip)) else None,
+                         findings=marks)
+
+
+def path_points(view) -> np.ndarray | None:
+    """The programmed tip path (k, 3) in work coordinates, or None."""
+    moves = view.moves
+    if moves is None or len(moves) == 0:
+        return None
+    try:
+        from sim.checks.motion import path_polyline
+        pts = path_polyline(moves, chord=max(view.frame.spacing, 0.05))
+        pts = pts[0] if isinstance(pts, tuple) else pts
+        return np.asarray(pts, np.float64).reshape(-1, 3)
+    except Exception:
+        ends = np.asarray(moves["end"][:, :3], np.float64)
+        return ends[np.all(np.isfinite(ends), axis=1)]
+
+
+def _tip_of(view):
+    tab = view.stage_table
+    if tab.size == 0:
+        return None
+
+    def tip(stage):
+        k = int(np.searchsorted(tab["stage"], stage, side="right")) - 1
+        if k < 0:
+            return None
+        p = tab["p1"][k]
+        return p if np.all(np.isfinite(p)) else None
+    return tip
+
+
+def run(args) -> int:
+    from monitor.render.shaded import save_png
+    from monitor.trace_io import RunView
+
+    out = sys.stdout
+    status = 0
+    with RunView(args.run) as view:
+        tr = view.trace
+        first, last = (tr.z or tr.t).first_stage, tr.last_stage
+        did = False
+        if tr.truncated:
+            print(f"dexmon replay: note: {args.run} was cut short; it replays up to stage {last}",
+                  file=sys.stderr)
+        if args.png:
+            if args.stage is None:
+                raise InputError("--png needs --stage N", "--png")
+            n = parse_stage(args.stage, last, first)
+            img = stage_picture(view, n, args.size, args.three_d)
+            save_png(img, args.png)
+            _say(args, out, {"event": "png", "stage": n, "path": args.png, "size": list(img.shape[:2])},
+                 f"stage {n}: wrote {args.png} ({img.shape[1]}x{img.shape[0]})")
+            did = True
+        elif args.stage is not None and not args.export_stl:
+            raise InputError("--stage needs --png OUT.png (or use --export-stl N OUT.stl)", "--stage")
+        if args.gif or args.mp4:
+            if args.first is None or args.last is None:
+                raise InputError("animations need --from A and --to B", "--gif/--mp4")
+            from monitor.render.animate import animate
+
+            a = parse_stage(args.first, last, first, "--from")
+            b = parse_stage(args.last, last, first, "--to")
+            for path in (args.gif, args.mp4):
+                if path:
+                    n = animate(tr, a, b, path, fps=args.fps, max_frames=args.frames, max_size=args.size,
+                                tip_of=_tip_of(view), tool=view.tool())
+                    _say(args, out, {"event": "animation", "from": a, "to": b, "frames": n, "path": path},
+                         f"stages {a}..{b}: wrote {n} frames to {path}")
+            did = True
+        if args.export_stl:
+            from sim.surface import export_stl
+
+            n = parse_stage(args.export_stl[0], last, first, "--export-stl")
+            grid = tr.grid_at(n)
+            export_stl(grid, args.export_stl[1])
+            _say(args, out, {"event": "stl", "stage": n, "path": args.export_stl[1],
+                             "volume_mm3": round(grid.volume(), 3)},
+                 f"stage {n}: wrote {args.export_stl[1]} (volume {grid.volume():.3f} mm^3)")
+            did = True
+        if args.findings:
+            fs = view.findings
+            for f in fs:
+                _say(args, out, {"event": "finding", **f}, format_finding(f))
+            if not fs:
+                _say(args, out, {"event": "findings", "count": 0}, "no findings")
+            status = 1 if fs else 0
+            did = True
+        if args.view:
+            from monitor.render import view3d
+
+            view3d.interactive(tr, tool=view.tool(), path=path_points(view),
+                               findings=finding_positions(view.findings))
+            did = True
+        if not did:
+            summary = {"event": "summary", "run": str(args.run), "first_stage": first, "last_stage": last,
+                       "truncated": tr.truncated, "findings": len(view.findings),
+                       "rays": tr.frame.n_rays, "spacing_mm": tr.frame.spacing,
+                       "z_trace_changes": tr.z.n_changes if tr.z else 0,
+                       "time_trace_changes": tr.t.n_changes if tr.t else 0}
+            _say(args, out, summary,
+                 f"{args.run}: stages {first}..{last}{' (cut short)' if tr.truncated else ''}, "
+                 f"{len(view.findings)} findings, {tr.frame.nu}x{tr.frame.nv} rays at {tr.frame.spacing} mm")
+    return status
+
+
+def format_finding(f: dict) -> str:
+    line = f.get("line")
+    lines = f.get("lines") or []
+    where = f"line {line}" if line not in (None, -1) else "line ?"
+    if len(lines) > 1:
+        where += f" (lines {lines[0]}..{lines[-1]}, {f.get('lines_total', len(lines))} in all)"
+    pos = f.get("position")
+    at = f" at X{pos[0]:.3f} Y{pos[1]:.3f} Z{pos[2]:.3f}" if isinstance(pos, (list, tuple)) and len(pos) >= 3 else ""
+    return f"{f.get('kind', 'finding')}: {where}{at}: {f.get('message', '')}".rstrip(": ")
+
+
+def _say(args, out, obj: dict, text: str) -> None:
+    print(json.dumps(obj, default=float) if args.json else text, file=out)

@@ -1,0 +1,225 @@
+"""Traces in the run file, and everything replay and report read from a finished run.
+
+The run file (:mod:`monitor.runfile`) keeps trace chunks as rows of named raw arrays;
+:func:`store_trace_chunk` appends what a :class:`sim.trace.Trace` recorded since its last
+chunk, :func:`load_trace` reads them back (stopping at the first damaged row, so a run cut
+short replays up to its last complete stage). :class:`RunView` gathers the rest a picture
+needs: frame, moves in work coordinates, stage -> move/line, findings, tools.
+"""
+
+from __future__ import annotations
+
+import json
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from sim.errors import InputError
+from sim.trace import Trace
+
+
+def store_trace_chunk(writer, trace: Trace, stage_from: int | None = None) -> bool:
+    """Append ``trace.take_chunk()`` to ``writer`` (a ``RunWriter``); False when nothing new."""
+    chunk = trace.take_chunk()
+    if not chunk:
+        return False
+    stages = chunk.get("z/stage", chunk.get("t/stage", np.zeros(0, np.int64)))
+    lo = int(stages[0]) if stages.size else (int(stage_from) if stage_from is not None else 0)
+    hi = int(stages[-1]) if stages.size else lo
+    writer.append_trace_chunk(lo if stage_from is None else int(stage_from), hi, chunk)
+    return True
+
+
+def trace_chunks(reader) -> tuple[list[dict], bool]:
+    """Every readable trace chunk of a run, in order, and whether reading stopped early."""
+    from monitor.runfile import RunFileError, unpack_arrays
+
+    try:
+        ids = [r[0] for r in reader._query("SELECT id FROM trace ORDER BY id")]
+    except RunFileError:
+        return [], True
+    out = []
+    for cid in ids:
+        try:
+            rows = reader._query("SELECT header, data FROM trace WHERE id = ?", (cid,))
+            out.append(unpack_arrays(rows[0][0], rows[0][1], f"{reader.path} trace[{cid}]"))
+        except (RunFileError, IndexError):
+            return out, True
+    return out, False
+
+
+def load_trace(run) -> Trace:
+    """The trace of a run file (path or ``RunReader``); InputError if it recorded none."""
+    from monitor.runfile import RunReader
+
+    reader = run if hasattr(run, "trace_chunks") else RunReader(run)
+    chunks, stopped = trace_chunks(reader)
+    if not chunks:
+        raise InputError("the run has no trace recorded (was sim.trace available when it ran?)",
+                         str(reader.path))
+    trace = Trace.from_chunks(chunks, where=str(reader.path))
+    if stopped and trace.z is not None:
+        trace.z.truncated = True
+    return trace
+
+
+class RunView:
+    """What replay and report need from one run file (read lazily)."""
+
+    def __init__(self, path):
+        from monitor.runfile import RunReader
+
+        self.path = Path(path)
+        self.reader = RunReader(self.path)
+
+    def close(self) -> None:
+        self.reader.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
+
+    @cached_property
+    def meta(self) -> dict:
+        return self.reader.meta()
+
+    def meta_json(self, key: str, default=None):
+        text = self.meta.get(key)
+        if text is None:
+            return default
+        try:
+            return json.loads(text)
+        except json.JSONDecodeError:
+            return text
+
+    @cached_property
+    def trace(self) -> Trace:
+        return load_trace(self.reader)
+
+    @property
+    def frame(self):
+        return self.trace.frame
+
+    @property
+    def last_stage(self) -> int:
+        return self.trace.last_stage
+
+    @cached_property
+    def moves(self) -> np.ndarray | None:
+        """The move table in work coordinates (tip), or None when the run did not store it."""
+        if "moves" not in self.reader.array_names():
+            return None
+        moves = np.array(self.reader.get_array("moves"))
+        try:
+            from monitor.predict import work_moves
+            return work_moves(moves)
+        except ImportError:
+            return moves
+
+    @cached_property
+    def row_seconds(self) -> np.ndarray | None:
+        if "row_seconds" not in self.reader.array_names():
+            return None
+        return np.array(self.reader.get_array("row_seconds"), np.float64)
+
+    @cached_property
+    def stage_table(self) -> np.ndarray:
+        """Per recorded cut: structured (stage, t, move_id, line, p0 (3,), p1 (3,)), stage order."""
+        dt = np.dtype([("stage", np.int64), ("t", np.float64), ("move_id", np.int64),
+                       ("line", np.int64), ("p0", np.float64, 3), ("p1", np.float64, 3)])
+        rows = []
+        for c in self.reader.cuts():
+            a = c["arrays"]
+            p0 = np.asarray(a.get("p0", np.full(3, np.nan)), np.float64).reshape(-1)[:3]
+            p1 = np.asarray(a.get("p1", np.full(3, np.nan)), np.float64).reshape(-1)[:3]
+            rows.append((c["stage"], c["t"] if c["t"] is not None else np.nan,
+                         c["move_id"] if c["move_id"] is not None else -1,
+                         c["line"] if c["line"] is not None else -1, p0, p1))
+        return np.array(rows, dtype=dt)
+
+    def stage_info(self, stage: int) -> dict:
+        """Move id, line, time and tool tip position at a stage (what is known of them)."""
+        tab = self.stage_table
+        out = {"stage": int(stage)}
+        if tab.size:
+            k = int(np.searchsorted(tab["stage"], stage, side="right")) - 1
+            if k >= 0:
+                r = tab[k]
+                out.update(move_id=int(r["move_id"]), line=int(r["line"]), t=float(r["t"]),
+                           tip=r["p1"].copy())
+        return out
+
+    @cached_property
+    def findings(self) -> list[dict]:
+        return self.reader.findings()
+
+    @cached_property
+    def job(self):
+        text = self.meta.get("job")
+        if not text:
+            return None
+        try:
+            from monitor.job import parse_job_text
+            return parse_job_text(text, name=f"{self.path.name}:job", base=self.path.parent)
+        except Exception:  # a job that no longer parses (moved files) still replays without it
+            return None
+
+    def tool(self, number: int = 0):
+        """The sim Tool for tool number ``number`` if the job names one, else None."""
+        job = self.job
+        spec = None
+        if job is not None:
+            td = job.tool(number) or job.default_tool or next(iter(job.tools.values()), None)
+            spec = getattr(td, "spec", None) if td is not None else None
+        spec = spec or self.meta_json("tool_spec")
+        if not spec:
+            return None
+        try:
+            from sim.tools import parse_tool_spec
+            return parse_tool_spec(spec)
+        except Exception:
+            return None
+
+    def removal_per_stage(self) -> tuple[np.ndarray, np.ndarray]:
+        """(stages (B,) int64, removed volume (B,) mm^3) from the time-trace's surface drops.
+
+        Exact for material taken from the top of each ray (3-axis milling); material
+        removed under an overhang is not seen from above.
+        """
+        t = self.trace.t
+        if t is None:
+            return np.zeros(0, np.int64), np.zeros(0)
+        ptr = t._ptr.a
+        drop = np.nan_to_num(t._prev.a, nan=0.0).astype(np.float64) - np.nan_to_num(t._val.a, nan=0.0)
+        empty_now = np.isnan(t._val.a)
+        if empty_now.any():  # the ray became empty: everything down to its bottom went
+            lo = self._bottoms()[t._ray.a[empty_now]]
+            drop[empty_now] = np.nan_to_num(t._prev.a[empty_now], nan=0.0) - lo
+        per_block = np.add.reduceat(drop, ptr[:-1]) if drop.size else np.zeros(t.n_blocks)
+        per_block[np.diff(ptr) == 0] = 0.0
+        return t._stage.a.copy(), per_block * t.frame.spacing ** 2
+
+    def _bottoms(self) -> np.ndarray:
+        if self.trace.z is None:
+            return np.zeros(self.frame.n_rays)
+        g = self.trace.grid_at(self.trace.z.first_stage)
+        return np.nan_to_num(g.store["near"].astype(np.float64))
+
+    def removal_per_move(self) -> dict[int, float]:
+        """Removed volume per move id (mm^3), mapping stages to moves through the cuts table."""
+        stages, vol = self.removal_per_stage()
+        tab = self.stage_table
+        if tab.size:
+            k = np.searchsorted(tab["stage"], stages, side="left")
+            k = np.clip(k, 0, tab.size - 1)
+            move = np.where(tab["stage"][k] == stages, tab["move_id"][k], stages)
+        else:
+            move = stages
+        out: dict[int, float] = {}
+        for m, v in zip(move.tolist(), vol.tolist()):
+            out[int(m)] = out.get(int(m), 0.0) + v
+        return out
