@@ -10,8 +10,8 @@ URL form (see :mod:`drivers.registry`)::
 Query keys: ``speed`` (simulated s per wall s, or per poll period with ``clock=sim``),
 ``rate`` (poll rate, Hz), ``clock`` (``wall`` or ``sim``), ``faults`` (see
 :mod:`drivers.virtual.faults`), ``max_rate``/``accel`` (comma lists per axis, mm/min and
-mm/s^2), ``travel`` (``none`` for no soft limits, or the GRBL travel per axis, giving
-``[-travel, 0]``).
+mm/s^2), ``travel`` (the GRBL travel per axis, giving soft limits ``[-travel, 0]``;
+default ``none``: no soft limits, so programs run as written).
 """
 
 from __future__ import annotations
@@ -60,6 +60,39 @@ def load_moves(program) -> tuple[np.ndarray, str]:
     return np.asarray(moves), getattr(program, "name", "(program)")
 
 
+class ProgramFeeder:
+    """Keeps a machine's planner filled from a move table, as a sender streams a job.
+
+    Call it (under ``vm.lock``) before each step of the machine, e.g. as a
+    :class:`RealTimeRunner` ``on_tick``. ``faults`` fires its scheduled alarm.
+    """
+
+    def __init__(self, moves: np.ndarray, faults: FaultInjector | None = None):
+        self.moves = moves
+        self.faults = faults
+        self.next_row = 0
+
+    @property
+    def all_queued(self) -> bool:
+        return self.next_row >= len(self.moves)
+
+    def __call__(self, vm: VirtualMachine) -> None:
+        if self.faults is not None:
+            code = self.faults.due_alarm(vm.time)
+            if code is not None:
+                vm.raise_alarm(code)
+        if vm.state in (RunState.ALARM, RunState.JOG):
+            return
+        free = vm.planner_free()
+        if free and self.next_row < len(self.moves):
+            chunk = self.moves[self.next_row:self.next_row + free]
+            try:
+                vm.queue(chunk)
+            except MachineLocked:
+                return
+            self.next_row += len(chunk)
+
+
 class VirtualController(Controller):
     """A controller that runs ``program`` on a simulated machine.
 
@@ -85,12 +118,13 @@ class VirtualController(Controller):
         self.speed = float(speed)
         self.rate = float(rate)
         self.clock = clock
-        self.config = config or MachineConfig()
+        # dry runs take programs as written (positive work coordinates): no soft limits unless asked
+        self.config = config or MachineConfig(travel_min=None, travel_max=None)
         self.faults = FaultInjector(faults if isinstance(faults, FaultPlan) else FaultPlan.parse(faults))
         self.url = url or f"virtual://{self.name}"
         self.vm: VirtualMachine | None = None
         self._runner: RealTimeRunner | None = None
-        self._next_row = 0
+        self._feeder = ProgramFeeder(self.moves, self.faults)
         self._connected = False
         self._late_wait = threading.Event()
         self.events: list[tuple[float, str, object]] = []
@@ -100,7 +134,7 @@ class VirtualController(Controller):
         start = self.moves["start"][0] if len(self.moves) else None
         self.vm = VirtualMachine(self.config, position=start)
         self.vm.on_event = self._record
-        self._next_row = 0
+        self._feeder = ProgramFeeder(self.moves, self.faults)
         self._connected = True
         if self.clock == "wall":
             self._runner = RealTimeRunner(self.vm, speed=self.speed, on_tick=self._tick).start()
@@ -123,7 +157,7 @@ class VirtualController(Controller):
         with vm.lock:
             if vm.state == RunState.ALARM:
                 return True
-            return self._next_row >= len(self.moves) and not vm.busy
+            return self._feeder.all_queued and not vm.busy
 
     # ------------------------------------------------------------------ polling
     def poll(self) -> MachineState:
@@ -185,19 +219,7 @@ class VirtualController(Controller):
     # ------------------------------------------------------------------ internals
     def _tick(self, vm: VirtualMachine) -> None:
         """Feed program rows into free planner blocks; fire a scheduled alarm. Under vm.lock."""
-        code = self.faults.due_alarm(vm.time)
-        if code is not None:
-            vm.raise_alarm(code)
-        if vm.state in (RunState.ALARM, RunState.JOG):
-            return
-        free = vm.planner_free()
-        if free and self._next_row < len(self.moves):
-            chunk = self.moves[self._next_row:self._next_row + free]
-            try:
-                vm.queue(chunk)
-            except MachineLocked:
-                return
-            self._next_row += len(chunk)
+        self._feeder(vm)
 
     def _record(self, name: str, payload) -> None:
         if name == "block_done":
@@ -233,7 +255,7 @@ def from_url(url: str) -> VirtualController:
         rate = float(query.get("rate", 20.0))
     except ValueError:
         raise DriverError(f"virtual URL {url!r}: speed and rate must be numbers") from None
-    cfg_kw = {}
+    cfg_kw: dict = {"travel_min": None, "travel_max": None}
     if "max_rate" in query:
         cfg_kw["max_rate"] = _floats(query["max_rate"], "max_rate")
     if "accel" in query:
