@@ -175,11 +175,29 @@ class Session:
             return 0.0
         self.stage += 1
         tool = int(self.moves["tool"][s.row]) if len(self.moves) else 0
-        removed = self._cutter(tool).cut_segment(prev, tip, s.row + 1)
+        pts = self._travelled(prev, tip, s)
+        cutter = self._cutter(tool)
+        removed = 0.0
+        for a, b in zip(pts[:-1], pts[1:]):
+            removed += cutter.cut_segment(a, b, s.row + 1)
         if self.run is not None:
-            self.run.append_cut(self.stage, {"p0": prev, "p1": tip}, t=state.t, move_id=s.row + 1, line=s.line)
+            self.run.append_cut(self.stage, {"points": pts}, t=state.t, move_id=s.row + 1, line=s.line)
             self._record_trace()
         return removed
+
+    def _travelled(self, prev: np.ndarray, tip: np.ndarray, s: SyncResult) -> np.ndarray:
+        """Points (k, 3) of the path from the last tip to this one: through the program's
+        corners passed in between when both ends sit on the program (between two polls the
+        machine followed the program, not the chord), else the straight chord."""
+        last = self.last_sync
+        if (last is None or s.how not in ("track", "line") or last.how == "lost"
+                or s.distance > self.sync.lost or s.progress <= last.progress):
+            return np.stack([prev, tip])
+        path = self.path
+        k0, k1 = path.segment_at(last.progress), path.segment_at(s.progress)
+        corners = path.p1[k0:k1]
+        keep = (path.t1[k0:k1] > last.progress) & (path.t1[k0:k1] < s.progress)
+        return np.concatenate([prev[None], corners[keep], tip[None]])
 
     def _predict(self, s: SyncResult, state: MachineState) -> list[dict]:
         found = self.lookahead.advance(s.progress)
