@@ -199,8 +199,8 @@ class RunView:
         if empty_now.any():  # the ray became empty: everything down to its bottom went
             lo = self._bottoms()[t._ray.a[empty_now]]
             drop[empty_now] = np.nan_to_num(t._prev.a[empty_now], nan=0.0) - lo
-        per_block = np.add.reduceat(drop, ptr[:-1]) if drop.size else np.zeros(t.n_blocks)
-        per_block[np.diff(ptr) == 0] = 0.0
+        cs = np.concatenate([[0.0], np.cumsum(drop)])
+        per_block = cs[ptr[1:]] - cs[ptr[:-1]]
         return t._stage.a.copy(), per_block * t.frame.spacing ** 2
 
     def _bottoms(self) -> np.ndarray:

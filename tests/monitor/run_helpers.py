@@ -1,0 +1,74 @@
+"""A small recorded run (run file with trace, moves, cuts, findings) for replay/report tests."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from monitor.runfile import RunWriter
+from monitor.trace_io import store_trace_chunk
+from sim.gcode.moves import MoveKind, empty_moves
+from sim.trace import Trace
+from tests.sim.trace_helpers import ball_cut, box
+
+#: tip path of the recorded program (work coords, mm); each leg is one move
+PATH = np.array([[2.0, 2.0, 12.0], [2.0, 2.0, 8.0], [26.0, 4.0, 8.0], [26.0, 16.0, 7.0],
+                 [4.0, 16.0, 6.5], [14.0, 9.0, 6.0], [14.0, 9.0, 12.0]])
+STEPS = 6  # live stages per move
+
+
+def program_moves() -> np.ndarray:
+    n = len(PATH) - 1
+    m = empty_moves(n)
+    m["line"] = np.arange(n) + 10
+    m["kind"] = MoveKind.FEED
+    m["kind"][0] = MoveKind.RAPID
+    for k in range(n):
+        for col in ("start", "start_work"):
+            m[col][k, :3] = PATH[k]
+        for col in ("end", "end_work"):
+            m[col][k, :3] = PATH[k + 1]
+    m["feed"] = 600.0
+    m["tool"] = 1
+    return m
+
+
+def record_run(path, chunk_every: int = 5, stop_after: int | None = None, writer_hook=None):
+    """Cut the program in small live stages, writing the run file as a session would.
+
+    Returns ``(snapshots {stage: DexelGrid}, writer)``; the writer is closed unless
+    ``stop_after`` (stages) is given, which leaves it open like a crashed session.
+    """
+    grid = box(61, 41, 0.5, 0.0, 10.0)
+    moves = program_moves()
+    w = RunWriter(path, commit_interval=0.05)
+    w.put_meta("tool_spec", "ball:6")
+    w.put_meta("program_path", "wave.nc")
+    w.put_array("moves", moves)
+    w.put_array("row_seconds", np.full(len(moves), 2.0))
+    trace = Trace(grid)
+    store_trace_chunk(w, trace)
+    snaps = {0: grid.copy()}
+    stage = 0
+    for k in range(len(moves)):
+        p0, p1 = PATH[k], PATH[k + 1]
+        for s in range(1, STEPS + 1):
+            q0 = p0 + (p1 - p0) * (s - 1) / STEPS
+            q1 = p0 + (p1 - p0) * s / STEPS
+            stage += 1
+            rays = np.concatenate([ball_cut(grid, q, 3.0, k + 1) for q in (q0, (q0 + q1) / 2, q1)])
+            trace.record(grid, rays, stage)
+            snaps[stage] = grid.copy()
+            w.append_cut(stage, {"p0": q0, "p1": q1}, t=stage * 0.1, move_id=k + 1, line=int(moves["line"][k]))
+            if stage % chunk_every == 0:
+                store_trace_chunk(w, trace)
+                if writer_hook:
+                    writer_hook(w, stage)
+            if stop_after is not None and stage >= stop_after:
+                return snaps, w
+    store_trace_chunk(w, trace)
+    w.append_finding({"kind": "gouge", "line": 13, "lines": [13, 14], "stage": 4,
+                      "position": [15.0, 16.0, 6.5], "depth": 0.4, "message": "gouge 0.400 mm deep"})
+    w.append_finding({"kind": "rapid_into_stock", "line": 10, "lines": [10], "stage": 1,
+                      "position": [2.0, 2.0, 8.0], "volume": 3.2, "message": "rapid through material"})
+    w.close()
+    return snaps, None

@@ -1,0 +1,139 @@
+"""``dexmon replay`` through ``main(argv)`` on a recorded run file."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from monitor.cli import main
+from monitor.trace_io import RunView, load_trace
+from sim.trace import same_model
+from tests.monitor.run_helpers import PATH, STEPS, record_run
+
+LAST = (len(PATH) - 1) * STEPS
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    path = tmp_path_factory.mktemp("run") / "job.dexrun"
+    snaps, _ = record_run(path)
+    return path, snaps
+
+
+def test_trace_from_run_file_rebuilds_every_stage(recorded):
+    path, snaps = recorded
+    tr = load_trace(path)
+    assert tr.last_stage == LAST and not tr.truncated
+    for s in (0, LAST // 4, LAST // 2, 3 * LAST // 4, LAST):
+        assert same_model(tr.grid_at(s), snaps[s]), s
+        assert np.array_equal(tr.heights_at(s), snaps[s].top(), equal_nan=True)
+
+
+def test_png_of_a_stage(recorded, tmp_path, capsys):
+    import imageio.v3 as iio
+
+    path, snaps = recorded
+    out = tmp_path / "s.png"
+    assert main(["replay", str(path), "--stage", "1/2", "--png", str(out)]) == 0
+    img = iio.imread(out)
+    assert img.shape == (41, 61, 3)
+    assert f"stage {LAST // 2}" in capsys.readouterr().out
+    # the cut region is darker/different from the untouched stock in the picture
+    end = tmp_path / "e.png"
+    assert main(["replay", str(path), "--stage", "end", "--png", str(end)]) == 0
+    assert not np.array_equal(iio.imread(end), img)
+
+
+def test_animation_gif_and_mp4(recorded, tmp_path, capsys):
+    import imageio.v3 as iio
+
+    path, _ = recorded
+    gif, mp4 = tmp_path / "a.gif", tmp_path / "a.mp4"
+    assert main(["replay", str(path), "--from", "0", "--to", "30", "--gif", str(gif),
+                 "--mp4", str(mp4), "--frames", "9", "--json"]) == 0
+    lines = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert [x["frames"] for x in lines] == [9, 9]
+    frames = iio.imread(gif, index=None)
+    assert frames.shape[0] == 9
+    assert not np.array_equal(frames[0], frames[-1])
+    assert mp4.stat().st_size > 1000
+    # backwards
+    back = tmp_path / "b.gif"
+    assert main(["replay", str(path), "--from", "30", "--to", "0", "--gif", str(back), "--frames", "9"]) == 0
+    rb = iio.imread(back, index=None)
+    assert np.abs(rb[0].astype(int) - frames[-1].astype(int)).mean() < 8
+    assert np.abs(rb[-1].astype(int) - frames[0].astype(int)).mean() < 8
+
+
+def test_findings_with_lines(recorded, capsys):
+    path, _ = recorded
+    assert main(["replay", str(path), "--findings"]) == 1
+    out = capsys.readouterr().out
+    assert "gouge: line 13 (lines 13..14" in out and "rapid_into_stock: line 10" in out
+
+
+def test_export_stl(recorded, tmp_path):
+    trimesh = pytest.importorskip("trimesh")
+    pytest.importorskip("sim.surface")
+    path, snaps = recorded
+    out = tmp_path / "m.stl"
+    assert main(["replay", str(path), "--export-stl", "12", str(out)]) == 0
+    mesh = trimesh.load(out)
+    assert mesh.is_watertight
+    assert mesh.volume == pytest.approx(snaps[12].volume(), rel=0.02)
+
+
+def test_summary_and_errors(recorded, tmp_path, capsys):
+    path, _ = recorded
+    assert main(["replay", str(path), "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)
+    assert s["last_stage"] == LAST and s["findings"] == 2 and not s["truncated"]
+    assert main(["replay", str(path), "--stage", "x", "--png", str(tmp_path / "x.png")]) == 2
+    assert "--stage" in capsys.readouterr().err
+    assert main(["replay", str(tmp_path / "missing.dexrun")]) == 2
+    bad = tmp_path / "bad.dexrun"
+    bad.write_bytes(b"not sqlite at all" * 10)
+    assert main(["replay", str(bad)]) == 2
+    assert "error" in capsys.readouterr().err
+
+
+def test_removal_per_move_matches_the_models(recorded):
+    path, snaps = recorded
+    with RunView(path) as view:
+        per_move = view.removal_per_move()
+    total = snaps[0].volume() - snaps[LAST].volume()
+    assert sum(per_move.values()) == pytest.approx(total, rel=1e-5)
+    for m in range(1, len(PATH)):
+        want = snaps[(m - 1) * STEPS].volume() - snaps[m * STEPS].volume()
+        assert per_move.get(m, 0.0) == pytest.approx(want, rel=1e-5, abs=1e-6)
+
+
+def test_run_cut_short_mid_write_replays_to_last_complete_stage(tmp_path):
+    """A session killed while writing: the WAL's last transaction is torn."""
+    path = tmp_path / "crash.dexrun"
+    sizes = {}
+
+    def hook(w, stage):
+        w.flush()
+        sizes[stage] = (path.parent / (path.name + "-wal")).stat().st_size
+
+    snaps, w = record_run(path, chunk_every=5, stop_after=20, writer_hook=hook)
+    w.flush()
+    try:
+        copy = tmp_path / "copy" / "crash.dexrun"
+        copy.parent.mkdir()
+        shutil.copy(path, copy)
+        wal = (path.parent / (path.name + "-wal")).read_bytes()
+        # cut the WAL in the middle of the transaction that wrote the stage-20 chunk
+        cut = sizes[15] + (sizes[20] - sizes[15]) // 2
+        (copy.parent / (copy.name + "-wal")).write_bytes(wal[:cut])
+    finally:
+        w.close()
+    tr = load_trace(copy)
+    assert tr.last_stage == 15
+    for s in (0, 7, 15):
+        assert same_model(tr.grid_at(s), snaps[s])
+    assert main(["replay", str(copy), "--stage", "end", "--png", str(tmp_path / "c.png")]) == 0
