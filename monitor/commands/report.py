@@ -1,0 +1,176 @@
+"""``dexmon report RUN -o report.html``: a self-contained HTML report of a recorded run.
+
+Summary (stages, cycle time, removed volume), every finding with its lines and a picture
+of the model where it happened, the removal per move, and pictures of the start and end.
+Pictures are PNG embedded as base64; the file needs nothing else to open.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from sim.errors import InputError
+
+HELP = "write an HTML report of a recorded run"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("run", help="run file written by live or dry-run")
+    parser.add_argument("-o", "--output", required=True, metavar="OUT.html", help="HTML file to write")
+    parser.add_argument("--size", type=int, default=480, help="pictures at most this many pixels a side")
+    parser.add_argument("--max-findings", type=int, default=50, help="pictures for at most this many findings")
+
+
+def png_base64(img: np.ndarray) -> str:
+    import imageio.v3 as iio
+
+    buf = io.BytesIO()
+    iio.imwrite(buf, np.ascontiguousarray(img), extension=".png")
+    return base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def _img_tag(img: np.ndarray, alt: str) -> str:
+    return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{png_base64(img)}">'
+
+
+def finding_stage(view, f: dict) -> int:
+    """The live stage at which a finding's line was (last) being cut; else the run's end."""
+    tab = view.stage_table
+    line = f.get("line")
+    if tab.size and line is not None:
+        hit = np.nonzero(tab["line"] == int(line))[0]
+        if hit.size:
+            return int(tab["stage"][hit[-1]])
+    return view.last_stage
+
+
+def crop_around(img: np.ndarray, frame, k: int, pos, half_mm: float = 12.0) -> np.ndarray:
+    """The part of a (possibly reduced by ``k``) picture within ``half_mm`` of ``pos``."""
+    from monitor.render.shaded import to_pixels
+
+    c = to_pixels(frame, np.asarray(pos, np.float64).reshape(1, 3))[0] / k
+    r = max(8, int(half_mm / (frame.spacing * k)))
+    h, w = img.shape[:2]
+    x0, x1 = int(max(c[0] - r, 0)), int(min(c[0] + r, w))
+    y0, y1 = int(max(c[1] - r, 0)), int(min(c[1] + r, h))
+    if x1 - x0 < 4 or y1 - y0 < 4:
+        return img
+    crop = img[y0:y1, x0:x1]
+    rep = max(1, 160 // max(crop.shape[:2]))
+    return np.repeat(np.repeat(crop, rep, axis=0), rep, axis=1)
+
+
+def cycle_time(view) -> dict:
+    out = {}
+    tab = view.stage_table
+    if tab.size and np.isfinite(tab["t"]).any():
+        t = tab["t"][np.isfinite(tab["t"])]
+        out["recorded_s"] = float(t.max() - t.min())
+    secs = view.row_seconds
+    if secs is not None:
+        out["program_s"] = float(np.nansum(secs))
+    states = view.reader.state_count() if hasattr(view.reader, "state_count") else 0
+    if states:
+        st = view.reader.states()
+        out["machine_s"] = float(st["t"][-1] - st["t"][0])
+    return out
+
+
+def _fmt_s(s: float) -> str:
+    m, sec = divmod(float(s), 60.0)
+    h, m = divmod(m, 60.0)
+    return f"{int(h)}:{int(m):02d}:{sec:05.2f}" if h else f"{int(m)}:{sec:05.2f}"
+
+
+def build_report(view, size: int = 480, max_findings: int = 50) -> str:
+    """The report of a :class:`monitor.trace_io.RunView` as one HTML string."""
+    from monitor.commands.replay import finding_positions, format_finding
+    from monitor.render.animate import frame_picture, reduce_factor
+
+    tr = view.trace
+    first, last = (tr.z or tr.t).first_stage, tr.last_stage
+    frame = tr.frame
+    k = reduce_factor(frame.shape, size)
+    findings = view.findings
+    marks = finding_positions(findings)
+    tool = view.tool()
+
+    def pic(stage, with_marks=True):
+        h, ids = tr.state_at(stage)
+        info = view.stage_info(stage)
+        tip = info.get("tip")
+        tip = tip if tip is not None and np.all(np.isfinite(tip)) else None
+        return frame_picture(h, ids, frame, k, tool=tool, tip=tip,
+                             findings=marks if with_marks else None)
+
+    removal = view.removal_per_move()
+    removed_total = float(sum(removal.values()))
+    ct = cycle_time(view)
+    e = html.escape
+    parts = [
+        "<!doctype html><html><head><meta charset='utf-8'>",
+        f"<title>dexmon report: {e(view.path.name)}</title>",
+        "<style>body{font-family:sans-serif;margin:2em;background:#fafafa;color:#222}"
+        "table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:3px 8px;text-align:right}"
+        "th{background:#eee}.f{display:flex;gap:1em;align-items:flex-start;margin:1em 0}"
+        ".bad{color:#b00}img{image-rendering:pixelated;border:1px solid #999}</style></head><body>",
+        f"<h1>dexmon run report: {e(view.path.name)}</h1>",
+        "<h2>Summary</h2><table>",
+    ]
+    rows = [("program", view.meta.get("program_path", "")),
+            ("stages", f"{first} .. {last}" + (" (run cut short)" if tr.truncated else "")),
+            ("dexel grid", f"{frame.nu} x {frame.nv} rays at {frame.spacing:g} mm"),
+            ("removed volume", f"{removed_total:.3f} mm³"),
+            ("findings", str(len(findings)))]
+    for key, label in (("program_s", "programmed cycle time"), ("machine_s", "machine time recorded"),
+                       ("recorded_s", "cutting time recorded")):
+        if key in ct:
+            rows.append((label, _fmt_s(ct[key])))
+    parts += [f"<tr><th>{e(a)}</th><td>{e(str(b))}</td></tr>" for a, b in rows]
+    parts.append("</table>")
+    parts.append("<h2>Start and end</h2><div class='f'>")
+    parts.append(f"<figure>{_img_tag(pic(first, False), 'start')}<figcaption>stage {first}</figcaption></figure>")
+    parts.append(f"<figure>{_img_tag(pic(last), 'end')}<figcaption>stage {last} (findings ringed)"
+                 f"</figcaption></figure></div>")
+    parts.append(f"<h2>Findings ({len(findings)})</h2>")
+    if not findings:
+        parts.append("<p>No findings.</p>")
+    for n, f in enumerate(findings):
+        parts.append("<div class='f'>")
+        if n < max_findings and isinstance(f.get("position"), list) and len(f["position"]) >= 3:
+            stage = finding_stage(view, f)
+            img = crop_around(pic(stage), frame, k, f["position"])
+            parts.append(f"<figure>{_img_tag(img, f.get('kind', 'finding'))}"
+                         f"<figcaption>stage {stage}</figcaption></figure>")
+        lines = f.get("lines") or ([f["line"]] if f.get("line") is not None else [])
+        parts.append(f"<div><p class='bad'><b>{e(str(f.get('kind', 'finding')))}</b></p>"
+                     f"<p>{e(format_finding(f))}</p><p>lines: {e(', '.join(map(str, lines[:40])))}"
+                     f"{' …' if len(lines) > 40 else ''}</p></div></div>")
+    parts.append("<h2>Removal per move</h2><table><tr><th>move</th><th>line</th><th>removed (mm³)</th></tr>")
+    moves = view.moves
+    for m, v in sorted(removal.items()):
+        line = int(moves["line"][m - 1]) if moves is not None and 1 <= m <= len(moves) else ""
+        parts.append(f"<tr><td>{m}</td><td>{line}</td><td>{v:.3f}</td></tr>")
+    parts.append("</table></body></html>")
+    return "\n".join(parts)
+
+
+def run(args) -> int:
+    from monitor.trace_io import RunView
+
+    out = Path(args.output)
+    if out.suffix.lower() not in (".html", ".htm"):
+        raise InputError(f"the report is HTML; give a .html file, got {out.name!r}", "-o")
+    with RunView(args.run) as view:
+        text = build_report(view, args.size, args.max_findings)
+        n = len(view.findings)
+    out.write_text(text, encoding="utf-8")
+    print(json.dumps({"event": "report", "path": str(out), "findings": n}), file=sys.stdout)
+    return 0

@@ -1,0 +1,51 @@
+"""``dexmon report`` through ``main(argv)``."""
+
+from __future__ import annotations
+
+import base64
+import io
+import re
+
+import numpy as np
+import pytest
+
+from monitor.cli import main
+from tests.monitor.run_helpers import PATH, record_run
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    path = tmp_path_factory.mktemp("run") / "job.dexrun"
+    snaps, _ = record_run(path)
+    return path, snaps
+
+
+def test_report_has_summary_findings_pictures_and_removal(recorded, tmp_path, capsys):
+    import imageio.v3 as iio
+
+    path, snaps = recorded
+    out = tmp_path / "r.html"
+    assert main(["report", str(path), "-o", str(out)]) == 0
+    text = out.read_text()
+    assert "<h2>Summary</h2>" in text and "programmed cycle time" in text
+    assert "0:12.00" in text  # 6 moves x 2 s of row_seconds
+    assert "gouge: line 13" in text and "lines: 13, 14" in text
+    imgs = re.findall(r'src="data:image/png;base64,([^"]+)"', text)
+    assert len(imgs) == 4  # start, end, one per finding
+    for b in imgs:
+        img = iio.imread(io.BytesIO(base64.b64decode(b)))
+        assert img.ndim == 3 and img.shape[2] == 3
+    # removal per move: one row per move, summing to the volume cut
+    rows = re.findall(r"<tr><td>(\d+)</td><td>(\d*)</td><td>([\d.]+)</td></tr>", text)
+    assert [int(r[0]) for r in rows] == list(range(1, len(PATH)))
+    assert [int(r[1]) for r in rows] == list(range(10, 10 + len(PATH) - 1))
+    total = sum(float(r[2]) for r in rows)
+    assert total == pytest.approx(snaps[0].volume() - snaps[max(snaps)].volume(), abs=0.01)
+    assert "report" in capsys.readouterr().out
+
+
+def test_report_errors(recorded, tmp_path, capsys):
+    path, _ = recorded
+    assert main(["report", str(path), "-o", str(tmp_path / "r.txt")]) == 2
+    assert ".html" in capsys.readouterr().err
+    assert main(["report", str(tmp_path / "nope"), "-o", str(tmp_path / "r.html")]) == 2
