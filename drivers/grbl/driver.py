@@ -563,6 +563,9 @@ class GrblController(Controller):
                 break
             try:
                 sent.append(self.send(text, index))
+            except ConnectionLost:
+                res.stopped = "connection lost"
+                break
             except DriverError as exc:
                 res.stopped = str(exc)
                 break
