@@ -30,7 +30,7 @@ MAX_STEPS = 20_000_000  # executed blocks before a program is called runaway (o-
 # modal group of each G code (in tenths); 0 = non-modal
 G_GROUP = {
     0: 1, 10: 1, 20: 1, 30: 1, 382: 1, 383: 1, 384: 1, 385: 1, 730: 1, 800: 1, 810: 1, 820: 1,
-    830: 1, 850: 1, 860: 1, 890: 1,
+    830: 1, 850: 1, 860: 1, 890: 1, 50: 1, 51: 1, 330: 1, 331: 1,
     170: 2, 180: 2, 190: 2,
     900: 3, 910: 3,
     901: 4, 911: 4,
@@ -50,7 +50,7 @@ M_GROUP = {0: 4, 1: 4, 2: 4, 30: 4, 60: 4, 6: 6, 61: 6, 3: 7, 4: 7, 5: 7, 7: 8, 
            48: 9, 49: 9, 50: 9, 51: 9, 52: 9, 53: 9}
 GRBL_M = {0, 1, 2, 30, 3, 4, 5, 8, 9, 56}
 CYCLES = {730, 810, 820, 830, 850, 860, 890}
-MOTION_AXES = {0, 10, 20, 30, 382, 383, 384, 385} | CYCLES
+MOTION_AXES = {0, 10, 20, 30, 50, 51, 382, 383, 384, 385} | CYCLES
 G0_AXIS_USERS = {100, 280, 300, 920}
 PLANE_AXES = {170: (0, 1, 2), 180: (2, 0, 1), 190: (1, 2, 0)}  # first, second, normal axis
 PLANE_CODE = {170: 0, 180: 1, 190: 2}
@@ -59,6 +59,7 @@ COORD_INDEX = {540: 0, 550: 1, 560: 2, 570: 3, 580: 4, 590: 5, 591: 6, 592: 7, 5
 ARC_TOL_INCH = 0.0005  # LinuxCNC TOLERANCE_INCH (program inch)
 ARC_TOL_MM = 0.005     # LinuxCNC TOLERANCE_MM
 G83_RAPID_DELTA_INCH = 0.010
+SPLINE_CHORD = 0.001  # mm: G5/G5.1 chords stay this close to the curve
 
 
 def _code10(v: float) -> int:
@@ -243,6 +244,7 @@ class Interpreter:
         self.cycle_q = None
         self.cycle_p = 0.0
         self.cycle_motion = None
+        self.last_spline_ctrl = None
         self.file_index = 0
         self.line = 0
         self.ended = False
@@ -406,17 +408,23 @@ class Interpreter:
             self.g92 = list(self.g92_saved)
 
     # ----------------------------------------------------------------- rows
+    def meta(self) -> tuple:
+        """The row attributes taken from the current state (file, line, spindle ...)."""
+        return (self.file_index, self.line, self.spindle, self.spindle_dir, self.tool, self.tlo[2],
+                self.coolant, PLANE_CODE[self.plane], self.main_line)
+
     def emit(self, kind: int, start, end, center=NAN3, turns: int = 0, feed: float = 0.0,
-             inverse: float = 0.0, dwell: float = 0.0) -> None:
+             inverse: float = 0.0, dwell: float = 0.0, meta: tuple | None = None) -> None:
+        """Append one move row; ``start``/``end`` machine coordinates (6), mm/deg."""
         off = self.offsets()
         sw = tuple(start[i] - off[i] for i in range(6))
         ew = tuple(end[i] - off[i] for i in range(6))
+        m = meta or self.meta()
         self._rows.append((
-            self.file_index, self.line, kind, tuple(start), tuple(end), sw, ew, center,
-            PLANE_CODE[self.plane], turns, feed, inverse, self.spindle, self.spindle_dir, self.tool,
-            self.tlo[2], self.coolant, dwell,
+            m[0], m[1], kind, tuple(start), tuple(end), sw, ew, center,
+            m[7], turns, feed, inverse, m[2], m[3], m[4], m[5], m[6], dwell,
         ))
-        self._row_line.append(self.main_line)
+        self._row_line.append(m[8])
 
     # ----------------------------------------------------------------- block execution
     def evaluate_block(self, block: Block):
@@ -632,6 +640,9 @@ class Interpreter:
                 raise LineError("GRBL has no canned cycles", explicit_motion[1], 20)
             if motion != 800 and motion not in CYCLES:
                 self.cycle_r = self.cycle_z = None
+                self.cycle_motion = None
+            if motion != 50:
+                self.last_spline_ctrl = None
         if motion is not None and motion != 800 and (has_axes or explicit_motion):
             self._motion(motion, bool(explicit_motion), words, cols, used, g53, has_axes)
         # ---- 12. stops
@@ -941,9 +952,87 @@ class Interpreter:
             self._line_to(end, MoveKind.FEED, feed, inv)
         elif motion in (20, 30):
             arcs.arc_motion(self, motion == 20, explicit, words, cols, used, has_axes)
+        elif motion in (50, 51):
+            self._spline(motion, end, words, cols, used, first_axis_col)
+        elif motion in (330, 331):
+            self._synced(motion, end, words, cols, used, first_axis_col)
         else:  # probe G38.x: the table assumes the probe travels to the target
             feed, inv = self._feed_rate(first_axis_col, words, math.dist(self.pos[:3], end[:3]))
             self._line_to(end, MoveKind.PROBE, feed, inv)
+
+    def _synced(self, motion, end, words, cols, used, col) -> None:
+        """G33 spindle-synchronised motion / G33.1 rigid tapping (in, then back out).
+
+        The feed is pitch K (per revolution) times the spindle speed.
+        """
+        if "K" not in words:
+            raise LineError(f"G{motion / 10:g} needs a K word (distance per revolution)", col)
+        used.add("K")
+        if self.spindle <= 0:
+            raise LineError(f"G{motion / 10:g} needs the spindle turning (S > 0)", col)
+        feed = words["K"] * self.factor * self.spindle
+        start = list(self.pos)
+        self._line_to(end, MoveKind.FEED, feed, 0.0)
+        if motion == 331:
+            self._line_to(start, MoveKind.FEED, feed, 0.0)
+
+    def _spline(self, motion, end, words, cols, used, col) -> None:
+        """G5 (cubic) / G5.1 (quadratic) B-spline in the XY plane, emitted as feed chords.
+
+        The chords stay within ``SPLINE_CHORD`` mm of the curve: a Bezier segment of
+        parameter length h deviates at most ``max|B''| h^2 / 8`` from its chord.
+        """
+        if self.plane != 170:
+            raise LineError(f"G{motion / 10:g} splines need the XY plane (G17)", col)
+        if self.comp_engine is not None:
+            raise LineError("splines cannot be used with cutter compensation on", col)
+        f = self.factor
+        p0 = np.array(self.work()[:2])
+        p3 = np.array(self.work_of(end)[:2])
+        if motion == 51:
+            if "I" not in words and "J" not in words:
+                raise LineError("G5.1 needs I and J (control point offsets)", col)
+            c = p0 + np.array([words.get("I", 0.0), words.get("J", 0.0)]) * f
+            used.update(k for k in ("I", "J") if k in words)
+            bound = float(np.linalg.norm(2.0 * (p0 - 2.0 * c + p3)))
+            ctrl = (p0, c, p3)
+        else:
+            if "P" not in words or "Q" not in words:
+                raise LineError("G5 needs P and Q (second control point offsets)", col)
+            if ("I" in words) != ("J" in words):
+                raise LineError("G5 needs both I and J or neither", col)
+            if "I" in words:
+                c1 = p0 + np.array([words["I"], words["J"]]) * f
+            elif self.last_spline_ctrl is not None:
+                c1 = 2.0 * p0 - self.last_spline_ctrl
+            else:
+                raise LineError("the first G5 of a spline needs I and J", col)
+            c2 = p3 + np.array([words["P"], words["Q"]]) * f
+            used.update(k for k in ("I", "J", "P", "Q") if k in words)
+            bound = 6.0 * max(float(np.linalg.norm(p0 - 2 * c1 + c2)), float(np.linalg.norm(c1 - 2 * c2 + p3)))
+            ctrl = (p0, c1, c2, p3)
+            self.last_spline_ctrl = c2
+        n = max(1, int(math.ceil(math.sqrt(bound / (8.0 * SPLINE_CHORD)))))
+        n = min(n, 10000)
+        t = np.linspace(0.0, 1.0, n + 1)[1:, None]
+        if len(ctrl) == 3:
+            pts = (1 - t) ** 2 * ctrl[0] + 2 * (1 - t) * t * ctrl[1] + t**2 * ctrl[2]
+        else:
+            pts = ((1 - t) ** 3 * ctrl[0] + 3 * (1 - t) ** 2 * t * ctrl[1] + 3 * (1 - t) * t**2 * ctrl[2]
+                   + t**3 * ctrl[3])
+        start_work = self.work()
+        end_work = self.work_of(end)
+        for k in range(n):
+            w = list(end_work)
+            frac = (k + 1) / n
+            for i in range(2, 6):
+                w[i] = start_work[i] + (end_work[i] - start_work[i]) * frac
+            w[0], w[1] = float(pts[k, 0]), float(pts[k, 1])
+            if k == n - 1:
+                w = end_work
+            target = self.to_machine(w)
+            feed, inv = self._feed_rate(col, words, math.dist(self.pos[:3], target[:3]))
+            self._line_to(target, MoveKind.FEED, feed, inv)
 
     def work_of(self, machine) -> list:
         off = self.offsets()

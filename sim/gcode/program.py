@@ -333,6 +333,7 @@ class _Runner:
         it = self.it
         p = it.params
         label, kw, args, col = b.oword
+        kw = src.kind.get(i, kw)
         if b.message is not None:
             it.messages.append((i + 1, b.message))
 
