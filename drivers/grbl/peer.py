@@ -22,17 +22,14 @@ opens) and :meth:`GrblPeer.serve_tcp` (returns the bound port). Both can run at 
 
 from __future__ import annotations
 
-import os
 import re
-import select
-import socket
 import threading
-import tty
 from typing import Callable
 
 import numpy as np
 
 from drivers.grbl import protocol as p
+from drivers.grbl.endpoints import Endpoint, PtyEndpoint, TcpEndpoint
 from drivers.state import RunState
 
 VERSION = "1.1h.20190830"
@@ -56,157 +53,6 @@ def _default_interpreter():
 
 def _fmt(values, decimals: int) -> str:
     return ",".join(f"{v:.{decimals}f}" for v in values)
-
-
-class _Transport:
-    """One byte pipe to a sender; ``write`` is atomic per call."""
-
-    def __init__(self, name: str):
-        self.name = name
-        self.lock = threading.Lock()
-        self.closed = False
-
-    def write(self, data: bytes) -> None:  # pragma: no cover - overridden
-        raise NotImplementedError
-
-    def close(self) -> None:  # pragma: no cover - overridden
-        raise NotImplementedError
-
-
-class _PtyTransport(_Transport):
-    def __init__(self, peer: "GrblPeer", link: str | None):
-        master, slave = os.openpty()
-        tty.setraw(slave)
-        super().__init__(os.ttyname(slave))
-        self.master, self.slave = master, slave
-        self.link = link
-        if link:
-            tmp = f"{link}.{os.getpid()}.tmp"
-            if os.path.lexists(tmp):
-                os.unlink(tmp)
-            os.symlink(self.name, tmp)
-            os.replace(tmp, link)  # atomic: a driver reopening the link finds old or new
-        self.path = link or self.name
-        self._peer = peer
-        # a pipe to wake the reader out of select() on close
-        self._wake_r, self._wake_w = os.pipe()
-        self.thread = threading.Thread(target=self._run, name=f"grbl-peer pty {self.name}", daemon=True)
-        self.thread.start()
-
-    def _run(self) -> None:
-        while not self.closed:
-            try:
-                ready, _, _ = select.select([self.master, self._wake_r], [], [])
-                if self._wake_r in ready or self.closed:
-                    return
-                data = os.read(self.master, 4096)
-            except OSError:
-                return
-            if data:
-                self._peer._receive(self, data)
-
-    def write(self, data: bytes) -> None:
-        if self.closed:
-            return
-        with self.lock:
-            view = memoryview(data)
-            while view and not self.closed:
-                try:
-                    n = os.write(self.master, view)
-                except BlockingIOError:
-                    select.select([], [self.master], [], 0.1)
-                    continue
-                except OSError:
-                    return
-                view = view[n:]
-
-    def close(self) -> None:
-        if self.closed:
-            return
-        self.closed = True
-        os.write(self._wake_w, b"x")
-        self.thread.join(1.0)
-        for fd in (self.master, self.slave, self._wake_r, self._wake_w):
-            try:
-                os.close(fd)
-            except OSError:
-                pass
-        if self.link and os.path.islink(self.link) and os.readlink(self.link) == self.name:
-            os.unlink(self.link)
-
-
-class _TcpTransport(_Transport):
-    """A listening socket; one client at a time (a serial port has one user)."""
-
-    def __init__(self, peer: "GrblPeer", host: str, port: int):
-        self.server = socket.socket(socket.AF_INET, socket.SOCK_STREAM)
-        self.server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        self.server.bind((host, port))
-        self.server.listen(2)
-        self.port = self.server.getsockname()[1]
-        super().__init__(f"tcp:{host}:{self.port}")
-        self._peer = peer
-        self.client: socket.socket | None = None
-        self.thread = threading.Thread(target=self._accept, name=f"grbl-peer {self.name}", daemon=True)
-        self.thread.start()
-
-    def _accept(self) -> None:
-        while not self.closed:
-            try:
-                conn, _ = self.server.accept()
-            except OSError:
-                return
-            conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            old, self.client = self.client, conn
-            if old is not None:
-                _close_socket(old)
-            threading.Thread(target=self._serve, args=(conn,), name=f"grbl-peer client {self.name}",
-                             daemon=True).start()
-
-    def _serve(self, conn: socket.socket) -> None:
-        while not self.closed:
-            try:
-                data = conn.recv(4096)
-            except OSError:
-                break
-            if not data:
-                break
-            if conn is self.client:
-                self._peer._receive(self, data)
-        if self.client is conn:
-            self.client = None
-        _close_socket(conn)
-
-    def write(self, data: bytes) -> None:
-        conn = self.client
-        if conn is None or self.closed:
-            return
-        with self.lock:
-            try:
-                conn.sendall(data)
-            except OSError:
-                pass
-
-    def close(self) -> None:
-        if self.closed:
-            return
-        self.closed = True
-        try:
-            self.server.shutdown(socket.SHUT_RDWR)
-        except OSError:
-            pass
-        self.server.close()
-        if self.client is not None:
-            _close_socket(self.client)
-        self.thread.join(1.0)
-
-
-def _close_socket(conn: socket.socket) -> None:
-    try:
-        conn.shutdown(socket.SHUT_RDWR)
-    except OSError:
-        pass
-    conn.close()
 
 
 class GrblPeer:
@@ -254,8 +100,8 @@ class GrblPeer:
         # report cadence (GRBL's report_wco_counter / report_ovr_counter)
         self._wco_counter = 0
         self._ovr_counter = 0
-        self._transports: list[_Transport] = []
-        self._reply_to: _Transport | None = None
+        self._transports: list[Endpoint] = []
+        self._reply_to: Endpoint | None = None
         # what the peer saw, for tests and logs
         self.received_lines: list[str] = []
         self.rx_dropped = 0
@@ -302,13 +148,13 @@ class GrblPeer:
         a stable name across :meth:`close_transports` / ``serve_pty`` cycles, as udev's
         ``/dev/serial/by-id`` is for a USB adapter plugged again.
         """
-        t = _PtyTransport(self, link)
+        t = PtyEndpoint(self._receive, link)
         self._transports.append(t)
         return t.path
 
     def serve_tcp(self, host: str = "127.0.0.1", port: int = 0) -> int:
         """Listen on ``host:port`` (0: any free port); return the bound port."""
-        t = _TcpTransport(self, host, port)
+        t = TcpEndpoint(self._receive, host, port)
         self._transports.append(t)
         return t.port
 
@@ -340,7 +186,7 @@ class GrblPeer:
 
     # ------------------------------------------------------------------ output
 
-    def _send(self, text: str, to: _Transport | None = None) -> None:
+    def _send(self, text: str, to: Endpoint | None = None) -> None:
         data = (text + "\r\n").encode("ascii", "replace")
         if to is not None:
             to.write(data)
@@ -358,7 +204,7 @@ class GrblPeer:
 
     # ------------------------------------------------------------------ input
 
-    def _receive(self, transport: _Transport, data: bytes) -> None:
+    def _receive(self, transport: Endpoint, data: bytes) -> None:
         """Bytes from a sender: real-time bytes act now, the rest go to the RX buffer."""
         self._reply_to = transport
         plain = bytearray()
@@ -377,7 +223,7 @@ class GrblPeer:
             self._rx += plain
             self._cond.notify_all()
 
-    def _realtime(self, b: int, transport: _Transport) -> None:
+    def _realtime(self, b: int, transport: Endpoint) -> None:
         vm = self.vm
         self.realtime_log.append(b)
         if b == 0x3F:  # '?'
