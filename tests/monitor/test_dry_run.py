@@ -1,0 +1,180 @@
+"""Dry runs of the bundled example over every controller kind: the planted gouge and rapid
+are predicted with lead time > 0, each alerted once, and the run file holds the run."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers.state import RunState
+from monitor.alerts import Alerter
+from monitor.commands.dry_run import EXAMPLE_JOB, virtual_controller
+from monitor.cli import main
+from monitor.job import load_job
+from monitor.runfile import RunReader, RunWriter
+from monitor.session import Session, load_moves, run_controller
+
+GOUGE_LINE, RAPID_LINE = 22, 36
+
+
+@pytest.fixture(scope="module")
+def example():
+    job = load_job(EXAMPLE_JOB)
+    moves, _ = load_moves(job)
+    return job, moves
+
+
+def check_planted(findings):
+    kinds = {(f["kind"], f["line"]) for f in findings}
+    assert ("gouge", GOUGE_LINE) in kinds and ("rapid_into_stock", RAPID_LINE) in kinds, findings
+    for f in findings:
+        if (f["kind"], f["line"]) in (("gouge", GOUGE_LINE), ("rapid_into_stock", RAPID_LINE)):
+            assert f["predicted"] and f["lead_time_s"] > 0, f
+    keys = [(f["kind"], f["line"]) for f in findings]
+    assert len(keys) == len(set(keys)), "a finding was alerted twice"
+
+
+def test_cli_dry_run_bundled_example(tmp_path, capsys):
+    run = tmp_path / "run.sqlite"
+    code = main(["dry-run", "--speed", "20", "--json", "--run", str(run)])
+    out = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert code == 1
+    assert out[0] == {"event": "start", "run": str(run), "program": str(load_job(EXAMPLE_JOB).program),
+                      "controller": out[0]["controller"]}
+    findings = [x for x in out if x["event"] == "finding"]
+    check_planted(findings)
+    for f in findings:
+        assert {"kind", "line", "position", "lead_time_s"} <= set(f)
+    assert out[-1]["event"] == "summary" and out[-1]["findings"] == len(findings)
+    r = RunReader(run)
+    assert [f["kind"] for f in r.findings()] == [f["kind"] for f in findings]
+    assert r.state_count() > 20 and r.get_array("moves").size > 0
+    assert "[stock]" in r.meta()["job"] and "planted gouge" in r.meta()["program"]
+    assert len(list(r.cuts())) > 0
+
+
+def test_in_process_virtual_with_mid_program_start(example, tmp_path):
+    job, moves = example
+    start = int(np.nonzero(moves["line"] == GOUGE_LINE + 3)[0][0])  # after the gouge
+    vc = virtual_controller(moves[start:], speed=1.0, rate=50, clock="sim")
+    with RunWriter(tmp_path / "r.sqlite") as w:
+        s = Session(job, moves, run=w, alerter=Alerter(run=w))
+        vc.connect()
+        run_controller(s, vc, 0.0, done=lambda: vc.done)
+        vc.close()
+        s.finish()
+    assert {(f["kind"], f["line"]) for f in s.findings} == {("rapid_into_stock", RAPID_LINE)}
+    assert s.findings[0]["lead_time_s"] > 0
+
+
+def test_feed_hold_stops_the_machine_before_the_gouge(example):
+    job, moves = example
+    vc = virtual_controller(moves, speed=1.0, rate=50, clock="sim")
+    s = Session(job, moves, alerter=Alerter(feed_hold=vc.feed_hold))
+    vc.connect()
+    held = None
+    for _ in range(5000):
+        st = vc.poll()
+        s.step(st)
+        if st.state == RunState.HOLD and st.substate == 0:
+            held = st
+            break
+    vc.close()
+    assert held is not None and s.findings[0]["kind"] == "gouge"
+    # the spindle never got to the gouge: the live model is untouched below the design top there
+    top = s.live.top()
+    f = s.live.frame
+    i, j = int(round((30 - f.origin[0]) / f.spacing)), int(round((19 - f.origin[1]) / f.spacing))
+    assert top[j, i] >= -5.0 - 1e-3
+
+
+def _fast_vm(moves):
+    from drivers.virtual.machine import MachineConfig, VirtualMachine
+    from monitor.commands.dry_run import VIRTUAL_ACCEL, VIRTUAL_MAX_RATE
+
+    cfg = MachineConfig(max_rate=VIRTUAL_MAX_RATE, accel=VIRTUAL_ACCEL, soft_limits=False)
+    return VirtualMachine(cfg, position=moves["start"][0])
+
+
+def _follow(job, moves, controller, vm, feeder):
+    s = Session(job, moves, alerter=Alerter())
+
+    def done():
+        with vm.lock:
+            return feeder.all_queued and not vm.busy
+    controller.connect()
+    try:
+        run_controller(s, controller, 0.01, done=done, max_seconds=60)
+    finally:
+        controller.close()
+    return s
+
+
+def test_grbl_peer_over_pty(example):
+    from drivers.grbl.peer import GrblPeer
+    from drivers.registry import open_controller
+    from drivers.virtual.controller import ProgramFeeder
+    from drivers.virtual.runner import RealTimeRunner
+
+    job, moves = example
+    vm = _fast_vm(moves)
+    feeder = ProgramFeeder(moves)
+    peer = GrblPeer(vm, run=False)
+    path = peer.serve_pty()
+    runner = RealTimeRunner(vm, speed=12.0, on_tick=feeder).start()
+    try:
+        s = _follow(job, moves, open_controller(f"grbl://{path}"), vm, feeder)
+    finally:
+        runner.stop()
+        peer.close()
+    check_planted(s.findings)
+
+
+def test_modbus_peer_over_tcp(example):
+    from drivers.modbus.regmap import load_map
+    from drivers.modbus.server import ModbusVirtualServer
+    from drivers.registry import open_controller
+    from drivers.virtual.controller import ProgramFeeder
+    from drivers.virtual.runner import RealTimeRunner
+
+    job, moves = example
+    vm = _fast_vm(moves)
+    feeder = ProgramFeeder(moves)
+    server = ModbusVirtualServer(vm, load_map("generic")).start()
+    runner = RealTimeRunner(vm, speed=12.0, on_tick=feeder).start()
+    try:
+        s = _follow(job, moves, open_controller(f"modbus+tcp://127.0.0.1:{server.port}?map=generic"), vm, feeder)
+    finally:
+        runner.stop()
+        server.stop()
+    check_planted(s.findings)
+
+
+def test_sigkilled_run_leaves_a_file_that_opens(tmp_path):
+    run = tmp_path / "killed.sqlite"
+    proc = subprocess.Popen([sys.executable, "-m", "monitor.cli", "dry-run", "--speed", "4", "--json",
+                             "--run", str(run)], stdout=subprocess.PIPE, text=True,
+                            cwd=Path(__file__).resolve().parents[2])
+    try:
+        lines = []
+        for line in proc.stdout:
+            lines.append(json.loads(line))
+            if lines[-1]["event"] == "finding":
+                break
+        assert lines and lines[-1]["event"] == "finding"
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+    assert proc.returncode == -signal.SIGKILL
+    r = RunReader(run)
+    assert r.state_count() > 10
+    assert r.get_array("moves").size > 0 and "[stock]" in r.meta()["job"]
+    st = r.states()
+    assert np.all(np.diff(st["t"]) >= 0)
