@@ -106,6 +106,10 @@ def run(args) -> int:
 
     peer = server = runner = None
     previous = {}
+    # handlers first: a signal that comes while the endpoints open still stops us cleanly
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            previous[sig] = signal.signal(sig, lambda *_: stop.set())
     try:
         if grbl:
             try:
@@ -139,9 +143,6 @@ def run(args) -> int:
             _say(f"modbus tcp: {args.host}:{server.port} map {regmap.name}")
         _say(f"serving at {args.speed:g}x real time; Ctrl-C to stop")
 
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGTERM, signal.SIGINT):
-                previous[sig] = signal.signal(sig, lambda *_: stop.set())
         while not stop.is_set():
             if args.exit_when_done and done.is_set():
                 with vm.lock:
