@@ -1,0 +1,150 @@
+"""Passthrough between a scripted sender on a pty and the GRBL peer."""
+
+from __future__ import annotations
+
+import socket
+
+import pytest
+import serial
+
+from drivers.grbl.passthrough import Passthrough
+from drivers.grbl.peer import GrblPeer
+from drivers.state import RunState
+from drivers.virtual.machine import MachineConfig, VirtualMachine
+
+
+class ScriptedSender:
+    """A sender as UGS/CNCjs are: character counting, its own '?' now and then."""
+
+    def __init__(self, port: serial.SerialBase):
+        self.port = port
+        self.queries = 0
+        self.reports: list[str] = []
+        self.replies: list[str] = []
+        self.other: list[str] = []
+        self.raw = bytearray()
+
+    def read_line(self, timeout: float = 5.0) -> str:
+        self.port.timeout = timeout
+        data = self.port.read_until(b"\n")
+        assert data.endswith(b"\n"), f"sender: no line within {timeout} s (got {data!r})"
+        self.raw += data
+        text = data.decode("ascii").strip()
+        if text.startswith("<"):
+            self.reports.append(text)
+        elif text == "ok" or text.startswith("error:"):
+            self.replies.append(text)
+        elif text:
+            self.other.append(text)
+        return text
+
+    def query(self) -> str:
+        self.queries += 1
+        self.port.write(b"?")
+        while True:
+            text = self.read_line()
+            if text.startswith("<"):
+                return text
+
+    def command(self, line: str) -> list[str]:
+        self.port.write(line.encode() + b"\n")
+        got = []
+        while True:
+            text = self.read_line()
+            got.append(text)
+            if text == "ok" or text.startswith("error:"):
+                return got
+
+    def stream(self, lines: list[str], poll_every: int = 5) -> list[str]:
+        """Character-counting stream; returns the replies in order."""
+        in_flight: list[int] = []
+        replies = []
+        for i, line in enumerate(lines):
+            data = line.encode() + b"\n"
+            while sum(in_flight) + len(data) > 127:
+                text = self.read_line()
+                if text == "ok" or text.startswith("error:"):
+                    in_flight.pop(0)
+                    replies.append(text)
+            self.port.write(data)
+            in_flight.append(len(data))
+            if i % poll_every == 0:
+                self.queries += 1
+                self.port.write(b"?")
+        while in_flight:
+            text = self.read_line()
+            if text == "ok" or text.startswith("error:"):
+                in_flight.pop(0)
+                replies.append(text)
+        return replies
+
+
+@pytest.fixture
+def rig():
+    vm = VirtualMachine(MachineConfig(max_rate=(3000.0,) * 3, accel=(200.0,) * 3,
+                                      travel_min=(-200.0,) * 3, travel_max=(200.0,) * 3))
+    peer = GrblPeer(vm, speed=4.0)
+    machine_path = peer.serve_pty()
+    pt = Passthrough(machine_path, rate=50, tcp_port=0)
+    sender_path = pt.start()
+    port = serial.serial_for_url(sender_path, baudrate=115200, timeout=2)
+    yield peer, pt, ScriptedSender(port)
+    port.close()
+    pt.close()
+    peer.close()
+
+
+def test_sender_streams_through_and_passthrough_learns(rig):
+    peer, pt, sender = rig
+    assert sender.command("$I")[-1] == "ok"
+    assert "[VER:1.1h.20190830:]" in sender.other
+    program = ["G21 G90", "F1200", "N10 G1 X5", "N20 G1 Y5", "G1 X10 Y10", "G99", "G2 X20 Y0 I5 J-5", "G0 X0 Y0"]
+    replies = sender.stream(program, poll_every=3)
+    assert replies == ["ok"] * 5 + ["error:20"] + ["ok"] * 2
+    # wait for the end of motion the way a sender does: asking '?'
+    while not sender.query().startswith("<Idle"):
+        pass
+    # the sender got exactly one report per '?' it sent, never one of the passthrough's
+    assert len(sender.reports) == sender.queries
+    assert pt.own_polls > 0 and pt.swallowed > 0
+    # bytes reached the machine unchanged and in order
+    assert peer.received_lines[-len(program):] == program
+    # the passthrough learned every line with its answer
+    learned = [(l.text, l.result) for l in pt.lines]
+    assert learned[0] == ("$I", "ok")
+    assert learned[1:] == [(t, "error:20" if t == "G99" else "ok") for t in program]
+    assert [l.n for l in pt.lines if l.n is not None] == [10, 20]
+    assert [l.index for l in pt.lines] == list(range(len(program) + 1))
+    # and watched the machine move all along (own polls and the sender's)
+    states = list(pt.states_seen)
+    assert any(s.state is RunState.RUN for s in states)
+    assert 20.0 <= max(s.mpos[0] for s in states) <= 15 + 50 ** 0.5 + 1e-3  # the arc bulges past X20
+    last = pt.poll()
+    assert last.state is RunState.IDLE and last.mpos[:2] == pytest.approx((0.0, 0.0))
+
+
+def test_quiet_sender_sees_nothing_while_passthrough_polls(rig):
+    peer, pt, sender = rig
+    assert sender.command("G1 X3 F1200") == ["ok"]
+    before = pt.own_polls
+    states = [pt.poll() for _ in range(10)]  # reports of own polls only
+    assert pt.own_polls >= before + 5
+    assert states[-1].t > states[0].t
+    # nothing but the 'ok' reached the sender: a read finds no stray report
+    sender.port.timeout = 0.1
+    assert sender.port.read(4096) == b""
+    assert sender.reports == []
+
+
+def test_sender_over_tcp_and_settings_learned(rig):
+    peer, pt, _ = rig
+    with socket.create_connection(("127.0.0.1", pt.sender_port), timeout=5) as sock:
+        sock.sendall(b"$$\n")
+        buf = b""
+        while not buf.endswith(b"ok\r\n"):
+            chunk = sock.recv(4096)
+            assert chunk
+            buf += chunk
+    assert b"$110=3000.000\r\n" in buf
+    assert pt.settings[110] == 3000.0 and pt.settings[13] == 0
+    assert pt.lines[-1].text == "$$" and pt.lines[-1].result == "ok"
