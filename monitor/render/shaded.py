@@ -51,7 +51,7 @@ def _unit(v) -> np.ndarray:
 
 
 @nb.njit(cache=True)
-def _shade(h, spacing, zscale, lx, ly, lz, ambient, inverse, ids, palette, base, bg, out):
+def _shade(h, spacing, zscale, lx, ly, lz, ambient, ids, palette, base, bg, out):
     """Shade heights ``h`` (nv, nu) into ``out`` (nv, nu, 3) uint8, flipped so +v is up."""
     nv, nu = h.shape
     use_ids = ids.shape[0] == nv
@@ -80,9 +80,6 @@ def _shade(h, spacing, zscale, lx, ly, lz, ambient, inverse, ids, palette, base,
             nx = -gx
             ny = -gy
             nz = 1.0
-            if inverse:  # Van Hook's tool: normals turned inside, then seen from outside
-                nx = gx
-                ny = gy
             norm = np.sqrt(nx * nx + ny * ny + nz * nz)
             d = (nx * lx + ny * ly + nz * lz) / norm
             if d < 0.0:
@@ -122,7 +119,7 @@ def shade(heights: np.ndarray, spacing: float, light=LIGHT, ambient: float = 0.2
         out = np.empty(h.shape + (3,), np.uint8)
     idarr = np.zeros((0, 0), np.int32) if ids is None else np.ascontiguousarray(ids, dtype=np.int32)
     pal = id_palette() if palette is None else np.ascontiguousarray(palette, dtype=np.uint8)
-    _shade(h, float(spacing), float(zscale), L[0], L[1], L[2], float(ambient), False, idarr, pal,
+    _shade(h, float(spacing), float(zscale), L[0], L[1], L[2], float(ambient), idarr, pal,
            np.asarray(color, np.float64), np.asarray(background, np.uint8), out)
     return out
 
@@ -164,7 +161,10 @@ def draw_tool(image: np.ndarray, frame, heights: np.ndarray, tip, tool, light=LI
     face = np.where(inside, c[2] + np.nan_to_num(lowest(d), nan=0.0), np.nan).astype(np.float32)
     L = _unit(light)
     patch = np.empty(face.shape + (3,), np.uint8)
-    _shade(face, sp, 1.0, L[0], L[1], L[2], float(ambient), True, np.zeros((0, 0), np.int32),
+    # the lower face's outward normals point down, away from the viewer; turned inward they
+    # point up and are the normals of the surface the tool leaves -- which is exactly what
+    # shading the face's heights from above computes (Van Hook's inverse-shaded tool)
+    _shade(face, sp, 1.0, L[0], L[1], L[2], float(ambient), np.zeros((0, 0), np.int32),
            id_palette(1), np.asarray(color, np.float64), np.zeros(3, np.uint8), patch)
     patch = patch[::-1]  # _shade flips; the window rows are ray rows
     mat = np.asarray(heights, np.float32)[j0:j1, i0:i1]

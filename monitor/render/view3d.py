@@ -37,7 +37,7 @@ def heightfield(frame, heights: np.ndarray, floor: float | None = None):
     return sg
 
 
-def error_cmap(tol=None, n: int = 256):
+def error_cmap(tol=None, n: int = 4001):
     """A matplotlib colormap reproducing ``sim.checks.error_map.error_colors`` over
     [-interest, +interest] mm, and that range."""
     from matplotlib.colors import ListedColormap
@@ -102,7 +102,7 @@ def build_plotter(grid=None, heights=None, frame=None, errors=None, tol=None, to
     if errors is not None and (color_by in ("auto", "error")):
         cmap, clim = error_cmap(tol)
         surf.point_data["error (mm)"] = np.asarray(errors, np.float64).T.reshape(-1, order="F")
-        pl.add_mesh(surf, scalars="error (mm)", cmap=cmap, clim=clim, nan_color="#ebc828",
+        pl.add_mesh(surf, scalars="error (mm)", cmap=cmap, clim=clim, nan_color="#ebc828", n_colors=cmap.N,
                     show_scalar_bar=True, scalar_bar_args={"title": "error (mm)"}, smooth_shading=True)
     else:
         pl.add_mesh(surf, scalars="height", cmap="viridis", nan_color="#30323a",
