@@ -205,10 +205,11 @@ class DesignModel:
         rays = np.asarray(rays, np.int64)
         s = np.asarray(s, np.float64)
         dv, nz, ins, tri = self.vertical(rays, s)
-        err = dv * nz
+        finite = np.isfinite(dv)
+        err = np.where(finite, np.where(finite, dv, 0.0) * nz, np.inf)
         search = 1.5 * tol.interest if search is None else float(search)
         refine = dv > refine_fraction * min(tol.gouge, tol.undercut)
-        refine &= np.isfinite(dv)
+        refine &= finite
         if refine.any():
             q = np.nonzero(refine)[0]
             f = self.frame
