@@ -28,8 +28,10 @@ _NUM = r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?"
 
 def add_arguments(parser) -> None:
     parser.add_argument("program", help="G-code program (.nc/.ngc/.gcode)")
-    parser.add_argument("--stock", required=True,
+    parser.add_argument("--stock", default=None,
                         help="box:X0,Y0,Z0,X1,Y1,Z1 (mm, machine coords) or a closed STL/OBJ mesh file")
+    parser.add_argument("--resume", default=None, metavar="RUN:STAGE",
+                        help="start from the model rebuilt at STAGE of a recorded run (instead of --stock)")
     parser.add_argument("--tool", default=None,
                         help="flat:D, ball:D, bull:D:r, vbit:D:angle, drill:D[:angle], optionally :L=flute_length")
     parser.add_argument("--resolution", type=float, default=0.2, help="dexel spacing in mm (default 0.2)")
@@ -127,7 +129,14 @@ def run(args) -> int:
             if tool is None:
                 raise InputError("the tool table has no tool with a diameter; give --tool", where=args.tool_table)
 
-    grid = build_stock(args.stock, args.resolution, args.memory_limit)
+    if args.resume:
+        from monitor.resume import resume_grid
+
+        grid, _ = resume_grid(args.resume)
+    elif args.stock:
+        grid = build_stock(args.stock, args.resolution, args.memory_limit)
+    else:
+        raise InputError("give the stock as --stock box:X0,Y0,Z0,X1,Y1,Z1 (or a mesh), or --resume RUN:STAGE")
     stock_volume = grid.volume()
     moves = load_moves(args.program, args.dialect, table)
     kinds = moves["kind"]

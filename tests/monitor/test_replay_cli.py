@@ -137,3 +137,55 @@ def test_run_cut_short_mid_write_replays_to_last_complete_stage(tmp_path):
     for s in (0, 7, 15):
         assert same_model(tr.grid_at(s), snaps[s])
     assert main(["replay", str(copy), "--stage", "end", "--png", str(tmp_path / "c.png")]) == 0
+
+
+PART_A = "G21 G90\nG0 Z15\nG0 X8 Y8\nG1 Z8 F600\nG1 X30 Y10\nG1 Y20 Z7\nG0 Z15\n"
+PART_B = "G21 G90\nG0 Z15\nG0 X12 Y20\nG1 Z6.5 F600\nG1 X28 Y12\nG2 X20 Y8 I-4 J-2\nG0 Z15\nM2\n"
+STOCK = "box:5,5,0,35,25,10"
+
+
+def test_resumed_simulation_equals_a_straight_one(tmp_path, capsys):
+    pytest.importorskip("sim.cut")
+    from monitor.runfile import RunWriter
+    from monitor.trace_io import store_trace_chunk
+    from sim.cut import Cutter
+    from sim.gcode import load_program
+    from sim.tools import parse_tool_spec
+    from sim.trace import Trace
+
+    a, b, ab = tmp_path / "a.nc", tmp_path / "b.nc", tmp_path / "ab.nc"
+    a.write_text(PART_A)
+    b.write_text(PART_B)
+    ab.write_text(PART_A + PART_B)
+    common = ["--tool", "ball:6", "--resolution", "0.5"]
+    straight = tmp_path / "straight.npy"
+    assert main(["simulate", str(ab), "--stock", STOCK, *common, "--heights", str(straight)]) == 0
+
+    # record part A as a run, one stage per move
+    from monitor.commands.simulate import build_stock
+    grid = build_stock(STOCK, 0.5)
+    moves = load_program(str(a)).moves
+    cutter = Cutter(grid, parse_tool_spec("ball:6"))
+    run = tmp_path / "a.dexrun"
+    w = RunWriter(run)
+    trace = Trace(grid)
+    store_trace_chunk(w, trace)
+    for k in range(len(moves)):
+        res = cutter.cut_moves(moves[k:k + 1], move_ids=np.array([k + 1]))
+        trace.record_cut(grid, res, k + 1)
+    store_trace_chunk(w, trace)
+    w.close()
+
+    resumed = tmp_path / "resumed.npy"
+    assert main(["simulate", str(b), "--resume", f"{run}:end", *common, "--heights", str(resumed)]) == 0
+    h_straight, h_resumed = np.load(straight), np.load(resumed)
+    assert np.array_equal(h_straight, h_resumed, equal_nan=True)
+    # resuming from an earlier stage is a different part (the moves after it never ran)
+    early = tmp_path / "early.npy"
+    assert main(["simulate", str(b), "--resume", f"{run}:2", *common, "--heights", str(early)]) == 0
+    assert not np.array_equal(np.load(early), h_straight, equal_nan=True)
+    capsys.readouterr()
+    assert main(["simulate", str(b), "--resume", f"{run}", *common]) == 2
+    assert "RUN:STAGE" in capsys.readouterr().err
+    assert main(["simulate", str(b), "--resume", f"{run}:99", *common]) == 2
+    assert main(["simulate", str(b), *common]) == 2

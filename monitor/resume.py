@@ -1,0 +1,39 @@
+"""Carry on from any stage of a recorded run: ``dexmon simulate PROGRAM --resume RUN:STAGE``.
+
+The z-trace rebuilds the model as it was at that stage (Blasquez & Poiraudeau's reason
+for keeping the complete trace: try a corrected path without re-running the first part).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from sim.errors import InputError
+from sim.grid import DexelGrid
+
+
+def parse_resume(spec: str) -> tuple[Path, str]:
+    """``RUN:STAGE`` -> (run path, stage text); the stage is after the last colon."""
+    path, sep, stage = str(spec).rpartition(":")
+    if not sep or not path or not stage.strip():
+        raise InputError(f"expected RUN:STAGE (e.g. job.dexrun:1200 or job.dexrun:end), got {spec!r}",
+                         "--resume")
+    return Path(path), stage.strip()
+
+
+def resume_grid(spec: str) -> tuple[DexelGrid, int]:
+    """The model rebuilt at ``RUN:STAGE`` and the stage number it is at."""
+    from monitor.commands.replay import parse_stage
+    from monitor.trace_io import load_trace
+
+    path, stage_text = parse_resume(spec)
+    if not path.is_file():
+        raise InputError("no such run file", f"--resume {path}")
+    trace = load_trace(path)
+    if trace.z is None:
+        raise InputError("the run has no z-trace, so its model cannot be rebuilt", f"--resume {path}")
+    stage = parse_stage(stage_text, trace.last_stage, trace.z.first_stage, "--resume")
+    if stage > trace.last_stage:
+        raise InputError(f"stage {stage} is beyond the run's last recorded stage {trace.last_stage}",
+                         f"--resume {spec}")
+    return trace.grid_at(stage), stage
