@@ -358,3 +358,55 @@ def test_snapshot_fields():
     assert st.accessories == "CF"
     assert st.wco[:3] == pytest.approx((-3.0, 1.0, 2.0))
     assert st.buffer == (14, 128)
+
+
+from hypothesis import given, settings, strategies as st
+
+
+@settings(max_examples=12, deadline=None)
+@given(st.lists(st.tuples(st.floats(-20, 20), st.floats(-20, 20), st.floats(30, 600)), min_size=1, max_size=12),
+       st.sampled_from([0.031, 0.1, 0.7]))
+def test_random_paths_stay_within_limits_and_arrive(points, step):
+    prog = rows(*[line((x, y, 0), f) for x, y, f in points])
+    vm = VirtualMachine(FREE)
+    vm.queue(prog)
+    ends = prog["end"][:, :2]
+    starts = prog["start"][:, :2]
+    for _ in range(20000):
+        if not vm.busy:
+            break
+        vm.advance(step)
+        assert np.all(np.abs(vm.velocity()[:3]) <= 500.0 + 1e-6)  # per-axis max rate, mm/min
+        assert vm.speed * 60 <= max(f for _, _, f in points) + 1e-6
+        # the machine is always on the programmed polyline (within rounding)
+        p = vm.position[:2]
+        d = []
+        for a, b in zip(starts, ends):
+            ab = b - a
+            L = float(ab @ ab)
+            t = 0.0 if L == 0 else min(max(float((p - a) @ ab) / L, 0.0), 1.0)
+            d.append(float(np.linalg.norm(a + t * ab - p)))
+        assert min(d) < 1e-6
+    assert not vm.busy
+    np.testing.assert_allclose(vm.position[:2], ends[-1], atol=1e-9)
+
+
+def test_virtual_url_runs_gcode_file(tmp_path):
+    from drivers.registry import open_controller
+
+    job = tmp_path / "job.nc"
+    job.write_text("G21 G90\nG0 X5 Y5\nG1 X20 F300\nG2 X30 Y15 I0 J10\nG4 P0.5\nM2\n")
+    c = open_controller(f"virtual://{job}?clock=sim&rate=20&speed=2")
+    c.connect()
+    try:
+        seen = [c.poll()]
+        while not c.done:
+            seen.append(c.poll())
+            assert len(seen) < 10000
+    finally:
+        c.close()
+    assert seen[-1].mpos[:2] == pytest.approx((30.0, 15.0), abs=1e-9)
+    assert {s.line for s in seen if s.line} >= {2, 3, 4}
+    arc = [s for s in seen if s.line == 4]
+    r = [math.hypot(s.mpos[0] - 20, s.mpos[1] - 15) for s in arc]
+    assert max(r) == pytest.approx(10.0, abs=0.003) and min(r) >= 10.0 - 0.003
