@@ -1,0 +1,71 @@
+"""The checks as command-line options (``dexmon simulate ... --design part.stl``)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim.errors import InputError
+from sim.tolerance import DEFAULT, Tolerance
+
+
+def add_check_arguments(parser) -> None:
+    """The options block of the checks."""
+    g = parser.add_argument_group("checks")
+    g.add_argument("--design", default=None, metavar="PART.stl",
+                   help="design part (STL/OBJ, same coordinates as the stock): report gouge and undercut")
+    g.add_argument("--tolerance", type=float, default=None, metavar="MM",
+                   help="gouge tolerance t_l in mm (default 0.002); also t_h unless --undercut-tolerance")
+    g.add_argument("--undercut-tolerance", type=float, default=None, metavar="MM",
+                   help="undercut tolerance t_h in mm (default: --tolerance)")
+    g.add_argument("--fixture", action="append", default=[], metavar="box:X0,Y0,Z0,X1,Y1,Z1",
+                   help="a fixture the tool must never enter (repeatable)")
+    g.add_argument("--limits", default=None, metavar="X0:300,Y0:200,Z-100:0",
+                   help="machine travel limits of the controlled point (machine coords)")
+    g.add_argument("--max-depth-of-cut", type=float, default=None, metavar="MM",
+                   help="report moves cutting deeper than this along the tool axis")
+
+
+def _positive(value, name):
+    if value is None:
+        return None
+    if not (np.isfinite(value) and value > 0):
+        raise InputError(f"must be a positive length in mm, got {value}", where=name)
+    return float(value)
+
+
+def checker_from_args(args, grid, tool, tools=None):
+    """A :class:`~sim.checks.Checker` for the options in ``args``."""
+    from sim.checks.checker import Checker
+    from sim.checks.collisions import Fixture
+    from sim.checks.motion import parse_limits
+
+    t_l = _positive(getattr(args, "tolerance", None), "--tolerance")
+    t_h = _positive(getattr(args, "undercut_tolerance", None), "--undercut-tolerance")
+    tol = Tolerance(gouge=t_l or DEFAULT.gouge, undercut=t_h or t_l or DEFAULT.undercut)
+    fixtures = []
+    for k, spec in enumerate(getattr(args, "fixture", []) or []):
+        text = spec.strip()
+        try:
+            assert text.lower().startswith("box:")
+            vals = [float(v) for v in text[4:].split(",")]
+            assert len(vals) == 6
+        except (AssertionError, ValueError):
+            raise InputError(f"bad fixture {spec!r}: expected box:X0,Y0,Z0,X1,Y1,Z1 (mm)",
+                             where="--fixture") from None
+        fixtures.append(Fixture.box(vals[:3], vals[3:], grid.frame.spacing, name=f"#{k + 1}"))
+    limits = parse_limits(args.limits) if getattr(args, "limits", None) else None
+    return Checker(grid, tool, design=getattr(args, "design", None), fixtures=fixtures, limits=limits,
+                   tol=tol, tools=tools or None,
+                   max_depth_of_cut=_positive(getattr(args, "max_depth_of_cut", None), "--max-depth-of-cut"))
+
+
+def final_findings(checker) -> list:
+    """Everything found while cutting plus the whole-model assessment, merged (cutting-time
+    gouges are replaced by the whole-model gouge regions when there is a design)."""
+    from sim.checks.findings import merge_findings
+
+    during = checker.all_findings()
+    if checker.design is None:
+        return during
+    model = checker.assess_model()
+    return merge_findings([f for f in during if f.kind not in ("gouge", "undercut")] + model)
