@@ -182,8 +182,20 @@ class Session:
             removed += cutter.cut_segment(a, b, s.row + 1)
         if self.run is not None:
             self.run.append_cut(self.stage, {"points": pts}, t=state.t, move_id=s.row + 1, line=s.line)
-            self._record_trace()
+            if removed > 0:
+                self._record_trace(self._rays_near(pts, cutter.tool.radius))
         return removed
+
+    def _rays_near(self, pts: np.ndarray, radius: float) -> np.ndarray:
+        """Flat indices (int64) of the rays within ``radius`` of the points' XY bounding box."""
+        f = self.live.frame
+        lo = np.floor((pts[:, :2].min(axis=0) - radius - f.origin[:2]) / f.spacing).astype(int) - 1
+        hi = np.ceil((pts[:, :2].max(axis=0) + radius - f.origin[:2]) / f.spacing).astype(int) + 2
+        i0, j0 = max(lo[0], 0), max(lo[1], 0)
+        i1, j1 = min(hi[0], f.nu), min(hi[1], f.nv)
+        if i1 <= i0 or j1 <= j0:
+            return np.zeros(0, np.int64)
+        return (np.arange(j0, j1)[:, None] * f.nu + np.arange(i0, i1)[None, :]).reshape(-1).astype(np.int64)
 
     def _travelled(self, prev: np.ndarray, tip: np.ndarray, s: SyncResult) -> np.ndarray:
         """Points (k, 3) of the path from the last tip to this one: through the program's
@@ -243,11 +255,11 @@ class Session:
         except Exception:  # the trace is a replay aid; the monitor runs without it
             self._trace = None
 
-    def _record_trace(self) -> None:
+    def _record_trace(self, rays: np.ndarray) -> None:
         if self._trace is None:
             return
         try:
-            self._trace.record(self.live, stage=self.stage)
+            self._trace.record(self.live, rays=rays, stage=self.stage)
             if self.stage - self._trace_from >= TRACE_CHUNK_STAGES:
                 self.flush_trace()
         except Exception:

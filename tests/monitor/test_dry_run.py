@@ -159,7 +159,7 @@ def test_modbus_peer_over_tcp(example):
 
 def test_sigkilled_run_leaves_a_file_that_opens(tmp_path):
     run = tmp_path / "killed.sqlite"
-    proc = subprocess.Popen([sys.executable, "-m", "monitor.cli", "dry-run", "--speed", "4", "--json",
+    proc = subprocess.Popen([sys.executable, "-m", "monitor.cli", "dry-run", "--speed", "10", "--json",
                              "--run", str(run)], stdout=subprocess.PIPE, text=True,
                             cwd=Path(__file__).resolve().parents[2])
     try:
