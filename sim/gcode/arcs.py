@@ -147,7 +147,7 @@ def arc_motion(it, cw: bool, explicit: bool, words, cols, used, has_axes: bool) 
         o1 = words.get(n1, 0.0) * f
         o2 = words.get(n2, 0.0) * f
         used.update(k for k in (n1, n2) if k in words)
-        if it.arc_distance == 900:
+        if it.arc_distance == 901:
             c1, c2 = o1, o2
         else:
             c1, c2 = s1 + o1, s2 + o2

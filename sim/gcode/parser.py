@@ -132,6 +132,8 @@ class _Reader:
     def value(self):
         """A real value: number, parameter, [expression], unary function, signed value."""
         c = self.peek()
+        if not c:
+            self.fail("expected a value, found end of line", 2)
         if self.grbl:
             return self.number()
         if c in "+-":
@@ -265,6 +267,13 @@ class _Reader:
 
 def parse_line(text: str, dialect: str = "linuxcnc") -> Block:
     """Parse one source line into a :class:`Block`; raises ``LineError`` on bad syntax."""
+    try:
+        return _parse_line(text, dialect)
+    except RecursionError:
+        raise LineError("expression nested too deeply", 1, grbl_code=1) from None
+
+
+def _parse_line(text: str, dialect: str) -> Block:
     grbl = dialect == "grbl"
     block = Block()
     stripped = text.strip()
