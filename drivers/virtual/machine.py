@@ -409,6 +409,9 @@ class VirtualMachine:
         row["kind"] = MoveKind.FEED
         row["start"] = self._planned_end
         row["end"] = tgt
+        # a jog keeps the work offset in force (else track_row_wco would take end - 0)
+        row["start_work"] = self._planned_end - self.wco
+        row["end_work"] = tgt - self.wco
         row["feed"] = float(feed)
         if self._row is not None:
             for k in ("spindle", "spindle_dir", "coolant", "tool"):
