@@ -649,10 +649,10 @@ class Interpreter:
         stop = mmodes.get(4)
         if stop:
             c = stop[0]
+            if c in (2, 30) and self.comp_engine is not None:
+                self._flush_comp()
             here = list(self.pos)
             if c in (2, 30):
-                if self.comp_engine is not None:
-                    self._flush_comp()
                 self.emit(MoveKind.END, here, here)
                 self.reset_modes()
                 self.ended = not grbl
