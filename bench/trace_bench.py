@@ -134,7 +134,8 @@ def main(argv=None) -> int:
     t0 = time.perf_counter()
     frames = sum(1 for _ in t.frames(0, n, step=max(1, n // 200)))
     emit(case="trace_animation", frames=frames, seconds=round(time.perf_counter() - t0, 3))
-    view = LiveView(g.frame, tool=tool, out_dir=ROOT / ".bench_frames", max_size=None)
+    import tempfile
+    view = LiveView(g.frame, tool=tool, out_dir=tempfile.mkdtemp(prefix="dexmon-bench-"), max_size=None)
     h = g.top()
     path = np.asarray(moves["end"][:200, :3], np.float64)
     view.render(h, (50, 50, 10), path, [{"position": [20, 20, 10]}])
