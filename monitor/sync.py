@@ -225,15 +225,23 @@ class ProgramPath:
         Returns ``(dist (k,) mm, progress (k,) s)`` for those segments, in segment order.
         """
         hi = len(self) if hi is None else hi
-        a = self.p0[lo:hi]
-        d = self.p1[lo:hi] - a
+        return self._project(point, slice(lo, hi))
+
+    def project_segments(self, point: np.ndarray, segs: np.ndarray):
+        """As :meth:`project` for the segments ``segs`` (int array), in that order."""
+        return self._project(point, np.asarray(segs, np.int64))
+
+    def _project(self, point, sel):
+        a = self.p0[sel]
+        d = self.p1[sel] - a
         dd = np.einsum("ij,ij->i", d, d)
         w = np.asarray(point, np.float64)[None, :] - a
         with np.errstate(divide="ignore", invalid="ignore"):
             f = np.where(dd > 0, np.einsum("ij,ij->i", w, d) / dd, 0.0)
         f = np.clip(f, 0.0, 1.0)
         dist = np.linalg.norm(w - f[:, None] * d, axis=1)
-        prog = self.t0[lo:hi] + f * (self.t1[lo:hi] - self.t0[lo:hi])
+        t0 = self.t0[sel]
+        prog = t0 + f * (self.t1[sel] - t0)
         return dist, prog
 
 
@@ -286,6 +294,8 @@ class ProgramSync:
         self.max_speedup = float(max_speedup)
         self.progress: float | None = None
         self._last_t: float | None = None
+        self._line_order: np.ndarray | None = None
+        self._line_sorted: np.ndarray | None = None
 
     def reset(self, progress: float | None = None) -> None:
         self.progress = progress
@@ -311,15 +321,16 @@ class ProgramSync:
         return SyncResult(float(prog), int(seg), row, int(self.path.lines[row]), float(dist), how)
 
     def _by_line(self, point, line: int) -> SyncResult | None:
-        segs = np.nonzero(self.path.lines[self.path.row] == line)[0]
-        if segs.size == 0:
+        if self._line_order is None:  # segments grouped by source line, built once
+            seg_lines = self.path.lines[self.path.row]
+            self._line_order = np.argsort(seg_lines, kind="stable")
+            self._line_sorted = seg_lines[self._line_order]
+        a = int(np.searchsorted(self._line_sorted, line, side="left"))
+        b = int(np.searchsorted(self._line_sorted, line, side="right"))
+        if b <= a:
             return None
-        # segments of that line, cheapest first: the ones at or after the current progress
-        dist = np.empty(segs.size)
-        prog = np.empty(segs.size)
-        for q, s in enumerate(segs):  # a line has few segments (one row, or an arc's chords)
-            d, p = self.path.project(point, s, s + 1)
-            dist[q], prog[q] = d[0], p[0]
+        segs = self._line_order[a:b]
+        dist, prog = self.path.project_segments(point, segs)
         k = self._earliest(dist, prog, floor=None if self.progress is None else self.progress - self.back)
         p = prog[k] if self.progress is None else max(prog[k], min(self.progress, self.path.t1[segs[k]]))
         self.progress = float(p)
