@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import re
 import threading
+import time
 from typing import Callable
 
 import numpy as np
@@ -36,6 +37,8 @@ VERSION = "1.1h.20190830"
 BANNER = "Grbl 1.1h ['$' for help]"
 HELP = "[HLP:$$ $# $G $I $N $x=val $Nx=line $J=line $SLP $C $X $H ~ ! ? ctrl-x]"
 LINE_BUFFER_SIZE = 80  # GRBL's line buffer: longer lines get error:11
+_LINE_MEMORY = 1024  # raw bytes of one line kept (comments and spaces included)
+_BYTES_PER_S = 115200 / 10  # serial line speed: 8N1 is 10 bits a byte
 _BUSY = (RunState.RUN, RunState.HOLD, RunState.JOG, RunState.HOME, RunState.DOOR)
 _CRITICAL_ALARMS = (1, 2)  # hard and soft limit: GRBL waits for a reset
 _N_WORD = re.compile(r"^N(\d+)")
@@ -89,7 +92,11 @@ class GrblPeer:
         self.interpreter = self._new_interpreter()
         self.startup_lines = ["", ""]
         # RX buffer and main loop
-        self._rx = bytearray()
+        self._rx = bytearray()          # GRBL's serial RX buffer (128 bytes)
+        self._line = bytearray()        # the line the main loop is reading
+        self._line_ready: bytes | None = None
+        self._line_overflow = False
+        self._executing = False
         self._cond = threading.Condition()
         self._reset_gen = 0
         self._critical = False
@@ -215,13 +222,46 @@ class GrblPeer:
                 plain.append(b)
         if not plain:
             return
+        t0 = time.monotonic()
         with self._cond:
-            room = p.RX_BUFFER_SIZE - len(self._rx)
-            if len(plain) > room:
-                self.rx_dropped += len(plain) - room  # lost, as on hardware
-                plain = plain[:room]
-            self._rx += plain
+            for k, b in enumerate(plain):
+                if not self._take(b) and not self._stop.is_set():
+                    # the byte would still be on the wire at 115200 baud: the main loop
+                    # may free room before it lands; if not, it is lost as on hardware
+                    due = t0 + (k + 1) / _BYTES_PER_S
+                    self._cond.wait_for(lambda: len(self._rx) < p.RX_BUFFER_SIZE or self._take_direct(),
+                                        max(0.0, due - time.monotonic()))
+                    if not self._take(b):
+                        self.rx_dropped += 1
             self._cond.notify_all()
+
+    def _take_direct(self) -> bool:
+        return not self._executing and self._line_ready is None
+
+    def _take(self, b: int) -> bool:
+        """One byte into GRBL; False when the RX buffer is full.
+
+        An idle main loop takes bytes into its line at once (it reads faster than the
+        serial line delivers); while it executes a line they wait in the 128-byte RX
+        buffer."""
+        if not self._executing and self._line_ready is None:
+            if b in (0x0A, 0x0D):
+                self._line_ready = bytes(self._line)
+                self._line.clear()
+            elif len(self._line) < _LINE_MEMORY:
+                self._line.append(b)
+            else:
+                self._line_overflow = True
+            return True
+        if len(self._rx) < p.RX_BUFFER_SIZE:
+            self._rx.append(b)
+            return True
+        return False
+
+    def _feed(self, plain) -> None:
+        """Bytes already inside GRBL (the RX buffer) into the main loop's line."""
+        for b in plain:
+            self._take(b)
 
     def _realtime(self, b: int, transport: Endpoint) -> None:
         vm = self.vm
@@ -281,12 +321,17 @@ class GrblPeer:
         vm = self.vm
         with vm.lock:
             was_alarm = vm.state == RunState.ALARM
+            was_asleep = vm.state == RunState.SLEEP
             vm.reset()  # raises ALARM:3 through on_event when moving
-            if vm.state == RunState.SLEEP:
+            if was_asleep:
+                # steppers were off: GRBL wakes in alarm, not knowing where it is
                 vm.state = RunState.ALARM
             in_alarm = vm.state == RunState.ALARM
             with self._cond:
                 self._rx.clear()
+                self._line.clear()
+                self._line_ready = None
+                self._line_overflow = False
                 self._reset_gen += 1
                 self._critical = False
                 self._check_mode = False
@@ -352,34 +397,33 @@ class GrblPeer:
     def _main_loop(self) -> None:
         while not self._stop.is_set():
             with self._cond:
-                self._cond.wait_for(lambda: self._stop.is_set() or self._has_line(), 0.5)
+                self._cond.wait_for(lambda: self._stop.is_set() or self._line_ready is not None, 0.5)
                 if self._stop.is_set():
                     return
-                line = self._pop_line()
+                line, self._line_ready = self._line_ready, None
+                overflow, self._line_overflow = self._line_overflow, False
+                if line is None:
+                    continue
+                self._executing = True
                 gen = self._reset_gen
-            if line is None:
-                continue
-            if self._critical:
-                continue  # GRBL waits for a reset after a limit alarm; lines are lost
             try:
-                reply = self._execute(line, gen)
-            except Exception as exc:  # noqa: BLE001 - an emulator bug must not kill the port
-                self._reply(f"[MSG:dexmon peer error: {type(exc).__name__}: {exc}]")
-                reply = "error:20"
-            if reply is not None and gen == self._reset_gen:
-                self._reply(reply)
-
-    def _has_line(self) -> bool:
-        return b"\n" in self._rx or b"\r" in self._rx
-
-    def _pop_line(self) -> bytes | None:
-        ends = [i for i in (self._rx.find(b"\n"), self._rx.find(b"\r")) if i >= 0]
-        if not ends:
-            return None
-        i = min(ends)
-        line = bytes(self._rx[:i])
-        del self._rx[: i + 1]
-        return line
+                if self._critical:
+                    continue  # GRBL waits for a reset after a limit alarm; lines are lost
+                try:
+                    reply = "error:11" if overflow else self._execute(line, gen)
+                except Exception as exc:  # noqa: BLE001 - an emulator bug must not kill the port
+                    self._reply(f"[MSG:dexmon peer error: {type(exc).__name__}: {exc}]")
+                    reply = "error:20"
+                if reply is not None and gen == self._reset_gen:
+                    self._reply(reply)
+            finally:
+                with self._cond:
+                    self._executing = False
+                    # the main loop reads on from the RX buffer
+                    waiting = bytes(self._rx)
+                    self._rx.clear()
+                    self._feed(waiting)
+                    self._cond.notify_all()
 
     def _execute(self, raw: bytes, gen: int) -> str | None:
         """Run one line as GRBL's protocol_main_loop does; return the reply (None: none)."""
@@ -627,7 +671,11 @@ class GrblPeer:
         words = re.findall(r"([A-Z])([-+]?\d*\.?\d*)", body)
         if "".join(f"{a}{b}" for a, b in words) != body:
             return "error:2"
-        incremental, inches, machine = False, bool(int(self.settings.get(13, 0)) & 0), False
+        # words not given take the parser's modes; a jog never changes them
+        interp = self.interpreter
+        incremental = getattr(interp, "distance", 900) == 910
+        inches = getattr(interp, "units", 210) == 200
+        machine = False
         target: dict[int, float] = {}
         feed = None
         for letter, value in words:
