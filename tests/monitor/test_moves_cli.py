@@ -1,0 +1,80 @@
+"""``dexmon moves`` through monitor.cli.main(argv)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+
+import pytest
+
+from monitor.cli import main
+
+
+def _write(tmp_path, text, name="p.ngc"):
+    p = tmp_path / name
+    p.write_text(text)
+    return str(p)
+
+
+def test_jsonl_rows(tmp_path, capsys):
+    prog = _write(tmp_path, "G21 G90 G10 L2 P1 X100\nG0 X1 Y2 Z3\nG2 X3 Y2 I1 J0 F100\nM2\n")
+    assert main(["moves", prog]) == 0
+    rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert [r["kind"] for r in rows] == ["rapid", "arc_cw", "end"]
+    assert rows[0]["line"] == 2 and rows[0]["end"] == [1, 2, 3] and rows[0]["end_machine"] == [101, 2, 3]
+    assert rows[1]["center"] == [2, 2, 3] and rows[1]["plane"] == "xy" and rows[1]["turns"] == 1
+    assert rows[1]["start"] == [1, 2, 3]
+
+
+def test_csv_inch_program(tmp_path, capsys):
+    prog = _write(tmp_path, "G20 G1 X1 F10\nM30\n")
+    assert main(["moves", prog, "--format", "csv"]) == 0
+    rows = list(csv.DictReader(io.StringIO(capsys.readouterr().out)))
+    assert rows[0]["kind"] == "feed" and float(rows[0]["end_x"]) == 25.4 and float(rows[0]["feed"]) == 254
+
+
+def test_tool_table_var_and_machine_units(tmp_path, capsys):
+    tbl = _write(tmp_path, "T1 P1 D0.25 Z1.0 ;quarter inch\n", "t.tbl")
+    var = _write(tmp_path, "5221 1.0\n", "p.var")
+    prog = _write(tmp_path, "G21 T1 M6 G43 H1\nG0 X0 Z0\nM2\n")
+    assert main(["moves", prog, "--tool-table", tbl, "--var", var, "--machine-units", "inch"]) == 0
+    rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    rapid = next(r for r in rows if r["kind"] == "rapid")
+    assert rapid["end_machine"] == [25.4, 0, 25.4] and rapid["tool_length"] == 25.4
+
+
+def test_grbl_dialect_error_exits_2_with_location(tmp_path, capsys):
+    prog = _write(tmp_path, "G21\nG81 X1 Z-1 R1 F100\n")
+    assert main(["moves", prog, "--dialect", "grbl"]) == 2
+    err = capsys.readouterr().err
+    assert "p.ngc:2:1" in err and "error:20" in err and "Traceback" not in err
+
+
+def test_keep_going_lists_all(tmp_path, capsys):
+    prog = _write(tmp_path, "G0 X1\nG2 X3 F1\nG0 Y[\nM2\n")
+    assert main(["moves", prog, "--keep-going"]) == 2
+    captured = capsys.readouterr()
+    assert ":2:" in captured.err and ":3:" in captured.err and "2 error(s)" in captured.err
+    assert json.loads(captured.out.splitlines()[0])["kind"] == "rapid"
+
+
+def test_missing_file_is_one_line(tmp_path, capsys):
+    assert main(["moves", str(tmp_path / "nope.ngc")]) == 2
+    err = capsys.readouterr().err
+    assert "nope.ngc" in err and "Traceback" not in err
+
+
+def test_time_and_linearize(tmp_path, capsys):
+    prog = _write(tmp_path, "G21 G0 X10\nG3 X-10 I-10 F500\nM2\n")
+    assert main(["moves", prog, "--linearize", "0.01", "--time"]) == 0
+    captured = capsys.readouterr()
+    rows = [json.loads(line) for line in captured.out.splitlines()]
+    assert all(r["kind"] != "arc_ccw" for r in rows) and len(rows) > 10
+    assert "cycle time" in captured.err and all("time" in r for r in rows)
+
+
+@pytest.mark.parametrize("bad", [["--format", "xml"], ["--dialect", "fanuc"], ["--machine-units", "cm"]])
+def test_bad_options(tmp_path, bad):
+    prog = _write(tmp_path, "G0 X1\n")
+    assert main(["moves", prog, *bad]) == 2
