@@ -174,6 +174,59 @@ def overlap_length(S, r, lo, hi):
     return total
 
 
+@nb.njit(cache=True, inline="always", error_model="numpy")
+def _row_ball(R, Rc, h_off, h_top, z0, m, sin_t, ell, a0, da, e0, de, n, lo, hi,
+              cnt, near, far, base, flag):
+    """Ball (its capsule) on ``n`` rays of a row, branch-free so that it vectorises.
+
+    Ray q has along-move coordinate ``a0 + q*da`` and across ``e0 + q*de``. Writes the
+    interval rounded to float32 into ``lo``/``hi`` and flags the rays it may change
+    (material there, and either several segments or the one segment overlapping).
+    """
+    R2 = R * R
+    Rc2 = Rc * Rc
+    for q in range(n):
+        a = a0 + q * da
+        e = e0 + q * de
+        e2 = e * e
+        qc = Rc2 - e2
+        rho_c = math.sqrt(max(qc, 0.0))
+        rho = math.sqrt(max(R2 - e2, 0.0)) if Rc < R else rho_c
+        s_lo = max(a - rho_c, 0.0)
+        s_hi = min(a + rho_c, ell)
+        s = min(max(a - rho * sin_t, s_lo), s_hi)
+        w = a - s
+        v = np.float32(z0 + m * s + h_off + R - math.sqrt(max(rho * rho - w * w, 0.0)))
+        t = np.float32(z0 + h_top + max(m * s_lo, m * s_hi))
+        ok = (qc >= 0.0) & (s_lo <= s_hi) & (v < t)
+        lo[q] = v
+        hi[q] = t
+        c = cnt[base + q]
+        one = (v < far[base + q]) & (t > near[base + q])
+        flag[q] = ok & ((c > 1) | ((c == 1) & one))
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy")
+def _row_flat(Rc, h_off, h_top, z0, m, ell, a0, da, e0, de, n, lo, hi, cnt, near, far, base, flag):
+    """Flat-bottom cylinder on ``n`` rays of a row (see :func:`_row_ball`)."""
+    Rc2 = Rc * Rc
+    for q in range(n):
+        a = a0 + q * da
+        e = e0 + q * de
+        qc = Rc2 - e * e
+        rho_c = math.sqrt(max(qc, 0.0))
+        s_lo = max(a - rho_c, 0.0)
+        s_hi = min(a + rho_c, ell)
+        v = np.float32(z0 + h_off + min(m * s_lo, m * s_hi))
+        t = np.float32(z0 + h_top + max(m * s_lo, m * s_hi))
+        ok = (qc >= 0.0) & (s_lo <= s_hi) & (v < t)
+        lo[q] = v
+        hi[q] = t
+        c = cnt[base + q]
+        one = (v < far[base + q]) & (t > near[base + q])
+        flag[q] = ok & ((c > 1) | ((c == 1) & one))
+
+
 @nb.njit(cache=True)
 def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps, probe,
                      record, removed, chg_ray, chg_move, state):
@@ -187,13 +240,29 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     chg_ray / chg_move: int64 buffers of changed rays; state: int64 [k, j, i, n_changed]
     where to resume. Returns DONE, STOP_POOL (grow the pool, call again) or STOP_CHANGES
     (grow the buffers, call again); the state says where it stopped.
+
+    Per row, the rays' intervals are computed first in a branch-free loop (flat, ball),
+    then compared with the stored material; one-segment rays (the common case) are cut
+    in place here, everything else goes through :func:`sim.dexel_store.subtract_interval`.
     """
+    cnt = S[0]
+    near = S[1]
+    far = S[2]
+    near_id = S[3]
+    far_id = S[4]
+    code = int(tp[0])
+    R = tp[1]
+    h_off = tp[4]
+    h_top = tp[5]
     Rc = tp[6]
     n = P0.shape[0]
     k0 = state[0]
     j_resume = state[1]
     i_resume = state[2]
     nchg = state[3]
+    buf_lo = np.empty(nu, np.float32)
+    buf_hi = np.empty(nu, np.float32)
+    flag = np.empty(nu, np.bool_)
     for k in range(k0, n):
         x0 = P0[k, 0]
         y0 = P0[k, 1]
@@ -205,10 +274,14 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
         if ell > 1e-9:
             ux = dx / ell
             uy = dy / ell
+            m = dz / ell
+            sin_t = dz / math.sqrt(ell * ell + dz * dz)
         else:
             ell = 0.0
             ux = 1.0
             uy = 0.0
+            m = 0.0
+            sin_t = 0.0
         xmin = min(x0, x0 + dx)
         xmax = max(x0, x0 + dx)
         ymin = min(y0, y0 + dy)
@@ -234,36 +307,70 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
             ihi = min(nu - 1, int(math.floor((xmax + w - gx0) / sp)))
             if resuming and j == j_resume and i_resume > ilo:
                 ilo = i_resume
+            if ihi < ilo:
+                continue
             ry = y - y0
-            base = j * nu
-            for i in range(ilo, ihi + 1):
-                r = base + i
-                c = S[0][r]
-                if c == 0:
+            rx0 = gx0 + ilo * sp - x0
+            nq = ihi - ilo + 1
+            base = j * nu + ilo
+            if ell > 0.0 and code == CODE_BALL:
+                _row_ball(R, Rc, h_off, h_top, z0, m, sin_t, ell, rx0 * ux + ry * uy, sp * ux,
+                          -rx0 * uy + ry * ux, -sp * uy, nq, buf_lo, buf_hi, cnt, near, far, base, flag)
+            elif ell > 0.0 and code == CODE_FLAT:
+                _row_flat(Rc, h_off, h_top, z0, m, ell, rx0 * ux + ry * uy, sp * ux,
+                          -rx0 * uy + ry * ux, -sp * uy, nq, buf_lo, buf_hi, cnt, near, far, base, flag)
+            else:
+                for q in range(nq):
+                    a, b = linear_interval(tp, x0, y0, z0, dz, ell, ux, uy, rx0 + q * sp, ry)
+                    v = np.float32(a)
+                    t = np.float32(b)
+                    buf_lo[q] = v
+                    buf_hi[q] = t
+                    c = cnt[base + q]
+                    flag[q] = (a < b) and (v < t) and (c > 1 or (c == 1 and v < far[base + q]
+                                                               and t > near[base + q]))
+            for q in range(nq):
+                if not flag[q]:
                     continue
-                lo, hi = linear_interval(tp, x0, y0, z0, dz, ell, ux, uy, gx0 + i * sp - x0, ry)
-                if lo >= hi:
-                    continue
-                lo = np.float64(np.float32(lo))
-                hi = np.float64(np.float32(hi))
-                if c == 1 and (lo >= S[2][r] or hi <= S[1][r]):
-                    continue
+                r = base + q
+                c = cnt[r]
+                lo = np.float64(buf_lo[q])
+                hi = np.float64(buf_hi[q])
+                n_ = np.float64(near[r])
+                f_ = np.float64(far[r])
                 if probe:
                     removed[mv] += overlap_length(S, r, lo, hi)
                     continue
                 if record and nchg >= chg_ray.size:
                     state[0] = k
                     state[1] = j
-                    state[2] = i
+                    state[2] = ilo + q
                     state[3] = nchg
                     return STOP_CHANGES
-                got = ds.subtract_interval(S, r, lo, hi, fid, eps)
-                if got == ds.POOL_FULL:
-                    state[0] = k
-                    state[1] = j
-                    state[2] = i
-                    state[3] = nchg
-                    return STOP_POOL
+                got = -2.0
+                if c == 1:
+                    keep_low = lo - n_ > eps
+                    keep_high = f_ - hi > eps
+                    if not keep_high:
+                        if keep_low:
+                            far[r] = np.float32(lo)
+                            far_id[r] = fid
+                            got = f_ - lo
+                        else:
+                            cnt[r] = 0
+                            got = f_ - n_
+                    elif not keep_low:
+                        near[r] = np.float32(hi)
+                        near_id[r] = fid
+                        got = hi - n_
+                if got == -2.0:  # a split or a ray of several segments
+                    got = ds.subtract_interval(S, r, lo, hi, fid, eps)
+                    if got == ds.POOL_FULL:
+                        state[0] = k
+                        state[1] = j
+                        state[2] = ilo + q
+                        state[3] = nchg
+                        return STOP_POOL
                 if got > 0.0:
                     removed[mv] += got
                     if record:
