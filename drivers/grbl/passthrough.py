@@ -390,6 +390,11 @@ class Passthrough(Controller):
         del got
         return state
 
+    def wait_connected(self, timeout: float) -> bool:
+        """Wait until the machine's port is (back) up; True if it is."""
+        with self._cond:
+            return self._cond.wait_for(lambda: self._connected or self._stop.is_set(), timeout) and self._connected
+
     def wait_lines(self, count: int, timeout: float, acked: bool = True) -> bool:
         """Wait until ``count`` sender lines were seen (and acknowledged when ``acked``)."""
         with self._cond:

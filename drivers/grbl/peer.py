@@ -217,11 +217,16 @@ class GrblPeer:
         plain = bytearray()
         for b in data:
             if b in p.REALTIME_BYTES:
+                if b == 0x18 and plain:
+                    self._buffer(plain)  # bytes before a reset are flushed by it
+                    plain = bytearray()
                 self._realtime(b, transport)
             else:
                 plain.append(b)
-        if not plain:
-            return
+        if plain:
+            self._buffer(plain)
+
+    def _buffer(self, plain: bytes) -> None:
         t0 = time.monotonic()
         with self._cond:
             for k, b in enumerate(plain):

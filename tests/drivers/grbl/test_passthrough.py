@@ -148,3 +148,31 @@ def test_sender_over_tcp_and_settings_learned(rig):
     assert b"$110=3000.000\r\n" in buf
     assert pt.settings[110] == 3000.0 and pt.settings[13] == 0
     assert pt.lines[-1].text == "$$" and pt.lines[-1].result == "ok"
+
+
+def test_machine_port_vanishes_and_comes_back():
+    vm = VirtualMachine(MachineConfig(max_rate=(3000.0,) * 3, accel=(200.0,) * 3,
+                                      travel_min=(-200.0,) * 3, travel_max=(200.0,) * 3))
+    peer = GrblPeer(vm, speed=4.0)
+    port = peer.serve_tcp()
+    pt = Passthrough(f"grbl+socket://127.0.0.1:{port}?rate=50")
+    sender_path = pt.start()
+    sp = serial.serial_for_url(sender_path, baudrate=115200, timeout=2)
+    sender = ScriptedSender(sp)
+    try:
+        assert sender.command("G1 X2 F3000") == ["ok"]
+        assert pt.poll().state in (RunState.RUN, RunState.IDLE)
+        peer.close_transports()
+        assert pt.poll(timeout=2).state is RunState.DISCONNECTED
+        peer.serve_tcp(port=port)
+        assert pt.wait_connected(5)
+        assert sender.command("G1 X4") == ["ok"]  # the sender carries on through the new link
+        while not sender.query().startswith("<Idle"):
+            pass
+        assert len(pt.gaps) == 1 and pt.gaps[0][1] > pt.gaps[0][0]
+        assert pt.poll().mpos[0] == pytest.approx(4.0)
+        assert len(sender.reports) == sender.queries
+    finally:
+        sp.close()
+        pt.close()
+        peer.close()

@@ -248,7 +248,7 @@ _pieces = st.sampled_from(
 )
 
 
-@settings(max_examples=500, deadline=None)
+@settings(max_examples=300, deadline=None)
 @given(st.lists(_pieces, max_size=25))
 def test_fuzz_parser_structured_noise(parts):
     text = "".join(parts)
