@@ -32,6 +32,7 @@ import numpy as np
 from drivers.grbl import protocol as p
 from drivers.grbl.endpoints import Endpoint, PtyEndpoint, TcpEndpoint
 from drivers.state import RunState
+from sim.gcode.moves import MoveKind
 
 VERSION = "1.1h.20190830"
 BANNER = "Grbl 1.1h ['$' for help]"
@@ -469,6 +470,7 @@ class GrblPeer:
                 # after a jog, a hold-and-reset or a reset mid-move the parser takes the
                 # machine's position (GRBL's gc_sync_position)
                 interp.set_position(self.vm.position)
+        before = _sync_key(interp)
         try:
             rows = interp.execute_line(text, seq)
         except GCodeError as exc:
@@ -480,9 +482,29 @@ class GrblPeer:
         if self._check_mode:
             return "ok"
         if len(rows) == 0:
+            if _sync_key(interp) != before:
+                # spindle, coolant and offset changes wait for the motion before them
+                # (GRBL's protocol_buffer_synchronize)
+                if not self._wait_motion_done(gen):
+                    return None
             self._after_non_motion(gen)
             return "ok"
-        return self._queue(rows, gen)
+        reply = self._queue(rows, gen)
+        if reply == "ok" and np.any(rows["kind"] == MoveKind.DWELL):
+            # G4 syncs: its ok comes when the dwell is over (senders use G4 P0 to sync)
+            if not self._wait_motion_done(gen):
+                return None
+        return reply
+
+    def _wait_motion_done(self, gen: int) -> bool:
+        """Wait until the planner is empty and the machine stands; False on reset."""
+        vm = self.vm
+        while gen == self._reset_gen and not self._stop.is_set():
+            with vm.lock:
+                if not vm.busy or vm.state == RunState.ALARM:
+                    return True
+            self._stop.wait(0.002)  # the runner moves the machine on meanwhile
+        return False
 
     def _queue(self, rows: np.ndarray, gen: int) -> str | None:
         vm = self.vm
@@ -788,6 +810,15 @@ def _setting_text(n: int, v: float) -> str:
     if n in (11, 12, 24, 25, 27) or 100 <= n <= 132:
         return f"{v:.3f}"
     return f"{int(v)}" if float(v).is_integer() else f"{v:.3f}"
+
+
+def _sync_key(interp) -> tuple:
+    """What GRBL synchronises the planner for when it changes: spindle, coolant, offsets."""
+    try:
+        return (interp.spindle_dir, interp.spindle, interp.coolant, tuple(interp.offsets()),
+                tuple(interp.g28), tuple(interp.g30))
+    except AttributeError:
+        return ()
 
 
 def _interp_wco(interp) -> np.ndarray | None:

@@ -247,3 +247,14 @@ def test_work_offsets_persist_over_reset_but_g92_does_not(wire):
     w.send(b"?")
     s = w.until(lambda s: s.startswith("<"))[-1]
     assert "WCO:-5.000,2.000,-1.000" in s
+
+
+def test_dwell_and_spindle_changes_wait_for_motion(wire):
+    peer, w = wire(vm=make_vm(max_rate=(600.0,) * 3, accel=(50.0,) * 3), speed=2.0)
+    assert w.reply(b"G1 X3 F600\n") == ["ok"]  # queued: ok at once
+    assert w.status().startswith("<Run|")
+    assert w.reply(b"G4 P0\n") == ["ok"]  # a sync point: ok when the motion is done
+    assert w.status().startswith("<Idle|MPos:3.000,")
+    assert w.reply(b"G1 X0\n") == ["ok"]
+    assert w.reply(b"M8\n") == ["ok"]  # coolant waits for the move before it
+    assert w.status().startswith("<Idle|MPos:0.000,")
