@@ -236,27 +236,42 @@ def _project(frame: Frame, mesh):
     return np.ascontiguousarray(xy[faces]), np.ascontiguousarray(local[:, 2][faces])
 
 
-@nb.njit(cache=True, inline="always")
-def _edge(ax, ay, bx, by, px, py):
-    """Signed edge function of a->b at p, evaluated the same way for a->b and b->a.
+@nb.njit(cache=True)
+def _edge_setup(ax, ay, bx, by, out, k):
+    """Store edge a->b of a triangle in ``out[k]`` as (x0, y0, dx, dy, sign, tie).
 
-    Computed with the endpoints in lexicographic order and negated if swapped, so two
-    triangles sharing an edge see bit-identical values; at zero, the sign the value would
-    take if p moved by (-eps, eps^2) (the symbolic tie rule). Returns (value, sign).
+    The edge function is evaluated from the lexicographically smaller endpoint and
+    negated (``sign``) if that is b, so two triangles sharing an edge compute bit-identical
+    values at every ray. ``tie`` is the sign it takes where it is exactly zero: the sign
+    it would have if the ray moved by (-eps, eps^2), the one symbolic perturbation used
+    for every triangle, so a ray through an edge or vertex is claimed exactly once.
     """
     if ax < bx or (ax == bx and ay < by):
-        e = (bx - ax) * (py - ay) - (by - ay) * (px - ax)
+        out[k, 0] = ax
+        out[k, 1] = ay
+        out[k, 2] = bx - ax
+        out[k, 3] = by - ay
+        out[k, 4] = 1.0
     else:
-        e = -((ax - bx) * (py - by) - (ay - by) * (px - bx))
-    if e > 0.0:
-        return e, 1
-    if e < 0.0:
-        return e, -1
+        out[k, 0] = bx
+        out[k, 1] = by
+        out[k, 2] = ax - bx
+        out[k, 3] = ay - by
+        out[k, 4] = -1.0
     dx = bx - ax
     dy = by - ay
-    if dy > 0.0 or (dy == 0.0 and dx > 0.0):
-        return e, 1
-    return e, -1
+    out[k, 5] = 1.0 if (dy > 0.0 or (dy == 0.0 and dx > 0.0)) else -1.0
+
+
+@nb.njit(cache=True, inline="always")
+def _edge_at(E, k, px, py):
+    """(value, sign) of edge ``k`` of :func:`_edge_setup` at ray position (px, py)."""
+    e = E[k, 4] * (E[k, 2] * (py - E[k, 1]) - E[k, 3] * (px - E[k, 0]))
+    if e > 0.0:
+        return e, 1.0
+    if e < 0.0:
+        return e, -1.0
+    return e, E[k, 5]
 
 
 @nb.njit(cache=True)
@@ -266,6 +281,7 @@ def _scan(xy, sv, nu, nv, counts, offsets, hit_s, hit_tri, fill):
     xy (T, 3, 2), sv (T, 3); counts (n_rays,) int64 is incremented; when filling,
     ``offsets`` (n_rays,) is each ray's first slot and ``counts`` must start at zero.
     """
+    E = np.empty((3, 6), np.float64)
     for t in range(xy.shape[0]):
         x0 = xy[t, 0, 0]
         y0 = xy[t, 0, 1]
@@ -280,24 +296,32 @@ def _scan(xy, sv, nu, nv, counts, offsets, hit_s, hit_tri, fill):
         i_hi = min(int(np.floor(max(x0, x1, x2))), nu - 1)
         j_lo = max(int(np.ceil(min(y0, y1, y2))), 0)
         j_hi = min(int(np.floor(max(y0, y1, y2))), nv - 1)
+        if i_lo > i_hi or j_lo > j_hi:
+            continue
+        _edge_setup(x1, y1, x2, y2, E, 0)  # edge opposite corner 0
+        _edge_setup(x2, y2, x0, y0, E, 1)
+        _edge_setup(x0, y0, x1, y1, E, 2)
+        s0 = sv[t, 0]
+        s1 = sv[t, 1]
+        s2 = sv[t, 2]
         for j in range(j_lo, j_hi + 1):
             py = np.float64(j)
             for i in range(i_lo, i_hi + 1):
                 px = np.float64(i)
-                e0, g0 = _edge(x1, y1, x2, y2, px, py)  # opposite corner 0
-                e1, g1 = _edge(x2, y2, x0, y0, px, py)
+                e0, g0 = _edge_at(E, 0, px, py)
+                e1, g1 = _edge_at(E, 1, px, py)
                 if g1 != g0:
                     continue
-                e2, g2 = _edge(x0, y0, x1, y1, px, py)
+                e2, g2 = _edge_at(E, 2, px, py)
                 if g2 != g0:
                     continue
                 r = j * nu + i
                 if fill:
                     tot = e0 + e1 + e2
                     if tot != 0.0:
-                        s = (e0 * sv[t, 0] + e1 * sv[t, 1] + e2 * sv[t, 2]) / tot
+                        s = (e0 * s0 + e1 * s1 + e2 * s2) / tot
                     else:
-                        s = (sv[t, 0] + sv[t, 1] + sv[t, 2]) / 3.0
+                        s = (s0 + s1 + s2) / 3.0
                     k = offsets[r] + counts[r]
                     hit_s[k] = s
                     hit_tri[k] = t

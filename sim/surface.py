@@ -140,8 +140,10 @@ def _breakpoints(nu, nv, offsets, near, far, bp_off, bp_s, split_q, fill):
 @nb.njit(cache=True, inline="always")
 def _pos(bp_off, bp_s, c, s):
     """Index of value ``s`` among corner ``c``'s breakpoints (it is always present)."""
-    lo = bp_off[c]
-    return lo + np.searchsorted(bp_s[lo:bp_off[c + 1]], s)
+    v = bp_off[c]
+    while bp_s[v] < s:  # a corner holds a handful of values: a scan beats bisection
+        v += 1
+    return v
 
 
 @nb.njit(cache=True, inline="always")
@@ -163,97 +165,6 @@ def _emit(tris, ids, t, fill, a, b, c, face_id):
     return t + 1
 
 
-@nb.njit(cache=True)
-def _strip(V, cp, mp, cq, mq, a, b, flip, face_id, tris, ids, t, fill):
-    """Triangulate the wall piece [a, b] between corner lines P (cp) and Q (cq).
-
-    Both vertical edges are split at their corners' breakpoints; the triangles zig-zag
-    between the two chains, wound so the normal is (P->Q) x (+s) (``flip`` reverses).
-    ``mp``/``mq`` are the quadrant masks of this wall at P and Q (for split vertices).
-    """
-    bp_off, bp_s, split_q, copy_of = V
-    p = _pos(bp_off, bp_s, cp, a)
-    p_end = _pos(bp_off, bp_s, cp, b)
-    q = _pos(bp_off, bp_s, cq, a)
-    q_end = _pos(bp_off, bp_s, cq, b)
-    while p < p_end or q < q_end:
-        vp = _map(split_q, copy_of, p, mp)
-        vq = _map(split_q, copy_of, q, mq)
-        if q < q_end and (p == p_end or bp_s[q + 1] <= bp_s[p + 1]):
-            vn = _map(split_q, copy_of, q + 1, mq)
-            if flip:
-                t = _emit(tris, ids, t, fill, vp, vn, vq, face_id)
-            else:
-                t = _emit(tris, ids, t, fill, vp, vq, vn, face_id)
-            q += 1
-        else:
-            vn = _map(split_q, copy_of, p + 1, mp)
-            if flip:
-                t = _emit(tris, ids, t, fill, vp, vn, vq, face_id)
-            else:
-                t = _emit(tris, ids, t, fill, vp, vq, vn, face_id)
-            p += 1
-    return t
-
-
-@nb.njit(cache=True)
-def _wall(offsets, near, far, nid, fid, rl, rr, cp, mp, cq, mq, side_flip, V, tris, ids,
-          t, fill):
-    """Walls between column ``rl`` and ``rr`` (-1 = outside the grid): where one holds
-    material and the other not. ``side_flip`` picks the winding for material on ``rl``.
-    """
-    kl = offsets[rl] if rl >= 0 else 0
-    el = offsets[rl + 1] if rl >= 0 else 0
-    kr = offsets[rr] if rr >= 0 else 0
-    er = offsets[rr + 1] if rr >= 0 else 0
-    nl = 2 * (el - kl)
-    nr = 2 * (er - kr)
-    bl = 0  # boundary counters: even = next is a near face
-    br = 0
-    in_l = False
-    in_r = False
-    state = 0  # 0 none, 1 only l, 2 only r
-    start = np.float32(0.0)
-    start_id = 0
-    while bl < nl or br < nr:
-        sl = np.float32(np.inf)
-        sr = np.float32(np.inf)
-        idl = 0
-        idr = 0
-        if bl < nl:
-            h = kl + (bl >> 1)
-            sl = near[h] if (bl & 1) == 0 else far[h]
-            idl = nid[h] if (bl & 1) == 0 else fid[h]
-        if br < nr:
-            h = kr + (br >> 1)
-            sr = near[h] if (br & 1) == 0 else far[h]
-            idr = nid[h] if (br & 1) == 0 else fid[h]
-        s = min(sl, sr)
-        face_id = 0
-        if sl == s:
-            in_l = (bl & 1) == 0
-            bl += 1
-            face_id = idl
-        if sr == s:
-            in_r = (br & 1) == 0
-            br += 1
-            face_id = max(face_id, idr)
-        new = 0
-        if in_l and not in_r:
-            new = 1
-        elif in_r and not in_l:
-            new = 2
-        if new != state:
-            if state != 0:
-                flip = side_flip if state == 1 else not side_flip
-                t = _strip(V, cp, mp, cq, mq, start, s, flip, max(start_id, face_id),
-                           tris, ids, t, fill)
-            state = new
-            start = s
-            start_id = face_id
-    return t
-
-
 # quadrant bits at a corner: SW=1, SE=2, NW=4, NE=8
 _SW, _SE, _NW, _NE = 1, 2, 4, 8
 
@@ -272,33 +183,117 @@ def _triangles(nu, nv, offsets, near, far, nid, fid, V, tris, ids, fill):
             c01 = c00 + w
             c11 = c01 + 1
             for k in range(offsets[r], offsets[r + 1]):
-                for s, face_id, up in ((far[k], fid[k], True), (near[k], nid[k], False)):
-                    a = _map(split_q, copy_of, _pos(bp_off, bp_s, c00, s), _NE)
-                    b = _map(split_q, copy_of, _pos(bp_off, bp_s, c10, s), _NW)
-                    c = _map(split_q, copy_of, _pos(bp_off, bp_s, c11, s), _SW)
-                    d = _map(split_q, copy_of, _pos(bp_off, bp_s, c01, s), _SE)
-                    if up:  # far cap faces +s
-                        t = _emit(tris, ids, t, fill, a, b, c, face_id)
-                        t = _emit(tris, ids, t, fill, a, c, d, face_id)
-                    else:
-                        t = _emit(tris, ids, t, fill, a, c, b, face_id)
-                        t = _emit(tris, ids, t, fill, a, d, c, face_id)
-    # walls across u: between columns (i, j) and (i+1, j), on corner line i+1
-    for j in range(nv):
-        for i in range(-1, nu):
+                if not fill:
+                    t += 4
+                    continue
+                s = far[k]  # far cap faces +s
+                a = _map(split_q, copy_of, _pos(bp_off, bp_s, c00, s), _NE)
+                b = _map(split_q, copy_of, _pos(bp_off, bp_s, c10, s), _NW)
+                c = _map(split_q, copy_of, _pos(bp_off, bp_s, c11, s), _SW)
+                d = _map(split_q, copy_of, _pos(bp_off, bp_s, c01, s), _SE)
+                t = _emit(tris, ids, t, fill, a, b, c, fid[k])
+                t = _emit(tris, ids, t, fill, a, c, d, fid[k])
+                s = near[k]  # near cap faces -s
+                a = _map(split_q, copy_of, _pos(bp_off, bp_s, c00, s), _NE)
+                b = _map(split_q, copy_of, _pos(bp_off, bp_s, c10, s), _NW)
+                c = _map(split_q, copy_of, _pos(bp_off, bp_s, c11, s), _SW)
+                d = _map(split_q, copy_of, _pos(bp_off, bp_s, c01, s), _SE)
+                t = _emit(tris, ids, t, fill, a, c, b, nid[k])
+                t = _emit(tris, ids, t, fill, a, d, c, nid[k])
+    # Walls, one loop over both families so the body exists once (a call per wall with
+    # this many array arguments would cost more than the wall). Wall ``wi`` separates
+    # column ``rl`` from ``rr`` (-1 = outside the grid) and runs from corner line P to Q.
+    # Across u (between (i, j) and (i+1, j)): P = corner (i+1, j), Q = (i+1, j+1); the
+    # triangles (P, Q, Q+) face +u. Across v (between (i, j) and (i, j+1)): P = (i, j+1),
+    # Q = (i+1, j+1); the same order faces -v. Where only one column holds material the
+    # wall is triangulated as a strip zig-zagging between P's and Q's breakpoints.
+    n_uw = nv * (nu + 1)
+    for wi in range(n_uw + (nv + 1) * nu):
+        if wi < n_uw:
+            j = wi // (nu + 1)
+            i = wi % (nu + 1) - 1
             rl = j * nu + i if i >= 0 else -1
             rr = j * nu + i + 1 if i + 1 < nu else -1
             cp = j * w + i + 1
-            t = _wall(offsets, near, far, nid, fid, rl, rr, cp, _NW | _NE, cp + w, _SW | _SE,
-                      False, V, tris, ids, t, fill)
-    # walls across v: between columns (i, j) and (i, j+1), on corner line j+1
-    for j in range(-1, nv):
-        for i in range(nu):
+            cq = cp + w
+            mp = _NW | _NE
+            mq = _SW | _SE
+            side_flip = False
+        else:
+            j = (wi - n_uw) // nu - 1
+            i = (wi - n_uw) % nu
             rl = j * nu + i if j >= 0 else -1
             rr = (j + 1) * nu + i if j + 1 < nv else -1
             cp = (j + 1) * w + i
-            t = _wall(offsets, near, far, nid, fid, rl, rr, cp, _SE | _NE, cp + 1, _SW | _NW,
-                      True, V, tris, ids, t, fill)
+            cq = cp + 1
+            mp = _SE | _NE
+            mq = _SW | _NW
+            side_flip = True
+        kl = offsets[rl] if rl >= 0 else 0
+        nl = 2 * (offsets[rl + 1] - kl) if rl >= 0 else 0
+        kr = offsets[rr] if rr >= 0 else 0
+        nr = 2 * (offsets[rr + 1] - kr) if rr >= 0 else 0
+        bl = 0  # boundary counters: even = next is a near face
+        br = 0
+        in_l = False
+        in_r = False
+        state = 0  # 0 none, 1 only l, 2 only r
+        start = np.float32(0.0)
+        start_id = 0
+        while bl < nl or br < nr:
+            sl = np.float32(np.inf)
+            sr = np.float32(np.inf)
+            idl = 0
+            idr = 0
+            if bl < nl:
+                h = kl + (bl >> 1)
+                sl = near[h] if (bl & 1) == 0 else far[h]
+                idl = nid[h] if (bl & 1) == 0 else fid[h]
+            if br < nr:
+                h = kr + (br >> 1)
+                sr = near[h] if (br & 1) == 0 else far[h]
+                idr = nid[h] if (br & 1) == 0 else fid[h]
+            s = min(sl, sr)
+            face_id = 0
+            if sl == s:
+                in_l = (bl & 1) == 0
+                bl += 1
+                face_id = idl
+            if sr == s:
+                in_r = (br & 1) == 0
+                br += 1
+                face_id = max(face_id, idr)
+            new = 0
+            if in_l and not in_r:
+                new = 1
+            elif in_r and not in_l:
+                new = 2
+            if new != state:
+                if state != 0:  # the piece [start, s] ends: emit its strip
+                    flip = side_flip if state == 1 else not side_flip
+                    wid = max(start_id, face_id)  # the latest move among its bounding faces
+                    p = _pos(bp_off, bp_s, cp, start)
+                    p_end = _pos(bp_off, bp_s, cp, s)
+                    q = _pos(bp_off, bp_s, cq, start)
+                    q_end = _pos(bp_off, bp_s, cq, s)
+                    if not fill:
+                        t += (p_end - p) + (q_end - q)
+                    while fill and (p < p_end or q < q_end):
+                        vp = _map(split_q, copy_of, p, mp)
+                        vq = _map(split_q, copy_of, q, mq)
+                        if q < q_end and (p == p_end or bp_s[q + 1] <= bp_s[p + 1]):
+                            vn = _map(split_q, copy_of, q + 1, mq)
+                            q += 1
+                        else:
+                            vn = _map(split_q, copy_of, p + 1, mp)
+                            p += 1
+                        if flip:
+                            t = _emit(tris, ids, t, fill, vp, vn, vq, wid)
+                        else:
+                            t = _emit(tris, ids, t, fill, vp, vq, vn, wid)
+                state = new
+                start = s
+                start_id = face_id
     return t
 
 
@@ -335,10 +330,13 @@ def surface_arrays(grid: DexelGrid):
     corner = np.repeat(np.arange(n_corners), np.diff(bp_off))
     corner = np.concatenate([corner, corner[split]])
     s = np.concatenate([bp_s, bp_s[split]]).astype(np.float64)
-    ci = (corner % (nu + 1)).astype(np.float64) - 0.5
-    cj = (corner // (nu + 1)).astype(np.float64) - 0.5
-    local = np.stack([ci * fr.spacing, cj * fr.spacing, s], axis=1)
-    return fr.to_world(local), tris, ids
+    # corner feet on the origin plane (few), then each vertex = its foot + s * direction
+    ci = (np.arange(nu + 1) - 0.5) * fr.spacing
+    cj = (np.arange(nv + 1) - 0.5) * fr.spacing
+    feet = (fr.origin + ci[None, :, None] * fr.u + cj[:, None, None] * fr.v).reshape(-1, 3)
+    verts = feet[corner]
+    verts += s[:, None] * fr.direction
+    return verts, tris, ids
 
 
 def surface_mesh(grid: DexelGrid):
