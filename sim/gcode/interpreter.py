@@ -251,6 +251,8 @@ class Interpreter:
         self.messages: list[tuple[int, str]] = []
         self._rows: list[tuple] = []
         self._row_line: list[int] = []   # main-file line that caused each row
+        self._chunks: list[np.ndarray] = []       # sealed MOVE_DTYPE blocks, in order
+        self._chunk_lines: list[np.ndarray] = []  # their main-file lines
         self.main_line = 0
         self.params = _Params(self)
         self.comp_engine = None
@@ -334,6 +336,31 @@ class Interpreter:
         self.g92_enabled = False
         if self.comp_engine is not None:
             self.comp_engine = None
+
+    def _seal(self) -> None:
+        """Move the pending row tuples into a sealed array chunk."""
+        if self._rows:
+            self._chunks.append(np.array(self._rows, dtype=MOVE_DTYPE))
+            self._chunk_lines.append(np.asarray(self._row_line, dtype=np.int64))
+            self._rows.clear()
+            self._row_line.clear()
+
+    def assemble(self) -> tuple[np.ndarray, np.ndarray]:
+        """All rows so far as one MOVE_DTYPE array (and their main-file lines); frees the chunks."""
+        self._seal()
+        chunks, lines = self._chunks, self._chunk_lines
+        total = sum(len(c) for c in chunks)
+        out = np.empty(total, dtype=MOVE_DTYPE)
+        out_lines = np.empty(total, dtype=np.int64)
+        k = 0
+        while chunks:
+            c = chunks.pop(0)
+            cl = lines.pop(0)
+            out[k:k + len(c)] = c
+            out_lines[k:k + len(c)] = cl
+            k += len(c)
+            del c
+        return out, out_lines
 
     def take_rows(self) -> np.ndarray:
         """The rows produced since the last call, as a MOVE_DTYPE array; clears the buffer."""

@@ -8,7 +8,7 @@ and, with ``keep_going=True``, every error instead of only the first.
 
 from __future__ import annotations
 
-import bisect
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -40,27 +40,32 @@ class _Source:
     subs: dict = field(default_factory=dict)     # label -> sub line
     struct_errors: list = field(default_factory=list)  # (line index, LineError)
     percent_end: int | None = None
+    text: str | None = None
+
+
+_OWORD_LINE = re.compile(r"[ \t]*(?:/[ \t]*)?(?:[Nn][ \t]*\d+[ \t]*)?[Oo]")
 
 
 def _prepare(name: str, index: int, text: str, dialect: str) -> _Source:
     lines = text.splitlines()
-    src = _Source(name, index, lines)
-    blocks = src.blocks
-    for raw in lines:
-        try:
-            blocks.append(parse_line(raw, dialect))
-        except LineError as exc:
-            blocks.append(exc)
+    src = _Source(name, index, lines, text=text)
+    # lines are parsed when first executed; only o-word lines are needed up front
+    blocks: list = [None] * len(lines)
+    src.blocks = blocks
+    match = _OWORD_LINE.match
+    for i, raw in enumerate(lines):
+        if match(raw):
+            try:
+                blocks[i] = parse_line(raw, dialect)
+            except LineError as exc:
+                blocks[i] = exc
     # '%' delimiters: a first '%' line means the program ends at the next one
-    first = next((i for i, b in enumerate(blocks) if not (hasattr(b, "empty") and b.empty and not b.percent
-                                                         and b.message is None)), None)
-    if first is not None and not isinstance(blocks[first], LineError) and blocks[first].percent:
-        nxt = next((i for i in range(first + 1, len(blocks))
-                    if not isinstance(blocks[i], LineError) and blocks[i].percent), None)
-        src.percent_end = nxt
+    first = next((i for i, raw in enumerate(lines) if raw.strip()), None)
+    if first is not None and lines[first].strip().startswith("%"):
+        src.percent_end = next((i for i in range(first + 1, len(lines)) if lines[i].strip().startswith("%")), None)
     stack: list[tuple[str, str, int]] = []  # (keyword, label, line index)
     for i, b in enumerate(blocks):
-        if isinstance(b, LineError) or b.oword is None:
+        if b is None or isinstance(b, LineError) or b.oword is None:
             continue
         label, kw, _args, col = b.oword
         if not isinstance(label, str):
@@ -147,7 +152,8 @@ class Program:
         self.machine_units = machine_units
         self._snapshots = snapshots
         self._snap_lines = np.maximum.accumulate(np.asarray(snapshot_lines, dtype=np.int64)) if snapshot_lines else np.zeros(0, np.int64)
-        self._row_main = np.maximum.accumulate(np.asarray(row_main_line, dtype=np.int64)) if len(row_main_line) else np.zeros(0, np.int64)
+        self._row_main = (np.maximum.accumulate(np.asarray(row_main_line, dtype=np.int64)) if len(row_main_line)
+                          else np.zeros(0, np.int64))
 
     def __len__(self) -> int:
         return len(self.moves)
@@ -186,8 +192,9 @@ class Program:
 
 
 class _Runner:
-    def __init__(self, it: Interpreter, keep_going: bool, subroutine_path, max_steps: int):
+    def __init__(self, it: Interpreter, keep_going: bool, subroutine_path, max_steps: int, fast: bool = True):
         self.it = it
+        self.fast = fast
         self.keep_going = keep_going
         self.errors: list[GCodeError] = []
         self.sources: list[_Source] = []
@@ -248,6 +255,11 @@ class _Runner:
         steps = 0
         self.snapshot()
         end_index = main.percent_end
+        fl = None
+        if self.fast:
+            from sim.gcode.fastpath import FastLines, run_simple
+
+            fl = FastLines(main.lines, main.text)
         while True:
             limit = len(src.lines) if not (depth == 0 and src is main and end_index is not None) else end_index
             if pc >= limit:
@@ -267,7 +279,21 @@ class _Runner:
                 break
             if depth == 0:
                 it.main_line = pc + 1
+                if fl is not None and fl.simple[pc] and not it.ended:
+                    stop = int(fl.run_end[pc])
+                    if end_index is not None:
+                        stop = min(stop, end_index)
+                    if stop - pc >= 8 and run_simple(it, fl, pc, stop, self.snapshot):
+                        steps += stop - pc - 1
+                        pc = stop
+                        continue
             b = src.blocks[pc]
+            if b is None:
+                try:
+                    b = parse_line(src.lines[pc], it.dialect)
+                except LineError as exc:
+                    b = exc
+                src.blocks[pc] = b  # loops come back to their lines
             it.line = pc + 1
             it.file_index = src.index
             if isinstance(b, LineError):
@@ -451,7 +477,7 @@ def interpret(text: str, filename: str = "<string>", dialect: str = "linuxcnc", 
     var = _read_var(var_file)
     it = Interpreter(dialect=dialect, machine_units=machine_units, tool_table=table, var_params=var,
                      filename=filename, block_delete=block_delete)
-    runner = _Runner(it, keep_going, subroutine_path, max_steps)
+    runner = _Runner(it, keep_going, subroutine_path, max_steps, fast)
     main = runner.add_source(filename, text)
     runner.run(main)
     if it.comp_engine is not None:
@@ -459,9 +485,9 @@ def interpret(text: str, filename: str = "<string>", dialect: str = "linuxcnc", 
             it._flush_comp()
         except LineError as exc:
             runner.fail(main, max(len(main.lines) - 1, 0), exc)
-    moves = np.array(it._rows, dtype=MOVE_DTYPE) if it._rows else np.zeros(0, MOVE_DTYPE)
+    moves, row_lines = it.assemble()
     return Program(moves, list(it.files), runner.errors, list(it.messages), runner.warnings,
-                   runner.snapshots, runner.snap_lines, list(it._row_line), dialect, machine_units)
+                   runner.snapshots, runner.snap_lines, row_lines, dialect, machine_units)
 
 
 def load_program(path, dialect: str = "linuxcnc", tool_table=None, var_file=None, machine_units: str = "mm",
