@@ -306,7 +306,26 @@ def _scan(xy, sv, nu, nv, counts, offsets, hit_s, hit_tri, fill):
         s2 = sv[t, 2]
         for j in range(j_lo, j_hi + 1):
             py = np.float64(j)
-            for i in range(i_lo, i_hi + 1):
+            # candidate rays on this row: the triangle's span at y = j, widened by one
+            # ray each side so rounding never hides a hit (the exact test decides)
+            xa = np.inf
+            xb = -np.inf
+            for k in range(3):
+                ax = xy[t, k, 0]
+                ay = xy[t, k, 1]
+                bx = xy[t, (k + 1) % 3, 0]
+                by = xy[t, (k + 1) % 3, 1]
+                if min(ay, by) <= py <= max(ay, by):
+                    if ay == by:
+                        xa = min(xa, ax, bx)
+                        xb = max(xb, ax, bx)
+                    else:
+                        x = ax + (py - ay) * (bx - ax) / (by - ay)
+                        xa = min(xa, x)
+                        xb = max(xb, x)
+            if xa > xb:
+                continue
+            for i in range(max(i_lo, int(np.ceil(xa)) - 1), min(i_hi, int(np.floor(xb)) + 1) + 1):
                 px = np.float64(i)
                 e0, g0 = _edge_at(E, 0, px, py)
                 e1, g1 = _edge_at(E, 1, px, py)
