@@ -1,4 +1,14 @@
-"""GRBL 1.1 over serial: wire protocol (pure parsers), driver, protocol peer, passthrough.
+"""GRBL 1.1 over serial.
 
-Only this package imports pyserial (and only ``driver`` and ``passthrough`` do).
+* :mod:`drivers.grbl.protocol` — pure parsers: byte chunks -> lines -> messages ->
+  :class:`~drivers.state.MachineState`; real-time bytes and overrides.
+* :mod:`drivers.grbl.driver` — :class:`GrblController` on any pyserial port
+  (``grbl://``, ``grbl+pty://``, ``grbl+socket://`` URLs).
+* :mod:`drivers.grbl.peer` — :class:`GrblPeer`, the virtual machine speaking GRBL 1.1 on
+  a pseudo-terminal or TCP socket.
+* :mod:`drivers.grbl.passthrough` — the machine's port offered to the user's sender,
+  watched as bytes pass.
+* :mod:`drivers.grbl.endpoints` — the pty/TCP byte pipes the last two share.
+
+Only this package imports pyserial (``driver`` and ``passthrough``).
 """

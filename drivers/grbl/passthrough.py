@@ -376,7 +376,7 @@ class Passthrough(Controller):
         """The next status report seen (own poll or the sender's), stamped at arrival."""
         with self._cond:
             seq = self._status_seq
-            got = self._cond.wait_for(lambda: self._status_seq > seq or not self._connected, timeout)
+            self._cond.wait_for(lambda: self._status_seq > seq or not self._connected, timeout)
             state = self._state
             connected = self._connected
         if not connected:
@@ -387,7 +387,6 @@ class Passthrough(Controller):
             return MachineState(t=t, mpos=last.mpos, wco=last.wco, state=RunState.DISCONNECTED, raw="machine port lost")
         if state is None:
             raise DriverError(f"passthrough {self.port}: no status report within {timeout:g} s")
-        del got
         return state
 
     def wait_connected(self, timeout: float) -> bool:
