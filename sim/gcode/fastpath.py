@@ -23,41 +23,164 @@ SIMPLE = re.compile(
     rf"[ \t]*(?:[Nn]\d+[ \t]*)?(?:[Gg]0*([01])[ \t]*)?(?:[Xx]{_NUM}[ \t]*)?(?:[Yy]{_NUM}[ \t]*)?"
     rf"(?:[Zz]{_NUM}[ \t]*)?(?:[Ff]{_NUM}[ \t]*)?\r?"
 )
-_WHOLE = re.compile(rf"^(?:{SIMPLE.pattern}|(.+))$", re.MULTILINE)
 CHUNK = 1 << 16  # rows per output chunk (bounds the extra memory of assembling the table)
+
+
+_POW10 = np.array([10.0 ** k for k in range(23)])  # exact doubles 1e0 .. 1e22
+_ODD_BREAKS = re.compile("[\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029]")
+
+
+class SourceLines:
+    """The lines of an ASCII text without a list of strings: offsets into the text.
+
+    Behaves like ``text.splitlines()`` (for texts whose only breaks are \\n and \\r\\n).
+    """
+
+    def __init__(self, text: str, starts: np.ndarray, ends: np.ndarray):
+        self.text = text
+        self.starts = starts
+        self.ends = ends
+
+    def __len__(self) -> int:
+        return len(self.starts)
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[k] for k in range(*i.indices(len(self)))]
+        if i < 0:
+            i += len(self.starts)
+        return self.text[self.starts[i]:self.ends[i]]
+
+    def __iter__(self):
+        for i in range(len(self.starts)):
+            yield self[i]
+
+
+def split_lines(text: str):
+    """``(lines, data)``: lines like ``text.splitlines()`` and the uint8 bytes when fast scanning applies.
+
+    Fast scanning applies to ASCII texts whose line breaks are only \\n or \\r\\n.
+    """
+    if not text.isascii() or _ODD_BREAKS.search(text) or text.count("\r") != text.count("\r\n"):
+        return text.splitlines(), None
+    data = np.frombuffer(text.encode("ascii"), dtype=np.uint8)
+    nl = np.flatnonzero(data == 10)
+    starts = np.concatenate(([0], nl + 1))
+    ends = np.concatenate((nl, [len(data)]))
+    if len(starts) and starts[-1] == len(data):  # text ends with a newline: no empty last line
+        starts, ends = starts[:-1], ends[:-1]
+    cr = (ends > starts) & (data[np.maximum(ends - 1, 0)] == 13)
+    ends = ends - cr
+    return SourceLines(text, starts, ends), data
+
+
+@njit(cache=True)
+def _number(b, k, end, pow10):
+    """Parse [+-]digits[.digits] at b[k:end]; returns (value, next index, ok). Exact like float()."""
+    neg = False
+    if k < end and (b[k] == 43 or b[k] == 45):
+        neg = b[k] == 45
+        k += 1
+    m = 0
+    nd = 0
+    frac = 0
+    while k < end and 48 <= b[k] <= 57:
+        m = m * 10 + (b[k] - 48)
+        nd += 1
+        k += 1
+        if m > 9007199254740992:
+            return 0.0, k, False
+    if k < end and b[k] == 46:
+        k += 1
+        while k < end and 48 <= b[k] <= 57:
+            m = m * 10 + (b[k] - 48)
+            nd += 1
+            frac += 1
+            k += 1
+            if m > 9007199254740992 or frac > 22:
+                return 0.0, k, False
+    if nd == 0:
+        return 0.0, k, False
+    v = m / pow10[frac]
+    return (-v if neg else v), k, True
+
+
+@njit(cache=True)
+def _scan(b, starts, ends, pow10, vals, simple):
+    """Mark simple lines ([N] [G0|G1] [X] [Y] [Z] [F], any order, once each) and store their values."""
+    for li in range(starts.shape[0]):
+        k = starts[li]
+        end = ends[li]
+        ok = True
+        seen = 0
+        useful = False
+        while k < end:
+            c = b[k]
+            if c == 32 or c == 9:
+                k += 1
+                continue
+            if 97 <= c <= 122:
+                c -= 32
+            if c == 78:
+                slot = 5
+            elif c == 71:
+                slot = 0
+            elif c == 88:
+                slot = 1
+            elif c == 89:
+                slot = 2
+            elif c == 90:
+                slot = 3
+            elif c == 70:
+                slot = 4
+            else:
+                ok = False
+                break
+            bit = 1 << slot
+            if seen & bit:
+                ok = False
+                break
+            seen |= bit
+            v, k, good = _number(b, k + 1, end, pow10)
+            if not good:
+                ok = False
+                break
+            if k < end and b[k] != 32 and b[k] != 9 and not (65 <= (b[k] & 223) <= 90):
+                ok = False
+                break
+            if slot == 0:
+                if v != 0.0 and v != 1.0:
+                    ok = False
+                    break
+            if slot == 5 and (v != np.floor(v) or v < 0.0 or v > 9999999.0):
+                ok = False
+                break
+            if slot != 5:
+                vals[li, slot] = v
+                useful = True
+        simple[li] = ok and useful
 
 
 class FastLines:
     """Per main-file line: is it simple, and its G, X, Y, Z, F values (NaN when absent)."""
 
-    def __init__(self, lines: list[str], text: str | None = None):
+    def __init__(self, lines, data: np.ndarray | None = None):
         n = len(lines)
-        self.simple = np.zeros(n, dtype=np.bool_)
         vals = np.full((n, 5), np.nan)
-        found = None
-        if text is not None:
-            # one C-level pass over the whole text: a tuple per line, the last group set
-            # (the whole line) only when the line is not simple
-            found = _WHOLE.findall(text)
-            if len(found) == n + 1 and not found[-1][-1] and not any(found[-1][:5]):
-                found.pop()
-            if len(found) != n:
-                found = None
-        if found is None:
+        if data is not None and isinstance(lines, SourceLines):
+            simple = np.zeros(n, dtype=np.bool_)
+            _scan(data, lines.starts, lines.ends, _POW10, vals, simple)
+            vals[~simple] = np.nan
+        else:
             found = []
             fm = SIMPLE.fullmatch
             for s in lines:
                 m = fm(s)
-                found.append(m.groups(default="") + ("",) if m else ("",) * 5 + (s or " ",))
-        cols = list(zip(*found)) if found else [()] * 6
-        simple = np.fromiter((not rest and bool(g or x or y or z or f) for g, x, y, z, f, rest in found),
-                             dtype=np.bool_, count=n)
+                found.append(m.groups(default="") if m else None)
+            simple = np.array([g is not None and any(g) for g in found], dtype=np.bool_)
+            for i in np.flatnonzero(simple):
+                vals[i] = [float(v) if v else np.nan for v in found[i]]
         self.simple = simple
-        ia = np.flatnonzero(simple)
-        for k in range(5):
-            col = cols[k]
-            arr = np.array([col[i] or "nan" for i in ia], dtype=np.float64) if len(ia) else np.zeros(0)
-            vals[ia, k] = arr
         self.values = vals
         # index of the first non-simple line at or after each line
         nxt = np.arange(n + 1)

@@ -41,28 +41,43 @@ class _Source:
     struct_errors: list = field(default_factory=list)  # (line index, LineError)
     percent_end: int | None = None
     text: str | None = None
+    data: object = None
 
 
 _OWORD_LINE = re.compile(r"[ \t]*(?:/[ \t]*)?(?:[Nn][ \t]*\d+[ \t]*)?[Oo]")
 
 
+_OWORD_LINES = re.compile(r"^[ \t]*(?:/[ \t]*)?(?:[Nn][ \t]*\d+[ \t]*)?[Oo]", re.MULTILINE)
+
+
 def _prepare(name: str, index: int, text: str, dialect: str) -> _Source:
-    lines = text.splitlines()
+    from sim.gcode.fastpath import SourceLines, split_lines
+
+    lines, data = split_lines(text)
     src = _Source(name, index, lines, text=text)
+    src.data = data
     # lines are parsed when first executed; only o-word lines are needed up front
     blocks: list = [None] * len(lines)
     src.blocks = blocks
-    match = _OWORD_LINE.match
-    for i, raw in enumerate(lines):
-        if match(raw):
+    if isinstance(lines, SourceLines):
+        pos = np.fromiter((m.start() for m in _OWORD_LINES.finditer(text)), dtype=np.int64)
+        candidates = np.searchsorted(lines.starts, pos, side="right") - 1
+    else:
+        candidates = [i for i, raw in enumerate(lines) if _OWORD_LINE.match(raw)]
+    for i in candidates:
+        i = int(i)
+        raw = lines[i]
+        if _OWORD_LINE.match(raw):
             try:
                 blocks[i] = parse_line(raw, dialect)
             except LineError as exc:
                 blocks[i] = exc
     # '%' delimiters: a first '%' line means the program ends at the next one
-    first = next((i for i, raw in enumerate(lines) if raw.strip()), None)
-    if first is not None and lines[first].strip().startswith("%"):
-        src.percent_end = next((i for i in range(first + 1, len(lines)) if lines[i].strip().startswith("%")), None)
+    m = re.search(r"\S", text)
+    if m is not None and text[m.start()] == "%":
+        first = int(np.searchsorted(lines.starts, m.start(), side="right") - 1) if isinstance(lines, SourceLines) \
+            else next(i for i, raw in enumerate(lines) if raw.strip())
+        src.percent_end = next((i for i in range(first + 1, len(lines)) if lines[i].lstrip().startswith("%")), None)
     stack: list[tuple[str, str, int]] = []  # (keyword, label, line index)
     for i, b in enumerate(blocks):
         if b is None or isinstance(b, LineError) or b.oword is None:
@@ -259,7 +274,8 @@ class _Runner:
         if self.fast:
             from sim.gcode.fastpath import FastLines, run_simple
 
-            fl = FastLines(main.lines, main.text)
+            fl = FastLines(main.lines, main.data)
+            main.data = None
         while True:
             limit = len(src.lines) if not (depth == 0 and src is main and end_index is not None) else end_index
             if pc >= limit:
