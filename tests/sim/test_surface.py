@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from sim.boolean import difference, union
 from sim.errors import InputError
@@ -107,3 +109,56 @@ def test_heightfield_mesh_follows_ray_tops():
     assert np.all(m.face_normals[:, 2] > 0)
     np.testing.assert_allclose(m.vertices[:, 2], 1 + 0.25 * m.vertices[:, 0])
     assert set(m.face_attributes["move_id"].tolist()) == {5}
+
+
+def _parity_grid(f, rays):
+    """Segments with even near and odd far ends: faces of neighbours never touch edge-on."""
+    from sim.solids import grid_from_segments
+
+    counts, nears, fars = [], [], []
+    for vals in rays:
+        vals = sorted(set(vals))
+        vals = vals[: len(vals) // 2 * 2]
+        counts.append(len(vals) // 2)
+        nears += [2.0 * v for v in vals[0::2]]
+        fars += [2.0 * v + 1 for v in vals[1::2]]
+    ids = list(range(1, len(nears) + 1))
+    return grid_from_segments(f, counts, nears, fars, ids, ids)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.lists(st.integers(0, 6), max_size=6), min_size=16, max_size=16))
+def test_random_multi_segment_models_are_closed(rays):
+    f = Frame.top(0, 0, 3, 3, 1.0)
+    g = _parity_grid(f, rays)
+    m = surface_mesh(g)
+    if len(m.faces) == 0:
+        assert g.volume() == 0.0
+        return
+    _closed(m, g)
+
+
+def test_wall_ids_name_the_latest_bounding_move():
+    f = Frame.top(0, 0, 1, 0, 1.0)  # two columns side by side
+    from sim.solids import grid_from_segments
+
+    g = grid_from_segments(f, [1, 1], [0.0, 0.0], [5.0, 3.0], [0, 0], [0, 12])
+    m = surface_mesh(g)
+    walls = np.abs(m.face_normals[:, 0]) > 0.99
+    centres = m.triangles_center[walls]
+    between = np.abs(centres[:, 0] - 0.5) < 1e-9  # the step wall between the columns
+    ids = m.face_attributes["move_id"][walls][between]
+    assert ids.tolist() == [12, 12]
+
+
+def test_mesh_normals_are_outward_even_with_flipped_triangles():
+    from sim.solids import mesh_grid
+
+    mesh = trimesh.creation.icosphere(subdivisions=2, radius=3)
+    faces = mesh.faces.copy()
+    faces[::3] = faces[::3, ::-1]  # break the winding of a third of the triangles
+    bad = trimesh.Trimesh(mesh.vertices, faces, process=False)
+    f = Frame.top(-4, -4, 4, 4, 0.25)
+    g, normals = mesh_grid(f, bad, return_normals=True)
+    assert g.volume() == pytest.approx(mesh_grid(f, mesh).volume())
+    assert np.all(normals.near_normal[:, 2] < 0) and np.all(normals.far_normal[:, 2] > 0)
