@@ -162,3 +162,22 @@ def test_mesh_normals_are_outward_even_with_flipped_triangles():
     g, normals = mesh_grid(f, bad, return_normals=True)
     assert g.volume() == pytest.approx(mesh_grid(f, mesh).volume())
     assert np.all(normals.near_normal[:, 2] < 0) and np.all(normals.far_normal[:, 2] > 0)
+
+
+def test_ball_imprints_and_tilted_slot_model_is_closed():
+    # a model like a finishing pass leaves: many spherical imprints at float heights
+    # (saddle corners everywhere) and a tilted slot making undercuts
+    from sim.solids import mesh_grid
+
+    rng = np.random.default_rng(3)
+    f = Frame.top(0, 0, 20, 20, 0.2)
+    g = box_grid(f, (0, 0, -5), (20, 20, 0))
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=3)
+    for k in range(25):
+        centre = rng.uniform([0, 0, -2], [20, 20, 1])
+        g = difference(g, mesh_grid(f, ball.copy().apply_translation(centre), face_id=k + 1))
+    g = difference(g, cylinder_grid(f, (-1, 3, -3.5), (1, 0.7, 0.05), 1.0, 30, face_id=99))
+    assert int((g.counts > 1).sum()) > 100
+    m = surface_mesh(g)
+    _closed(m, g)
+    assert len(np.unique(m.face_attributes["move_id"])) == 27  # stock, 25 balls, the slot
