@@ -4,7 +4,10 @@ Findings arrive as JSON-ready dicts (``Finding.to_json()`` plus ``lead_time_s``)
 look-ahead may see one problem more than once, with a slightly different worst point or
 line range as more of it enters the horizon, so a finding is *new* only if no finding of
 the same kind already alerted lies within ``radius`` mm of it, or within ``line_radius``
-mm while sharing a program line (:meth:`Alerter.is_new`).
+mm while sharing a program line (:meth:`Alerter.match`). A finding seen again is followed
+along (its points grow), so a gouge that goes on as the tool moves stays one finding. The
+look-ahead and the live checks feed the same alerter: a predicted finding that then really
+happens is one alert, its record updated to ``status = "happened"``.
 
 Feed hold is sent through the controller's ``feed_hold()`` and only when the job turned it
 on (``[alerts] actions = ["feed_hold"]`` or ``--feed-hold``): the monitor never moves the
@@ -24,6 +27,9 @@ import numpy as np
 HOLD_KINDS = frozenset({"gouge", "rapid_into_stock", "holder_contact", "shank_contact",
                         "above_flute_contact", "fixture_collision", "spindle_stopped_cutting",
                         "travel_limit", "non_center_cutting_plunge"})
+
+#: points remembered per alerted finding to follow it along (a long gouge)
+MAX_TRACK_POINTS = 4096
 
 
 def format_finding(f: dict) -> str:
@@ -71,31 +77,81 @@ class Alerter:
         self.line_radius = float(line_radius)
         self.findings: list[dict] = []  # every alerted finding, in order
         self.holds_sent = 0
-        self._by_kind: dict[str, list[tuple[frozenset, np.ndarray]]] = {}
+        # kind -> [[lines seen, points seen (m, 3), index in findings, move ids seen], ...]
+        self._by_kind: dict[str, list[list]] = {}
+
+    def match(self, f: dict) -> int | None:
+        """Index in :attr:`findings` of the alerted finding ``f`` repeats, or None when new.
+
+        Same kind and: made by the same move (a shared ``stages`` id), or within
+        ``radius`` mm of any point where that finding was seen, or within ``line_radius``
+        mm while sharing a program line. A finding that keeps being seen as the tool moves
+        (a long gouge) is followed along: every repeat adds its point, lines and moves.
+        """
+        lines = frozenset(f.get("lines") or ()) | {f.get("line", 0)}
+        stages = _stages(f)
+        pos = _pos(f)
+        known = bool(np.all(np.isfinite(pos)))
+        for seen_lines, seen_pos, idx, seen_stages in self._by_kind.get(f.get("kind", ""), ()):
+            if stages & seen_stages:
+                return idx
+            pts = seen_pos[np.all(np.isfinite(seen_pos), axis=1)] if known else seen_pos[:0]
+            dist = float(np.min(np.linalg.norm(pts - pos, axis=1))) if pts.shape[0] else 0.0
+            if dist <= self.radius or (seen_lines & lines and dist <= self.line_radius):
+                return idx
+        return None
 
     def is_new(self, f: dict) -> bool:
         """True when no alerted finding of the same kind shares a line with ``f`` within ``radius``."""
-        lines = frozenset(f.get("lines") or ()) | {f.get("line", 0)}
-        pos = _pos(f)
-        for seen_lines, seen_pos in self._by_kind.get(f.get("kind", ""), ()):
-            known = np.all(np.isfinite(pos)) and np.all(np.isfinite(seen_pos))
-            dist = float(np.linalg.norm(pos - seen_pos)) if known else 0.0
-            if dist <= self.radius or (seen_lines & lines and dist <= self.line_radius):
-                return False
-        return True
+        return self.match(f) is None
 
     def offer(self, findings, t: float | None = None) -> list[dict]:
-        """Alert the new ones among ``findings`` (dicts); return those alerted."""
+        """Alert the new ones among ``findings`` (dicts); return those alerted.
+
+        A repeat of an alerted finding is not alerted again. When the repeat comes from
+        the real motion (``predicted`` false) and the alerted finding was only predicted,
+        that finding's record becomes ``status = "happened"`` (with ``happened_t`` and
+        ``happened_position``), in memory and in the run file, and a ``finding_update``
+        JSON line says so -- still one alert.
+        """
         fresh = []
         for f in findings:
-            if not self.is_new(f):
+            idx = self.match(f)
+            if idx is not None:
+                self._follow(f, idx, t)
                 continue
             lines = frozenset(f.get("lines") or ()) | {f.get("line", 0)}
-            self._by_kind.setdefault(f.get("kind", ""), []).append((lines, _pos(f)))
+            idx = len(self.findings)
+            self._by_kind.setdefault(f.get("kind", ""), []).append([lines, _pos(f)[None, :], idx, _stages(f)])
             self.findings.append(f)
             fresh.append(f)
-            self._emit(f, len(self.findings), t)
+            self._emit(f, idx + 1, t)
         return fresh
+
+    def _follow(self, f: dict, idx: int, t) -> None:
+        """Grow the alerted finding ``idx`` by its repeat ``f``."""
+        for entry in self._by_kind.get(f.get("kind", ""), ()):
+            if entry[2] == idx:
+                if entry[1].shape[0] < MAX_TRACK_POINTS:
+                    entry[1] = np.concatenate([entry[1], _pos(f)[None, :]])
+                entry[0] = entry[0] | frozenset(f.get("lines") or ()) | {f.get("line", 0)}
+                entry[3] = entry[3] | _stages(f)
+                break
+        rec = self.findings[idx]
+        if f.get("predicted", True) or rec.get("status", "predicted") != "predicted":
+            return
+        rec["status"] = "happened"
+        if t is not None:
+            rec["happened_t"] = float(t)
+        rec["happened_position"] = list(f.get("position") or [])
+        rec["happened_line"] = f.get("line")
+        if self.run is not None:
+            self.run.update_finding(idx + 1, rec)
+        if self.json_stream is not None:
+            self.json_stream.write(json.dumps({"event": "finding_update", "id": idx + 1, "kind": rec.get("kind"),
+                                               "line": rec.get("line"), "status": "happened", "t": t},
+                                              default=_default) + "\n")
+            self.json_stream.flush()
 
     def _emit(self, f: dict, finding_id: int, t) -> None:
         text = format_finding(f)
@@ -129,6 +185,12 @@ class Alerter:
     def _record(self, channel: str, text: str, t, finding_id: int) -> None:
         if self.run is not None:
             self.run.append_alert(channel, text, t=t, finding_id=finding_id)
+
+
+def _stages(f: dict) -> frozenset:
+    """Move ids (``stages``, else ``stage``) of a finding; 0 (unknown) is left out."""
+    got = f.get("stages") or ([f["stage"]] if f.get("stage") else [])
+    return frozenset(int(x) for x in got if x)
 
 
 def _pos(f: dict) -> np.ndarray:

@@ -45,6 +45,10 @@ needs; paths are relative to the job file's folder)::
     mm = 100
     [alerts]
     actions = ["log", "bell"]   # "feed_hold" lets dexmon hold the feed on a finding
+    [machine]                   # for program timing (lead times); GRBL $110-112, $120-122, $11
+    max_rate = [5000, 5000, 2000]   # mm/min (one number: every axis)
+    acceleration = [300, 300, 200]  # mm/s^2
+    junction_deviation = 0.01       # mm
 
 Errors name the file, the key and what was expected:
 ``job.toml: [stock] box: expected 6 numbers (mm), got "abc"``.
@@ -62,6 +66,10 @@ from sim.errors import InputError
 from sim.tolerance import Tolerance
 
 ALERT_ACTIONS = ("log", "bell", "feed_hold")
+#: program timing when the job gives no [machine]: brisk enough that lead times err short
+#: (an early alert is safe, a late one is not)
+DEFAULT_MACHINE = {"max_rate": (5000.0, 5000.0, 5000.0), "acceleration": (500.0, 500.0, 500.0),
+                   "junction_deviation": 0.02}
 DIALECTS = ("linuxcnc", "grbl")
 AXES = ("x", "y", "z")
 
@@ -130,6 +138,9 @@ class Job:
     horizon_s: float = 5.0
     horizon_mm: float | None = None
     alerts: tuple[str, ...] = ("log",)
+    #: machine limits for program timing: {"max_rate": (3,), "acceleration": (3,),
+    #: "junction_deviation": mm}; None: :data:`DEFAULT_MACHINE`
+    machine: dict | None = None
 
     def tool(self, number: int) -> ToolDef | None:
         """The tool for tool number ``number`` (the default tool when it is not listed)."""
@@ -268,7 +279,7 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
     except tomllib.TOMLDecodeError as exc:
         raise JobError(f"not valid TOML ({exc})", name) from None
     known = {"controller", "program", "work_offset", "stock", "fixtures", "tools", "design",
-             "resolution", "tolerance", "limits", "lookahead", "alerts"}
+             "resolution", "tolerance", "limits", "lookahead", "alerts", "machine"}
     ctx.no_unknown(doc, known, "top level")
     job = Job(text=text)
 
@@ -357,6 +368,23 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
         if not isinstance(acts, list) or any(a not in ALERT_ACTIONS for a in acts):
             raise ctx.err("[alerts] actions", f"a list of {', '.join(ALERT_ACTIONS)}", acts)
         job.alerts = tuple(acts)
+
+    if "machine" in doc:
+        t = ctx.table(doc["machine"], "[machine]")
+        ctx.no_unknown(t, {"max_rate", "acceleration", "junction_deviation"}, "[machine]")
+        m = dict(DEFAULT_MACHINE)
+        for key, unit in (("max_rate", "mm/min"), ("acceleration", "mm/s^2")):
+            if key in t:
+                v = t[key]
+                if isinstance(v, (int, float)) and not isinstance(v, bool):
+                    v = [v, v, v]
+                vals = ctx.numbers(v, 3, f"[machine] {key}", f"{unit}, one or three")
+                if min(vals) <= 0:
+                    raise ctx.err(f"[machine] {key}", f"positive numbers ({unit})", t[key])
+                m[key] = vals
+        if "junction_deviation" in t:
+            m["junction_deviation"] = ctx.positive(t["junction_deviation"], "[machine] junction_deviation")
+        job.machine = m
     return job
 
 

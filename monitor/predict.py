@@ -1,17 +1,23 @@
-"""Look-ahead: cut the program ahead of the spindle on a scratch model and check it.
+"""Checks for the session, all through :class:`sim.checks.Checker` (one piece of check logic).
 
 Everything here is in the job's *work coordinates* (the coordinates the program, stock,
 fixtures and design are written in): the move table is turned into a work-coordinate
 table whose tip is ``end_work`` (:func:`work_moves`), and the dexel frame covers the stock
-and fixtures.
+and fixtures. Travel limits are machine coordinates of the controlled point; they are
+shifted into work coordinates by the work offset in force (:func:`limits_in_work`) and the
+findings shifted back (:func:`finding_to_machine`).
 
-:class:`Lookahead` keeps a scratch model, a copy of the live stock taken when the session
-anchors, onto which the program rows ahead are cut *once each*, as the horizon reaches
-them. Before a chunk of rows is cut, shank and holder are probed against it and every
-body against the fixtures; after, the removed volume per row gives rapids into stock and
-cutting with the spindle stopped, and the changed rays are assessed against the design
-(gouges). The live model is never touched. When the machine leaves the program (a jump),
-the session re-anchors the scratch model on the live one.
+Two thin adapters around ``Checker``:
+
+* :class:`Lookahead` keeps a *scratch* model, a copy of the live stock taken when the
+  session anchors, and a ``Checker`` on it; program rows ahead of the spindle are cut and
+  checked onto it *once each* (``Checker.cut_and_check``) as the horizon reaches them,
+  a bounded amount of work per state (:attr:`Lookahead.budget_rays`) so a horizon that
+  crosses many rows at once does not stall one poll. The live model is never touched.
+* :class:`LiveChecks` keeps a ``Checker`` on the *live* model: the path the tool really
+  travelled is turned into move rows (:func:`travel_rows`) and cut and checked with it,
+  so gouges, rapids into stock, shank/holder contact, fixtures, a stopped spindle and
+  limits are found on the real motion too.
 """
 
 from __future__ import annotations
@@ -26,12 +32,16 @@ from monitor.sync import ProgramPath
 from sim.checks.findings import Finding
 from sim.errors import InputError
 from sim.frame import Frame
-from sim.gcode.moves import MoveKind
+from sim.gcode.moves import MOVE_DTYPE, MoveKind, Plane
 from sim.grid import DexelGrid
 from sim.tolerance import Tolerance
 
 #: removed / touched volume below this is numerical noise, mm^3
 MIN_VOLUME = 1e-3
+#: look-ahead work allowed per state, in swept rays (about 2-3 ms on one core)
+BUDGET_RAYS = 60_000
+#: fixed cost of one look-ahead row, in swept-ray equivalents
+ROW_OVERHEAD_RAYS = 400
 
 
 def work_moves(moves: np.ndarray) -> np.ndarray:
@@ -147,7 +157,7 @@ class Workpiece:
 
     frame: Frame
     stock: DexelGrid
-    fixtures: DexelGrid | None
+    fixtures: list  # [sim.checks.collisions.Fixture], each on its own frame
     design: object | None  # sim.checks.error_map.DesignModel
     tools: dict
     default_tool: object
@@ -160,7 +170,7 @@ class Workpiece:
 
 def build_workpiece(job: Job, moves: np.ndarray) -> Workpiece:
     """Stock, fixtures and design of ``job`` as dexel models on a frame covering them all."""
-    from sim.boolean import union
+    from sim.checks.collisions import Fixture
     from sim.checks.error_map import DesignModel
 
     if job.stock is None:
@@ -180,10 +190,9 @@ def build_workpiece(job: Job, moves: np.ndarray) -> Workpiece:
     margin = reach + 2 * job.resolution
     frame = Frame.top(lo[0] - margin, lo[1] - margin, hi[0] + margin, hi[1] + margin, job.resolution)
     stock = _solid_grid(frame, job.stock, stock_mesh, job.tolerance)
-    fixtures = None
-    for f, fm in zip(job.fixtures, fixture_meshes):
-        g = _solid_grid(frame, f, fm, job.tolerance)
-        fixtures = g if fixtures is None else union(fixtures, g)
+    names = [f.name or f"fixture {k + 1}" for k, f in enumerate(job.fixtures)]
+    fixtures = [Fixture(name, _fixture_grid(f, fm, job.resolution, reach, job.tolerance))
+                for f, fm, name in zip(job.fixtures, fixture_meshes, names)]
     design = None
     if job.design is not None:
         if job.design.kind == "stl":
@@ -194,11 +203,97 @@ def build_workpiece(job: Job, moves: np.ndarray) -> Workpiece:
             blo, bhi = job.design.bounds()
             mesh = trimesh.creation.box(bounds=[blo, bhi])
             design = DesignModel(frame, mesh, name="design box")
-    return Workpiece(frame, stock, fixtures, design, tools, default, job.tolerance,
-                     [f.name or f"fixture {k + 1}" for k, f in enumerate(job.fixtures)])
+    return Workpiece(frame, stock, fixtures, design, tools, default, job.tolerance, names)
+
+
+def _fixture_grid(solid: Solid, mesh, spacing: float, reach: float, tol: Tolerance) -> DexelGrid:
+    """A fixture on its own top frame (its XY box grown by ``reach``): small, so probing a
+    move against it costs little wherever the stock frame is."""
+    lo, hi, _ = _bounds(solid, "[[fixtures]]") if mesh is None else (mesh.bounds[0], mesh.bounds[1], None)
+    m = reach + 2 * spacing
+    frame = Frame.top(lo[0] - m, lo[1] - m, hi[0] + m, hi[1] + m, spacing)
+    return _solid_grid(frame, solid, mesh, tol)
+
+
+# --- machine <-> work coordinates for travel limits --------------------------------------
+
+_AXES = "XYZABC"
+
+
+def limits_in_work(limits: dict | None, wco) -> dict | None:
+    """Travel limits of the controlled point (machine coords) as limits of the work tip.
+
+    ``limits``: {axis: (lo, hi)} mm/deg; ``wco`` (6,) the offset in force (G5x + G92 +
+    tool length): machine = work + wco, so each bound moves by ``-wco`` of its axis.
+    """
+    if not limits:
+        return None
+    w = np.zeros(6)
+    v = np.asarray(wco, np.float64).reshape(-1)[:6]
+    w[:v.size] = v
+    out = {}
+    for axis, (lo, hi) in limits.items():
+        k = _AXES.index(axis.upper())
+        out[axis.upper()] = (float(lo) - w[k], float(hi) - w[k])
+    return out
+
+
+def finding_to_machine(f: Finding, wco) -> Finding:
+    """A ``travel_limit`` finding from work-coordinate checks, told in machine coordinates
+    (position, limit and message); other kinds are returned unchanged."""
+    if f.kind != "travel_limit":
+        return f
+    from dataclasses import replace
+
+    w = np.zeros(6)
+    v = np.asarray(wco, np.float64).reshape(-1)[:6]
+    w[:v.size] = v
+    axis = str(f.detail.get("axis", "X")).upper()
+    k = _AXES.index(axis)
+    lim = float(f.detail.get("limit", math.nan)) + w[k]
+    group = str(f.detail.get("group", axis + "+"))
+    side = "min" if group.endswith("-") else "max"
+    pos = tuple(float(p + w[i]) for i, p in enumerate(f.position))
+    detail = dict(f.detail, limit=lim)
+    msg = f"travel limit: {axis}{side} {lim:g} exceeded by {f.depth:.3f} at line {f.line}"
+    return replace(f, position=pos, detail=detail, message=msg)
+
+
+def make_checker(wp: Workpiece, stock: DexelGrid, limits: dict | None, wco):
+    """A :class:`sim.checks.Checker` on ``stock`` with the workpiece's design, fixtures,
+    tools and tolerance, and the machine ``limits`` moved into work coordinates."""
+    from sim.checks.checker import Checker
+
+    return Checker(stock, wp.default_tool, design=wp.design, fixtures=wp.fixtures,
+                   limits=limits_in_work(limits, wco), tol=wp.tol, tools=wp.tools, min_volume=MIN_VOLUME)
+
+
+def _checked(checker, rows: np.ndarray, ids: np.ndarray, wco):
+    """``checker.cut_and_check`` with limit findings in machine coordinates; the checker's
+    own history is not kept (the session keeps what it alerted)."""
+    res, found = checker.cut_and_check(rows, move_ids=ids)
+    checker.findings.clear()
+    return res, [finding_to_machine(f, wco) for f in found]
 
 
 # --- the look-ahead -----------------------------------------------------------------------------
+
+def row_costs(moves: np.ndarray, reach: float, spacing: float) -> np.ndarray:
+    """Estimated work of cutting and checking each row, float64 (n,) in swept rays: the
+    row's XY box grown by ``reach`` mm over the ray area, plus a fixed cost."""
+    s = np.asarray(moves["start"][:, :2], np.float64)
+    e = np.asarray(moves["end"][:, :2], np.float64)
+    arc = np.isin(moves["kind"], (MoveKind.ARC_CW, MoveKind.ARC_CCW))
+    c = np.asarray(moves["center"][:, :2], np.float64)
+    # an arc's box: its centre +- radius (an upper bound)
+    r = np.where(arc, np.linalg.norm(s - c, axis=1), 0.0)
+    lo = np.where(arc[:, None], c - r[:, None], np.minimum(s, e)) - reach
+    hi = np.where(arc[:, None], c + r[:, None], np.maximum(s, e)) + reach
+    area = np.prod(np.maximum(hi - lo, 0.0), axis=1) / spacing**2
+    moving = np.isin(moves["kind"], (MoveKind.RAPID, MoveKind.FEED, MoveKind.ARC_CW, MoveKind.ARC_CCW,
+                                     MoveKind.PROBE))
+    return np.where(moving, area, 0.0) + ROW_OVERHEAD_RAYS
+
 
 class Lookahead:
     """Cut and check the program ahead of the spindle on a scratch copy of the live stock.
@@ -210,31 +305,43 @@ class Lookahead:
     path : ProgramPath of the same table (program time per row)
     horizon_s, horizon_mm : how far ahead to look (program seconds; and/or mm of path)
     limits : {axis: (lo, hi)} machine travel limits (optional), checked with ``wco``
+    budget_rays : work allowed per :meth:`advance` (swept rays, :func:`row_costs`); at
+        least one row is always done, so the scratch model keeps moving
     """
 
     def __init__(self, wp: Workpiece, moves: np.ndarray, path: ProgramPath, horizon_s: float = 5.0,
-                 horizon_mm: float | None = None, limits: dict | None = None):
-        from sim.checks.error_map import ErrorMap
-
+                 horizon_mm: float | None = None, limits: dict | None = None, budget_rays: float = BUDGET_RAYS):
         self.wp = wp
         self.moves = moves
         self.path = path
         self.horizon_s = float(horizon_s)
         self.horizon_mm = horizon_mm
         self.limits = {k.upper(): v for k, v in (limits or {}).items()}
-        self.move_lines = np.concatenate([[0], moves["line"]]).astype(np.int64)
-        self.model: DexelGrid | None = None
+        self.budget_rays = float(budget_rays)
+        reach = max([t.radius for t in wp.tools.values()] + [wp.default_tool.radius])
+        self.cost_cum = np.concatenate([[0.0], np.cumsum(row_costs(moves, reach, wp.frame.spacing))])
+        self.checker = None
         self.next_row = 0
-        self.errmap = ErrorMap(wp.frame) if wp.design is not None else None
         self.wco = np.zeros(6)
         self.rows_checked = 0
 
+    @property
+    def model(self) -> DexelGrid | None:
+        """The scratch model (the live stock at the anchor, cut by the rows predicted since)."""
+        return None if self.checker is None else self.checker.grid
+
     def anchor(self, live: DexelGrid, row: int, wco=None) -> None:
         """Restart the scratch model from the live one, predicting from ``row`` on."""
-        self.model = live.copy()
-        self.next_row = int(row)
         if wco is not None:
             self.wco = np.asarray(wco, np.float64)
+        self.checker = make_checker(self.wp, live.copy(), self.limits, self.wco)
+        self.next_row = int(row)
+
+    def set_wco(self, wco) -> None:
+        """The work offset changed: later rows are checked against limits moved with it."""
+        self.wco = np.asarray(wco, np.float64)
+        if self.checker is not None:
+            self.checker.limits = limits_in_work(self.limits, self.wco)
 
     def horizon_end(self, progress: float) -> float:
         """Program time up to which rows are predicted."""
@@ -243,85 +350,131 @@ class Lookahead:
             end = min(end, self.path.progress_at_length(self.path.length_at(progress) + self.horizon_mm))
         return end
 
-    def advance(self, progress: float) -> list[Finding]:
-        """Predict every row that starts before the horizon end; return their findings."""
-        if self.model is None:
+    def target_row(self, progress: float) -> int:
+        """One past the last row that starts before the horizon end."""
+        hi = int(np.searchsorted(self.path.row_t0, self.horizon_end(progress), side="left"))
+        return min(hi, len(self.moves))
+
+    def behind(self, progress: float) -> int:
+        """Rows inside the horizon not predicted yet (0 when caught up)."""
+        return max(self.target_row(progress) - self.next_row, 0)
+
+    def advance(self, progress: float, budget_rays: float | None = None) -> list[Finding]:
+        """Predict the next rows that start before the horizon end, as many as the budget
+        allows (at least one); return their findings."""
+        if self.checker is None:
             raise RuntimeError("Lookahead.anchor() first")
-        end = self.horizon_end(progress)
-        hi = int(np.searchsorted(self.path.row_t0, end, side="left"))
-        hi = min(max(hi, self.next_row), len(self.moves))
-        if hi <= self.next_row:
+        hi = self.target_row(progress)
+        lo = self.next_row
+        if hi <= lo:
             return []
-        lo, self.next_row = self.next_row, hi
+        budget = self.budget_rays if budget_rays is None else float(budget_rays)
+        cap = int(np.searchsorted(self.cost_cum, self.cost_cum[lo] + budget, side="right")) - 1
+        hi = min(hi, max(cap, lo + 1))
+        self.next_row = hi
         return self.check_rows(lo, hi)
 
     def check_rows(self, lo: int, hi: int) -> list[Finding]:
-        """Probe, cut and assess rows ``lo..hi-1`` on the scratch model."""
-        from sim.checks.motion import spindle_stopped_cutting, travel_limits
-        from sim.cut import Cutter
-
-        sub = self.moves[lo:hi]
-        ids = np.arange(lo + 1, hi + 1, dtype=np.int32)
+        """Cut and check rows ``lo..hi-1`` on the scratch model (``Checker.cut_and_check``)."""
         self.rows_checked += hi - lo
-        out: list[Finding] = []
-        motion = np.isin(sub["kind"], (MoveKind.RAPID, MoveKind.FEED, MoveKind.ARC_CW, MoveKind.ARC_CCW))
-        if not motion.any():
-            return out
-        wp = self.wp
-        for tnum in np.unique(sub["tool"]):
-            rows = np.nonzero((sub["tool"] == tnum) & motion)[0]
-            tool = wp.tool(int(tnum))
-            part = sub[rows]
-            probe = Cutter(self.model, tool, wp.tol)
-            for body, kind in ((tool.shank, "shank_contact"), (tool.holder, "holder_contact")):
-                if body is not None:
-                    out += _volume_findings(kind, probe.probe_moves(part, body=body), part, ids[rows],
-                                            f"{body.name} touches the stock")
-            if wp.fixtures is not None:
-                fx = Cutter(wp.fixtures, tool, wp.tol)
-                bodies = [("tool", tool)] + [(b.name, b) for b in (tool.shank, tool.holder) if b is not None]
-                for name, body in bodies:
-                    out += _volume_findings("fixture_collision", fx.probe_moves(part, body=body), part,
-                                            ids[rows], f"{name} enters a fixture", {"body": name})
-        cutter = Cutter(self.model, wp.default_tool, wp.tol, tools=wp.tools)
-        res = cutter.cut_moves(sub, move_ids=ids)
-        rapid = (sub["kind"] == MoveKind.RAPID) & (res.removed > MIN_VOLUME)
-        if rapid.any():
-            out += _volume_findings("rapid_into_stock", np.where(rapid, res.removed, 0.0), sub, ids,
-                                    "rapid (G0) through material")
-        out += spindle_stopped_cutting(sub, res.removed, ids, min_volume=MIN_VOLUME)
-        if self.errmap is not None and res.changed_rays.size:
-            rays = np.unique(res.changed_rays)
-            with np.errstate(invalid="ignore"):  # rays missing the design give inf * 0
-                self.errmap.update(self.model, wp.design, rays, wp.tol)
-            g = self.errmap.gouge[rays]
-            if np.any(np.nan_to_num(-g, nan=-1.0) > wp.tol.gouge):
-                out += self.errmap.findings(wp.tol, self.move_lines, rays=rays, undercut=False)
-        if self.limits:
-            out += travel_limits(machine_moves(sub, self.wco), self.limits, ids)
-        return out
+        ids = np.arange(lo + 1, hi + 1, dtype=np.int64)
+        _, found = _checked(self.checker, self.moves[lo:hi], ids, self.wco)
+        return found
 
 
-def _volume_findings(kind: str, volume: np.ndarray, rows: np.ndarray, ids: np.ndarray, what: str,
-                     detail: dict | None = None) -> list[Finding]:
-    """One finding per row whose volume exceeds :data:`MIN_VOLUME` (position: the row's end tip)."""
-    out = []
-    for k in np.nonzero(np.asarray(volume) > MIN_VOLUME)[0]:
-        tip = tuple(float(v) for v in rows["end"][k, :3])
-        line = int(rows["line"][k])
-        out.append(Finding(kind=kind, line=line, stage=int(ids[k]), position=tip,
-                           volume=float(volume[k]), message=f"{kind.replace('_', ' ')}: {what} at line {line}",
-                           detail=dict(detail or {})))
-    return out
+# --- the live checks ---------------------------------------------------------------------------
 
+class LiveChecks:
+    """Cut the path the tool really travelled into the live model and check it.
+
+    Parameters
+    ----------
+    wp : Workpiece (its ``stock`` is the live model, cut in place)
+    moves : MOVE_DTYPE (n,) the program in work coordinates (gives each travelled piece
+        its row's kind, line, tool and feed)
+    limits : machine travel limits {axis: (lo, hi)} (optional)
+    max_pieces : capacity of the reusable row buffer (more pieces are cut in batches)
+    """
+
+    def __init__(self, wp: Workpiece, moves: np.ndarray, limits: dict | None = None, wco=None,
+                 max_pieces: int = 64):
+        self.wp = wp
+        self.moves = moves
+        self.limits = {k.upper(): v for k, v in (limits or {}).items()}
+        self.wco = np.zeros(6) if wco is None else np.asarray(wco, np.float64)
+        self.checker = make_checker(wp, wp.stock, self.limits, self.wco)
+        self._buf = np.zeros(max_pieces, MOVE_DTYPE)
+        self._buf["plane"] = Plane.XY
+        self._ids = np.zeros(max_pieces, np.int64)
+
+    def set_wco(self, wco) -> None:
+        w = np.asarray(wco, np.float64)
+        if not np.array_equal(w, self.wco):
+            self.wco = w
+            self.checker.limits = limits_in_work(self.limits, w)
+
+    def cut(self, points: np.ndarray, rows: np.ndarray, spindle_rpm: float | None = None):
+        """Cut the polyline ``points`` (k+1, 3) mm (work tip), piece ``q`` belonging to
+        program row ``rows[q]`` (int, (k,)); return ``(removed mm^3, changed rays int64,
+        findings)``.
+
+        ``spindle_rpm``: the speed the controller reports (None: take the program's).
+        """
+        removed = 0.0
+        changed = []
+        found: list[Finding] = []
+        k = len(points) - 1
+        step = self._buf.size
+        for a in range(0, k, step):
+            b = min(a + step, k)
+            m = self._fill(points[a:b + 1], rows[a:b], spindle_rpm)
+            res, f = _checked(self.checker, m, self._ids[:b - a], self.wco)
+            removed += float(res.removed.sum())
+            if res.changed_rays.size:
+                changed.append(res.changed_rays)
+            found += f
+        rays = np.unique(np.concatenate(changed)) if len(changed) > 1 else (
+            changed[0] if changed else np.zeros(0, np.int64))
+        return removed, rays, found
+
+    def _fill(self, pts: np.ndarray, rows: np.ndarray, spindle_rpm) -> np.ndarray:
+        """The travelled pieces as move rows in the reusable buffer (a view, k rows)."""
+        k = len(rows)
+        m = self._buf[:k]
+        src = self.moves[rows]
+        m["line"] = src["line"]
+        m["kind"] = np.where(src["kind"] == MoveKind.RAPID, MoveKind.RAPID, MoveKind.FEED)
+        m["start"][:, :3] = pts[:-1]
+        m["end"][:, :3] = pts[1:]
+        m["start"][:, 3:] = src["start"][:, 3:]
+        m["end"][:, 3:] = src["end"][:, 3:]
+        m["start_work"] = m["start"]
+        m["end_work"] = m["end"]
+        m["feed"] = src["feed"]
+        m["tool"] = src["tool"]
+        m["tool_length"] = 0.0
+        if spindle_rpm is None:
+            m["spindle"] = src["spindle"]
+            m["spindle_dir"] = src["spindle_dir"]
+        else:
+            m["spindle"] = abs(float(spindle_rpm))
+            on = float(spindle_rpm) != 0.0
+            m["spindle_dir"] = np.where(on, np.where(src["spindle_dir"] != 0, src["spindle_dir"],
+                                                     1 if spindle_rpm > 0 else -1), 0)
+        self._ids[:k] = rows + 1
+        return m
+
+
+# --- findings as JSON records ---------------------------------------------------------------
 
 def lead_time(finding: Finding, path: ProgramPath, progress: float, feed_override: float = 100.0) -> float:
     """Predicted seconds until the spindle reaches the finding's move (0 if already there).
 
-    Program time from the current progress to the start of the offending row, scaled by
-    the feed override (a 200 % override halves it).
+    Program time from the current progress to the start of the first offending row, scaled
+    by the feed override (a 200 % override halves it).
     """
-    row = int(finding.stage) - 1
+    stages = finding.stages or (finding.stage,)
+    row = int(min(stages)) - 1
     if row < 0 or row >= path.row_t0.size:
         return 0.0
     scale = 100.0 / feed_override if feed_override and feed_override > 0 else 1.0
@@ -329,10 +482,13 @@ def lead_time(finding: Finding, path: ProgramPath, progress: float, feed_overrid
 
 
 def finding_record(f: Finding, lead: float, t: float | None = None, predicted: bool = True) -> dict:
-    """The JSON object of one finding: ``Finding.to_json()`` + ``lead_time_s`` (+ ``t``)."""
+    """The JSON object of one finding: ``Finding.to_json()`` + ``lead_time_s``, ``predicted``
+    and ``status`` (``"predicted"`` ahead of the spindle, ``"happened"`` on the real motion)
+    (+ ``t``)."""
     d = f.to_json()
     d["lead_time_s"] = round(float(lead), 3) if math.isfinite(lead) else None
     d["predicted"] = bool(predicted)
+    d["status"] = "predicted" if predicted else "happened"
     if t is not None:
         d["t"] = float(t)
     return d

@@ -212,6 +212,13 @@ class RunWriter:
                   (t, str(finding.get("kind", "")), _int_or_none(finding.get("line")),
                    _float_or_none(finding.get("lead_time_s")), json.dumps(finding, default=_json_default)))
 
+    def update_finding(self, finding_id: int, finding: dict) -> None:
+        """Replace the JSON of finding ``finding_id`` (1-based, in append order), e.g. when a
+        predicted finding really happened."""
+        self._put("UPDATE findings SET lead_time_s = ?, json = ? WHERE id = ?",
+                  (_float_or_none(finding.get("lead_time_s")), json.dumps(finding, default=_json_default),
+                   int(finding_id)))
+
     def append_alert(self, channel: str, text: str, t: float | None = None, finding_id: int | None = None) -> None:
         self._put("INSERT INTO alerts(t, finding_id, channel, text) VALUES (?, ?, ?, ?)",
                   (t, finding_id, channel, text))

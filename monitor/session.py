@@ -1,9 +1,14 @@
 """The live session: one step per ``MachineState``.
 
 For every state: find the machine in the program (:mod:`monitor.sync`), cut the path the
-tool actually travelled since the last state into the live stock, look ahead over the
-horizon on a scratch model (:mod:`monitor.predict`), alert new findings with their lead
-time (:mod:`monitor.alerts`) and append to the run file (:mod:`monitor.runfile`).
+tool actually travelled since the last state into the live stock *and check it*, look
+ahead over the horizon on a scratch model, both through :class:`sim.checks.Checker`
+(:mod:`monitor.predict`), alert new findings with their lead time (:mod:`monitor.alerts`;
+a predicted finding that then happens is one alert, updated to "happened") and append to
+the run file (:mod:`monitor.runfile`).
+
+Program time (and so lead times) comes from ``Program.cycle_time`` (GRBL-like planner)
+with the job's ``[machine]`` limits, falling back to length / feed only if it fails.
 
 Positions: the live tip in work coordinates is ``mpos - wco`` when the job reads the work
 offset from the controller (GRBL's WCO includes the tool length offset), otherwise
@@ -19,12 +24,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drivers.state import MachineState, RunState
-from monitor.job import Job
-from monitor.predict import (Lookahead, Workpiece, build_workpiece, finding_record, lead_time,
+from monitor.job import DEFAULT_MACHINE, Job
+from monitor.alerts import Alerter
+from monitor.predict import (LiveChecks, Lookahead, Workpiece, build_workpiece, finding_record, lead_time,
                              work_moves)
 from monitor.sync import ProgramPath, ProgramSync, SyncResult, row_seconds
-from sim.checks.findings import Finding
-from sim.gcode.moves import MoveKind
 
 #: progress jumps larger than this (program s) re-anchor the look-ahead on the live model
 JUMP_S = 2.0
@@ -56,6 +60,20 @@ def load_moves(job: Job) -> np.ndarray:
     return np.asarray(program.moves), program
 
 
+def program_seconds(program, moves: np.ndarray, machine=None) -> np.ndarray:
+    """Per-row program seconds, float64 (n,): ``program.cycle_time(machine)`` (GRBL-like
+    trapezoids and junction deviation) when it works, else length / feed."""
+    if program is not None:
+        try:
+            got = program.cycle_time(machine)
+            secs = np.asarray(got[1] if isinstance(got, tuple) else got, np.float64)
+            if secs.shape == (len(moves),) and np.all(np.isfinite(secs)):
+                return secs
+        except Exception:  # an interpreter without timing, or a table it cannot plan
+            pass
+    return row_seconds(work_moves(moves))
+
+
 class Session:
     """Follows a machine through a program; call :meth:`step` with every state.
 
@@ -63,9 +81,10 @@ class Session:
     ----------
     job : Job
     moves : MOVE_DTYPE (n,) the program's move table (as the interpreter made it)
-    seconds : float64 (n,) program time per row (default: length / feed estimate)
+    seconds : float64 (n,) program time per row (default: :func:`program_seconds` of
+        ``program`` with the job's machine limits)
     run : monitor.runfile.RunWriter or None
-    alerter : monitor.alerts.Alerter or None
+    alerter : monitor.alerts.Alerter or None (None: a silent one, still alerting once)
     program_text : recorded in the run file
     assume_done_before_start : when the run starts mid-program, cut the rows before the
         start into the live model (they ran before the monitor was started)
@@ -73,28 +92,28 @@ class Session:
 
     def __init__(self, job: Job, moves: np.ndarray, seconds: np.ndarray | None = None, run=None,
                  alerter=None, program_text: str = "", assume_done_before_start: bool = True,
-                 workpiece: Workpiece | None = None):
+                 workpiece: Workpiece | None = None, program=None):
         self.job = job
         self.moves_machine = moves
         self.moves = work_moves(moves)
-        secs = row_seconds(self.moves) if seconds is None else np.asarray(seconds, np.float64)
+        secs = (program_seconds(program, moves, job.machine or DEFAULT_MACHINE) if seconds is None
+                else np.asarray(seconds, np.float64))
         self.path = ProgramPath.from_moves(self.moves, secs)
         self.sync = ProgramSync(self.path)
         self.wp = workpiece or build_workpiece(job, moves)
         self.live = self.wp.stock
         self.lookahead = Lookahead(self.wp, self.moves, self.path, job.horizon_s, job.horizon_mm, job.limits)
+        self.live_checks = LiveChecks(self.wp, self.moves, job.limits)
         self.run = run
-        self.alerter = alerter
+        self.alerter = alerter if alerter is not None else Alerter()
         self.assume_done = assume_done_before_start
         self.findings: list[dict] = []   # every alerted finding
         self.stage = 0                   # live stages cut (one per step that moved)
         self.last: MachineState | None = None
         self.last_sync: SyncResult | None = None
         self._prev_tip: np.ndarray | None = None
-        self._cutters: dict[int, object] = {}
         self._trace = None
         self._trace_from = 0
-        self._reported: set[tuple[str, int]] = set()  # (kind, move id) already reported
         if run is not None:
             run.put_meta("job", job.text)
             run.put_meta("program", program_text)
@@ -139,13 +158,16 @@ class Session:
         if s.how != "line" and self.job.work_offset is not None:
             tip = self.tip(state, s.row)
         info = StepInfo(s)
+        wco = self._wco(state, s.row)
         if prev is None:
             self._start(s, state)
         elif s.how in ("search", "line") and abs(s.progress - prev.progress) > JUMP_S:
-            self.lookahead.anchor(self.live, s.row, self._wco(state, s.row))
-        info.removed = self._cut_live(tip, s, state)
-        fresh = self._predict(s, state)
-        fresh += self._live_findings(info.removed, s, state, tip)
+            self.lookahead.anchor(self.live, s.row, wco)
+        elif not np.array_equal(wco, self.lookahead.wco):
+            self.lookahead.set_wco(wco)
+        self.live_checks.set_wco(wco)
+        fresh, info.removed = self._cut_live(tip, s, state)
+        fresh += self._predict(s, state)
         if fresh:
             info.new_findings = self._alert(fresh, state)
         self.last, self.last_sync = state, s
@@ -154,6 +176,8 @@ class Session:
 
     def _start(self, s: SyncResult, state: MachineState) -> None:
         if self.assume_done and s.row > 0:
+            # rows that ran before the monitor started: cut, not checked (their findings
+            # are history the monitor did not see)
             from sim.cut import Cutter
 
             done = self.moves[:s.row]
@@ -161,85 +185,56 @@ class Session:
                 done, move_ids=np.arange(1, s.row + 1), record_changes=False)
         self.lookahead.anchor(self.live, s.row, self._wco(state, s.row))
 
-    def _cutter(self, tool_number: int):
-        c = self._cutters.get(tool_number)
-        if c is None:
-            from sim.cut import Cutter
-
-            c = self._cutters[tool_number] = Cutter(self.live, self.wp.tool(tool_number), self.wp.tol)
-        return c
-
-    def _cut_live(self, tip: np.ndarray, s: SyncResult, state: MachineState) -> float:
+    def _cut_live(self, tip: np.ndarray, s: SyncResult, state: MachineState) -> tuple[list[dict], float]:
+        """Cut and check the path travelled since the last state; (finding records, mm^3)."""
         prev, self._prev_tip = self._prev_tip, tip
         if prev is None or not np.all(np.isfinite(tip)) or np.linalg.norm(tip - prev) < self.wp.tol.length:
-            return 0.0
+            return [], 0.0
         self.stage += 1
-        tool = int(self.moves["tool"][s.row]) if len(self.moves) else 0
-        pts = self._travelled(prev, tip, s)
-        cutter = self._cutter(tool)
-        removed = 0.0
-        for a, b in zip(pts[:-1], pts[1:]):
-            removed += cutter.cut_segment(a, b, s.row + 1)
+        pts, rows = self._travelled(prev, tip, s)
+        removed, rays, found = self.live_checks.cut(pts, rows, _spindle_rpm(state))
         if self.run is not None:
             self.run.append_cut(self.stage, {"points": pts}, t=state.t, move_id=s.row + 1, line=s.line)
-            if removed > 0:
-                self._record_trace(self._rays_near(pts, cutter.tool.radius))
-        return removed
+            if removed > 0 and rays.size:
+                self._record_trace(rays)
+        return [finding_record(f, 0.0, state.t, predicted=False) for f in found], removed
 
-    def _rays_near(self, pts: np.ndarray, radius: float) -> np.ndarray:
-        """Flat indices (int64) of the rays within ``radius`` of the points' XY bounding box."""
-        f = self.live.frame
-        lo = np.floor((pts[:, :2].min(axis=0) - radius - f.origin[:2]) / f.spacing).astype(int) - 1
-        hi = np.ceil((pts[:, :2].max(axis=0) + radius - f.origin[:2]) / f.spacing).astype(int) + 2
-        i0, j0 = max(lo[0], 0), max(lo[1], 0)
-        i1, j1 = min(hi[0], f.nu), min(hi[1], f.nv)
-        if i1 <= i0 or j1 <= j0:
-            return np.zeros(0, np.int64)
-        return (np.arange(j0, j1)[:, None] * f.nu + np.arange(i0, i1)[None, :]).reshape(-1).astype(np.int64)
+    def _travelled(self, prev: np.ndarray, tip: np.ndarray, s: SyncResult) -> tuple[np.ndarray, np.ndarray]:
+        """The path from the last tip to this one: points (k+1, 3) mm and the program row of
+        each piece (k,) int64.
 
-    def _travelled(self, prev: np.ndarray, tip: np.ndarray, s: SyncResult) -> np.ndarray:
-        """Points (k, 3) of the path from the last tip to this one: through the program's
-        corners passed in between when both ends sit on the program (between two polls the
-        machine followed the program, not the chord), else the straight chord."""
+        When both ends sit on the program, between two polls the machine followed the
+        program, not the chord: the program's corners passed in between are inserted,
+        moved by the live deviation from the program (interpolated between the two ends,
+        so a machine running with a shifted work offset is followed where it really is).
+        Otherwise the straight chord, on the current row.
+        """
         last = self.last_sync
         if (last is None or s.how not in ("track", "line") or last.how == "lost"
                 or s.distance > self.sync.lost or s.progress <= last.progress):
-            return np.stack([prev, tip])
+            return np.stack([prev, tip]), np.array([s.row], np.int64)
         path = self.path
         k0, k1 = path.segment_at(last.progress), path.segment_at(s.progress)
-        corners = path.p1[k0:k1]
-        keep = (path.t1[k0:k1] > last.progress) & (path.t1[k0:k1] < s.progress)
-        return np.concatenate([prev[None], corners[keep], tip[None]])
+        t1 = path.t1[k0:k1]
+        keep = np.nonzero((t1 > last.progress) & (t1 < s.progress))[0]
+        if keep.size == 0:
+            return np.stack([prev, tip]), np.array([path.row[k1]], np.int64)
+        d0 = prev - path.point_at(last.progress)
+        d1 = tip - path.point_at(s.progress)
+        f = (t1[keep] - last.progress) / (s.progress - last.progress)
+        corners = path.p1[k0 + keep] + d0 + f[:, None] * (d1 - d0)
+        rows = np.concatenate([path.row[k0 + keep], [path.row[k1]]]).astype(np.int64)
+        return np.concatenate([prev[None], corners, tip[None]]), rows
 
     def _predict(self, s: SyncResult, state: MachineState) -> list[dict]:
         found = self.lookahead.advance(s.progress)
         ovr = state.overrides[0] if state.overrides else 100
         return [finding_record(f, lead_time(f, self.path, s.progress, ovr), state.t) for f in found]
 
-    def _live_findings(self, removed: float, s: SyncResult, state: MachineState, tip) -> list[dict]:
-        """What the real motion did that the program did not announce (lead time 0)."""
-        out = []
-        if removed <= 1e-3 or s.row >= len(self.moves):
-            return out
-        pos = tuple(float(v) for v in tip)
-        if int(self.moves["kind"][s.row]) == MoveKind.RAPID:
-            out.append(Finding("rapid_into_stock", line=s.line, stage=s.row + 1, position=pos, volume=removed,
-                               message=f"rapid through material at line {s.line}"))
-        if state.spindle == 0 and state.state == RunState.RUN:
-            out.append(Finding("spindle_stopped_cutting", line=s.line, stage=s.row + 1, position=pos,
-                               volume=removed))
-        return [finding_record(f, 0.0, state.t, predicted=False) for f in out]
-
     def _alert(self, records: list[dict], state: MachineState) -> list[dict]:
-        # the real motion re-doing what the look-ahead already reported is not news
-        records = [r for r in records if r["predicted"] or
-                   not any((r["kind"], st) in self._reported for st in r.get("stages") or [r.get("stage")])]
-        for r in records:
-            self._reported.update((r["kind"], st) for st in (r.get("stages") or [r.get("stage")]))
-        if self.alerter is not None:
-            fresh = self.alerter.offer(records, t=state.t)
-        else:
-            fresh = records
+        """Offer findings to the alerter (each alerted once; a predicted one that then
+        happens on the live model is updated, not alerted again)."""
+        fresh = self.alerter.offer(records, t=state.t)
         self.findings += fresh
         return fresh
 
@@ -281,6 +276,16 @@ class Session:
             self.run.put_meta("summary", summary)
             self.run.flush()
         return summary
+
+
+def _spindle_rpm(state: MachineState) -> float | None:
+    """The spindle speed the controller reports; None (take the program's) when it reports
+    0 but its accessory flags say the spindle turns."""
+    if state.spindle:
+        return float(state.spindle)
+    if "S" in (state.accessories or "") or "C" in (state.accessories or ""):
+        return None
+    return 0.0
 
 
 def _versions() -> dict:

@@ -34,24 +34,6 @@ def add_arguments(parser) -> None:
     add_common_arguments(parser)
 
 
-def program_seconds(program, moves):
-    """Per-row program seconds: the interpreter's cycle time when it has one, else length/feed."""
-    from monitor.sync import row_seconds
-    from monitor.predict import work_moves
-
-    try:
-        got = program.cycle_time()
-        secs = got[1] if isinstance(got, tuple) else got
-        import numpy as np
-
-        secs = np.asarray(secs, np.float64)
-        if secs.shape == (len(moves),) and np.all(np.isfinite(secs)):
-            return secs
-    except Exception:  # an interpreter without timing: fall back to the estimate
-        pass
-    return row_seconds(work_moves(moves))
-
-
 def run_session(args, job: Job, controller, done=None, default_run_dir: str | Path = "runs") -> int:
     """Open the run file, connect, follow ``controller`` to the end; return the exit status."""
     from rich.console import Console
@@ -62,7 +44,6 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
     from monitor.status import StatusLine
 
     moves, program = load_moves(job)
-    seconds = program_seconds(program, moves)
     run_path = Path(args.run) if getattr(args, "run", None) else default_run_path(default_run_dir)
     quiet, as_json = bool(getattr(args, "quiet", False)), bool(getattr(args, "json", False))
     console = None if quiet or as_json else Console(highlight=False)
@@ -78,7 +59,7 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
                           bell=("bell" in job.alerts) and console is not None,
                           feed_hold=controller.feed_hold if job.feed_hold else None, run=writer)
         program_text = job.program.read_text(errors="replace") if job.program else ""
-        session = Session(job, moves, seconds, run=writer, alerter=alerter, program_text=program_text)
+        session = Session(job, moves, run=writer, alerter=alerter, program_text=program_text, program=program)
         status = StatusLine(console, enabled=console is not None)
         controller.connect()
         try:
