@@ -234,66 +234,85 @@ def run_simple(it, fl: FastLines, start: int, stop: int, snapshot) -> bool:
         return False
     if it.motion not in (0, 10) and np.isnan(fl.values[start, 0]):
         return False
-    vals = fl.values[start:stop]
     off = np.array(it.offsets(), dtype=np.float64)
-    end, motion, moved = _positions(vals, np.array(it.pos, dtype=np.float64), off, it.factor,
-                                    it.motion if it.motion in (0, 10) else -1)
-    fcol = vals[:, 4]
-    has_f = ~np.isnan(fcol)
-    if (fcol[has_f] < 0).any():
-        return False
-    # feed word in force on each line (forward fill)
-    last = np.where(has_f, np.arange(len(vals)), -1)
-    np.maximum.accumulate(last, out=last)
-    feed_word = np.where(last >= 0, fcol[np.maximum(last, 0)], it.feed_word)
-    feed_set = (last >= 0) | it.feed_set
-    feed = feed_word * it.factor
-    is_feed = moved & (motion == 10)
-    if (is_feed & ((feed <= 0) | (~feed_set if it.grbl else False))).any():
-        return False
-    rows_idx = np.flatnonzero(moved)
-    n = len(rows_idx)
-    it._seal()
-    prev_end = np.empty((n, 6))
-    if n:
-        prev_end[0] = it.pos
-        prev_end[1:] = end[rows_idx[:-1]]
-    line_no = np.arange(start + 1, stop + 1, dtype=np.int32)
     meta = it.meta()
-    for c0 in range(0, n, CHUNK):
-        sl = slice(c0, min(n, c0 + CHUNK))
-        ri = rows_idx[sl]
-        rows = np.zeros(len(ri), dtype=MOVE_DTYPE)
-        rows["file"] = meta[0]
-        rows["line"] = line_no[ri]
-        rows["kind"] = np.where(motion[ri] == 0, MoveKind.RAPID, MoveKind.FEED)
-        rows["start"] = prev_end[sl]
-        rows["end"] = end[ri]
-        rows["start_work"] = prev_end[sl] - off
-        rows["end_work"] = end[ri] - off
-        rows["center"] = np.nan
-        rows["plane"] = meta[7]
-        rows["feed"] = np.where(motion[ri] == 0, 0.0, feed[ri])
-        rows["spindle"] = meta[2]
-        rows["spindle_dir"] = meta[3]
-        rows["tool"] = meta[4]
-        rows["tool_length"] = meta[5]
-        rows["coolant"] = meta[6]
-        it._chunks.append(rows)
-        it._chunk_lines.append(line_no[ri].astype(np.int64))
-    # modal snapshots where motion mode or feed changes inside the run
-    prev_motion = np.concatenate(([it.motion], motion[:-1]))
-    prev_feed = np.concatenate(([it.feed_word], feed_word[:-1]))
-    change = np.flatnonzero((motion != prev_motion) | (feed_word != prev_feed))
-    for k in change:
-        it.motion = int(motion[k])
-        it.feed_word = float(feed_word[k])
-        it.main_line = it.line = int(start + k + 1)
+    it._seal()
+    pos = np.array(it.pos, dtype=np.float64)
+    mo = it.motion if it.motion in (0, 10) else -1
+    fw = it.feed_word
+    fset = it.feed_set
+    fcol_all = fl.values[start:stop, 4]
+    if (fcol_all[~np.isnan(fcol_all)] < 0).any():
+        return False
+    n0 = it._n
+    # rows of this run, exactly: the table grows once instead of by steps
+    it.reserve(int(np.count_nonzero(~np.isnan(fl.values[start:stop, 1:4]).all(axis=1))))
+    changes = []  # (line index, motion, feed word) where the modal state changes
+    prev_m, prev_f = it.motion, it.feed_word
+    for a in range(start, stop, CHUNK):
+        b = min(stop, a + CHUNK)
+        vals = fl.values[a:b]
+        end, motion, moved = _positions(vals, pos, off, it.factor, mo)
+        fcol = vals[:, 4]
+        has_f = ~np.isnan(fcol)
+        last = np.where(has_f, np.arange(len(vals)), -1)
+        np.maximum.accumulate(last, out=last)
+        feed_word = np.where(last >= 0, fcol[np.maximum(last, 0)], fw)
+        feed_set = (last >= 0) | fset
+        feed = feed_word * it.factor
+        is_feed = moved & (motion == 10)
+        if (is_feed & ((feed <= 0) | (~feed_set if it.grbl else False))).any():
+            it._n = n0  # refuse the whole run: the per-line path reports the error
+            return False
+        ri = np.flatnonzero(moved)
+        n = len(ri)
+        if n:
+            ends = end[ri]
+            i = it.reserve(n)
+            rows = it._table[i:i + n]
+            starts = np.empty((n, 6))
+            starts[0] = pos
+            starts[1:] = ends[:-1]
+            line_no = (a + 1 + ri).astype(np.int32)
+            rows["file"] = meta[0]
+            rows["line"] = line_no
+            rows["kind"] = np.where(motion[ri] == 0, MoveKind.RAPID, MoveKind.FEED)
+            rows["start"] = starts
+            rows["end"] = ends
+            rows["start_work"] = starts - off
+            rows["end_work"] = ends - off
+            rows["center"] = np.nan
+            rows["plane"] = meta[7]
+            rows["turns"] = 0
+            rows["feed"] = np.where(motion[ri] == 0, 0.0, feed[ri])
+            rows["inverse_time"] = 0.0
+            rows["spindle"] = meta[2]
+            rows["spindle_dir"] = meta[3]
+            rows["tool"] = meta[4]
+            rows["tool_length"] = meta[5]
+            rows["coolant"] = meta[6]
+            rows["dwell"] = 0.0
+            it._table_lines[i:i + n] = line_no
+            it._n += n
+            del rows
+        prev_motion = np.concatenate(([prev_m], motion[:-1]))
+        prev_feed = np.concatenate(([prev_f], feed_word[:-1]))
+        for k in np.flatnonzero((motion != prev_motion) | (feed_word != prev_feed)):
+            changes.append((a + int(k) + 1, int(motion[k]), float(feed_word[k])))
+        pos = end[-1].copy()
+        mo = int(motion[-1])
+        fw = float(feed_word[-1])
+        fset = bool(feed_set[-1])
+        prev_m, prev_f = mo, fw
+    for line, m, f in changes:
+        it.motion = m
+        it.feed_word = f
+        it.main_line = it.line = line
         snapshot()
-    it.pos = [float(v) for v in end[-1]]
-    it.motion = int(motion[-1])
-    it.feed_word = float(feed_word[-1])
-    it.feed_set = bool(feed_set[-1])
+    it.pos = [float(v) for v in pos]
+    it.motion = mo
+    it.feed_word = fw
+    it.feed_set = fset
     it.line = it.main_line = stop
     snapshot()
     return True

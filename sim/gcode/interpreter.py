@@ -251,8 +251,10 @@ class Interpreter:
         self.messages: list[tuple[int, str]] = []
         self._rows: list[tuple] = []
         self._row_line: list[int] = []   # main-file line that caused each row
-        self._chunks: list[np.ndarray] = []       # sealed MOVE_DTYPE blocks, in order
-        self._chunk_lines: list[np.ndarray] = []  # their main-file lines
+        # sealed rows live in one table grown in place (ndarray.resize: no second copy)
+        self._table = np.zeros(0, dtype=MOVE_DTYPE)
+        self._table_lines = np.zeros(0, dtype=np.int64)
+        self._n = 0
         self.main_line = 0
         self.params = _Params(self)
         self.comp_engine = None
@@ -337,30 +339,36 @@ class Interpreter:
         if self.comp_engine is not None:
             self.comp_engine = None
 
+    def reserve(self, extra: int) -> int:
+        """Make room for ``extra`` more sealed rows; return the index of the first one."""
+        need = self._n + extra
+        if need > len(self._table):
+            cap = max(need, int(len(self._table) * 1.25), 1024)
+            self._table.resize(cap, refcheck=False)
+            self._table_lines.resize(cap, refcheck=False)
+        return self._n
+
     def _seal(self) -> None:
-        """Move the pending row tuples into a sealed array chunk."""
+        """Move the pending row tuples into the table."""
         if self._rows:
-            self._chunks.append(np.array(self._rows, dtype=MOVE_DTYPE))
-            self._chunk_lines.append(np.asarray(self._row_line, dtype=np.int64))
+            k = len(self._rows)
+            i = self.reserve(k)
+            self._table[i:i + k] = np.array(self._rows, dtype=MOVE_DTYPE)
+            self._table_lines[i:i + k] = self._row_line
+            self._n += k
             self._rows.clear()
             self._row_line.clear()
 
     def assemble(self) -> tuple[np.ndarray, np.ndarray]:
-        """All rows so far as one MOVE_DTYPE array (and their main-file lines); frees the chunks."""
+        """All rows so far as one MOVE_DTYPE array (and their main-file lines)."""
         self._seal()
-        chunks, lines = self._chunks, self._chunk_lines
-        total = sum(len(c) for c in chunks)
-        out = np.empty(total, dtype=MOVE_DTYPE)
-        out_lines = np.empty(total, dtype=np.int64)
-        k = 0
-        while chunks:
-            c = chunks.pop(0)
-            cl = lines.pop(0)
-            out[k:k + len(c)] = c
-            out_lines[k:k + len(c)] = cl
-            k += len(c)
-            del c
-        return out, out_lines
+        table, lines = self._table, self._table_lines
+        table.resize(self._n, refcheck=False)
+        lines.resize(self._n, refcheck=False)
+        self._table = np.zeros(0, dtype=MOVE_DTYPE)
+        self._table_lines = np.zeros(0, dtype=np.int64)
+        self._n = 0
+        return table, lines
 
     def take_rows(self) -> np.ndarray:
         """The rows produced since the last call, as a MOVE_DTYPE array; clears the buffer."""

@@ -515,6 +515,7 @@ def load_program(path, dialect: str = "linuxcnc", tool_table=None, var_file=None
     except OSError as exc:
         raise GCodeError(f"cannot read program: {exc.strerror or exc}", str(path), 0) from None
     text = data.decode("utf-8", errors="replace")
+    del data  # the text is all that is needed from here on
     return interpret(text, filename=str(path), dialect=dialect, tool_table=tool_table, var_file=var_file,
                      machine_units=machine_units, keep_going=keep_going, subroutine_path=subroutine_path,
                      **kwargs)
