@@ -207,10 +207,15 @@ def check_closed(mesh, name: str = "mesh") -> None:
     """Raise :class:`InputError` unless every edge of ``mesh`` joins exactly two triangles."""
     import trimesh
 
+    if mesh.is_watertight:
+        return
+    # a triangle soup (vertices not shared) can still be closed: judge it merged
+    mesh = mesh.copy()
+    mesh.merge_vertices()
+    if mesh.is_watertight:
+        return
     edges = mesh.edges_sorted
     open_edges = trimesh.grouping.group_rows(edges, require_count=1)
-    if len(open_edges) == 0 and mesh.is_watertight:
-        return
     _, counts = np.unique(edges, axis=0, return_counts=True)
     over = int((counts > 2).sum())
     problems = []

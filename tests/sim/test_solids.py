@@ -201,6 +201,15 @@ def test_open_mesh_is_one_clear_error(tmp_path):
     assert str(path) in msg and "open edges" in msg and "\n" not in msg
 
 
+def test_triangle_soup_that_closes_is_accepted():
+    mesh = trimesh.creation.icosphere(subdivisions=2, radius=2)
+    soup = trimesh.Trimesh(mesh.triangles.reshape(-1, 3), np.arange(len(mesh.faces) * 3).reshape(-1, 3),
+                           process=False)
+    assert not soup.is_watertight
+    f = Frame.top(-3, -3, 3, 3, 0.2)
+    assert mesh_grid(f, soup).volume() == pytest.approx(mesh_grid(f, mesh).volume())
+
+
 def test_missing_and_garbage_mesh_files(tmp_path):
     f = Frame.top(0, 0, 1, 1, 0.5)
     with pytest.raises(InputError, match="not found"):
