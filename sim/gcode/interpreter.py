@@ -334,8 +334,9 @@ class Interpreter:
         self.spindle_dir = 0
         self.coolant = 0
         self.path_mode = 610
-        self.g92 = [0.0] * 6
-        self.g92_enabled = False
+        if not self.grbl:  # GRBL 1.1 keeps G92 offsets through program end
+            self.g92 = [0.0] * 6
+            self.g92_enabled = False
         if self.comp_engine is not None:
             self.comp_engine = None
 
@@ -389,6 +390,7 @@ class Interpreter:
         self.main_line = line_no
         self._rows.clear()
         self._row_line.clear()
+        saved = self._checkpoint()
         try:
             if self.grbl and text.lstrip().startswith("%"):
                 raise LineError("'%' is not a G-code command", 1, grbl_code=1)
@@ -399,11 +401,25 @@ class Interpreter:
             self.execute_block(block, line_no, file_index)
         except LineError as exc:
             self._rows.clear()
+            self._restore(saved)
             raise self.error(exc, text, line_no) from None
         except (ArithmeticError, ValueError, OverflowError) as exc:
             self._rows.clear()
+            self._restore(saved)
             raise self.error(LineError(f"cannot compute this line: {exc}"), text, line_no) from None
         return self.take_rows()
+
+    _NOT_SAVED = ("_rows", "_row_line", "_table", "_table_lines", "params", "messages", "files", "comp_engine")
+
+    def _checkpoint(self) -> dict:
+        """The state a refused streamed line must not change (a controller refuses the whole line)."""
+        import copy
+
+        state = {k: v for k, v in self.__dict__.items() if k not in self._NOT_SAVED}
+        return copy.deepcopy(state)
+
+    def _restore(self, saved: dict) -> None:
+        self.__dict__.update(saved)
 
     def error(self, exc: LineError, text: str, line_no: int, file_index: int | None = None) -> GCodeError:
         fi = self.file_index if file_index is None else file_index

@@ -61,8 +61,13 @@ def test_grbl_stream_produces_rows_and_keeps_state():
     with pytest.raises(GCodeError) as info:
         it.execute_line("G2 I5")
     assert info.value.grbl_code == 36
-    # a refused line leaves the position alone
+    # a refused line leaves the position and modes alone
     np.testing.assert_allclose(it.state.position[:3], [20, 0, 0])
+    with pytest.raises(GCodeError) as info:
+        it.execute_line("G0 G91 X1 I3")
+    assert info.value.grbl_code == 36
+    np.testing.assert_allclose(it.state.position[:3], [20, 0, 0])
+    assert it.state.distance == 900 and it.state.motion == 20
 
 
 def test_grbl_m2_resets_modes_but_keeps_running():
@@ -72,6 +77,9 @@ def test_grbl_m2_resets_modes_but_keeps_running():
     assert rows["kind"].tolist() == [MoveKind.END]
     assert it.state.distance == 900 and it.state.spindle_dir == 0
     assert len(it.execute_line("G1 X5")) == 1
+    it.execute_line("G92 X0")
+    it.execute_line("M2")
+    np.testing.assert_allclose(it.state.g92_offset[0], 5)  # GRBL keeps G92 through M2
 
 
 def test_linuxcnc_streaming_execute_line():
