@@ -207,54 +207,194 @@ def point_triangle_dist2(px, py, pz, tri, t):
     return dx * dx + dy * dy + dz * dz
 
 
+@nb.njit(cache=True, inline="always")
+def _outside_edge(ax, ay, bx, by, sign, x0, y0, x1, y1, margin):
+    # all four corners of the rectangle strictly on the outer side of edge a->b (the
+    # triangle's interior has edge function sign ``sign``), by more than ``margin``
+    e0 = _edge(ax, ay, bx, by, x0, y0) * sign
+    e1 = _edge(ax, ay, bx, by, x1, y0) * sign
+    e2 = _edge(ax, ay, bx, by, x0, y1) * sign
+    e3 = _edge(ax, ay, bx, by, x1, y1) * sign
+    return max(e0, e1, e2, e3) < -margin
+
+
 @nb.njit(cache=True)
-def bin_triangles(tri, reach, bin_size, nbu, nbv, count_only, counts, ptr, items):
-    """Put every triangle in the (u, v) bins its bounding box, grown by ``reach`` mm,
-    overlaps (Huang & Oliver's voxel lookup, flattened along the rays). Two passes like
-    :func:`ray_hits`."""
+def bin_triangles(tri, bin_size, nbu, nbv, count_only, counts, ptr, items):
+    """Put every triangle in the (u, v) bins its projection along the rays overlaps.
+
+    Bins are squares of ``bin_size`` mm from (0, 0); the outer rows and columns reach to
+    infinity, so triangles beyond the frame land in the edge bins. A bin gets a triangle
+    only when the projected triangle really meets it (separating-axis test), so a large
+    triangle lying across the frame fills the bins along it, not its whole bounding box.
+    Two passes like :func:`ray_hits`: ``count_only`` fills ``counts``, otherwise
+    ``items[ptr[k] + cursor]`` (``counts`` reset to zero is the cursor).
+    """
+    big = 1e30
     for t in range(tri.shape[0]):
-        umin = min(tri[t, 0, 0], tri[t, 1, 0], tri[t, 2, 0]) - reach
-        umax = max(tri[t, 0, 0], tri[t, 1, 0], tri[t, 2, 0]) + reach
-        vmin = min(tri[t, 0, 1], tri[t, 1, 1], tri[t, 2, 1]) - reach
-        vmax = max(tri[t, 0, 1], tri[t, 1, 1], tri[t, 2, 1]) + reach
-        b0 = max(int(np.floor(umin / bin_size)), 0)
-        b1 = min(int(np.floor(umax / bin_size)), nbu - 1)
-        c0 = max(int(np.floor(vmin / bin_size)), 0)
-        c1 = min(int(np.floor(vmax / bin_size)), nbv - 1)
+        ax = tri[t, 0, 0]
+        ay = tri[t, 0, 1]
+        bx = tri[t, 1, 0]
+        by = tri[t, 1, 1]
+        cx = tri[t, 2, 0]
+        cy = tri[t, 2, 1]
+        umin = min(ax, bx, cx)
+        umax = max(ax, bx, cx)
+        vmin = min(ay, by, cy)
+        vmax = max(ay, by, cy)
+        b0 = min(max(int(np.floor(umin / bin_size)), 0), nbu - 1)
+        b1 = min(max(int(np.floor(umax / bin_size)), 0), nbu - 1)
+        c0 = min(max(int(np.floor(vmin / bin_size)), 0), nbv - 1)
+        c1 = min(max(int(np.floor(vmax / bin_size)), 0), nbv - 1)
+        area = _edge(ax, ay, bx, by, cx, cy)
+        ext = max(umax - umin, vmax - vmin, bin_size)
+        # edge-on triangles (walls along the rays) project to a segment: keep their box
+        flat = abs(area) <= 1e-12 * ext * ext
+        sign = 1.0 if area > 0.0 else -1.0
+        margin = 1e-9 * ext * bin_size
         for c in range(c0, c1 + 1):
+            y0 = -big if c == 0 else c * bin_size
+            y1 = big if c == nbv - 1 else (c + 1) * bin_size
             for b in range(b0, b1 + 1):
+                if not flat and (b1 > b0 or c1 > c0):
+                    x0 = -big if b == 0 else b * bin_size
+                    x1 = big if b == nbu - 1 else (b + 1) * bin_size
+                    if (_outside_edge(ax, ay, bx, by, sign, x0, y0, x1, y1, margin)
+                            or _outside_edge(bx, by, cx, cy, sign, x0, y0, x1, y1, margin)
+                            or _outside_edge(cx, cy, ax, ay, sign, x0, y0, x1, y1, margin)):
+                        continue
                 k = c * nbu + b
                 if not count_only:
                     items[ptr[k] + counts[k]] = t
                 counts[k] += 1
 
 
-@nb.njit(cache=True, parallel=True)
-def near_distances(pts, radius, tri, tri_lo, tri_hi, bin_size, nbu, nbv, bptr, bitems, out):
+@nb.njit(cache=True, inline="always")
+def _nearest(px, py, pz, best2, seed, tri, tri_lo, tri_hi, bin_size, nbu, nbv, bptr, bitems):
+    """Smallest squared distance from the point to the mesh if below ``best2``, else
+    ``best2``; with a flag saying whether any triangle came that close. ``seed`` (a
+    triangle known to be near, -1 for none) is tried first so the search radius shrinks
+    before the bins are scanned."""
+    found = False
+    if seed >= 0:
+        d2 = point_triangle_dist2(px, py, pz, tri, seed)
+        if d2 <= best2:
+            best2 = d2
+            found = True
+    r = np.sqrt(best2)
+    b0 = min(max(int(np.floor((px - r) / bin_size)), 0), nbu - 1)
+    b1 = min(max(int(np.floor((px + r) / bin_size)), 0), nbu - 1)
+    c0 = min(max(int(np.floor((py - r) / bin_size)), 0), nbv - 1)
+    c1 = min(max(int(np.floor((py + r) / bin_size)), 0), nbv - 1)
+    for c in range(c0, c1 + 1):
+        for b in range(b0, b1 + 1):
+            k = c * nbu + b
+            for m in range(bptr[k], bptr[k + 1]):
+                t = bitems[m]
+                # distance to the triangle's box first: most candidates end here
+                dx = max(tri_lo[t, 0] - px, 0.0, px - tri_hi[t, 0])
+                dy = max(tri_lo[t, 1] - py, 0.0, py - tri_hi[t, 1])
+                dz = max(tri_lo[t, 2] - pz, 0.0, pz - tri_hi[t, 2])
+                if dx * dx + dy * dy + dz * dz > best2:
+                    continue
+                d2 = point_triangle_dist2(px, py, pz, tri, t)
+                if d2 <= best2:
+                    best2 = d2
+                    found = True
+    return best2, found
+
+
+@nb.njit(cache=True)
+def near_distances(pts, radius, seed, tri, tri_lo, tri_hi, bin_size, nbu, nbv, bptr, bitems, out):
     """Exact distance from each point (n, 3) local coords to the mesh, searched within
-    ``radius[q]`` mm; ``out[q]`` = the distance, or inf when no triangle is that close."""
-    for q in nb.prange(pts.shape[0]):
-        px = pts[q, 0]
-        py = pts[q, 1]
-        pz = pts[q, 2]
-        best2 = radius[q] * radius[q]
-        found = False
-        b = int(np.floor(px / bin_size))
-        c = int(np.floor(py / bin_size))
-        if b < 0 or c < 0 or b >= nbu or c >= nbv:
-            out[q] = np.inf
-            continue
-        k = c * nbu + b
-        for m in range(bptr[k], bptr[k + 1]):
-            t = bitems[m]
-            # distance to the triangle's box first: most candidates end here
-            dx = max(tri_lo[t, 0] - px, 0.0, px - tri_hi[t, 0])
-            dy = max(tri_lo[t, 1] - py, 0.0, py - tri_hi[t, 1])
-            dz = max(tri_lo[t, 2] - pz, 0.0, pz - tri_hi[t, 2])
-            if dx * dx + dy * dy + dz * dz > best2:
-                continue
-            d2 = point_triangle_dist2(px, py, pz, tri, t)
-            if d2 <= best2:
-                best2 = d2
-                found = True
+    ``radius[q]`` mm; ``out[q]`` = the distance, or inf when no triangle is that close.
+    ``seed[q]``: a triangle to try first (-1: none). Bins from :func:`bin_triangles`."""
+    for q in range(pts.shape[0]):
+        best2, found = _nearest(pts[q, 0], pts[q, 1], pts[q, 2], radius[q] * radius[q], seed[q],
+                                tri, tri_lo, tri_hi, bin_size, nbu, nbv, bptr, bitems)
         out[q] = np.sqrt(best2) if found else np.inf
+
+
+@nb.njit(cache=True)
+def point_errors(rays, s_pts, nu, spacing, ptr, hit_s, hit_tri, tri_dz, sheet, limit_in, limit_out,
+                 search, tri, tri_lo, tri_hi, bin_size, nbu, nbv, bptr, bitems, out_err, out_dv):
+    """Signed error (mm) of each dexel point (ray ``rays[q]``, parameter ``s_pts[q]``).
+
+    Huang's estimate first: the distance ``dv`` along the ray to the nearest crossing
+    times ``|n . d|`` of its triangle. The exact near-point distance replaces it only when
+    ``dv`` exceeds the limit of the point's side (``limit_in`` inside the design,
+    ``limit_out`` outside): the crossing is a surface point, so the true distance is at
+    most ``dv`` and a point with ``dv`` within the limit is within it for certain. The
+    exact search looks within ``min(dv, search)`` starting from the crossing's triangle;
+    when nothing is that close the point keeps ``dv``. Negative inside (gouge), positive
+    outside; ``+inf`` on rays that miss the design. ``out_dv`` gets ``dv``.
+    """
+    for q in range(rays.size):
+        r = rays[q]
+        s = s_pts[q]
+        a = ptr[r]
+        b = ptr[r + 1]
+        best = np.inf
+        bt = -1
+        above = 0
+        for k in range(a, b):
+            d = abs(hit_s[k] - s)
+            if d < best:
+                best = d
+                bt = hit_tri[k]
+            if hit_s[k] > s:
+                above += 1
+        out_dv[q] = best
+        if bt < 0:
+            out_err[q] = np.inf
+            continue
+        inside = (above > 0) if sheet else ((above % 2) == 1)
+        limit = limit_in if inside else limit_out
+        err = best * tri_dz[bt]
+        if best > limit:
+            rad = min(best, search)
+            px = (r % nu) * spacing
+            py = (r // nu) * spacing
+            best2, found = _nearest(px, py, s, rad * rad, bt, tri, tri_lo, tri_hi, bin_size, nbu, nbv,
+                                    bptr, bitems)
+            err = np.sqrt(best2) if found else best
+        out_err[q] = -err if inside else err
+
+
+@nb.njit(cache=True)
+def worst_per_ray(pr, is_far, err, pid, ps, dv, gouge, gouge_id, gouge_s, gouge_len,
+                  excess, excess_id, excess_s, excess_len):
+    """Per ray, the most negative and the most positive error of its points.
+
+    Points come grouped by ray ``pr``; within a ray the near faces are looked at before
+    the far faces and the first of equal errors wins. ``gouge = min(err, 0)`` and
+    ``excess = max(err, 0)`` with the id and ``s`` of that point; ``*_len`` is its ``dv``
+    when the error has that sign, else 0.
+    """
+    n = pr.size
+    a = 0
+    while a < n:
+        r = pr[a]
+        b = a + 1
+        while b < n and pr[b] == r:
+            b += 1
+        lo_k = -1
+        hi_k = -1
+        for far in range(2):
+            for k in range(a, b):
+                if is_far[k] != far:
+                    continue
+                if lo_k < 0 or err[k] < err[lo_k]:
+                    lo_k = k
+                if hi_k < 0 or err[k] > err[hi_k]:
+                    hi_k = k
+        e = err[lo_k]
+        gouge[r] = min(e, 0.0)
+        gouge_id[r] = pid[lo_k]
+        gouge_s[r] = ps[lo_k]
+        gouge_len[r] = dv[lo_k] if e < 0.0 else 0.0
+        e = err[hi_k]
+        excess[r] = max(e, 0.0)
+        excess_id[r] = pid[hi_k]
+        excess_s[r] = ps[hi_k]
+        excess_len[r] = dv[hi_k] if e > 0.0 else 0.0
+        a = b

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.checks import design_kernels as K
+from sim.checks.arrays import distinct
 from sim.checks.findings import Finding
 from sim.errors import InputError
 from sim.frame import Frame
@@ -98,7 +99,7 @@ class DesignModel:
         self.tri_lo = self.tri.min(axis=1)
         self.tri_hi = self.tri.max(axis=1)
         self._cast()
-        self._bins_reach = None
+        self._bin_cache = None
 
     # --- ray casting --------------------------------------------------------------
     def _cast(self):
@@ -155,72 +156,72 @@ class DesignModel:
         return dv, nz, ins, tri
 
     # --- exact near-point distance ----------------------------------------------------
-    def _binned(self, reach: float):
-        if self._bins_reach is not None and self._bins_reach >= reach:
+    def _binned(self):
+        """Triangles binned in the frame plane (built once): ``(bin_size, nbu, nbv, ptr,
+        items)``. Bin size after Huang & Oliver eq. 6, ``B_max / sqrt(N)`` (N triangles,
+        B_max the larger frame extent), but at least one ray spacing."""
+        if self._bin_cache is not None:
             return self._bin_cache
         f = self.frame
         ext_u = (f.nu - 1) * f.spacing
         ext_v = (f.nv - 1) * f.spacing
-        # bins about the size of a typical triangle: fewer bins than that only repeats
-        # big triangles in many lists, more makes every list long
-        typical = float(np.median((self.tri_hi - self.tri_lo)[:, :2].max(axis=1)))
-        bin_size = max(reach, f.spacing, typical, max(ext_u, ext_v) / 1024.0, 1e-3)
+        n_tri = max(self.tri.shape[0], 1)
+        bin_size = max(max(ext_u, ext_v) / math.sqrt(n_tri), f.spacing, max(ext_u, ext_v) / 2048.0, 1e-3)
         nbu = int(ext_u // bin_size) + 1
         nbv = int(ext_v // bin_size) + 1
         counts = np.zeros(nbu * nbv, np.int64)
-        K.bin_triangles(self.tri, reach, bin_size, nbu, nbv, True, counts, counts, np.zeros(0, np.int32))
+        K.bin_triangles(self.tri, bin_size, nbu, nbv, True, counts, counts, np.zeros(0, np.int32))
         ptr = np.zeros(nbu * nbv + 1, np.int64)
         np.cumsum(counts, out=ptr[1:])
         items = np.empty(ptr[-1], np.int32)
         counts[:] = 0
-        K.bin_triangles(self.tri, reach, bin_size, nbu, nbv, False, counts, ptr, items)
+        K.bin_triangles(self.tri, bin_size, nbu, nbv, False, counts, ptr, items)
         self._bin_cache = (bin_size, nbu, nbv, ptr, items)
-        self._bins_reach = reach
         return self._bin_cache
 
-    def distance(self, local_pts: np.ndarray, radius) -> np.ndarray:
+    def distance(self, local_pts: np.ndarray, radius, seed=None) -> np.ndarray:
         """Exact distance (n,) mm from points in frame-local (u, v, s) coords (n, 3) to the
-        design surface, searched within ``radius`` mm (scalar or (n,)); inf beyond it."""
+        design surface, searched within ``radius`` mm (scalar or (n,)); inf beyond it.
+        ``seed``: int (n,) a triangle likely to be nearest, tried first (-1 for none)."""
         pts = np.ascontiguousarray(local_pts, np.float64).reshape(-1, 3)
-        radius = np.broadcast_to(np.asarray(radius, np.float64), (pts.shape[0],)).copy()
-        reach = float(radius.max()) if radius.size else 0.0
-        bin_size, nbu, nbv, bptr, bitems = self._binned(max(reach, 1e-6))
-        out = np.empty(pts.shape[0])
-        K.near_distances(pts, radius, self.tri, self.tri_lo, self.tri_hi, bin_size, nbu, nbv,
+        n = pts.shape[0]
+        radius = np.broadcast_to(np.asarray(radius, np.float64), (n,)).copy()
+        seed = (np.full(n, -1, np.int32) if seed is None
+                else np.ascontiguousarray(np.broadcast_to(seed, (n,)), np.int32))
+        bin_size, nbu, nbv, bptr, bitems = self._binned()
+        out = np.empty(n)
+        K.near_distances(pts, radius, seed, self.tri, self.tri_lo, self.tri_hi, bin_size, nbu, nbv,
                          bptr, bitems, out)
         return out
 
     # --- the error ------------------------------------------------------------------
-    def errors(self, rays, s, tol: Tolerance = DEFAULT, refine_fraction: float = 0.5,
-               search: float | None = None):
+    def errors(self, rays, s, tol: Tolerance = DEFAULT, refine_fraction: float = 1.0,
+               search: float | None = None, with_dv: bool = False):
         """Signed error of dexel points ``(rays[q], s[q])``: float64 (n,) mm.
 
-        Positive = material left (undercut), negative = gouge. Points with
-        ``dv > refine_fraction * min(t_l, t_h)`` get the exact near-point distance,
-        searched within ``search`` mm (default 1.5 x the range of interest); points
-        farther than that keep ``dv`` (they are outside the range of interest anyway).
-        Points on rays that miss the design get ``+inf`` (outside: material where the
-        part has none).
+        Positive = material left (undercut), negative = gouge. Huang's estimate ``dv
+        |n . d|`` is replaced by the exact near-point distance where the verdict depends
+        on it: points inside the design whose ``dv`` (distance along the ray to the
+        surface, never less than the true distance) exceeds ``refine_fraction * t_l``,
+        and points outside it whose ``dv`` exceeds ``refine_fraction * t_h``. The exact
+        distance is searched within ``search`` mm (default 1.5 x the range of interest);
+        points with nothing that close keep ``dv``. Points on rays that miss the design
+        get ``+inf`` (outside: material where the part has none).
+
+        ``with_dv``: also return ``dv`` (float64 (n,) mm; inf where the ray misses).
         """
-        rays = np.asarray(rays, np.int64)
-        s = np.asarray(s, np.float64)
-        dv, nz, ins, tri = self.vertical(rays, s)
-        finite = np.isfinite(dv)
-        err = np.where(finite, np.where(finite, dv, 0.0) * nz, np.inf)
+        rays = np.ascontiguousarray(rays, np.int64)
+        s = np.ascontiguousarray(s, np.float64)
         search = 1.5 * tol.interest if search is None else float(search)
-        refine = dv > refine_fraction * min(tol.gouge, tol.undercut)
-        refine &= finite
-        if refine.any():
-            q = np.nonzero(refine)[0]
-            f = self.frame
-            r = rays[q]
-            local = np.stack([(r % f.nu) * f.spacing, (r // f.nu) * f.spacing, s[q]], axis=1)
-            d = self.distance(local, np.minimum(dv[q], search))
-            exact = np.where(np.isfinite(d), d, dv[q])
-            err[q] = exact
-        err = np.where(ins, -err, err)
-        err[~np.isfinite(dv)] = np.inf
-        return err
+        bin_size, nbu, nbv, bptr, bitems = self._binned()
+        err = np.empty(rays.size)
+        dv = np.empty(rays.size)
+        f = self.frame
+        K.point_errors(rays, s, f.nu, f.spacing, self.ptr, self.hit_s, self.hit_tri, self.tri_dz,
+                       not self.closed, refine_fraction * tol.gouge, refine_fraction * tol.undercut,
+                       search, self.tri, self.tri_lo, self.tri_hi, bin_size, nbu, nbv, bptr, bitems,
+                       err, dv)
+        return (err, dv) if with_dv else err
 
 
 # --- colours ------------------------------------------------------------------------
@@ -297,42 +298,28 @@ class ErrorMap:
 
         ``design_rays``: a function mapping ``grid`` ray indices to the design's (when
         ``grid`` is a window of the design's frame, as in look-ahead)."""
-        rays = np.unique(np.asarray(rays, np.int64))
+        rays = distinct(np.asarray(rays, np.int64))
         self.gouge[rays] = np.nan
         self.excess[rays] = np.nan
         if rays.size == 0:
             return rays
         near, far, nid, fid, counts = grid.segments_of(rays)
-        seg_ray = np.repeat(rays, counts)
-        pr = np.concatenate([seg_ray, seg_ray])
-        ps = np.concatenate([near, far]).astype(np.float64)
-        pid = np.concatenate([nid, fid])
+        # points grouped by ray: near and far face of each segment side by side
+        pr = np.repeat(np.repeat(rays, counts), 2)
+        ps = np.stack([near, far], axis=1).reshape(-1).astype(np.float64)
+        pid = np.stack([nid, fid], axis=1).reshape(-1)
+        is_far = np.zeros(pr.size, np.uint8)
+        is_far[1::2] = 1
         if faces == "cut":
             keep = pid != 0
-            pr, ps, pid = pr[keep], ps[keep], pid[keep]
+            pr, ps, pid, is_far = pr[keep], ps[keep], pid[keep], is_far[keep]
         if pr.size == 0:
             return pr
         dr = pr if design_rays is None else design_rays(pr)
-        err = design.errors(dr, ps, tol)
-        dv, _, _, _ = design.vertical(dr, ps)
-        # worst (most negative) per ray: sort by ray then error, take the first of each ray
-        o = np.lexsort((err, pr))
-        first = np.ones(o.size, bool)
-        first[1:] = pr[o][1:] != pr[o][:-1]
-        sel = o[first]
-        self.gouge[pr[sel]] = np.minimum(err[sel], 0.0)
-        self.gouge_id[pr[sel]] = pid[sel]
-        self.gouge_s[pr[sel]] = ps[sel]
-        self.gouge_len[pr[sel]] = np.where(err[sel] < 0, dv[sel], 0.0)
-        o = np.lexsort((-err, pr))
-        first = np.ones(o.size, bool)
-        first[1:] = pr[o][1:] != pr[o][:-1]
-        sel = o[first]
-        self.excess[pr[sel]] = np.maximum(err[sel], 0.0)
-        self.excess_id[pr[sel]] = pid[sel]
-        self.excess_s[pr[sel]] = ps[sel]
-        self.excess_len[pr[sel]] = np.where(err[sel] > 0, dv[sel], 0.0)
-        return np.unique(pr)
+        err, dv = design.errors(dr, ps, tol, with_dv=True)
+        K.worst_per_ray(pr, is_far, err, pid, ps, dv, self.gouge, self.gouge_id, self.gouge_s, self.gouge_len,
+                        self.excess, self.excess_id, self.excess_s, self.excess_len)
+        return rays[~np.isnan(self.gouge[rays])]
 
     def findings(self, tol: Tolerance, move_lines=None, rays=None, undercut: bool = True,
                  min_rays: int = 1) -> list[Finding]:
@@ -378,13 +365,13 @@ class ErrorMap:
                 w = members[int(np.argmax(m))]
                 i, j = w % f.nu, w // f.nu
                 pos = f.to_world(np.array([i * f.spacing, j * f.spacing, ss[w]]))
-                mids = np.unique(ids[members])
+                mids = distinct(ids[members])
                 lines = ()
                 line = 0
                 if move_lines is not None:
                     ml = np.asarray(move_lines)
                     ok = (mids >= 0) & (mids < ml.size)
-                    lines = tuple(int(x) for x in np.unique(ml[mids[ok]]) if x > 0)
+                    lines = tuple(int(x) for x in distinct(ml[mids[ok]]) if x > 0)
                     if 0 <= ids[w] < ml.size:
                         line = int(ml[ids[w]])
                 depth = float(mag[w])
