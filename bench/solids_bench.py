@@ -87,7 +87,7 @@ def main(argv=None):
     cut = difference(difference(stock, tool), bar)
     secs, m = _best(lambda: surface_mesh(cut), 1)
     _emit("surface_mesh cut box", secs, f.n_rays, faces=len(m.faces),
-          multi_segment_rays=int((cut.counts > 1).sum()), watertight=bool(m.is_watertight))
+          multi_segment_rays=int((cut.counts > 1).sum()))
     secs, m = _best(lambda: heightfield_mesh(cut), 1)
     _emit("heightfield_mesh cut box", secs, f.n_rays, faces=len(m.faces))
 
