@@ -1,0 +1,202 @@
+"""Live checks on the real motion and the one-alert rule, all through sim.checks.Checker.
+
+* a machine whose work offset is 0.5 mm lower in Z than the job says gouges the design on
+  every facing pass: the program looks clean ahead, the gouge is found on the live model
+  (with its line, lead time 0, status "happened");
+* a predicted finding that then really happens is alerted once and its record (memory,
+  JSON lines, run file) is updated to "happened";
+* the look-ahead work per state is bounded and gives the same findings as one big batch;
+* travel limits are checked in work coordinates and told in machine coordinates.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+import json
+
+import numpy as np
+import pytest
+
+from drivers.state import MachineState, RunState
+from monitor.alerts import Alerter
+from monitor.commands.dry_run import EXAMPLE_JOB, virtual_controller
+from monitor.job import load_job
+from monitor.predict import (LiveChecks, Lookahead, build_workpiece, finding_to_machine, limits_in_work,
+                             work_moves)
+from monitor.runfile import RunReader, RunWriter
+from monitor.session import Session, load_moves, run_controller
+from monitor.sync import ProgramPath
+from sim.checks.findings import Finding
+from sim.gcode.moves import MoveKind, empty_moves
+
+GOUGE_LINE, RAPID_LINE = 22, 36
+DESIGN_TOP = -5.0  # the example's design is the box 5..55 x 5..35 x -20..-5
+
+
+@pytest.fixture(scope="module")
+def example():
+    job = load_job(EXAMPLE_JOB)
+    moves, program = load_moves(job)
+    return job, moves, program
+
+
+def _shift_z(moves, dz):
+    out = moves.copy()
+    for col in ("start", "end"):
+        out[col][:, 2] += dz
+    out["center"][:, 2] += dz
+    return out
+
+
+def test_gouge_found_on_the_live_model_when_the_machine_deviates(example):
+    job, moves, program = example
+    # the job says work zero is machine zero; the machine really has it 0.5 mm lower
+    job = dataclasses.replace(job, work_offset=(0.0, 0.0, 0.0))
+    vc = virtual_controller(_shift_z(moves, -0.5), speed=1.0, rate=50, clock="sim")
+    s = Session(job, moves, program=program)
+    vc.connect()
+    run_controller(s, vc, 0.0, done=lambda: vc.done)
+    vc.close()
+    live = [f for f in s.findings if f["kind"] == "gouge" and not f["predicted"]]
+    assert live, s.findings
+    first = live[0]
+    assert first["status"] == "happened" and first["lead_time_s"] == 0.0
+    # the first pass over the design (line 13: G1 X-8 at Y6), found where the tool was
+    assert 13 <= first["line"] < GOUGE_LINE, first
+    assert first["depth"] == pytest.approx(0.5, abs=0.06)
+    assert first["position"][2] == pytest.approx(DESIGN_TOP - 0.5, abs=0.06)
+    assert 5.0 - 1e-6 <= first["position"][0] <= 55.0 + 1e-6
+    # the live model really is 0.5 mm below the design top inside the faced area
+    f = s.live.frame
+    i, j = int(round((40 - f.origin[0]) / f.spacing)), int(round((20 - f.origin[1]) / f.spacing))
+    assert s.live.top()[j, i] == pytest.approx(DESIGN_TOP - 0.5, abs=1e-6)
+    # the long gouge along the passes is followed, not re-alerted every few mm
+    assert len(live) <= 3, [(f["line"], f["position"]) for f in live]
+    # the program itself is clean there: nothing predicted before the planted gouge
+    predicted = [f for f in s.findings if f["predicted"]]
+    assert all(f["line"] >= GOUGE_LINE for f in predicted), predicted
+
+
+def test_predicted_then_happened_is_one_alert(example, tmp_path):
+    job, moves, program = example
+    vc = virtual_controller(moves, speed=1.0, rate=50, clock="sim")
+    out = io.StringIO()
+    with RunWriter(tmp_path / "r.sqlite") as w:
+        s = Session(job, moves, run=w, alerter=Alerter(json_stream=out, run=w), program=program)
+        vc.connect()
+        run_controller(s, vc, 0.0, done=lambda: vc.done)
+        vc.close()
+        s.finish()
+    events = [json.loads(x) for x in out.getvalue().splitlines()]
+    alerted = [e for e in events if e["event"] == "finding"]
+    keys = [(e["kind"], e["line"]) for e in alerted]
+    assert sorted(keys) == [("gouge", GOUGE_LINE), ("rapid_into_stock", RAPID_LINE)], keys
+    assert all(e["predicted"] and e["lead_time_s"] > 0 and e["status"] == "predicted" for e in alerted)
+    updates = [e for e in events if e["event"] == "finding_update"]
+    assert sorted((u["kind"], u["status"]) for u in updates) == [("gouge", "happened"),
+                                                                 ("rapid_into_stock", "happened")]
+    # in memory: the alerted records now say they happened, after they were predicted
+    for rec in s.findings:
+        assert rec["status"] == "happened" and rec["happened_t"] > rec["t"], rec
+    # in the run file: same two findings, updated in place, one alert each per channel
+    r = RunReader(tmp_path / "r.sqlite")
+    stored = r.findings()
+    assert [(f["kind"], f["status"]) for f in stored] == [(k, "happened") for k, _ in keys]
+    channels = [a["channel"] for a in r.alerts()]
+    assert channels.count("json") == 2
+
+
+def _state(t, tip, spindle=10000.0, state=RunState.RUN):
+    return MachineState(t=t, mpos=tuple(tip) + (0, 0, 0), state=state, spindle=spindle)
+
+
+def test_live_spindle_stopped_and_rapid_are_found_on_the_real_path(example):
+    job, moves, program = example
+    job = dataclasses.replace(job, work_offset=(0.0, 0.0, 0.0), design=None, fixtures=[])
+    # the facing row at line 11 (G1 X68 at Y2, Z-5) runs with the spindle reported stopped
+    k = int(np.nonzero(moves["line"] == 11)[0][0])
+    s = Session(job, moves, program=program)
+    p0, p1 = moves["end_work"][k - 1, :3], moves["end_work"][k, :3]
+    t = 0.0
+    for f in np.linspace(0.0, 0.5, 12):
+        s.step(_state(t, p0 + f * (p1 - p0), spindle=0.0))
+        t += 0.02
+    kinds = {(r["kind"], r["line"], r["predicted"]) for r in s.findings}
+    assert ("spindle_stopped_cutting", 11, False) in kinds, s.findings
+    rec = next(r for r in s.findings if r["kind"] == "spindle_stopped_cutting")
+    assert rec["volume"] > 1.0 and rec["lead_time_s"] == 0.0
+
+
+def test_lookahead_budget_spreads_work_and_finds_the_same(example):
+    job, moves, program = example
+    wp = build_workpiece(job, moves)
+    mw = work_moves(moves)
+    path = ProgramPath.from_moves(mw)
+
+    def run(budget):
+        la = Lookahead(wp, mw, path, horizon_s=1e9, budget_rays=budget)
+        la.anchor(wp.stock, 0)
+        found, calls, per_call = [], 0, []
+        while la.behind(0.0):
+            before = la.next_row
+            found += la.advance(0.0)
+            per_call.append(la.next_row - before)
+            calls += 1
+        return found, calls, per_call, la
+
+    big, calls_big, _, _ = run(1e12)
+    small, calls_small, per_call, la = run(1.0)
+    assert calls_big == 1 and calls_small == len(moves)  # tiny budget: one row per call
+    assert all(n == 1 for n in per_call)
+    def lines(found):  # (kind, line) of every line involved: batches merge hits differently
+        return {(f.kind, ln) for f in found for ln in f.lines}
+    assert lines(big) == lines(small)
+    assert {("gouge", GOUGE_LINE), ("rapid_into_stock", RAPID_LINE)} <= lines(small)
+    # a moderate budget bounds the rows' estimated cost per call (one row may exceed it)
+    costs = np.diff(la.cost_cum)
+    mid = 5 * float(np.median(costs))
+    la2 = Lookahead(wp, mw, path, horizon_s=1e9, budget_rays=mid)
+    la2.anchor(wp.stock, 0)
+    while la2.behind(0.0):
+        lo = la2.next_row
+        la2.advance(0.0)
+        hi = la2.next_row
+        assert hi - lo == 1 or costs[lo:hi].sum() <= mid
+
+
+def test_live_checks_unit_gouge_depth_is_exact(example):
+    """A flat end mill cutting 0.3 mm into the top of a box design: gouge 0.3 deep, found
+    on the live model at the program line of the piece that made it."""
+    job, moves, _ = example
+    job = dataclasses.replace(job, fixtures=[])
+    m = empty_moves(1)
+    m["kind"] = MoveKind.FEED
+    m["line"] = 77
+    m["spindle"], m["spindle_dir"], m["feed"], m["tool"] = 10000, 1, 600, 1
+    for col in ("start", "start_work"):
+        m[col][0, :3] = (10, 20, -5.3)
+    for col in ("end", "end_work"):
+        m[col][0, :3] = (40, 20, -5.3)
+    wp = build_workpiece(job, m)
+    lc = LiveChecks(wp, work_moves(m))
+    pts = np.array([[10.0, 20.0, -5.3], [25.0, 20.0, -5.3], [40.0, 20.0, -5.3]])
+    removed, rays, found = lc.cut(pts, np.array([0, 0]), spindle_rpm=10000)
+    # a 6 mm slot 30 mm long with round ends, 5.3 mm deep (stock top at 0); dexels count
+    # whole cells, so the error is bounded by the outline x half a cell x the depth
+    outline = 2 * 30 + 2 * np.pi * 3
+    assert abs(removed - (30 * 6 + np.pi * 9) * 5.3) <= outline * wp.frame.spacing / 2 * 5.3
+    assert rays.size > 0
+    g = [f for f in found if f.kind == "gouge"]
+    assert len(g) == 1 and g[0].line == 77 and g[0].depth == pytest.approx(0.3, abs=0.01)
+
+
+def test_travel_limits_checked_in_work_coordinates_told_in_machine():
+    wco = np.array([-100.0, -50.0, -30.0, 0, 0, 0])
+    lim = limits_in_work({"x": (-200.0, 0.0), "z": (-60.0, 0.0)}, wco)
+    assert lim == {"X": (-100.0, 100.0), "Z": (-30.0, 30.0)}
+    f = Finding("travel_limit", line=5, stage=2, position=(101.0, 0.0, 0.0), depth=1.0,
+                detail={"group": "X+", "axis": "X", "limit": 100.0})
+    g = finding_to_machine(f, wco)
+    assert g.position == (1.0, -50.0, -30.0) and g.detail["limit"] == 0.0
+    assert "Xmax 0 exceeded by 1.000 at line 5" in g.message
