@@ -174,57 +174,118 @@ def overlap_length(S, r, lo, hi):
     return total
 
 
-@nb.njit(cache=True, inline="always", error_model="numpy")
-def _row_ball(R, Rc, h_off, h_top, z0, m, sin_t, ell, a0, da, e0, de, n, lo, hi,
-              cnt, near, far, base, flag):
-    """Ball (its capsule) on ``n`` rays of a row, branch-free so that it vectorises.
+@nb.njit(cache=True, error_model="numpy", boundscheck=False)
+def _rows_ball(R, Rc, h_off, h_top, z0, m, sin_t, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
+               row_ilo, row_off, cnt, near, far, lo, hi, flag):
+    """Ball (its capsule) on the rays of one move, rows ``jlo .. jlo+nrows-1``.
 
-    Ray q has along-move coordinate ``a0 + q*da`` and across ``e0 + q*de``. Writes the
-    interval rounded to float32 into ``lo``/``hi`` and flags the rays it may change
-    (material there, and either several segments or the one segment overlapping).
+    Row ``jj`` covers rays ``row_ilo[jj] ..`` (``row_off[jj+1] - row_off[jj]`` of them);
+    the ray at ``i, j`` sits at ``(rx0 + i*sp, ry0 + j*sp)`` from the move's start. Writes
+    each ray's interval rounded to float32 into ``lo``/``hi`` (at ``row_off[jj] + q``)
+    and flags the rays it may change: material there, and either several segments or the
+    one segment overlapping. The inner loop is branch-free so that it vectorises; one
+    call per move keeps call overhead off the rows.
     """
     R2 = R * R
     Rc2 = Rc * Rc
-    for q in range(n):
-        a = a0 + q * da
-        e = e0 + q * de
-        e2 = e * e
-        qc = Rc2 - e2
-        rho_c = math.sqrt(max(qc, 0.0))
-        rho = math.sqrt(max(R2 - e2, 0.0)) if Rc < R else rho_c
-        s_lo = max(a - rho_c, 0.0)
-        s_hi = min(a + rho_c, ell)
-        s = min(max(a - rho * sin_t, s_lo), s_hi)
-        w = a - s
-        v = np.float32(z0 + m * s + h_off + R - math.sqrt(max(rho * rho - w * w, 0.0)))
-        t = np.float32(z0 + h_top + max(m * s_lo, m * s_hi))
-        ok = (qc >= 0.0) & (s_lo <= s_hi) & (v < t)
-        lo[q] = v
-        hi[q] = t
-        c = cnt[base + q]
-        one = (v < far[base + q]) & (t > near[base + q])
-        flag[q] = ok & ((c > 1) | ((c == 1) & one))
+    two_sqrt = Rc < R
+    for jj in range(nrows):
+        i0 = row_ilo[jj]
+        o = row_off[jj]
+        nq = row_off[jj + 1] - o
+        rx = rx0 + i0 * sp
+        ry = ry0 + (jlo + jj) * sp
+        a0 = rx * ux + ry * uy
+        e0 = -rx * uy + ry * ux
+        da = sp * ux
+        de = -sp * uy
+        base = (jlo + jj) * nu + i0
+        # row views: plain unit-stride indexing is what lets LLVM vectorise the loop
+        lo_r = lo[o:o + nq]
+        hi_r = hi[o:o + nq]
+        fl_r = flag[o:o + nq]
+        cn_r = cnt[base:base + nq]
+        ne_r = near[base:base + nq]
+        fa_r = far[base:base + nq]
+        for q in range(nq):
+            a = a0 + q * da
+            e = e0 + q * de
+            e2 = e * e
+            qc = Rc2 - e2
+            rho_c = math.sqrt(max(qc, 0.0))
+            rho = math.sqrt(max(R2 - e2, 0.0)) if two_sqrt else rho_c
+            s_lo = max(a - rho_c, 0.0)
+            s_hi = min(a + rho_c, ell)
+            s = min(max(a - rho * sin_t, s_lo), s_hi)
+            w = a - s
+            v = np.float32(z0 + m * s + h_off + R - math.sqrt(max(rho * rho - w * w, 0.0)))
+            t = np.float32(z0 + h_top + max(m * s_lo, m * s_hi))
+            ok = (qc >= 0.0) & (s_lo <= s_hi) & (v < t)
+            lo_r[q] = v
+            hi_r[q] = t
+            c = cn_r[q]
+            one = (v < fa_r[q]) & (t > ne_r[q])
+            fl_r[q] = ok & ((c > 1) | ((c == 1) & one))
 
 
-@nb.njit(cache=True, inline="always", error_model="numpy")
-def _row_flat(Rc, h_off, h_top, z0, m, ell, a0, da, e0, de, n, lo, hi, cnt, near, far, base, flag):
-    """Flat-bottom cylinder on ``n`` rays of a row (see :func:`_row_ball`)."""
+@nb.njit(cache=True, error_model="numpy", boundscheck=False)
+def _rows_flat(Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
+               row_ilo, row_off, cnt, near, far, lo, hi, flag):
+    """Flat-bottom cylinder on the rays of one move (see :func:`_rows_ball`)."""
     Rc2 = Rc * Rc
-    for q in range(n):
-        a = a0 + q * da
-        e = e0 + q * de
-        qc = Rc2 - e * e
-        rho_c = math.sqrt(max(qc, 0.0))
-        s_lo = max(a - rho_c, 0.0)
-        s_hi = min(a + rho_c, ell)
-        v = np.float32(z0 + h_off + min(m * s_lo, m * s_hi))
-        t = np.float32(z0 + h_top + max(m * s_lo, m * s_hi))
-        ok = (qc >= 0.0) & (s_lo <= s_hi) & (v < t)
-        lo[q] = v
-        hi[q] = t
-        c = cnt[base + q]
-        one = (v < far[base + q]) & (t > near[base + q])
-        flag[q] = ok & ((c > 1) | ((c == 1) & one))
+    for jj in range(nrows):
+        i0 = row_ilo[jj]
+        o = row_off[jj]
+        nq = row_off[jj + 1] - o
+        rx = rx0 + i0 * sp
+        ry = ry0 + (jlo + jj) * sp
+        a0 = rx * ux + ry * uy
+        e0 = -rx * uy + ry * ux
+        da = sp * ux
+        de = -sp * uy
+        base = (jlo + jj) * nu + i0
+        lo_r = lo[o:o + nq]
+        hi_r = hi[o:o + nq]
+        fl_r = flag[o:o + nq]
+        cn_r = cnt[base:base + nq]
+        ne_r = near[base:base + nq]
+        fa_r = far[base:base + nq]
+        for q in range(nq):
+            a = a0 + q * da
+            e = e0 + q * de
+            qc = Rc2 - e * e
+            rho_c = math.sqrt(max(qc, 0.0))
+            s_lo = max(a - rho_c, 0.0)
+            s_hi = min(a + rho_c, ell)
+            v = np.float32(z0 + h_off + min(m * s_lo, m * s_hi))
+            t = np.float32(z0 + h_top + max(m * s_lo, m * s_hi))
+            ok = (qc >= 0.0) & (s_lo <= s_hi) & (v < t)
+            lo_r[q] = v
+            hi_r[q] = t
+            c = cn_r[q]
+            one = (v < fa_r[q]) & (t > ne_r[q])
+            fl_r[q] = ok & ((c > 1) | ((c == 1) & one))
+
+
+@nb.njit(cache=True)
+def _rows_any(tp, x0, y0, z0, dz, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
+              row_ilo, row_off, cnt, near, far, lo, hi, flag):
+    """Any exact body (bull-nose, cone, vertical moves) through :func:`linear_interval`."""
+    for jj in range(nrows):
+        i0 = row_ilo[jj]
+        o = row_off[jj]
+        nq = row_off[jj + 1] - o
+        ry = ry0 + (jlo + jj) * sp
+        base = (jlo + jj) * nu + i0
+        for q in range(nq):
+            a, b = linear_interval(tp, x0, y0, z0, dz, ell, ux, uy, rx0 + (i0 + q) * sp, ry)
+            v = np.float32(a)
+            t = np.float32(b)
+            lo[o + q] = v
+            hi[o + q] = t
+            c = cnt[base + q]
+            flag[o + q] = (a < b) and (v < t) and (c > 1 or (c == 1 and v < far[base + q]
+                                                       and t > near[base + q]))
 
 
 @nb.njit(cache=True)
@@ -241,9 +302,10 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     where to resume. Returns DONE, STOP_POOL (grow the pool, call again) or STOP_CHANGES
     (grow the buffers, call again); the state says where it stopped.
 
-    Per row, the rays' intervals are computed first in a branch-free loop (flat, ball),
-    then compared with the stored material; one-segment rays (the common case) are cut
-    in place here, everything else goes through :func:`sim.dexel_store.subtract_interval`.
+    Per move, the intervals of all rays within reach are computed first (one call,
+    vectorised for flat and ball), then compared with the stored material; one-segment
+    rays (the common case) are cut in place here, everything else goes through
+    :func:`sim.dexel_store.subtract_interval`.
     """
     cnt = S[0]
     near = S[1]
@@ -260,9 +322,12 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     j_resume = state[1]
     i_resume = state[2]
     nchg = state[3]
-    buf_lo = np.empty(nu, np.float32)
-    buf_hi = np.empty(nu, np.float32)
-    flag = np.empty(nu, np.bool_)
+    cap = 4096
+    buf_lo = np.empty(cap, np.float32)
+    buf_hi = np.empty(cap, np.float32)
+    flag = np.empty(cap, np.bool_)
+    row_ilo = np.empty(nv + 1, np.int64)
+    row_off = np.empty(nv + 2, np.int64)
     for k in range(k0, n):
         x0 = P0[k, 0]
         y0 = P0[k, 1]
@@ -288,54 +353,58 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
         ymax = max(y0, y0 + dy)
         jlo = max(0, int(math.ceil((ymin - Rc - gy0) / sp)))
         jhi = min(nv - 1, int(math.floor((ymax + Rc - gy0) / sp)))
+        if jhi < jlo:
+            continue
+        # each row's reach: within Rc of the move's bounding box
+        nrows = jhi - jlo + 1
+        row_off[0] = 0
+        for jj in range(nrows):
+            y = gy0 + (jlo + jj) * sp
+            dym = max(ymin - y, y - ymax, 0.0)
+            ilo = 0
+            ihi = -1
+            if dym <= Rc:
+                w = math.sqrt(Rc * Rc - dym * dym)
+                ilo = max(0, int(math.ceil((xmin - w - gx0) / sp)))
+                ihi = min(nu - 1, int(math.floor((xmax + w - gx0) / sp)))
+            row_ilo[jj] = ilo
+            row_off[jj + 1] = row_off[jj] + max(ihi - ilo + 1, 0)
+        total = row_off[nrows]
+        if total > buf_lo.size:
+            cap = max(total, 2 * buf_lo.size)
+            buf_lo = np.empty(cap, np.float32)
+            buf_hi = np.empty(cap, np.float32)
+            flag = np.empty(cap, np.bool_)
+        rx0 = gx0 - x0
+        ry0 = gy0 - y0
+        if ell > 0.0 and code == CODE_BALL:
+            _rows_ball(R, Rc, h_off, h_top, z0, m, sin_t, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
+                       row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
+        elif ell > 0.0 and code == CODE_FLAT:
+            _rows_flat(Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
+                       row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
+        else:
+            _rows_any(tp, x0, y0, z0, dz, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
+                      row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
         resuming = k == k0 and j_resume >= 0
-        if resuming:
-            jlo = j_resume
         mv = seg_move[k]
         fid = seg_id[k]
-        for j in range(jlo, jhi + 1):
-            y = gy0 + j * sp
-            dym = ymin - y
-            if y - ymax > dym:
-                dym = y - ymax
-            if dym < 0.0:
-                dym = 0.0
-            if dym > Rc:
+        for jj in range(nrows):
+            j = jlo + jj
+            if resuming and j < j_resume:
                 continue
-            w = math.sqrt(Rc * Rc - dym * dym)
-            ilo = max(0, int(math.ceil((xmin - w - gx0) / sp)))
-            ihi = min(nu - 1, int(math.floor((xmax + w - gx0) / sp)))
-            if resuming and j == j_resume and i_resume > ilo:
-                ilo = i_resume
-            if ihi < ilo:
-                continue
-            ry = y - y0
-            rx0 = gx0 + ilo * sp - x0
-            nq = ihi - ilo + 1
-            base = j * nu + ilo
-            if ell > 0.0 and code == CODE_BALL:
-                _row_ball(R, Rc, h_off, h_top, z0, m, sin_t, ell, rx0 * ux + ry * uy, sp * ux,
-                          -rx0 * uy + ry * ux, -sp * uy, nq, buf_lo, buf_hi, cnt, near, far, base, flag)
-            elif ell > 0.0 and code == CODE_FLAT:
-                _row_flat(Rc, h_off, h_top, z0, m, ell, rx0 * ux + ry * uy, sp * ux,
-                          -rx0 * uy + ry * ux, -sp * uy, nq, buf_lo, buf_hi, cnt, near, far, base, flag)
-            else:
-                for q in range(nq):
-                    a, b = linear_interval(tp, x0, y0, z0, dz, ell, ux, uy, rx0 + q * sp, ry)
-                    v = np.float32(a)
-                    t = np.float32(b)
-                    buf_lo[q] = v
-                    buf_hi[q] = t
-                    c = cnt[base + q]
-                    flag[q] = (a < b) and (v < t) and (c > 1 or (c == 1 and v < far[base + q]
-                                                               and t > near[base + q]))
-            for q in range(nq):
-                if not flag[q]:
+            o = row_off[jj]
+            i0 = row_ilo[jj]
+            for q in range(row_off[jj + 1] - o):
+                if not flag[o + q]:
                     continue
-                r = base + q
+                i = i0 + q
+                if resuming and j == j_resume and i < i_resume:
+                    continue
+                r = j * nu + i
                 c = cnt[r]
-                lo = np.float64(buf_lo[q])
-                hi = np.float64(buf_hi[q])
+                lo = np.float64(buf_lo[o + q])
+                hi = np.float64(buf_hi[o + q])
                 n_ = np.float64(near[r])
                 f_ = np.float64(far[r])
                 if probe:
@@ -344,7 +413,7 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                 if record and nchg >= chg_ray.size:
                     state[0] = k
                     state[1] = j
-                    state[2] = ilo + q
+                    state[2] = i
                     state[3] = nchg
                     return STOP_CHANGES
                 got = -2.0
@@ -368,7 +437,7 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                     if got == ds.POOL_FULL:
                         state[0] = k
                         state[1] = j
-                        state[2] = ilo + q
+                        state[2] = i
                         state[3] = nchg
                         return STOP_POOL
                 if got > 0.0:

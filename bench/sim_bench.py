@@ -1,0 +1,214 @@
+"""Material-removal benchmark: one JSON line per case.
+
+    python bench/sim_bench.py [--shared ../shared] [--case wavy_finish] [--no-check]
+
+Cases (stock box 0,0,0,100,100,20 at 0.1 mm, 1001 x 1001 rays):
+
+* ``wavy_finish`` - ~40k short G1 moves with a 6 mm ball end mill;
+* ``pocket_rough`` - pocket roughing with arcs, 6 mm flat end mill.
+
+Figures: moves, seconds (wall), cpu_seconds, moves_per_s (wall), moves_per_s_cpu,
+peak_rss_mb, grid_mb, removed_mm3, and the height check against an independent
+evaluation of the exact swept surface at every ray (numpy, vertical line against each
+move's capsule / flat disk sweep; arcs sampled every 0.01 mm; rays within 1e-6 mm of
+the swept boundary may fall either side): height_max_err_mm and rays_over_1um. The cut runs on one core (numba, no parallel loops); numba is warmed up
+first so compilation is not timed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import resource
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from sim.cut import Cutter  # noqa: E402
+from sim.frame import Frame  # noqa: E402
+from sim.gcode import load_program  # noqa: E402
+from sim.gcode.moves import MoveKind, tip_positions  # noqa: E402
+from sim.grid import DexelGrid  # noqa: E402
+from sim.sweep import PLANE_AXES, arc_points  # noqa: E402
+from sim.tools import parse_tool_spec  # noqa: E402
+
+CASES = {
+    "wavy_finish": ("bench/wavy_finish.nc", "ball:6:L=20"),
+    "pocket_rough": ("bench/pocket_rough.nc", "flat:6:L=25"),
+}
+STOCK = (0.0, 0.0, 0.0, 100.0, 100.0, 20.0)
+RESOLUTION = 0.1
+
+
+def stock_grid() -> DexelGrid:
+    x0, y0, z0, x1, y1, z1 = STOCK
+    frame = Frame.top(x0, y0, x1, y1, RESOLUTION)
+    return DexelGrid.from_intervals(frame, np.full(frame.shape, z0), np.full(frame.shape, z1))
+
+
+def warm_up(tool, moves) -> None:
+    """Compile (or load from cache) every kernel the timed run uses."""
+    frame = Frame.top(0, 0, 20, 20, RESOLUTION)
+    grid = DexelGrid.from_intervals(frame, np.zeros(frame.shape), np.full(frame.shape, 20.0))
+    Cutter(grid, tool).cut_moves(moves[:50], record_changes=False)
+    Cutter(grid, tool).cut_moves(moves[:50], record_changes=True)
+
+
+# --- the independent reference ------------------------------------------------------
+
+def _pieces(moves):
+    """Straight tip segments of every motion row; arcs sampled every 0.01 mm."""
+    kind = moves["kind"]
+    s = tip_positions(moves, "start")
+    e = tip_positions(moves, "end")
+    p0, p1 = [], []
+    for k in range(len(moves)):
+        if kind[k] in (MoveKind.RAPID, MoveKind.FEED):
+            p0.append(s[k])
+            p1.append(e[k])
+        elif kind[k] in (MoveKind.ARC_CW, MoveKind.ARC_CCW):
+            c = np.array(moves["center"][k], float)
+            c[2] -= moves["tool_length"][k]
+            pts = arc_points(s[k], e[k], c, int(moves["plane"][k]), int(moves["turns"][k]) or 1,
+                             kind[k] == MoveKind.ARC_CW, max_step_length=0.01)
+            p0.extend(pts[:-1])
+            p1.extend(pts[1:])
+    return np.array(p0), np.array(p1)
+
+
+def reference_heights(frame: Frame, tool, moves, top: float, dr: float = 0.0) -> np.ndarray:
+    """Exact top surface after all moves, float64 (nv, nu), by a different formulation.
+
+    Ball: the lowest point of the vertical line inside the capsule (cylinder of radius R
+    about the 3-D segment of ball centres plus end spheres), from the quadratic of the
+    line against the infinite cylinder and the two spheres. Flat: the lowest tip height
+    over the parameter range where the ray is inside the disk (a quadratic in t).
+    ``dr`` grows the tool radius (to bracket rays lying on the swept boundary).
+    """
+    R = tool.radius + dr
+    L = tool.flute_length
+    H = np.full(frame.shape, top, dtype=np.float64)
+    xs = frame.origin[0] + np.arange(frame.nu) * frame.spacing
+    ys = frame.origin[1] + np.arange(frame.nv) * frame.spacing
+    P0, P1 = _pieces(moves)
+    for a, b in zip(P0, P1):
+        i0 = max(0, int(math.floor((min(a[0], b[0]) - R - xs[0]) / frame.spacing)))
+        i1 = min(frame.nu, int(math.ceil((max(a[0], b[0]) + R - xs[0]) / frame.spacing)) + 1)
+        j0 = max(0, int(math.floor((min(a[1], b[1]) - R - ys[0]) / frame.spacing)))
+        j1 = min(frame.nv, int(math.ceil((max(a[1], b[1]) + R - ys[0]) / frame.spacing)) + 1)
+        if i1 <= i0 or j1 <= j0:
+            continue
+        X, Y = np.meshgrid(xs[i0:i1], ys[j0:j1])
+        d = b - a
+        if tool.kind == "ball":
+            c0 = a + np.array([0, 0, R])
+            z = np.full(X.shape, np.inf)
+            for c in (c0, c0 + d):  # end spheres
+                q = R * R - (X - c[0]) ** 2 - (Y - c[1]) ** 2
+                z = np.where(q >= 0, np.minimum(z, c[2] - np.sqrt(np.maximum(q, 0))), z)
+            nrm = np.linalg.norm(d)
+            if nrm > 1e-12:
+                D = d / nrm
+                w0 = np.stack([X - c0[0], Y - c0[1], -c0[2] * np.ones_like(X)], axis=-1)
+                pw = w0 - (w0 @ D)[..., None] * D      # perpendicular part at z = 0
+                pe = np.array([0, 0, 1.0]) - D[2] * D  # perpendicular part of e_z
+                A = pe @ pe
+                if A > 1e-12:
+                    B = pw @ pe
+                    C = np.einsum("...k,...k", pw, pw) - R * R
+                    disc = B * B - A * C
+                    zr = (-B - np.sqrt(np.maximum(disc, 0))) / A
+                    t = (w0 @ D) + zr * D[2]
+                    ok = (disc >= 0) & (t >= 0) & (t <= nrm)
+                    z = np.where(ok, np.minimum(z, zr), z)
+            low = z
+            touch = np.isfinite(z)
+        else:  # flat
+            fx, fy = X - a[0], Y - a[1]
+            A = d[0] ** 2 + d[1] ** 2
+            if A < 1e-18:
+                touch = fx * fx + fy * fy <= R * R
+                low = np.full(X.shape, min(a[2], b[2]))
+            else:
+                B = -(fx * d[0] + fy * d[1])
+                C = fx * fx + fy * fy - R * R
+                disc = B * B - A * C
+                sq = np.sqrt(np.maximum(disc, 0))
+                t0 = (-B - sq) / A
+                t1 = (-B + sq) / A
+                touch = (disc >= 0) & (t0 <= 1) & (t1 >= 0)
+                t0 = np.clip(t0, 0, 1)
+                t1 = np.clip(t1, 0, 1)
+                low = np.minimum(a[2] + t0 * d[2], a[2] + t1 * d[2])
+        # the flutes reach L above the tip; material above them stays (never here: L > 20)
+        assert min(a[2], b[2]) + L >= top
+        sub = H[j0:j1, i0:i1]
+        H[j0:j1, i0:i1] = np.where(touch, np.minimum(sub, low), sub)
+    return np.maximum(H, STOCK[2])
+
+
+def run_case(name: str, shared: Path, check: bool) -> dict:
+    rel, spec = CASES[name]
+    path = shared / rel
+    tool = parse_tool_spec(spec)
+    t0 = time.perf_counter()
+    moves = load_program(path).moves
+    load_s = time.perf_counter() - t0
+    warm_up(tool, moves)
+    grid = stock_grid()
+    cutter = Cutter(grid, tool)
+    c0 = time.process_time()
+    w0 = time.perf_counter()
+    res = cutter.cut_moves(moves, record_changes=False)
+    wall = time.perf_counter() - w0
+    cpu = time.process_time() - c0
+    out = {
+        "case": name,
+        "tool": spec,
+        "moves": int(len(moves)),
+        "rays": grid.frame.n_rays,
+        "seconds": round(wall, 4),
+        "cpu_seconds": round(cpu, 4),
+        "moves_per_s": round(len(moves) / wall, 1),
+        "moves_per_s_cpu": round(len(moves) / cpu, 1) if cpu > 0 else None,
+        "removed_mm3": round(float(res.removed.sum()), 3),
+        "grid_mb": round(grid.nbytes() / 2**20, 2),
+        "load_seconds": round(load_s, 3),
+    }
+    out["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
+    if check:
+        # a ray within 1e-6 mm of the swept boundary may fall either side: accept both
+        ref_in = reference_heights(grid.frame, tool, moves, STOCK[5], -1e-6)
+        ref_out = reference_heights(grid.frame, tool, moves, STOCK[5], +1e-6)
+        top = grid.top().astype(np.float64)
+        top = np.where(np.isnan(top), STOCK[2], top)
+        err = np.maximum(0.0, np.maximum(top - np.maximum(ref_in, ref_out),
+                                         np.minimum(ref_in, ref_out) - top))
+        out["height_max_err_mm"] = float(f"{err.max():.3g}")
+        out["rays_over_1um"] = int((err > 0.001).sum())
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--shared", default=str(ROOT.parent / "shared"))
+    ap.add_argument("--case", choices=sorted(CASES), action="append")
+    ap.add_argument("--no-check", action="store_true", help="skip the reference height check")
+    args = ap.parse_args(argv)
+    shared = Path(args.shared)
+    if not shared.is_dir():
+        print(f"sim_bench: {shared} not found (pass --shared)", file=sys.stderr)
+        return 2
+    for name in args.case or list(CASES):
+        print(json.dumps(run_case(name, shared, not args.no_check)), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
