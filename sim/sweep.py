@@ -88,9 +88,10 @@ def pose_on_rays(body: Tool | Body, tip, axis, frame: Frame):
     j1 = min(frame.nv - 1, int(math.floor((pts[:, 1].max() + rmax) / sp)))
     rays, los, his = [], [], []
     out = np.empty((prof.shape[0], 2))
+    buf = np.empty(2)
     for j in range(j0, j1 + 1):  # a helper for tests and single poses, not a hot path
         for i in range(i0, i1 + 1):
-            m = K.pose_intervals(prof, tip_l, ax_l, i * sp, j * sp, out)
+            m = K.pose_intervals(prof, tip_l, ax_l, i * sp, j * sp, out, buf)
             for q in range(m):
                 rays.append(j * frame.nu + i)
                 los.append(out[q, 0])

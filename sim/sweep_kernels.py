@@ -533,19 +533,19 @@ def _piece_interval(prof, k, h0, az, wx2wy2, out):
 
 
 @nb.njit(cache=True)
-def pose_intervals(prof, tip, axis, px, py, out):
+def pose_intervals(prof, tip, axis, px, py, out, buf):
     """Intervals of a ray inside one tool pose, in frame-local coordinates.
 
     prof: float64 (k, 2) profile (h, r); tip: (3,) local (u, v, s) of the tip; axis: (3,)
     unit axis in local coordinates; the ray is ``(px, py, s)``. Writes merged, sorted
-    intervals of ``s`` into ``out`` (float64 (k, 2)) and returns how many.
+    intervals of ``s`` into ``out`` (float64 (k, 2)) and returns how many. ``buf`` is
+    float64 (2,) scratch.
     """
     wx = px - tip[0]
     wy = py - tip[1]
     h0 = wx * axis[0] + wy * axis[1]
     wx2wy2 = wx * wx + wy * wy
     az = axis[2]
-    buf = np.empty(2)
     m = 0
     for k in range(prof.shape[0] - 1):
         if _piece_interval(prof, k, h0, az, wx2wy2, buf):
@@ -587,6 +587,7 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
     top_h = prof[prof.shape[0] - 1, 0]
     bot_h = prof[0, 0]
     ivs = np.empty((prof.shape[0], 2))
+    buf = np.empty(2)
     k0 = state[0]
     j_resume = state[1]
     i_resume = state[2]
@@ -615,7 +616,7 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
                 r = j * nu + i
                 if S[0][r] == 0:
                     continue
-                m = pose_intervals(prof, tip, ax, i * sp, j * sp, ivs)
+                m = pose_intervals(prof, tip, ax, i * sp, j * sp, ivs, buf)
                 if m == 0:
                     continue
                 if record and nchg >= chg_ray.size:

@@ -82,6 +82,9 @@ def read_tool_table(path, units: str = "mm") -> dict[int, ToolEntry]:
             continue
         where = f"{path}:{lineno}"
         words: dict[str, float] = {}
+        if re.search(r"[^A-Za-z0-9.+\-eE\s]", body):
+            bad = re.search(r"[^A-Za-z0-9.+\-eE\s]", body).group(0)
+            raise InputError(f"unexpected character {bad!r}: expected words like T1 P1 D6 Z0", where=where)
         # words may be glued ("T1P1") or spaced ("T1 P1", "Z +0.5")
         for tok in re.findall(r"[A-Za-z]\s*[^A-Za-z\s]*", body):
             m = _WORD.match(tok.strip())
@@ -97,9 +100,6 @@ def read_tool_table(path, units: str = "mm") -> dict[int, ToolEntry]:
             if not math.isfinite(value):
                 raise InputError(f"{letter} must be a finite number", where=where)
             words[letter] = value
-        if re.search(r"[^A-Za-z0-9.+\-eE\s]", body):
-            bad = re.search(r"[^A-Za-z0-9.+\-eE\s]", body).group(0)
-            raise InputError(f"unexpected character {bad!r}: expected words like T1 P1 D6 Z0", where=where)
         if "T" not in words:
             raise InputError("missing T word (tool number)", where=where)
         t = words["T"]
