@@ -334,7 +334,15 @@ class Lookahead:
         """Restart the scratch model from the live one, predicting from ``row`` on."""
         if wco is not None:
             self.wco = np.asarray(wco, np.float64)
-        self.checker = make_checker(self.wp, live.copy(), self.limits, self.wco)
+        c = self.checker
+        if c is None or c.engagement is not None:  # engagement keeps its own top snapshot
+            self.checker = make_checker(self.wp, live.copy(), self.limits, self.wco)
+        else:
+            # re-anchoring after a jump: refill the scratch model in place and keep the
+            # checker (its design casts, error map and bounds stay valid: the live model
+            # only loses material, and findings only read the rays each batch updates)
+            _copy_into(c.grid, live)
+            c.limits = limits_in_work(self.limits, self.wco)
         self.next_row = int(row)
 
     def set_wco(self, wco) -> None:
@@ -382,6 +390,17 @@ class Lookahead:
         return found
 
 
+def _copy_into(dst: DexelGrid, src: DexelGrid) -> None:
+    """Make ``dst`` hold ``src``'s material (same frame), reusing ``dst``'s arrays where
+    they have the size (no page faults for a million rays)."""
+    for k, v in src.store.items():
+        d = dst.store.get(k)
+        if isinstance(v, np.ndarray) and isinstance(d, np.ndarray) and d.shape == v.shape and d.dtype == v.dtype:
+            np.copyto(d, v)
+        else:
+            dst.store[k] = v.copy() if isinstance(v, np.ndarray) else v
+
+
 # --- the live checks ---------------------------------------------------------------------------
 
 class LiveChecks:
@@ -403,6 +422,17 @@ class LiveChecks:
         self.limits = {k.upper(): v for k, v in (limits or {}).items()}
         self.wco = np.zeros(6) if wco is None else np.asarray(wco, np.float64)
         self.checker = make_checker(wp, wp.stock, self.limits, self.wco)
+        # per program row, what a travelled piece takes from it (small arrays: indexing
+        # them per state is cheaper than copying whole MOVE_DTYPE rows)
+        self._line = np.ascontiguousarray(moves["line"])
+        self._kind = np.where(moves["kind"] == MoveKind.RAPID, MoveKind.RAPID, MoveKind.FEED).astype(
+            moves.dtype["kind"])
+        self._feed = np.ascontiguousarray(moves["feed"])
+        self._tool = np.ascontiguousarray(moves["tool"])
+        self._spindle = np.ascontiguousarray(moves["spindle"])
+        self._sdir = np.ascontiguousarray(moves["spindle_dir"])
+        self._rot0 = np.ascontiguousarray(moves["start"][:, 3:])
+        self._rot1 = np.ascontiguousarray(moves["end"][:, 3:])
         self._buf = np.zeros(max_pieces, MOVE_DTYPE)
         self._buf["plane"] = Plane.XY
         self._ids = np.zeros(max_pieces, np.int64)
@@ -441,26 +471,27 @@ class LiveChecks:
         """The travelled pieces as move rows in the reusable buffer (a view, k rows)."""
         k = len(rows)
         m = self._buf[:k]
-        src = self.moves[rows]
-        m["line"] = src["line"]
-        m["kind"] = np.where(src["kind"] == MoveKind.RAPID, MoveKind.RAPID, MoveKind.FEED)
-        m["start"][:, :3] = pts[:-1]
-        m["end"][:, :3] = pts[1:]
-        m["start"][:, 3:] = src["start"][:, 3:]
-        m["end"][:, 3:] = src["end"][:, 3:]
-        m["start_work"] = m["start"]
-        m["end_work"] = m["end"]
-        m["feed"] = src["feed"]
-        m["tool"] = src["tool"]
-        m["tool_length"] = 0.0
+        m["line"] = self._line[rows]
+        m["kind"] = self._kind[rows]
+        start, end = m["start"], m["end"]
+        start[:, :3] = pts[:-1]
+        end[:, :3] = pts[1:]
+        start[:, 3:] = self._rot0[rows]
+        end[:, 3:] = self._rot1[rows]
+        m["start_work"] = start
+        m["end_work"] = end
+        m["feed"] = self._feed[rows]
+        m["tool"] = self._tool[rows]
         if spindle_rpm is None:
-            m["spindle"] = src["spindle"]
-            m["spindle_dir"] = src["spindle_dir"]
+            m["spindle"] = self._spindle[rows]
+            m["spindle_dir"] = self._sdir[rows]
         else:
             m["spindle"] = abs(float(spindle_rpm))
-            on = float(spindle_rpm) != 0.0
-            m["spindle_dir"] = np.where(on, np.where(src["spindle_dir"] != 0, src["spindle_dir"],
-                                                     1 if spindle_rpm > 0 else -1), 0)
+            if spindle_rpm == 0:
+                m["spindle_dir"] = 0
+            else:
+                d = self._sdir[rows]
+                m["spindle_dir"] = np.where(d != 0, d, 1 if spindle_rpm > 0 else -1)
         self._ids[:k] = rows + 1
         return m
 

@@ -161,7 +161,10 @@ class Session:
         wco = self._wco(state, s.row)
         if prev is None:
             self._start(s, state)
-        elif s.how in ("search", "line") and abs(s.progress - prev.progress) > JUMP_S:
+        elif (s.how in ("search", "line") and abs(s.progress - prev.progress) > JUMP_S) \
+                or self.lookahead.next_row < s.row:
+            # a jump, or the spindle overtook the look-ahead (its rows are history now):
+            # predict again from the live model
             self.lookahead.anchor(self.live, s.row, wco)
         elif not np.array_equal(wco, self.lookahead.wco):
             self.lookahead.set_wco(wco)

@@ -11,6 +11,7 @@ default a new one under ./runs/, whose path is printed first). Exit 0 clean, 1 f
 
 from __future__ import annotations
 
+import gc
 import json
 import sys
 from pathlib import Path
@@ -62,6 +63,10 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
         session = Session(job, moves, run=writer, alerter=alerter, program_text=program_text, program=program)
         status = StatusLine(console, enabled=console is not None)
         controller.connect()
+        # the setup made many long-lived objects (move table rows, meshes, tools): keep
+        # the collector from walking them again during the run (no gen-2 pauses per poll)
+        gc.collect()
+        gc.freeze()
         try:
             with status:
                 run_controller(session, controller, 1.0 / job.poll_hz, status=status, done=done)

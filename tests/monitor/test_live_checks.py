@@ -200,3 +200,19 @@ def test_travel_limits_checked_in_work_coordinates_told_in_machine():
     g = finding_to_machine(f, wco)
     assert g.position == (1.0, -50.0, -30.0) and g.detail["limit"] == 0.0
     assert "Xmax 0 exceeded by 1.000 at line 5" in g.message
+
+
+def test_reanchor_refills_the_scratch_model_from_the_live_one(example):
+    job, moves, _ = example
+    wp = build_workpiece(job, moves)
+    mw = work_moves(moves)
+    la = Lookahead(wp, mw, ProgramPath.from_moves(mw), horizon_s=1e9)
+    live_top = wp.stock.top().copy()
+    la.anchor(wp.stock, 0)
+    scratch = la.model
+    while la.behind(0.0):  # the whole program on the scratch model
+        la.advance(0.0)
+    assert np.nanmin(la.model.top()) < -9.0 and np.array_equal(wp.stock.top(), live_top, equal_nan=True)
+    la.anchor(wp.stock, 5)  # a jump: same scratch object, refilled
+    assert la.model is scratch and la.next_row == 5
+    assert np.array_equal(la.model.top(), live_top, equal_nan=True)
