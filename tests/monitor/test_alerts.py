@@ -5,6 +5,7 @@ from __future__ import annotations
 import io
 import json
 
+import numpy as np
 from rich.console import Console
 
 from monitor.alerts import Alerter, format_finding
@@ -63,3 +64,30 @@ def test_bell_and_format():
     assert "\a" in term.getvalue()
     assert format_finding({"kind": "fixture_collision", "line": 7, "position": [1, 2, 3],
                            "lead_time_s": 0}).startswith("FIXTURE COLLISION line 7 at (1.00, 2.00, 3.00)")
+
+
+def test_predicted_then_happened_is_updated_not_realerted(tmp_path):
+    out = io.StringIO()
+    run = RunWriter(tmp_path / "r.sqlite")
+    a = Alerter(json_stream=out, run=run)
+    rapid = {"kind": "rapid_into_stock", "line": 36, "lines": [36], "stage": 30, "stages": [30],
+             "position": [68.0, 1.0, -10.0], "lead_time_s": 4.3, "predicted": True, "status": "predicted"}
+    assert a.offer([rapid], t=1.0) == [rapid]
+    # the real rapid, seen 60 mm before the predicted worst point but on the same move
+    live = dict(rapid, position=[8.0, 1.0, -10.0], lead_time_s=0.0, predicted=False, status="happened")
+    assert a.offer([live], t=5.0) == []
+    assert a.findings[0]["status"] == "happened" and a.findings[0]["happened_t"] == 5.0
+    assert a.findings[0]["happened_position"] == [8.0, 1.0, -10.0]
+    assert a.offer([live], t=5.1) == []  # seen again: still one record, not updated twice
+    events = [json.loads(x) for x in out.getvalue().splitlines()]
+    assert [e["event"] for e in events] == ["finding", "finding_update"]
+    # a long live gouge followed along one line stays one finding; far along is followed too
+    g = [gouge(line=40, pos=(x, 5.0, -1.0), lead=0.0) for x in np.arange(0.0, 80.0, 2.0)]
+    for f in g:
+        f["predicted"] = False
+    assert len(a.offer(g[:1])) == 1 and sum(len(a.offer([f])) for f in g[1:]) == 0
+    run.close()
+    r = RunReader(tmp_path / "r.sqlite")
+    stored = r.findings()
+    assert stored[0]["status"] == "happened" and stored[0]["happened_t"] == 5.0
+    assert len(stored) == 2
