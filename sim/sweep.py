@@ -128,23 +128,8 @@ def _linear_all(tp, frame, p0, p1, lo, hi):
     _fill_linear(tp, p0, d[2], ell, ux, uy, x, y, lo, hi)
 
 
-def _make_fill():
-    import numba as nb
-
-    @nb.njit(cache=True)
-    def fill(tp, p0, dz, ell, ux, uy, xs, ys, lo, hi):
-        nu = xs.size
-        for j in range(ys.size):
-            for i in range(nu):
-                a, b = K.linear_interval(tp, p0[0], p0[1], p0[2], dz, ell, ux, uy,
-                                         xs[i] - p0[0], ys[j] - p0[1])
-                if a < b:
-                    lo[j * nu + i] = a
-                    hi[j * nu + i] = b
-    return fill
-
-
-_fill_linear = _make_fill()
+# the kernel lives in sweep_kernels: numba's cache only notices edits to a function's own file
+_fill_linear = K.linear_fill
 
 
 # --- arcs and instances of motion -----------------------------------------------------
@@ -230,6 +215,8 @@ def instances(p0, p1, axis0, axis1, length: float, step: float):
     n = max(1, int(math.ceil(max(np.abs(s).max(), np.abs(t).max()) / step)))
     f = np.linspace(0.0, 1.0, n + 1)[:, None]
     tips = p0 + f * s
+    tips[0] = p0
+    tips[-1] = p1
     axes = u + f * (v - u)
     axes /= np.linalg.norm(axes, axis=1, keepdims=True)
     return tips, axes

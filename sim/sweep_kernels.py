@@ -116,10 +116,10 @@ def linear_interval(tp, x0, y0, z0, dz, ell, ux, uy, rx, ry):
         else:
             # d/ds [m s + cot sqrt(e^2 + (a-s)^2)] = 0  ->  (a-s)/d = m / cot
             g = m / cot
-            if g >= 1.0:
-                s = s_hi
-            elif g <= -1.0:
+            if g >= 1.0:  # climbing steeper than the cone: lowest at the start
                 s = s_lo
+            elif g <= -1.0:
+                s = s_hi
             else:
                 s = a - abs(e) * g / math.sqrt(1.0 - g * g)
         if s < s_lo:
@@ -159,6 +159,18 @@ def linear_interval(tp, x0, y0, z0, dz, ell, ux, uy, rx, ry):
     if f2 < best:
         best = f2
     return best + h_off, hi
+
+
+@nb.njit(cache=True)
+def linear_fill(tp, p0, dz, ell, ux, uy, xs, ys, lo, hi):
+    """:func:`linear_interval` on every ray ``(xs[i], ys[j])``; writes hits into flat lo/hi."""
+    nu = xs.size
+    for j in range(ys.size):
+        for i in range(nu):
+            a, b = linear_interval(tp, p0[0], p0[1], p0[2], dz, ell, ux, uy, xs[i] - p0[0], ys[j] - p0[1])
+            if a < b:
+                lo[j * nu + i] = a
+                hi[j * nu + i] = b
 
 
 @nb.njit(cache=True)
