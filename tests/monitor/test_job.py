@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+import numpy as np
 import pytest
 
 from monitor.job import Job, JobError, add_job_arguments, job_from_args, load_job, parse_job_text, require
@@ -156,3 +157,41 @@ def test_bad_flag_names_flag():
     with pytest.raises(JobError, match="job file not found"):
         job_from_args(_args([]), "nope.toml")
     assert isinstance(job_from_args(_args([])), Job)
+
+
+def test_machine_limits_for_timing_and_their_errors():
+    job = parse_job_text('[machine]\nmax_rate = [6000, 6000, 2500]\nacceleration = 400\n'
+                         'junction_deviation = 0.02\n')
+    assert job.machine == {"max_rate": (6000.0, 6000.0, 2500.0), "acceleration": (400.0, 400.0, 400.0),
+                           "junction_deviation": 0.02}
+    assert parse_job_text("").machine is None
+    with pytest.raises(JobError, match=r"\[machine\] max_rate: expected 3 numbers \(mm/min, one or three\)"):
+        parse_job_text('[machine]\nmax_rate = [1, 2]\n')
+    with pytest.raises(JobError, match=r"\[machine\] acceleration: expected positive numbers"):
+        parse_job_text('[machine]\nacceleration = [1, 0, 2]\n')
+    with pytest.raises(JobError, match=r"\[machine\]: unknown key 'rapid'"):
+        parse_job_text('[machine]\nrapid = 5\n')
+
+
+def test_lead_times_come_from_the_planned_cycle_time():
+    """Session program time is Program.cycle_time with the job's machine: slower
+    acceleration makes the same program take longer (the length/feed estimate would not)."""
+    from pathlib import Path
+
+    from monitor.commands.dry_run import EXAMPLE_JOB
+    from monitor.predict import work_moves
+    from monitor.session import load_moves, program_seconds
+    from monitor.sync import row_seconds
+
+    job = load_job(Path(EXAMPLE_JOB))
+    moves, program = load_moves(job)
+    fast = program_seconds(program, moves, {"max_rate": (5000,) * 3, "acceleration": (2000,) * 3})
+    slow = program_seconds(program, moves, {"max_rate": (5000,) * 3, "acceleration": (50,) * 3})
+    naive = row_seconds(work_moves(moves))
+    assert fast.shape == slow.shape == naive.shape == (len(moves),)
+    assert slow.sum() > fast.sum() * 1.2 and fast.sum() >= naive.sum() * 0.99
+
+    class NoTiming:
+        def cycle_time(self, machine=None):
+            raise RuntimeError("no planner")
+    assert np.array_equal(program_seconds(NoTiming(), moves), naive)
