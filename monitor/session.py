@@ -98,7 +98,10 @@ class Session:
         self.moves = work_moves(moves)
         secs = (program_seconds(program, moves, job.machine or DEFAULT_MACHINE) if seconds is None
                 else np.asarray(seconds, np.float64))
-        self.path = ProgramPath.from_moves(self.moves, secs)
+        # the travelled path between polls follows these chords: on arcs they must stay
+        # well inside the gouge band, or the live check would see the chords' sagitta
+        tol = job.tolerance
+        self.path = ProgramPath.from_moves(self.moves, secs, chord=max(tol.chord, min(0.05, tol.gouge / 4)))
         self.sync = ProgramSync(self.path)
         self.wp = workpiece or build_workpiece(job, moves)
         self.live = self.wp.stock

@@ -216,3 +216,49 @@ def test_reanchor_refills_the_scratch_model_from_the_live_one(example):
     la.anchor(wp.stock, 5)  # a jump: same scratch object, refilled
     assert la.model is scratch and la.next_row == 5
     assert np.array_equal(la.model.top(), live_top, equal_nan=True)
+
+
+BOSS_PROGRAM = """G21 G90 G17 G94
+T1 M6
+S10000 M3
+G0 Z5
+G0 X43 Y30
+G1 Z-2 F600
+G2 X43 Y30 I-13 J0 F1200
+G0 Z5
+M5
+M30
+"""
+
+
+def test_contour_around_a_boss_is_clean_live(tmp_path):
+    """A 6 mm flat end mill circling a 10 mm-radius boss at 13 mm: tangent to the design
+    all round, so the live path (the program's arc between polls) must not gouge it by
+    its chords (gouge band 0.02 mm)."""
+    import trimesh
+
+    from monitor.job import Job, Solid, ToolDef
+    from sim.tolerance import Tolerance
+
+    boss = trimesh.creation.cylinder(radius=10.0, height=10.0, sections=512)
+    boss.apply_translation((30.0, 30.0, -5.0))
+    boss.export(str(tmp_path / "boss.stl"))
+    (tmp_path / "boss.nc").write_text(BOSS_PROGRAM)
+    job = Job(program=tmp_path / "boss.nc", stock=Solid("box", box=(0, 0, -10, 60, 60, 0)),
+              default_tool=ToolDef(0, "flat:6:L=20"), design=Solid("stl", stl=tmp_path / "boss.stl"),
+              resolution=0.1, tolerance=Tolerance(gouge=0.02, undercut=0.02), work_offset=(0.0, 0.0, 0.0))
+    moves, program = load_moves(job)
+    s = Session(job, moves, program=program)
+    vc = virtual_controller(moves, speed=1.0, rate=50, clock="sim")
+    vc.connect()
+    run_controller(s, vc, 0.0, done=lambda: vc.done)
+    vc.close()
+    assert s.findings == []
+    # and the boss wall really was cut to within the band all round
+    f = s.live.frame
+    top = s.live.top()
+    ang = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    for r, want in ((10.3, -2.0), (15.5, -2.0), (9.7, 0.0)):
+        i = np.round((30 + r * np.cos(ang) - f.origin[0]) / f.spacing).astype(int)
+        j = np.round((30 + r * np.sin(ang) - f.origin[1]) / f.spacing).astype(int)
+        assert np.allclose(top[j, i], want, atol=1e-6), (r, top[j, i])
