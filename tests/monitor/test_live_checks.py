@@ -262,3 +262,23 @@ def test_contour_around_a_boss_is_clean_live(tmp_path):
         i = np.round((30 + r * np.cos(ang) - f.origin[0]) / f.spacing).astype(int)
         j = np.round((30 + r * np.sin(ang) - f.origin[1]) / f.spacing).astype(int)
         assert np.allclose(top[j, i], want, atol=1e-6), (r, top[j, i])
+
+
+def test_travel_limit_predicted_then_happened_in_machine_coordinates(example):
+    job, moves, program = example
+    # the machine's X travel ends at 65 (machine = work here): the facing passes to X68 cross it
+    job = dataclasses.replace(job, limits={"x": (-100.0, 65.0)}, design=None)
+    vc = virtual_controller(moves, speed=1.0, rate=50, clock="sim")
+    s = Session(job, moves, program=program)
+    vc.connect()
+    for _ in range(50 * 12):  # the first passes are enough
+        s.step(vc.poll())
+    vc.close()
+    lim = [f for f in s.findings if f["kind"] == "travel_limit"]
+    # one finding per pass that crosses (lines 11-13 run into X68 and back), each first
+    # predicted, then seen on the real motion: no second alert for it
+    assert [f["line"] for f in lim] == sorted({f["line"] for f in lim}) and lim[0]["lines"][:3] == [11, 12, 13]
+    assert all(f["predicted"] and f["lead_time_s"] > 0 for f in lim)
+    f = lim[0]
+    assert f["status"] == "happened" and f["position"][0] == pytest.approx(68.0)
+    assert f["depth"] == pytest.approx(3.0) and "Xmax 65 exceeded by 3.000" in f["message"]
