@@ -192,11 +192,11 @@ class Cutter:
             w1.segments(p0[single], p1[single], sm[single], sid[single])
             self._execute(w1, body, out, probe=True, record=False)
             for k in np.nonzero(multi)[0]:
-                out[k] = self._probe_scratch(moves[k:k + 1], body)[0] / self.grid.frame.spacing**2
+                out[k] = self._probe_scratch(moves[k:k + 1], body)[0]
         else:
             for k in range(n):
                 if moves["kind"][k] in _LINEAR_KINDS + _ARC_KINDS:
-                    out[k] = self._probe_scratch(moves[k:k + 1], body)[0] / self.grid.frame.spacing**2
+                    out[k] = self._probe_scratch(moves[k:k + 1], body)[0]
         return out * self.grid.frame.spacing**2
 
     def probe_segment(self, p0, p1, body: Tool | Body | None = None) -> float:
