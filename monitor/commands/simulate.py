@@ -3,6 +3,9 @@
     dexmon simulate PROGRAM --stock box:X0,Y0,Z0,X1,Y1,Z1 --tool ball:6 --resolution 0.1
                     [--heights out.npy] [--stl out.stl] [--json]
 
+The first motion row is not cut when it is a rapid: it starts from wherever the machine
+was before the program (the interpreter assumes machine zero), so it is positioning.
+
 ``--heights`` writes the top-surface heights, float32 (ny, nx): element ``[j, i]`` is the
 ray at ``X0 + i*resolution, Y0 + j*resolution`` (both ends of the stock included), NaN
 where no material is left.
@@ -146,7 +149,14 @@ def run(args) -> int:
 
     cutter = Cutter(grid, tool, tools=tools or None)
     t0 = time.perf_counter()
-    res = cutter.cut_moves(moves, record_changes=False)
+    # the machine's position before the program is unknown (the interpreter starts at
+    # machine zero), so a leading rapid is positioning, not a move into the stock
+    first = int(np.argmax(cutting))
+    skip_first = bool(kinds[first] == MoveKind.RAPID)
+    todo = moves.copy()
+    if skip_first:
+        todo["kind"][first] = MoveKind.PAUSE
+    res = cutter.cut_moves(todo, record_changes=False)
     seconds = time.perf_counter() - t0
     removed = float(res.removed.sum())
     rapid_removed = float(res.removed[kinds == MoveKind.RAPID].sum())
@@ -158,6 +168,7 @@ def run(args) -> int:
         "cutting_moves": int((res.removed > 0).sum()),
         "removed_mm3": round(removed, 3),
         "removed_by_rapids_mm3": round(rapid_removed, 3),
+        "first_rapid_skipped": skip_first,
         "stock_mm3": round(stock_volume, 3),
         "remaining_mm3": round(grid.volume(), 3),
         "seconds": round(seconds, 4),
