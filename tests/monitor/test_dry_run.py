@@ -53,8 +53,12 @@ def test_cli_dry_run_bundled_example(tmp_path, capsys):
     for f in findings:
         assert {"kind", "line", "position", "lead_time_s"} <= set(f)
     assert out[-1]["event"] == "summary" and out[-1]["findings"] == len(findings)
+    # the virtual spindle then really gets there: each record updated, never re-alerted
+    updates = [x for x in out if x["event"] == "finding_update"]
+    assert sorted(u["kind"] for u in updates) == ["gouge", "rapid_into_stock"]
     r = RunReader(run)
     assert [f["kind"] for f in r.findings()] == [f["kind"] for f in findings]
+    assert all(f["status"] == "happened" for f in r.findings())
     assert r.state_count() > 20 and r.get_array("moves").size > 0
     assert "[stock]" in r.meta()["job"] and "planted gouge" in r.meta()["program"]
     assert len(list(r.cuts())) > 0
