@@ -213,10 +213,17 @@ def instances(p0, p1, axis0, axis1, length: float, step: float):
     s = p1 - p0
     t = s + length * (v - u)
     n = max(1, int(math.ceil(max(np.abs(s).max(), np.abs(t).max()) / step)))
-    f = np.linspace(0.0, 1.0, n + 1)[:, None]
-    tips = p0 + f * s
-    tips[0] = p0
-    tips[-1] = p1
-    axes = u + f * (v - u)
-    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    for _ in range(8):
+        f = np.linspace(0.0, 1.0, n + 1)[:, None]
+        tips = p0 + f * s
+        tips[0] = p0
+        tips[-1] = p1
+        axes = u + f * (v - u)
+        axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+        # eq. 3 spaces the tops of the *unnormalised* axes; unit axes move the top
+        # unevenly, so refine until every top step is within ``step`` too
+        worst = np.abs(np.diff(tips + length * axes, axis=0)).max() if n > 0 else 0.0
+        if worst <= step * (1 + 1e-9):
+            break
+        n = int(math.ceil(n * worst / step)) + 1
     return tips, axes
