@@ -18,14 +18,15 @@ offset from the controller (GRBL's WCO includes the tool length offset), otherwi
 from __future__ import annotations
 
 import json
+import math
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from drivers.state import MachineState, RunState
-from monitor.job import DEFAULT_MACHINE, Job
 from monitor.alerts import Alerter
+from monitor.job import DEFAULT_MACHINE, Job
 from monitor.predict import (LiveChecks, Lookahead, Workpiece, build_workpiece, finding_record, lead_time,
                              work_moves)
 from monitor.sync import ProgramPath, ProgramSync, SyncResult, row_seconds
@@ -117,6 +118,7 @@ class Session:
         self._prev_tip: np.ndarray | None = None
         self._trace = None
         self._trace_from = 0
+        self._fill_horizon = False
         if run is not None:
             run.put_meta("job", job.text)
             run.put_meta("program", program_text)
@@ -190,6 +192,7 @@ class Session:
             Cutter(self.live, self.wp.default_tool, self.wp.tol, tools=self.wp.tools).cut_moves(
                 done, move_ids=np.arange(1, s.row + 1), record_changes=False)
         self.lookahead.anchor(self.live, s.row, self._wco(state, s.row))
+        self._fill_horizon = True  # the first state may take long: predict the whole horizon now
 
     def _cut_live(self, tip: np.ndarray, s: SyncResult, state: MachineState) -> tuple[list[dict], float]:
         """Cut and check the path travelled since the last state; (finding records, mm^3)."""
@@ -233,7 +236,11 @@ class Session:
         return np.concatenate([prev[None], corners, tip[None]]), rows
 
     def _predict(self, s: SyncResult, state: MachineState) -> list[dict]:
-        found = self.lookahead.advance(s.progress)
+        if self._fill_horizon:
+            self._fill_horizon = False
+            found = self.lookahead.advance(s.progress, budget_rays=math.inf)
+        else:
+            found = self.lookahead.advance(s.progress)
         ovr = state.overrides[0] if state.overrides else 100
         return [finding_record(f, lead_time(f, self.path, s.progress, ovr), state.t) for f in found]
 

@@ -282,3 +282,19 @@ def test_travel_limit_predicted_then_happened_in_machine_coordinates(example):
     f = lim[0]
     assert f["status"] == "happened" and f["position"][0] == pytest.approx(68.0)
     assert f["depth"] == pytest.approx(3.0) and "Xmax 65 exceeded by 3.000" in f["message"]
+
+
+def test_first_state_fills_the_horizon_then_work_is_budgeted(example):
+    job, moves, program = example
+    s = Session(job, moves, program=program)
+    s.lookahead.budget_rays = 1.0  # one row per later state
+    mw = s.moves
+    k = int(np.nonzero(moves["line"] == 11)[0][0])
+    s.step(_state(0.0, mw["start_work"][k, :3]))
+    assert s.lookahead.behind(s.last_sync.progress) == 0 and s.lookahead.next_row > k + 2  # not one row
+    # the spindle jumps far ahead of the scratch model (the operator ran from line 30):
+    # the look-ahead restarts from the live model there instead of predicting the past
+    j = int(np.nonzero(moves["line"] == 30)[0][0])
+    s.step(MachineState(t=0.02, mpos=tuple(mw["start_work"][j, :3]) + (0, 0, 0), state=RunState.RUN,
+                        spindle=10000.0, line=30))
+    assert s.last_sync.row == j and s.lookahead.next_row == j + 1
