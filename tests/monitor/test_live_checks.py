@@ -298,3 +298,19 @@ def test_first_state_fills_the_horizon_then_work_is_budgeted(example):
     s.step(MachineState(t=0.02, mpos=tuple(mw["start_work"][j, :3]) + (0, 0, 0), state=RunState.RUN,
                         spindle=10000.0, line=30))
     assert s.last_sync.row == j and s.lookahead.next_row == j + 1
+
+
+def test_live_fixture_collision_off_the_program(example):
+    """The operator jogs the tool into the clamp (no program row goes there): found live."""
+    job, moves, program = example
+    job = dataclasses.replace(job, work_offset=(0.0, 0.0, 0.0), design=None)
+    s = Session(job, moves, program=program)
+    k = int(np.nonzero(moves["line"] == 9)[0][0])  # G0 X-8 Y2 at Z5, left of the block
+    p = np.array(s.moves["end_work"][k, :3])
+    s.step(_state(0.0, p))
+    for n, y in enumerate(np.linspace(2.0, 20.0, 10)):  # along Y at X-14, Z5: through the clamp's end
+        s.step(_state(0.02 * (n + 1), (-14.0, y, 5.0)))
+    hits = [f for f in s.findings if f["kind"] == "fixture_collision"]
+    assert hits and all(not f["predicted"] and f["status"] == "happened" for f in hits), s.findings
+    assert "clamp" in hits[0]["message"]
+    assert 14.0 - 3.0 <= hits[0]["position"][1] <= 26.0 + 3.0
