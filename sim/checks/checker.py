@@ -62,7 +62,7 @@ class Checker:
         self._top_bound = collisions.max_top(stock) if self.frame.is_top else np.inf
         needs_engagement = max_depth_of_cut is not None or any(
             not t.center_cutting for t in [tool, *self.tools.values()])
-        self.engagement = (motion.Engagement(self.frame, stock.top(), tool)
+        self.engagement = (motion.Engagement(self.frame, stock.top(), tool, chord=tol.chord)
                            if needs_engagement and self.frame.is_top else None)
         self._lines = np.zeros(1, np.int64)  # move id -> program line
         self.findings: list[Finding] = []
@@ -110,16 +110,17 @@ class Checker:
         for fx in self.fixtures:
             for tool, rows in self._tool_of_rows(moves):
                 out += fx.check(moves[rows], tool, ids[rows], self.min_volume)
-        if engagement is not None:
-            doc, core = engagement.run(moves)
-            if self.max_depth_of_cut is not None:
-                out += motion.depth_of_cut(moves, doc, self.max_depth_of_cut, ids)
-            for tool, rows in self._tool_of_rows(moves):
-                out += motion.plunges(moves[rows], core[rows], tool, self.max_ramp_deg, move_ids=ids[rows])
         # non-cutting bodies: probe before the cut; only candidates are verified in order
         pre = self._body_candidates(grid, cutter, moves, top_bound)
         snapshot = grid.copy() if pre else None
         res = cutter.cut_moves(moves, move_ids=ids.astype(np.int32))
+        if engagement is not None:
+            # after the cut: only the rays each move changed can have lost material
+            doc, core = engagement.run(moves, cut=res, grid=grid)
+            if self.max_depth_of_cut is not None:
+                out += motion.depth_of_cut(moves, doc, self.max_depth_of_cut, ids)
+            for tool, rows in self._tool_of_rows(moves):
+                out += motion.plunges(moves[rows], core[rows], tool, self.max_ramp_deg, move_ids=ids[rows])
         out += collisions.rapid_into_stock(moves, res.removed, ids, self.min_volume)
         out += motion.spindle_stopped_cutting(moves, res.removed, ids, self.min_volume)
         if pre:
@@ -209,7 +210,7 @@ class Checker:
         emap = ErrorMap(sf) if self.design is not None else None
         eng = None
         if self.engagement is not None and sf.is_top:
-            eng = motion.Engagement(sf, scratch.top(), self.tool)
+            eng = motion.Engagement(sf, scratch.top(), self.tool, chord=self.tol.chord)
         _, found = self._check_batch(scratch, cutter, moves, ids, emap, eng,
                                      design_rays=to_full if emap is not None else None,
                                      top_bound=self._top_bound)

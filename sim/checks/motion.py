@@ -13,6 +13,7 @@ import math
 import numba as nb
 import numpy as np
 
+from sim import dexel_store as ds
 from sim.checks.findings import Finding
 from sim.errors import InputError
 from sim.gcode.moves import MoveKind, Plane
@@ -24,9 +25,20 @@ AXES = "XYZABC"
 _PLANE_AXES = {int(Plane.XY): (0, 1, 2), int(Plane.XZ): (2, 0, 1), int(Plane.YZ): (1, 2, 0)}
 
 
+_MOTION_LUT = np.zeros(256, bool)
+_MOTION_LUT[[int(k) for k in MOTION_KINDS]] = True
+_ARC_LUT = np.zeros(256, bool)
+_ARC_LUT[[int(MoveKind.ARC_CW), int(MoveKind.ARC_CCW)]] = True
+
+
 def is_motion(moves: np.ndarray) -> np.ndarray:
     """bool (n,): rows that move the tool."""
-    return np.isin(moves["kind"], np.array([int(k) for k in MOTION_KINDS], np.uint8))
+    return _MOTION_LUT[moves["kind"]]
+
+
+def is_arc(moves: np.ndarray) -> np.ndarray:
+    """bool (n,): arc and helix rows (G2 / G3)."""
+    return _ARC_LUT[moves["kind"]]
 
 
 def move_ids_of(moves: np.ndarray, move_ids=None) -> np.ndarray:
@@ -93,7 +105,7 @@ def path_polyline(moves: np.ndarray, chord: float = 0.01, which: str = "tip"):
     """
     moves = np.asarray(moves)
     motion = is_motion(moves)
-    arc = motion & np.isin(moves["kind"], [int(MoveKind.ARC_CW), int(MoveKind.ARC_CCW)])
+    arc = motion & is_arc(moves)
     line = motion & ~arc
     zoff = moves["tool_length"] if which == "tip" else np.zeros(len(moves))
     p0s, p1s, rows = [], [], []
@@ -145,20 +157,36 @@ def parse_limits(text: str) -> dict[str, tuple[float, float]]:
     return out
 
 
+def _runs_of(ids: np.ndarray) -> list[np.ndarray]:
+    """Positions of ``ids`` split where the ids stop being consecutive."""
+    if ids.size == 0:
+        return []
+    d = np.diff(ids)
+    return np.split(np.arange(ids.size), np.nonzero((d < 0) | (d > 1))[0] + 1)
+
+
+def _where(lines) -> str:
+    return f"line {lines[0]}" if len(lines) == 1 else f"lines {lines[0]}-{lines[-1]}"
+
+
 def travel_limits(moves: np.ndarray, limits: dict, move_ids=None, chord: float = 0.01) -> list[Finding]:
     """Controlled-point positions outside the machine's travel.
 
     ``limits``: axis letter -> (min, max) machine coords. Lines are checked at both ends,
     arcs along the arc (within ``chord``). One finding per run of consecutive offending
-    moves and axis side, with the distance past the limit as ``depth``.
+    moves and axis side, at the move furthest past the limit, with that distance as
+    ``depth`` (what :func:`merge_findings` makes of one finding per move).
     """
     moves = np.asarray(moves)
     ids = move_ids_of(moves, move_ids)
-    p0, p1, row = path_polyline(moves, chord, which="machine")
-    motion_rows = np.nonzero(is_motion(moves))[0]
     out: list[Finding] = []
-    for axis, (lo, hi) in limits.items():
-        ax = AXES.index(axis.upper())
+    axes = [(axis, AXES.index(axis.upper()), lo, hi) for axis, (lo, hi) in limits.items()]
+    if not axes:
+        return out
+    motion_rows = np.nonzero(is_motion(moves))[0]
+    if any(ax < 3 for _, ax, _, _ in axes):
+        p0, p1, row = path_polyline(moves, chord, which="machine")
+    for axis, ax, lo, hi in axes:
         if ax < 3:
             v0, v1, vrow = p0[:, ax], p1[:, ax], row
             pts0, pts1 = p0, p1
@@ -166,26 +194,36 @@ def travel_limits(moves: np.ndarray, limits: dict, move_ids=None, chord: float =
             v0 = moves["start"][motion_rows, ax]
             v1 = moves["end"][motion_rows, ax]
             vrow = motion_rows
-            pts0 = np.array(moves["start"][motion_rows, :3])
-            pts1 = np.array(moves["end"][motion_rows, :3])
-        for side, past0, past1 in (("-", lo - v0, lo - v1), ("+", v0 - hi, v1 - hi)):
+            pts0 = moves["start"][motion_rows, :3]
+            pts1 = moves["end"][motion_rows, :3]
+        for side, lim in (("-", lo), ("+", hi)):
+            past0, past1 = (lim - v0, lim - v1) if side == "-" else (v0 - lim, v1 - lim)
             past = np.maximum(past0, past1)
             bad = np.nonzero(past > 0)[0]
-            worst: dict[int, int] = {}  # row -> its piece furthest past the limit
-            for q in bad:
-                k = int(vrow[q])
-                if k not in worst or past[q] > past[worst[k]]:
-                    worst[k] = q
-            for k, q in worst.items():
-                at_end = past1[q] >= past0[q]
-                pos = pts1[q] if at_end else pts0[q]
-                lim = lo if side == "-" else hi
+            if bad.size == 0:
+                continue
+            # each offending row's piece furthest past the limit (the first of equals)
+            o = np.lexsort((-past[bad], vrow[bad]))
+            q_sorted = bad[o]
+            first = np.ones(q_sorted.size, bool)
+            first[1:] = vrow[q_sorted][1:] != vrow[q_sorted][:-1]
+            worst_q = q_sorted[first]
+            worst_k = vrow[worst_q]
+            name = f"{axis}{'min' if side == '-' else 'max'}"
+            for run in _runs_of(ids[worst_k]):
+                qs, ks = worst_q[run], worst_k[run]
+                w = int(np.argmax(past[qs]))
+                q, k = int(qs[w]), int(ks[w])
+                pos = pts1[q] if past1[q] >= past0[q] else pts0[q]
+                lines = sorted({int(x) for x in moves["line"][ks]})
+                msg = (f"travel limit: {name} {lim:g} exceeded by {float(past[q]):.3f} at line "
+                       f"{int(moves['line'][k])}")
+                if ks.size > 1:
+                    msg += f" ({_where(lines)}, {ks.size} moves)"
                 out.append(Finding(
-                    kind="travel_limit", line=int(moves["line"][k]), stage=int(ids[k]),
-                    position=tuple(pos), depth=float(past[q]),
-                    message=(f"travel limit: {axis}{'min' if side == '-' else 'max'} {lim:g} exceeded by "
-                             f"{float(past[q]):.3f} at line {int(moves['line'][k])}"),
-                    detail={"group": f"{axis}{side}", "axis": axis, "limit": lim},
+                    kind="travel_limit", line=int(moves["line"][k]), lines=tuple(lines), stage=int(ids[k]),
+                    stages=tuple(int(x) for x in ids[ks]), position=tuple(pos), depth=float(past[q]),
+                    message=msg, detail={"group": f"{axis}{side}", "axis": axis, "limit": lim},
                 ))
     return out
 
@@ -215,70 +253,277 @@ def spindle_stopped_cutting(moves: np.ndarray, removed, move_ids=None, min_volum
 
 # --- depth of cut and plunges -------------------------------------------------------------
 
-@nb.njit(cache=True)
-def _engage(top, x0, y0, sp, nu, nv, p0, p1, row, env_d, env_h, R, core, n_rows, doc, core_depth):
-    """Walk the pieces in order on the top-surface heights ``top`` (nv*nu float64, NaN =
-    no material), lowering it under the tool's lower envelope ``env_h(env_d)`` and
-    recording per row the largest material thickness cut at any ray (``doc``) and at
-    rays within ``core`` of the axis path (``core_depth``)."""
-    nenv = env_d.size
-    dstep = env_d[1] - env_d[0]
+#: lower-envelope shapes with a closed form (anything else uses the sampled envelope)
+SHAPE_TABLE, SHAPE_BALL, SHAPE_FLAT = 0, 1, 2  # literal ints: numba folds them
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy")
+def _env(d, inv_dstep, env_h):
+    # the tool's lower envelope at distance d from the axis (linear in the table)
+    nenv = env_h.size
+    f = d * inv_dstep
+    m = int(f)
+    if m >= nenv - 1:
+        return env_h[nenv - 1]
+    return env_h[m] + (env_h[m + 1] - env_h[m]) * (f - m)
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _piece_frames(p0, p1):
+    """Per straight tip piece (m, 3) -> (m, 8) float64: start x y z (the lower end's z
+    for a vertical piece), unit XY direction ux uy, slope dz/dxy, sin of the descent
+    angle, XY length (0 for a vertical piece)."""
+    out = np.empty((p0.shape[0], 8))
     for q in range(p0.shape[0]):
+        x0, y0, z0 = p0[q, 0], p0[q, 1], p0[q, 2]
+        dx, dy, dz = p1[q, 0] - x0, p1[q, 1] - y0, p1[q, 2] - z0
+        ell = np.sqrt(dx * dx + dy * dy)
+        if ell > 1e-9:
+            out[q, 3] = dx / ell
+            out[q, 4] = dy / ell
+            out[q, 5] = dz / ell
+            out[q, 6] = dz / np.sqrt(ell * ell + dz * dz)
+            out[q, 7] = ell
+        else:  # vertical: the lowest tip position is all that counts
+            z0 = min(z0, z0 + dz)
+            out[q, 3] = 1.0
+            out[q, 4] = 0.0
+            out[q, 5] = 0.0
+            out[q, 6] = 0.0
+            out[q, 7] = 0.0
+        out[q, 0] = x0
+        out[q, 1] = y0
+        out[q, 2] = z0
+    return out
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy")
+def _bottom(shape, rx, ry, z0, ux, uy, m, sin_t, ell, R, R2, slack, inv_dstep, env_h, h_min, monotone):
+    """Lowest point of the tool over a ray for one straight piece, and the ray's squared
+    XY distance to the axis path: ``(s, d2)``, ``s = inf`` when the tool misses the ray.
+
+    ``(rx, ry)``: the ray relative to the piece's start (mm); the piece frame as made by
+    :func:`_piece_frames`. Ball and flat ends are exact (the lowest point over the ray of
+    the swept sphere / disc, as the cutter sweeps them); other tools try the nearest
+    axis position and the lower end on the sampled envelope ``env_h``. Rays up to
+    ``slack`` mm outside the tool's reach count as reached at its rim (the cutter rounds
+    differently on the boundary; a ray it cut must not keep its old height here).
+    """
+    a = rx * ux + ry * uy       # along the piece
+    e = -rx * uy + ry * ux      # across it
+    ac = min(max(a, 0.0), ell) - a
+    d2 = e * e + ac * ac
+    qc = R2 - e * e
+    if shape == SHAPE_BALL or shape == SHAPE_FLAT:
+        rho = np.sqrt(max(qc, 0.0))
+        s_lo = max(a - rho, 0.0)
+        s_hi = min(a + rho, ell)
+        if shape == SHAPE_BALL:
+            s = min(max(a - rho * sin_t, s_lo), max(s_hi, s_lo))
+            w = a - s
+            v = z0 + m * s + R - np.sqrt(max(rho * rho - w * w, 0.0))
+        else:
+            v = z0 + min(m * s_lo, m * max(s_hi, s_lo))
+        return (v if (qc >= -2.0 * R * slack) & (s_lo <= s_hi + slack) else np.inf), d2
+    if d2 > R2 + 2.0 * R * slack:
+        return np.inf, d2
+    t = min(max(a, 0.0), ell)
+    best = z0 + m * t + _env(np.sqrt(d2), inv_dstep, env_h)
+    # an end lower than best by less than the envelope's floor cannot win; with a
+    # monotone envelope only the lower end can win at all
+    for c in range(2):
+        if c == 0:
+            if monotone and m > 0.0:
+                continue
+            tc = 0.0
+        else:
+            if monotone and m <= 0.0:
+                continue
+            tc = ell
+        zc = z0 + m * tc
+        if zc + h_min >= best:
+            continue
+        e2 = (a - tc) * (a - tc) + e * e
+        if e2 > R2 + 2.0 * R * slack:
+            continue
+        z = zc + _env(np.sqrt(e2), inv_dstep, env_h)
+        if z < best:
+            best = z
+    return best, d2
+
+
+@nb.njit(cache=True, inline="always", error_model="numpy")
+def _cut_run(top_r, n, rx0, ry, sp, shape, z0, ux, uy, m, sin_t, ell, R, R2, slack, inv_dstep, env_h,
+             h_min, monotone, core2):
+    """Lower ``n`` consecutive rays of one grid row (``top_r`` their heights, the first at
+    ``rx0, ry`` from the piece start) under one piece; ``(thickest cut, thickest cut
+    within the core)``. One loop per shape, branch-free, so that it vectorises."""
+    dk = 0.0
+    ck = 0.0
+    if shape == SHAPE_BALL:
+        for q in range(n):
+            v, d2 = _bottom(SHAPE_BALL, rx0 + q * sp, ry, z0, ux, uy, m, sin_t, ell, R, R2, slack, inv_dstep,
+                            env_h, h_min, monotone)
+            t_old = top_r[q]
+            cut = t_old - v
+            good = cut > 0.0  # False for empty rays (NaN) and rays the tool misses (inf)
+            top_r[q] = v if good else t_old
+            c = cut if good else 0.0
+            dk = max(dk, c)
+            ck = max(ck, c if d2 <= core2 else 0.0)
+    elif shape == SHAPE_FLAT:
+        for q in range(n):
+            v, d2 = _bottom(SHAPE_FLAT, rx0 + q * sp, ry, z0, ux, uy, m, sin_t, ell, R, R2, slack, inv_dstep,
+                            env_h, h_min, monotone)
+            t_old = top_r[q]
+            cut = t_old - v
+            good = cut > 0.0
+            top_r[q] = v if good else t_old
+            c = cut if good else 0.0
+            dk = max(dk, c)
+            ck = max(ck, c if d2 <= core2 else 0.0)
+    else:
+        for q in range(n):
+            v, d2 = _bottom(SHAPE_TABLE, rx0 + q * sp, ry, z0, ux, uy, m, sin_t, ell, R, R2, slack, inv_dstep,
+                            env_h, h_min, monotone)
+            t_old = top_r[q]
+            cut = t_old - v
+            good = cut > 0.0
+            top_r[q] = v if good else t_old
+            c = cut if good else 0.0
+            dk = max(dk, c)
+            ck = max(ck, c if d2 <= core2 else 0.0)
+    return dk, ck
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _engage(top, x0, y0, sp, nu, nv, pf, row, shape, R, slack, env_d, env_h, core, doc, core_depth):
+    """Walk the pieces in order on the top-surface heights ``top`` (nv*nu float64, NaN =
+    no material), lowering it under the tool and recording per row the largest material
+    thickness cut at any ray (``doc``) and at rays within ``core`` of the axis path
+    (``core_depth``). Every ray under each piece's box is looked at (used without a cut
+    result). ``pf``: piece frames (:func:`_piece_frames`)."""
+    inv_dstep = 1.0 / (env_d[1] - env_d[0])
+    h_min = env_h.min()
+    monotone = np.all(env_h[1:] >= env_h[:-1])
+    R2 = R * R
+    core2 = core * core
+    for q in range(pf.shape[0]):
         k = row[q]
-        ax, ay, az = p0[q, 0], p0[q, 1], p0[q, 2]
-        bx, by, bz = p1[q, 0], p1[q, 1], p1[q, 2]
-        dx, dy = bx - ax, by - ay
-        L2 = dx * dx + dy * dy
+        ax, ay = pf[q, 0], pf[q, 1]
+        bx = ax + pf[q, 3] * pf[q, 7]
+        by = ay + pf[q, 4] * pf[q, 7]
         i0 = max(int(np.ceil((min(ax, bx) - R - x0) / sp)), 0)
         i1 = min(int(np.floor((max(ax, bx) + R - x0) / sp)), nu - 1)
         j0 = max(int(np.ceil((min(ay, by) - R - y0) / sp)), 0)
         j1 = min(int(np.floor((max(ay, by) + R - y0) / sp)), nv - 1)
         for j in range(j0, j1 + 1):
-            py = y0 + j * sp
-            for i in range(i0, i1 + 1):
-                r = j * nu + i
-                t_old = top[r]
-                if np.isnan(t_old):
-                    continue
-                px = x0 + i * sp
-                # lowest tool point over this ray: the nearest axis position, and the ends
-                best = np.inf
-                dmin = np.inf
-                for c in range(3):
-                    if c == 0:
-                        if L2 > 0.0:
-                            t = ((px - ax) * dx + (py - ay) * dy) / L2
-                            t = min(max(t, 0.0), 1.0)
-                        else:
-                            t = 1.0 if bz < az else 0.0
-                    elif c == 1:
-                        t = 0.0
-                    else:
-                        t = 1.0
-                    cx = ax + t * dx
-                    cy = ay + t * dy
-                    cz = az + t * (bz - az)
-                    d = np.sqrt((px - cx) ** 2 + (py - cy) ** 2)
-                    if d < dmin:
-                        dmin = d
-                    if d > R:
+            if i1 < i0:
+                break
+            r0 = j * nu + i0
+            dk, ck = _cut_run(top[r0:r0 + i1 - i0 + 1], i1 - i0 + 1, x0 + i0 * sp - ax, y0 + j * sp - ay, sp,
+                              shape, pf[q, 2], pf[q, 3], pf[q, 4], pf[q, 5], pf[q, 6], pf[q, 7], R, R2,
+                              slack, inv_dstep, env_h, h_min, monotone, core2)
+            doc[k] = max(doc[k], dk)
+            core_depth[k] = max(core_depth[k], ck)
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _engage_changed(top, x0, y0, sp, nu, nv, pf, piece_ptr, shape, R, slack, env_d, env_h, core, chg_ptr,
+                    chg_rays,
+                    best_buf, dmin_buf, doc, core_depth):
+    """Like :func:`_engage`, but row ``k`` looks only at the rays its real cut changed,
+    ``chg_rays[chg_ptr[k]:chg_ptr[k + 1]]`` (sorted; a ray the tool did not change lost
+    nothing), and a row's cut at a ray is measured against the lowest of all its pieces.
+
+    ``piece_ptr`` (n_rows + 1,): row ``k``'s pieces are ``piece_ptr[k]:piece_ptr[k + 1]``.
+    ``best_buf`` / ``dmin_buf`` (n_rays,) float64 scratch, NaN on entry and on return.
+    """
+    inv_dstep = 1.0 / (env_d[1] - env_d[0])
+    h_min = env_h.min()
+    monotone = np.all(env_h[1:] >= env_h[:-1])
+    R2 = R * R
+    core2 = core * core
+    for k in range(doc.size):
+        qa = piece_ptr[k]
+        qb = piece_ptr[k + 1]
+        ca = chg_ptr[k]
+        cb = chg_ptr[k + 1]
+        if qa == qb or ca == cb:
+            continue
+        if qb - qa == 1:  # a line: through its changed rays, a row's run at a time
+            dk = doc[k]
+            ck = core_depth[k]
+            m = ca
+            while m < cb:
+                r0 = chg_rays[m]
+                j = r0 // nu
+                i0 = r0 - j * nu
+                e = m + 1
+                while e < cb and chg_rays[e] == r0 + (e - m) and i0 + (e - m) < nu:
+                    e += 1
+                d1, c1 = _cut_run(top[r0:r0 + e - m], e - m, x0 + i0 * sp - pf[qa, 0], y0 + j * sp - pf[qa, 1], sp,
+                                  shape, pf[qa, 2], pf[qa, 3], pf[qa, 4], pf[qa, 5], pf[qa, 6], pf[qa, 7], R, R2,
+                                  slack, inv_dstep, env_h, h_min, monotone, core2)
+                dk = max(dk, d1)
+                ck = max(ck, c1)
+                m = e
+            doc[k] = dk
+            core_depth[k] = ck
+            continue
+        # chords of an arc: mark the changed rays, let every chord lower its marks
+        for m in range(ca, cb):
+            r = chg_rays[m]
+            best_buf[r] = np.inf
+            dmin_buf[r] = np.inf
+        for q in range(qa, qb):
+            ax, ay = pf[q, 0], pf[q, 1]
+            bx = ax + pf[q, 3] * pf[q, 7]
+            by = ay + pf[q, 4] * pf[q, 7]
+            i0 = max(int(np.ceil((min(ax, bx) - R - x0) / sp)), 0)
+            i1 = min(int(np.floor((max(ax, bx) + R - x0) / sp)), nu - 1)
+            j0 = max(int(np.ceil((min(ay, by) - R - y0) / sp)), 0)
+            j1 = min(int(np.floor((max(ay, by) + R - y0) / sp)), nv - 1)
+            for j in range(j0, j1 + 1):
+                for i in range(i0, i1 + 1):
+                    r = j * nu + i
+                    if np.isnan(best_buf[r]):
                         continue
-                    f = d / dstep
-                    m = int(f)
-                    if m >= nenv - 1:
-                        h = env_h[nenv - 1]
-                    else:
-                        h = env_h[m] + (env_h[m + 1] - env_h[m]) * (f - m)
-                    if cz + h < best:
-                        best = cz + h
-                if best == np.inf or best >= t_old:
-                    continue
-                cut = t_old - best
-                if cut > doc[k]:
-                    doc[k] = cut
-                if dmin <= core and cut > core_depth[k]:
-                    core_depth[k] = cut
-                top[r] = best
+                    v, d2 = _bottom(shape, x0 + i * sp - ax, y0 + j * sp - ay, pf[q, 2], pf[q, 3], pf[q, 4],
+                                    pf[q, 5], pf[q, 6], pf[q, 7], R, R2, slack, inv_dstep, env_h, h_min,
+                                    monotone)
+                    if v < best_buf[r]:
+                        best_buf[r] = v
+                    if d2 < dmin_buf[r]:
+                        dmin_buf[r] = d2
+        for m in range(ca, cb):
+            r = chg_rays[m]
+            best = best_buf[r]
+            d2 = dmin_buf[r]
+            best_buf[r] = np.nan
+            dmin_buf[r] = np.nan
+            t_old = top[r]
+            if np.isnan(t_old) or not best < t_old:
+                continue
+            cut = t_old - best
+            if cut > doc[k]:
+                doc[k] = cut
+            if d2 <= core2 and cut > core_depth[k]:
+                core_depth[k] = cut
+            top[r] = best
+
+
+@nb.njit(cache=True)
+def _resync_top(S, rays, top, mark):
+    """``top[r]`` = the real model's top of every ray in ``rays`` (NaN where empty), each
+    distinct ray once (``mark`` (n_rays,) float64 scratch, NaN on entry and on return)."""
+    for m in range(rays.size):
+        r = rays[m]
+        if np.isnan(mark[r]):
+            mark[r] = 0.0
+            top[r] = ds.ray_top(S, r)
+    for m in range(rays.size):
+        mark[rays[m]] = np.nan
 
 
 class Engagement:
@@ -303,35 +548,75 @@ class Engagement:
         self.env_d = np.linspace(0.0, R, 257)
         self.env_h = np.nan_to_num(np.asarray(tool.lowest_height(self.env_d), np.float64), nan=0.0)
         self.core = max(0.75 * frame.spacing, 0.05 * R)
+        ball = R - np.sqrt(np.maximum(R * R - self.env_d**2, 0.0))
+        if np.all(self.env_h == 0.0):
+            self.shape = SHAPE_FLAT
+        elif np.allclose(self.env_h, ball, rtol=0.0, atol=1e-9):
+            self.shape = SHAPE_BALL
+        else:
+            self.shape = SHAPE_TABLE
+        # rays on the tool's boundary: the cutter's rounding may reach them where ours does not
+        self.slack = 1e-6
+        self._buf = None
 
-    def run(self, moves: np.ndarray):
-        """Advance through ``moves``; returns ``(doc, core_depth)``, float64 (n,) mm each."""
+    def run(self, moves: np.ndarray, cut=None, grid=None):
+        """Advance through ``moves``; returns ``(doc, core_depth)``, float64 (n,) mm each.
+
+        Without ``cut`` every ray under the tool is looked at. With ``cut`` (the
+        :class:`sim.cut.CutResult` of cutting exactly these moves, changes recorded)
+        only the rays each move really changed are, which costs a small fraction of the
+        cut itself; with ``grid`` too (the grid that was cut) the heights of those rays
+        are then taken from it, so the estimate follows the real model.
+        """
         moves = np.asarray(moves)
         n = len(moves)
         doc = np.zeros(n)
         core = np.zeros(n)
         p0, p1, row = path_polyline(moves, self.chord, which="tip")
-        if row.size:
-            f = self.frame
-            _engage(self.top, float(f.origin[0]), float(f.origin[1]), f.spacing, f.nu, f.nv,
-                    np.ascontiguousarray(p0), np.ascontiguousarray(p1), row, self.env_d, self.env_h,
-                    self.R, self.core, n, doc, core)
+        if row.size == 0:
+            return doc, core
+        f = self.frame
+        x0, y0 = float(f.origin[0]), float(f.origin[1])
+        pf = _piece_frames(np.ascontiguousarray(p0), np.ascontiguousarray(p1))
+        if cut is None:
+            _engage(self.top, x0, y0, f.spacing, f.nu, f.nv, pf, row, self.shape, self.R, self.slack, self.env_d,
+                    self.env_h, self.core, doc, core)
+            return doc, core
+        chg_ptr = np.asarray(cut.changed_ptr, np.int64)
+        chg_rays = np.asarray(cut.changed_rays, np.int64)
+        if chg_ptr.size != n + 1:
+            raise InputError(f"cut result covers {chg_ptr.size - 1} moves, expected {n} with changes recorded")
+        piece_ptr = np.searchsorted(row, np.arange(n + 1)).astype(np.int64)
+        if self._buf is None:
+            self._buf = (np.full(f.n_rays, np.nan), np.full(f.n_rays, np.nan))
+        _engage_changed(self.top, x0, y0, f.spacing, f.nu, f.nv, pf, piece_ptr, self.shape, self.R, self.slack,
+                        self.env_d, self.env_h, self.core, chg_ptr, chg_rays, self._buf[0], self._buf[1], doc, core)
+        if grid is not None and chg_rays.size:
+            _resync_top(grid.S, chg_rays, self.top, self._buf[0])
         return doc, core
 
 
 def depth_of_cut(moves: np.ndarray, doc, limit: float, move_ids=None) -> list[Finding]:
-    """Moves whose axial depth of cut ``doc`` (float64 (n,) mm) is over ``limit`` mm."""
+    """Moves whose axial depth of cut ``doc`` (float64 (n,) mm) is over ``limit`` mm: one
+    finding per run of consecutive offending moves, at the deepest (what
+    :func:`merge_findings` makes of one finding per move)."""
     moves = np.asarray(moves)
     ids = move_ids_of(moves, move_ids)
+    doc = np.asarray(doc, np.float64)
+    bad = np.nonzero(doc > limit)[0]
     out = []
-    for k in np.nonzero(np.asarray(doc) > limit)[0]:
+    for run in _runs_of(ids[bad]):
+        ks = bad[run]
+        k = int(ks[int(np.argmax(doc[ks]))])
         tip = np.array(moves["end"][k, :3], np.float64)
         tip[2] -= moves["tool_length"][k]
-        out.append(Finding(kind="depth_of_cut", line=int(moves["line"][k]), stage=int(ids[k]),
-                           position=tuple(tip), depth=float(doc[k]),
-                           message=f"depth of cut {float(doc[k]):.3f} mm over the {limit:g} mm limit "
-                                   f"at line {int(moves['line'][k])}",
-                           detail={"limit": limit}))
+        lines = sorted({int(x) for x in moves["line"][ks]})
+        msg = f"depth of cut {float(doc[k]):.3f} mm over the {limit:g} mm limit at line {int(moves['line'][k])}"
+        if ks.size > 1:
+            msg += f" ({_where(lines)}, {ks.size} moves)"
+        out.append(Finding(kind="depth_of_cut", line=int(moves["line"][k]), lines=tuple(lines), stage=int(ids[k]),
+                           stages=tuple(int(x) for x in ids[ks]), position=tuple(tip), depth=float(doc[k]),
+                           message=msg, detail={"limit": limit}))
     return out
 
 
