@@ -306,9 +306,13 @@ class Cutter:
         p0, p1, sm, sid = work.seg_arrays()
         if len(p0) and not force_instances:
             tp = sweep.body_params(body)
+            top_bound = np.inf
+            if len(p0) >= 64 and not probe:  # lets chained moves skip rays already cut
+                tops = grid.top()
+                top_bound = float(np.nanmax(tops)) if np.isfinite(tops).any() else -np.inf
             self._loop(lambda S, st, cr, cm: K.cut_linear_batch(
                 S, f.origin[0], f.origin[1], f.spacing, f.nu, f.nv, p0, p1, sm, sid, tp, eps,
-                probe, record, removed, cr, cm, st), len(p0), record, rays_out, moves_out)
+                probe, record, removed, cr, cm, st, top_bound), len(p0), record, rays_out, moves_out)
         tips, axes, pm, pid = work.pose_arrays()
         if len(tips):
             prof = sweep.body_profile(body)

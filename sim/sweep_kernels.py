@@ -302,7 +302,7 @@ def _rows_any(tp, x0, y0, z0, dz, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
 
 @nb.njit(cache=True)
 def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps, probe,
-                     record, removed, chg_ray, chg_move, state):
+                     record, removed, chg_ray, chg_move, state, top_bound=np.inf):
     """Sweep the body ``tp`` along each straight tip move ``P0[k] -> P1[k]`` and cut it.
 
     S: store tuple; grid rays at ``(gx0 + i*sp, gy0 + j*sp)``, ``nu x nv`` of them.
@@ -313,6 +313,13 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     chg_ray / chg_move: int64 buffers of changed rays; state: int64 [k, j, i, n_changed]
     where to resume. Returns DONE, STOP_POOL (grow the pool, call again) or STOP_CHANGES
     (grow the buffers, call again); the state says where it stopped.
+    top_bound: no material anywhere lies above this (mm; ``inf`` when unknown).
+
+    A move that starts exactly where the batch's previous move ended skips the rays
+    whose lowest point of the sweep lies at the start (behind it): the previous move's
+    end pose was already cut there, as deep, and its flutes reached above ``top_bound``,
+    so nothing is left for this move on those rays. For a level or climbing flat end mill
+    and for a ball that is every ray with ``a <= -R |sin(slope)|`` (``a`` along the move).
 
     Per move, the intervals of all rays within reach are computed first (one call,
     vectorised for flat and ball), then compared with the stored material; one-segment
@@ -367,6 +374,16 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
         jhi = min(nv - 1, int(math.floor((ymax + Rc - gy0) / sp)))
         if jhi < jlo:
             continue
+        skip_behind = False
+        a_cut = 0.0
+        if (not probe and k > 0 and ell > 0.0 and P1[k - 1, 0] == x0 and P1[k - 1, 1] == y0
+                and P1[k - 1, 2] == z0 and min(P0[k - 1, 2], z0) + h_top >= top_bound):
+            if code == CODE_BALL:
+                skip_behind = True
+                a_cut = -R * abs(sin_t) - 1e-9
+            elif code == CODE_FLAT and m >= 0.0:
+                skip_behind = True
+                a_cut = -1e-9
         # each row's reach: within Rc of the move's bounding box
         nrows = jhi - jlo + 1
         row_off[0] = 0
@@ -379,6 +396,14 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                 w = math.sqrt(Rc * Rc - dym * dym)
                 ilo = max(0, int(math.ceil((xmin - w - gx0) / sp)))
                 ihi = min(nu - 1, int(math.floor((xmax + w - gx0) / sp)))
+                if skip_behind:
+                    # keep rays with a = ux (x - x0) + uy (y - y0) > a_cut (a spare ray is harmless)
+                    if ux > 1e-12:
+                        ilo = max(ilo, int(math.floor((x0 + (a_cut - uy * (y - y0)) / ux - gx0) / sp)))
+                    elif ux < -1e-12:
+                        ihi = min(ihi, int(math.ceil((x0 + (a_cut - uy * (y - y0)) / ux - gx0) / sp)))
+                    elif uy * (y - y0) < a_cut - 1e-9:
+                        ihi = ilo - 1
             row_ilo[jj] = ilo
             row_off[jj + 1] = row_off[jj] + max(ihi - ilo + 1, 0)
         total = row_off[nrows]

@@ -346,3 +346,20 @@ def test_cutter_rejects_what_is_not_a_grid_or_a_tool():
         Cutter("grid", parse_tool_spec("flat:6"))
     with pytest.raises(InputError):
         Cutter(stock(), "flat:6")
+
+
+@pytest.mark.parametrize("spec", ["ball:6", "flat:6", "flat:6:L=2", "ball:6:L=2", "bull:6:1"])
+def test_chained_batch_equals_moves_cut_one_by_one(spec):
+    # a batch lets a move skip the rays behind its start (the previous move cut them);
+    # the result must be the same model as cutting the moves separately
+    rng = np.random.default_rng(7)
+    pts = np.cumsum(np.c_[rng.uniform(-0.8, 0.8, (120, 2)), rng.uniform(-0.3, 0.3, 120)], axis=0)
+    pts += [20, 10, 7]
+    rows = [(MoveKind.FEED, pts[k], pts[k + 1]) for k in range(len(pts) - 1)]
+    mv = moves_of(*rows)
+    t = parse_tool_spec(spec)
+    g1, g2 = stock(), stock()
+    Cutter(g1, t).cut_moves(mv)
+    for k in range(len(mv)):
+        Cutter(g2, t).cut_moves(mv[k:k + 1], move_ids=[k + 1])
+    assert same_model(g1, g2)
