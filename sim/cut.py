@@ -242,7 +242,11 @@ class Cutter:
         return self.tol.instance_fraction * self.grid.frame.spacing
 
     def _plan(self, moves, rows, ids, body, multi) -> _Work:
-        """Turn move rows into exact segments and/or instance poses."""
+        """Turn move rows into exact segments or instance poses, in program order.
+
+        Order matters: each face records the first move that reached it and each move is
+        credited with what it removed, so the pieces are cut row by row.
+        """
         work = _Work()
         if len(moves) == 0:
             return work
@@ -254,13 +258,8 @@ class Cutter:
         arc = np.isin(kind, _ARC_KINDS) & ~bad
         exact = self._exact(body)
         length = body.flute_length if isinstance(body, Tool) else body.top
-        if exact:
-            work.segments(start[lin], end[lin], rows[lin], ids[lin])
-        else:
-            for k in np.nonzero(lin)[0]:
-                tips, axes = sweep.instances(start[k], end[k], _Z_AXIS, _Z_AXIS, length, self._step())
-                work.poses(tips, axes, rows[k], ids[k])
-                multi[rows[k]] = True
+        # the pieces of every row: (first point, last point) arrays per row
+        pieces: dict[int, np.ndarray] = {}
         for k in np.nonzero(arc)[0]:
             center = np.array(moves["center"][k], np.float64)
             center[2] -= moves["tool_length"][k]
@@ -270,14 +269,45 @@ class Cutter:
             if exact:
                 pq = sweep.PLANE_AXES[plane][:2]
                 radius = max(float(np.hypot(*(start[k][list(pq)] - center[list(pq)]))), 1e-9)
-                pts = sweep.arc_points(start[k], end[k], center, plane, turns, cw,
-                                       max_step_angle=sweep.chord_step_angle(radius, self.tol.chord))
-                work.segments(pts[:-1], pts[1:], rows[k], ids[k])
+                pieces[k] = sweep.arc_points(start[k], end[k], center, plane, turns, cw,
+                                             max_step_angle=sweep.chord_step_angle(radius, self.tol.chord))
             else:
-                pts = sweep.arc_points(start[k], end[k], center, plane, turns, cw,
-                                       max_step_length=self._step())
-                work.poses(pts, np.broadcast_to(_Z_AXIS, pts.shape).copy(), rows[k], ids[k])
+                pieces[k] = sweep.arc_points(start[k], end[k], center, plane, turns, cw,
+                                             max_step_length=self._step())
             multi[rows[k]] = True
+        if not exact:
+            for k in np.nonzero(lin)[0]:
+                pieces[k], _ = sweep.instances(start[k], end[k], _Z_AXIS, _Z_AXIS, length, self._step())
+                multi[rows[k]] = True
+        # sizes per row -> offsets, then fill linear rows vectorised and the rest per row
+        if exact:
+            size = lin.astype(np.int64)
+            for k, pts in pieces.items():
+                size[k] = len(pts) - 1
+        else:
+            size = np.zeros(len(moves), np.int64)
+            for k, pts in pieces.items():
+                size[k] = len(pts)
+        off = np.concatenate([[0], np.cumsum(size)])
+        total = int(off[-1])
+        owner = np.repeat(np.arange(len(moves)), size)
+        if exact:
+            p0 = np.empty((total, 3))
+            p1 = np.empty((total, 3))
+            p0[off[:-1][lin]] = start[lin]
+            p1[off[:-1][lin]] = end[lin]
+            for k, pts in pieces.items():
+                p0[off[k]:off[k + 1]] = pts[:-1]
+                p1[off[k]:off[k + 1]] = pts[1:]
+            work.segments(p0, p1, rows[owner], ids[owner])
+        else:
+            tips = np.empty((total, 3))
+            for k, pts in pieces.items():
+                tips[off[k]:off[k + 1]] = pts
+            work.pose_tip.append(tips)
+            work.pose_axis.append(np.broadcast_to(_Z_AXIS, tips.shape).copy())
+            work.pose_move.append(rows[owner].astype(np.int64))
+            work.pose_id.append(ids[owner].astype(np.int32))
         return work
 
     def _segment_work(self, p0, p1, move_id, axis, axis1, body) -> _Work:

@@ -363,3 +363,16 @@ def test_chained_batch_equals_moves_cut_one_by_one(spec):
     for k in range(len(mv)):
         Cutter(g2, t).cut_moves(mv[k:k + 1], move_ids=[k + 1])
     assert same_model(g1, g2)
+
+
+@pytest.mark.parametrize("spec", ["flat:6", Tool.custom([[0, 3], [24, 3]])])
+def test_moves_are_cut_in_program_order(spec):
+    # an arc first, then a short line inside its swept region: the arc takes the
+    # material and the line finds none; the faces carry the arc's id
+    tool = parse_tool_spec(spec) if isinstance(spec, str) else spec
+    g = stock()
+    mv = moves_of((MoveKind.ARC_CCW, (25, 10, 7), (15, 10, 7), (20, 10, 7)),
+                  (MoveKind.FEED, (20, 15, 7), (20.5, 15, 7)))
+    res = Cutter(g, tool).cut_moves(mv)
+    assert res.removed[0] > 0 and res.removed[1] < 0.01 * res.removed[0]
+    assert g.face_ids(81, 60)[0, 1] == 1  # x 20.25, y 15: on the line, cut by the arc
