@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from sim.checks import collisions, motion
+from sim.checks.arrays import distinct
 from sim.checks.error_map import DesignModel, ErrorMap
 from sim.checks.findings import Finding, merge_findings
 from sim.cut import CutResult, Cutter
@@ -65,6 +66,7 @@ class Checker:
         self.engagement = (motion.Engagement(self.frame, stock.top(), tool, chord=tol.chord)
                            if needs_engagement and self.frame.is_top else None)
         self._lines = np.zeros(1, np.int64)  # move id -> program line
+        self._bodies: dict = {}
         self.findings: list[Finding] = []
 
     # --- bookkeeping --------------------------------------------------------------------
@@ -83,7 +85,7 @@ class Checker:
             return [(self.tool, np.arange(len(moves)))]
         out = []
         col = moves["tool"]
-        for num in np.unique(col):
+        for num in distinct(col):
             out.append((self.tools.get(int(num), self.tool), np.nonzero(col == num)[0]))
         return out
 
@@ -131,11 +133,19 @@ class Checker:
                 out += error_map.findings(self.tol, self._lines, rays=rays, undercut=False)
         return res, merge_findings(out)
 
+    def _contact_bodies(self, tool):
+        """:func:`collisions.contact_bodies` of ``tool``, made once per tool."""
+        got = self._bodies.get(id(tool))
+        if got is None or got[0] is not tool:
+            got = (tool, collisions.contact_bodies(tool))
+            self._bodies[id(tool)] = got
+        return got[1]
+
     def _body_candidates(self, grid, cutter, moves, top_bound):
         """{row: [(kind, body)]} of rows whose non-cutting bodies meet material now."""
         cand: dict[int, list] = {}
         for tool, rows in self._tool_of_rows(moves):
-            for kind, body in collisions.contact_bodies(tool):
+            for kind, body in self._contact_bodies(tool):
                 sel = rows[collisions.reachable(moves[rows], body.bottom, top_bound)]
                 if sel.size == 0:
                     continue
@@ -184,7 +194,7 @@ class Checker:
             if p0.shape[0] == 0:
                 scratch = None
             pts = np.concatenate([p0, p1]) if p0.shape[0] else np.zeros((0, 3))
-            reach = max([self.tool.diameter] + [b.max_radius for _, b in collisions.contact_bodies(self.tool)]
+            reach = max([self.tool.diameter] + [b.max_radius for _, b in self._contact_bodies(self.tool)]
                         + [t.diameter for t in self.tools.values()]) + 2 * f.spacing
             if pts.shape[0] == 0:
                 return merge_findings(motion.travel_limits(moves, self.limits, ids) if self.limits else [])

@@ -32,7 +32,7 @@ def rapid_into_stock(moves: np.ndarray, removed, move_ids=None, min_volume: floa
     moves = np.asarray(moves)
     ids = move_ids_of(moves, move_ids)
     removed = np.asarray(removed, np.float64)
-    bad = np.nonzero((moves["kind"] == MoveKind.RAPID) & (removed > min_volume))[0]
+    bad = np.nonzero((moves["kind"] == int(MoveKind.RAPID)) & (removed > min_volume))[0]
     return [Finding(kind="rapid_into_stock", line=int(moves["line"][k]), stage=int(ids[k]),
                     position=tuple(_tip(moves, k)), volume=float(removed[k]),
                     message=f"rapid (G0) into material at line {int(moves['line'][k])}: "

@@ -8,11 +8,12 @@ the milled model (a segment face at parameter ``s`` on ray ``r``) gets a signed 
   removed that belongs to the part; positive (undercut, material left) when outside;
 * size: first the distance ``dv`` along the ray to the nearest crossing, times
   ``|n . d|`` of its triangle (Huang's estimate from the ray interval and the design
-  normal); points whose ``dv`` reaches past ``refine_fraction`` of the tolerance are then
-  refined to the exact closest-point distance to the mesh (a numba near-point search over
-  triangles binned in the frame plane; the same answer as ``trimesh.proximity``).
-  The true distance never exceeds ``dv`` (the crossing is a surface point), so points
-  with ``dv`` inside the tolerance are inside it for certain.
+  normal). The crossing is a surface point, so the true distance never exceeds ``dv``:
+  a point whose ``dv`` is within the tolerance of its side (t_l inside, t_h outside) is
+  within it for certain and keeps the estimate. Only the others, where the verdict and
+  the reported size depend on it, get the exact closest-point distance to the mesh (a
+  numba search from the crossing's triangle through triangles binned in the frame plane;
+  the same answer as ``trimesh.proximity``).
 
 A closed mesh is a solid by ray parity. An open sheet (like the corpus' carpet1.stl)
 is taken as a height field seen along the rays: the design is what lies below its

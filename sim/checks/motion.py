@@ -14,6 +14,7 @@ import numba as nb
 import numpy as np
 
 from sim import dexel_store as ds
+from sim.checks.arrays import distinct
 from sim.checks.findings import Finding
 from sim.errors import InputError
 from sim.gcode.moves import MoveKind, Plane
@@ -215,14 +216,14 @@ def travel_limits(moves: np.ndarray, limits: dict, move_ids=None, chord: float =
                 w = int(np.argmax(past[qs]))
                 q, k = int(qs[w]), int(ks[w])
                 pos = pts1[q] if past1[q] >= past0[q] else pts0[q]
-                lines = sorted({int(x) for x in moves["line"][ks]})
+                lines = distinct(moves["line"][ks]).tolist()
                 msg = (f"travel limit: {name} {lim:g} exceeded by {float(past[q]):.3f} at line "
                        f"{int(moves['line'][k])}")
                 if ks.size > 1:
                     msg += f" ({_where(lines)}, {ks.size} moves)"
                 out.append(Finding(
                     kind="travel_limit", line=int(moves["line"][k]), lines=tuple(lines), stage=int(ids[k]),
-                    stages=tuple(int(x) for x in ids[ks]), position=tuple(pos), depth=float(past[q]),
+                    stages=tuple(ids[ks].tolist()), position=tuple(pos), depth=float(past[q]),
                     message=msg, detail={"group": f"{axis}{side}", "axis": axis, "limit": lim},
                 ))
     return out
@@ -241,7 +242,7 @@ def spindle_stopped_cutting(moves: np.ndarray, removed, move_ids=None, min_volum
     removed = np.asarray(removed, np.float64)
     stopped = (moves["spindle_dir"] == 0) | (moves["spindle"] <= 0)
     bad = np.nonzero(stopped & (removed > min_volume) & is_motion(moves)
-                     & (moves["kind"] != MoveKind.RAPID))[0]
+                     & (moves["kind"] != int(MoveKind.RAPID)))[0]
     out = []
     for k in bad:
         tip = np.array(moves["end"][k, :3], np.float64)
@@ -591,7 +592,10 @@ class Engagement:
             self._buf = (np.full(f.n_rays, np.nan), np.full(f.n_rays, np.nan))
         _engage_changed(self.top, x0, y0, f.spacing, f.nu, f.nv, pf, piece_ptr, self.shape, self.R, self.slack,
                         self.env_d, self.env_h, self.core, chg_ptr, chg_rays, self._buf[0], self._buf[1], doc, core)
-        if grid is not None and chg_rays.size:
+        # ball and flat lines follow the cutter's own closed forms; sampled envelopes
+        # and arc chords only approximate it, so those take the model's heights
+        exact = self.shape != SHAPE_TABLE and not np.any(np.diff(piece_ptr) > 1)
+        if grid is not None and chg_rays.size and not exact:
             _resync_top(grid.S, chg_rays, self.top, self._buf[0])
         return doc, core
 
@@ -610,12 +614,12 @@ def depth_of_cut(moves: np.ndarray, doc, limit: float, move_ids=None) -> list[Fi
         k = int(ks[int(np.argmax(doc[ks]))])
         tip = np.array(moves["end"][k, :3], np.float64)
         tip[2] -= moves["tool_length"][k]
-        lines = sorted({int(x) for x in moves["line"][ks]})
+        lines = distinct(moves["line"][ks]).tolist()
         msg = f"depth of cut {float(doc[k]):.3f} mm over the {limit:g} mm limit at line {int(moves['line'][k])}"
         if ks.size > 1:
             msg += f" ({_where(lines)}, {ks.size} moves)"
         out.append(Finding(kind="depth_of_cut", line=int(moves["line"][k]), lines=tuple(lines), stage=int(ids[k]),
-                           stages=tuple(int(x) for x in ids[ks]), position=tuple(tip), depth=float(doc[k]),
+                           stages=tuple(ids[ks].tolist()), position=tuple(tip), depth=float(doc[k]),
                            message=msg, detail={"limit": limit}))
     return out
 

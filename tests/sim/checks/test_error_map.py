@@ -1,0 +1,161 @@
+"""The error map's exact near-point search and per-ray reduction against brute force."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from sim.checks.arrays import distinct
+from sim.checks.error_map import DesignModel, ErrorMap
+from sim.frame import Frame
+from sim.grid import DexelGrid
+from sim.tolerance import Tolerance
+
+
+def brute_distance(tri_local, pts):
+    """Closest distance from each point to any triangle, by trimesh over all triangles."""
+    mesh = trimesh.Trimesh(vertices=tri_local.reshape(-1, 3), faces=np.arange(tri_local.shape[0] * 3).reshape(-1, 3),
+                           process=False)
+    _, dist, _ = trimesh.proximity.closest_point(mesh, pts)
+    return dist
+
+
+def bumpy_mesh():
+    """A closed block 0..40 x 0..30 x 0..10 (12 big triangles) and a ball above it."""
+    block = trimesh.creation.box(bounds=[(0, 0, 0), (40, 30, 10)])
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=6.0)
+    sphere.apply_translation((20, 15, 17))  # clear of the block: two solids, parity = inside
+    return trimesh.util.concatenate([block, sphere])
+
+
+@pytest.fixture(scope="module")
+def design():
+    frame = Frame.top(0, 0, 40, 30, 0.5)
+    return DesignModel(frame, bumpy_mesh())
+
+
+def test_near_distance_equals_brute_force_inside_the_search_radius(design):
+    rng = np.random.default_rng(5)
+    pts = np.column_stack([rng.uniform(-3, 43, 400), rng.uniform(-3, 33, 400), rng.uniform(-2, 20, 400)])
+    exact = brute_distance(design.tri, pts)
+    got = design.distance(pts, 2.5)
+    near = exact <= 2.5
+    assert near.sum() > 100 and (~near).sum() > 20
+    assert np.allclose(got[near], exact[near], atol=1e-9)
+    assert np.all(np.isinf(got[~near]))
+    # a seed triangle does not change the answer, only the work
+    seeded = design.distance(pts, 2.5, seed=np.zeros(len(pts), np.int32))
+    assert np.array_equal(seeded, got)
+
+
+def test_large_triangles_across_the_frame_are_found_from_every_bin():
+    # two triangles spanning a 100 mm frame diagonally, one far outside it, and 400 small
+    # ones deep below so that the bins come out about 5 mm
+    big = np.array([[[-5, -5, 1], [105, -5, 1], [105, 105, 3]],
+                    [[-5, -5, 1], [105, 105, 3], [-5, 105, 1]],
+                    [[300, 300, 0], [301, 300, 0], [300, 301, 0]]], float)
+    x, y = np.meshgrid(np.arange(20) * 5.0, np.arange(20) * 5.0)
+    small = np.stack([np.column_stack([x.ravel(), y.ravel(), np.full(400, -60.0)]),
+                      np.column_stack([x.ravel() + 1, y.ravel(), np.full(400, -60.0)]),
+                      np.column_stack([x.ravel(), y.ravel() + 1, np.full(400, -60.0)])], axis=1)
+    tri = np.concatenate([big, small])
+    mesh = trimesh.Trimesh(vertices=tri.reshape(-1, 3), faces=np.arange(tri.shape[0] * 3).reshape(-1, 3),
+                           process=False)
+    d = DesignModel(Frame.top(0, 0, 100, 100, 1.0), mesh)
+    bin_size, nbu, nbv, ptr, items = d._binned()
+    assert nbu * nbv >= 100
+    # each diagonal triangle lands in the bins it covers (about half and the diagonal), not
+    # in all of them; the far one in the corner bin only
+    per_tri = np.bincount(items, minlength=tri.shape[0])
+    assert 0.45 * nbu * nbv < per_tri[0] < 0.75 * nbu * nbv and per_tri[2] == 1
+    rng = np.random.default_rng(1)
+    pts = np.column_stack([rng.uniform(0, 100, 300), rng.uniform(0, 100, 300), rng.uniform(-4, 8, 300)])
+    exact = brute_distance(d.tri, pts)
+    assert np.allclose(d.distance(pts, 50.0), exact, atol=1e-9)
+    assert np.allclose(d.distance(pts, 4.0), np.where(exact <= 4.0, exact, np.inf), atol=1e-9)
+
+
+def test_errors_refine_exactly_the_points_past_their_side_tolerance(design):
+    f = design.frame
+    rng = np.random.default_rng(7)
+    rays = rng.integers(0, f.n_rays, 3000)
+    s = rng.uniform(5, 18, rays.size)
+    tol = Tolerance(gouge=0.01, undercut=0.3, interest=2.0)
+    err, dv = design.errors(rays, s, tol, with_dv=True)
+    hit = np.isfinite(dv)
+    pts = np.column_stack([(rays % f.nu) * f.spacing, (rays // f.nu) * f.spacing, s])
+    exact = brute_distance(design.tri, pts)
+    inside = err < 0
+    limit = np.where(inside, tol.gouge, tol.undercut)
+    past = hit & (dv > limit)
+    assert past.sum() > 500 and (hit & ~past).sum() > 50
+    # refined points: the exact distance (when within the search radius of 3 mm)
+    close = past & (exact <= 1.5 * tol.interest)
+    assert np.allclose(np.abs(err[close]), exact[close], atol=1e-9)
+    # points kept on the estimate are within their tolerance, and so is their true distance
+    kept = hit & ~past
+    assert np.all(np.abs(err[kept]) <= limit[kept] + 1e-12) and np.all(exact[kept] <= limit[kept] + 1e-9)
+    # the verdict never differs from the exact distance's
+    assert np.array_equal((np.abs(err) > limit)[hit], (exact > limit)[hit])
+    # the sign is the side of the solid (points on the block's walls are on both)
+    off = hit & (exact > 1e-6)
+    assert np.array_equal(inside[off], bumpy_mesh().contains(pts[off]))
+
+
+def reference_worst(pr, err, pid, ps, dv, is_far, n_rays):
+    """The per-ray reduction as first written: near faces before far faces, lexsort."""
+    order = np.concatenate([np.nonzero(is_far == 0)[0], np.nonzero(is_far == 1)[0]])
+    pr, err, pid, ps, dv = pr[order], err[order], pid[order], ps[order], dv[order]
+    out = {}
+    for sign, key in ((1, "gouge"), (-1, "excess")):
+        o = np.lexsort((sign * err, pr))
+        first = np.ones(o.size, bool)
+        first[1:] = pr[o][1:] != pr[o][:-1]
+        sel = o[first]
+        val = np.full(n_rays, np.nan)
+        val[pr[sel]] = np.minimum(err[sel], 0) if sign == 1 else np.maximum(err[sel], 0)
+        ids = np.zeros(n_rays, np.int32)
+        ids[pr[sel]] = pid[sel]
+        s = np.zeros(n_rays)
+        s[pr[sel]] = ps[sel]
+        ln = np.zeros(n_rays)
+        ln[pr[sel]] = np.where(sign * err[sel] < 0, dv[sel], 0.0)
+        out[key] = (val, ids, s, ln)
+    return out
+
+
+def test_update_keeps_the_worst_point_of_every_ray(design):
+    f = design.frame
+    rng = np.random.default_rng(3)
+    # up to three disjoint segments per ray with face ids, ties in the error (rounded s)
+    counts = rng.integers(0, 4, f.n_rays)
+    seg_ray = np.repeat(np.arange(f.n_rays), counts)
+    k = np.arange(seg_ray.size) - np.repeat(np.cumsum(counts) - counts, counts)  # index on its ray
+    near = 4.0 + 5.0 * k + np.round(rng.uniform(0, 2, seg_ray.size), 1)
+    far = near + np.round(rng.uniform(0.5, 2.5, seg_ray.size), 1)
+    ids = rng.integers(0, 50, (seg_ray.size, 2)).astype(np.int32)
+    grid = DexelGrid(f)
+    grid._write_rays(np.arange(f.n_rays), counts, near.astype(np.float32), far.astype(np.float32), ids[:, 0], ids[:, 1])
+    em = ErrorMap(f)
+    tol = Tolerance(gouge=0.01, undercut=0.05)
+    got = em.update(grid, design, np.arange(f.n_rays), tol, faces="all")
+    nr, fr, ni, fi, c = grid.segments_of(np.arange(f.n_rays))
+    pr = np.repeat(np.repeat(np.arange(f.n_rays), c), 2)
+    ps = np.stack([nr, fr], 1).reshape(-1).astype(float)
+    pid = np.stack([ni, fi], 1).reshape(-1)
+    is_far = np.tile([0, 1], pr.size // 2)
+    err, dv = design.errors(pr, ps, tol, with_dv=True)
+    ref = reference_worst(pr, err, pid, ps, dv, is_far, f.n_rays)
+    assert np.array_equal(got, distinct(pr))
+    for key in ("gouge", "excess"):
+        val, ids, s, ln = ref[key]
+        assert np.array_equal(getattr(em, key), val, equal_nan=True)
+        has = ~np.isnan(val)
+        assert np.array_equal(getattr(em, key + "_id")[has], ids[has])
+        assert np.array_equal(getattr(em, key + "_s")[has], s[has])
+        assert np.array_equal(getattr(em, key + "_len")[has], ln[has])
+
+
+@pytest.mark.parametrize("a", [[], [3], [5, 1, 5, 2, 2, 9, 1], np.random.default_rng(0).integers(0, 50, 500)])
+def test_distinct_is_numpy_unique(a):
+    a = np.asarray(a, np.int64)
+    assert np.array_equal(distinct(a), np.unique(a))
