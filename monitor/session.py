@@ -30,6 +30,7 @@ from monitor.job import DEFAULT_MACHINE, Job
 from monitor.predict import (LiveChecks, Lookahead, Workpiece, build_workpiece, finding_record, lead_time,
                              work_moves)
 from monitor.sync import ProgramPath, ProgramSync, SyncResult, row_seconds
+from sim.gcode.moves import MoveKind
 
 #: progress jumps larger than this (program s) re-anchor the look-ahead on the live model
 JUMP_S = 2.0
@@ -131,6 +132,43 @@ class Session:
             run.put_array("row_seconds", secs)
             self._start_trace()
 
+    def warm_up(self, rows: int = 12) -> float:
+        """Run every kernel the loop uses once on a scratch copy, so that JIT compilation
+        (numba, on a cold cache: seconds) happens before the machine is followed, not in
+        the first poll while the machine runs on. Returns the seconds it took; the live
+        model, the look-ahead and the run file are untouched."""
+        from dataclasses import replace
+
+        from monitor.predict import make_checker
+
+        t0 = time.perf_counter()
+        if len(self.moves) == 0:
+            return 0.0
+        scratch = self.live.copy()
+        moving = np.nonzero(np.isin(self.moves["kind"], (MoveKind.RAPID, MoveKind.FEED, MoveKind.ARC_CW,
+                                                         MoveKind.ARC_CCW)))[0]
+        pick = []
+        for tool in np.unique(self.moves["tool"][moving]):  # each tool's kernels, arcs included
+            mine = moving[self.moves["tool"][moving] == tool]
+            arcs = mine[np.isin(self.moves["kind"][mine], (MoveKind.ARC_CW, MoveKind.ARC_CCW))]
+            pick += list(mine[:rows]) + list(arcs[:2])
+        idx = np.unique(np.asarray(pick, np.int64))
+        if idx.size:
+            checker = make_checker(self.wp, scratch, self.job.limits, np.zeros(6))
+            checker.cut_and_check(self.moves[idx], move_ids=idx + 1)
+            live = LiveChecks(replace(self.wp, stock=scratch), self.moves, self.job.limits)
+            k = int(idx[0])
+            a, b = self.moves["start"][k, :3], self.moves["end"][k, :3]
+            _, rays, _ = live.cut(np.stack([a, (a + b) / 2, b]), np.array([k, k]), None)
+            if self._trace is not None and rays.size:
+                try:
+                    from sim.trace import Trace
+
+                    Trace(scratch, stage=0).record(scratch, rays=rays, stage=1)
+                except Exception:  # the trace is a replay aid; warming it is optional
+                    pass
+        return time.perf_counter() - t0
+
     # -- positions
     def tip(self, state: MachineState, row: int | None = None) -> np.ndarray:
         """Live tool tip in work coordinates (3,) mm."""
@@ -201,7 +239,12 @@ class Session:
             return [], 0.0
         self.stage += 1
         pts, rows = self._travelled(prev, tip, s)
-        removed, rays, found = self.live_checks.cut(pts, rows, _spindle_rpm(state))
+        # a stopped spindle counts only when both ends of the piece say so (a state after
+        # M5 must not make the whole path since the last poll a stopped-spindle cut)
+        rpm = _spindle_rpm(state)
+        if rpm == 0.0 and self.last is not None and _spindle_rpm(self.last) != 0.0:
+            rpm = None
+        removed, rays, found = self.live_checks.cut(pts, rows, rpm)
         if self.run is not None:
             self.run.append_cut(self.stage, {"points": pts}, t=state.t, move_id=s.row + 1, line=s.line)
             if removed > 0 and rays.size:

@@ -20,6 +20,9 @@ from monitor.job import Job, add_job_arguments, job_from_args, require
 
 HELP = "monitor a running machine from a job file"
 
+#: GIL switch interval during a run, s (Python's default is 0.005)
+REALTIME_SWITCH_S = 0.0005
+
 
 def add_common_arguments(parser) -> None:
     """Output and run-file flags shared by ``live`` and ``dry-run``."""
@@ -62,17 +65,24 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
         program_text = job.program.read_text(errors="replace") if job.program else ""
         session = Session(job, moves, run=writer, alerter=alerter, program_text=program_text, program=program)
         status = StatusLine(console, enabled=console is not None)
+        session.warm_up()  # compile before connecting: a dry run's machine starts at connect
         controller.connect()
         # the setup made many long-lived objects (move table rows, meshes, tools): keep
         # the collector from walking them again during the run (no gen-2 pauses per poll)
         gc.collect()
         gc.freeze()
+        # the run-file writer and driver threads share the GIL with the loop: hand it back
+        # within REALTIME_SWITCH_S, not the default 5 ms, so a poll never waits that long
+        switch = sys.getswitchinterval()
+        sys.setswitchinterval(REALTIME_SWITCH_S)
         try:
             with status:
                 run_controller(session, controller, 1.0 / job.poll_hz, status=status, done=done)
         except KeyboardInterrupt:
             err_console.print("interrupted; the run file keeps everything so far")
         finally:
+            sys.setswitchinterval(switch)
+            gc.unfreeze()
             controller.close()
         summary = session.finish()
         summary["run"] = str(run_path)

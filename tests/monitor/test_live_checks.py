@@ -314,3 +314,20 @@ def test_live_fixture_collision_off_the_program(example):
     assert hits and all(not f["predicted"] and f["status"] == "happened" for f in hits), s.findings
     assert "clamp" in hits[0]["message"]
     assert 14.0 - 3.0 <= hits[0]["position"][1] <= 26.0 + 3.0
+
+
+def test_a_stopped_spindle_at_one_poll_does_not_blame_the_whole_gap(example):
+    """Polls far apart (a slow link, a long pause): the spindle was on at the last poll and
+    is off now (after M5); the path in between is not a stopped-spindle cut."""
+    job, moves, program = example
+    job = dataclasses.replace(job, work_offset=(0.0, 0.0, 0.0), design=None)
+    s = Session(job, moves, program=program)
+    mw = s.moves
+    k = int(np.nonzero(moves["line"] == 11)[0][0])
+    s.step(_state(0.0, mw["start_work"][k, :3], spindle=10000.0))
+    s.step(_state(0.02, mw["start_work"][k, :3] + (1.0, 0, 0), spindle=10000.0))
+    s.step(_state(0.04, mw["end_work"][k, :3], spindle=0.0))  # on at the last poll, off now
+    assert s.stage == 2 and not [f for f in s.findings if f["kind"] == "spindle_stopped_cutting"]
+    # off at both polls: it is (Y6 at X68 is off the stock; the X-8 pass of line 13 cuts)
+    s.step(_state(0.06, mw["end_work"][k + 1, :3] - (20.0, 0, 0), spindle=0.0))
+    assert [f["line"] for f in s.findings if f["kind"] == "spindle_stopped_cutting"] == [13]
