@@ -376,3 +376,26 @@ def test_moves_are_cut_in_program_order(spec):
     res = Cutter(g, tool).cut_moves(mv)
     assert res.removed[0] > 0 and res.removed[1] < 0.01 * res.removed[0]
     assert g.face_ids(81, 60)[0, 1] == 1  # x 20.25, y 15: on the line, cut by the arc
+
+
+def test_rays_along_y_are_cut_by_instances_of_motion():
+    # a frame whose rays run along +Y (u = +X, v = d x u = -Z): no closed form applies,
+    # the move is swept by instances; the slot volume agrees with the continuous one
+    from sim.solids import box_grid
+
+    frame = Frame(np.array([0.0, 0.0, 10.0]), np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0]),
+                  SP, 161, 41)
+    g = box_grid(frame, (0, 0, 0), (40, 20, 10))
+    c = Cutter(g, parse_tool_spec("flat:6"))
+    v0 = g.volume()
+    res = c.cut_moves(moves_of((MoveKind.FEED, (10, 10, 7), (30, 10, 7))))
+    assert res.removed[0] == pytest.approx(v0 - g.volume(), rel=1e-9)
+    # per ray column: rays with 7 <= z <= 10 (13 of them) times the slot's chord along y
+    x = np.arange(frame.nu) * SP
+    dx = np.clip(np.maximum(10 - x, x - 30), 0, None)
+    chord = np.where(dx < 3, 2 * np.sqrt(np.maximum(9 - dx * dx, 0)), 0.0)
+    assert res.removed[0] == pytest.approx(13 * SP**2 * chord.sum(), rel=1e-3)
+    # the ray at x = 20, z = 8 (j = 8) crosses the slot from y = 7 to 13: two segments remain
+    np.testing.assert_allclose(g.segments(80, 8), [[0, 7], [13, 20]], atol=0.01)
+    probed = c.probe_moves(moves_of((MoveKind.FEED, (10, 10, 5), (30, 10, 5))))
+    assert probed[0] == pytest.approx(8 * SP**2 * chord.sum(), rel=1e-3)  # z 5 .. 6.75 left
