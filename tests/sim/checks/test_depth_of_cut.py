@@ -1,0 +1,103 @@
+"""Depth of cut measured from the rays the real cut changed (the Checker's way) against
+analytic depths and against the engagement walking every ray under the tool."""
+
+import numpy as np
+import pytest
+
+from sim.checks import Checker, merge_findings, motion
+from sim.cut import Cutter
+from sim.frame import Frame
+from sim.gcode.moves import MoveKind, Plane
+from sim.solids import box_grid
+from sim.tools import parse_tool_spec
+from tests.sim.checks.helpers import polyline, table
+
+F, R = MoveKind.FEED, MoveKind.RAPID
+
+
+def stock(spacing=0.2):
+    return box_grid(Frame.top(0, 0, 40, 40, spacing), (0, 0, 0), (40, 40, 10))
+
+
+def wavy_path(rng, n=120):
+    """A zig-zag of short feeds over the block at varying depth, a plunge and an arc."""
+    pts = [(5.03, 5.01, 12.0), (5.03, 5.01, 8.0)]
+    x, y = 5.0, 5.0
+    for k in range(n):
+        x = 5.0 + 30.0 * ((k // 20) % 2 == 0 and (k % 20) / 19 or 1 - (k % 20) / 19)
+        y = 5.0 + 1.2 * (k // 20)
+        # jittered so that no ray falls exactly on the tool's rim (where the cutter's
+        # rounding decides whether it is reached)
+        pts.append((x + rng.uniform(-0.05, 0.05), y + rng.uniform(-0.05, 0.05),
+                    7.5 + 1.5 * np.sin(0.3 * k) + rng.uniform(-0.2, 0.2)))
+    rows = [(F, pts[i], pts[i + 1]) for i in range(len(pts) - 1)]
+    end = rows[-1][2]
+    rows.append((MoveKind.ARC_CCW, end, (end[0] - 8.0, end[1], end[2] - 1.0),
+                 {"center": (end[0] - 4.0, end[1], end[2]), "plane": int(Plane.XY), "turns": 1}))
+    return table(rows)
+
+
+@pytest.mark.parametrize("spec", ["flat:6", "ball:6", "bull:6:1"])
+def test_changed_rays_give_the_depths_of_the_full_walk(spec):
+    tool = parse_tool_spec(spec)
+    m = wavy_path(np.random.default_rng(2))
+    g = stock()
+    full = motion.Engagement(g.frame, g.top(), tool, chord=0.001)
+    changed = motion.Engagement(g.frame, g.top(), tool, chord=0.001)
+    cutter = Cutter(g, tool)
+    for a in range(0, len(m), 25):  # batches, as the live session feeds them
+        part = m[a:a + 25]
+        d_full, c_full = full.run(part)
+        res = cutter.cut_moves(part, move_ids=np.arange(a + 1, a + len(part) + 1))
+        d_chg, c_chg = changed.run(part, cut=res, grid=g)
+        assert d_full.max() > 1.0
+        # same depths: exact for the closed-form ends, within the sampled envelope else
+        # (where the model's heights are taken after each batch)
+        tol = 1e-6 if spec != "bull:6:1" else 0.05
+        line = ~motion.is_arc(part)  # an arc's depth is its own lowest over all its chords there,
+        # the full walk's the deepest step from one chord to the next: only lines compare
+        assert np.allclose(d_chg[line], d_full[line], atol=tol), (a, np.abs(d_chg - d_full)[line].max())
+        if spec != "bull:6:1":  # the full walk's own heights drift from the real bull's
+            assert np.allclose(c_chg[line], c_full[line], atol=tol)
+        assert np.all(d_chg[~line] >= d_full[~line] - tol)
+    assert np.nanmax(np.abs(changed.top - g.top().reshape(-1))) < 1e-5
+
+
+def test_checker_reports_a_slot_over_the_limit_as_one_finding_at_its_depth():
+    tool = parse_tool_spec("flat:6")
+    # plunge 3 mm into the 10 mm top, slot along X in 12 short moves, retract
+    pts = [(5, 20, 12), (5, 20, 7)] + [(5 + 2.5 * k, 20, 7) for k in range(1, 13)] + [(35, 20, 12)]
+    m = polyline(pts, kinds=[F] * 13 + [R])
+    ch = Checker(stock(0.25), tool, max_depth_of_cut=2.0)
+    for a in range(0, len(m), 5):
+        ch.cut_and_check(m[a:a + 5], move_ids=np.arange(a + 1, min(a + 5, len(m)) + 1))
+    found = [f for f in ch.all_findings() if f.kind == "depth_of_cut"]
+    assert len(found) == 1
+    f = found[0]
+    assert f.depth == pytest.approx(3.0, abs=1e-6)
+    assert f.lines == tuple(range(10, 140, 10))  # the plunge and every slot move, not the retract
+    # a second pass along the same slot cuts nothing
+    again = polyline([(5, 20, 7), (35, 20, 7)])
+    _, batch = ch.cut_and_check(again, move_ids=[100])
+    assert [x for x in batch if x.kind == "depth_of_cut"] == []
+
+
+def test_ball_groove_depth_in_the_checker_is_analytic():
+    ch = Checker(stock(0.25), parse_tool_spec("ball:6"), max_depth_of_cut=0.5)
+    _, found = ch.cut_and_check(polyline([(5, 20, 9.2), (35, 20, 9.2)]))
+    assert [(f.kind, f.line) for f in found] == [("depth_of_cut", 10)]
+    assert found[0].depth == pytest.approx(0.8, abs=1e-6)
+
+
+def test_runs_of_offending_moves_are_what_merging_single_findings_gives():
+    m = polyline([(0, 0, 0)] + [(k, 0, 0) for k in range(1, 11)])
+    doc = np.array([1, 6, 7, 6.5, 1, 9, 1, 6, 6, 1], float)
+    ids = np.arange(101, 111)
+    runs = motion.depth_of_cut(m, doc, 5.0, ids)
+    singles = []
+    for k in np.nonzero(doc > 5.0)[0]:
+        singles += motion.depth_of_cut(m[k:k + 1], doc[k:k + 1], 5.0, ids[k:k + 1])
+    merged = merge_findings(singles)
+    key = [(f.lines, f.stages, f.line, f.stage, f.depth, f.position) for f in runs]
+    assert key == [(f.lines, f.stages, f.line, f.stage, f.depth, f.position) for f in merged]
+    assert [f.depth for f in runs] == [7.0, 9.0, 6.0] and runs[0].line == 30
