@@ -145,6 +145,14 @@ class Session:
         if len(self.moves) == 0:
             return 0.0
         scratch = self.live.copy()
+        trace = None
+        if self._trace is not None:
+            try:
+                from sim.trace import Trace
+
+                trace = Trace(scratch, stage=0)  # before the cuts, so it sees them change rays
+            except Exception:  # the trace is a replay aid; warming it is optional
+                trace = None
         moving = np.nonzero(np.isin(self.moves["kind"], (MoveKind.RAPID, MoveKind.FEED, MoveKind.ARC_CW,
                                                          MoveKind.ARC_CCW)))[0]
         pick = []
@@ -155,17 +163,17 @@ class Session:
         idx = np.unique(np.asarray(pick, np.int64))
         if idx.size:
             checker = make_checker(self.wp, scratch, self.job.limits, np.zeros(6))
-            checker.cut_and_check(self.moves[idx], move_ids=idx + 1)
+            res, _ = checker.cut_and_check(self.moves[idx], move_ids=idx + 1)
             live = LiveChecks(replace(self.wp, stock=scratch), self.moves, self.job.limits)
             k = int(idx[0])
             a, b = self.moves["start"][k, :3], self.moves["end"][k, :3]
             _, rays, _ = live.cut(np.stack([a, (a + b) / 2, b]), np.array([k, k]), None)
-            if self._trace is not None and rays.size:
+            changed = np.union1d(res.changed_rays, rays).astype(np.int64)
+            if trace is not None:
                 try:
-                    from sim.trace import Trace
-
-                    Trace(scratch, stage=0).record(scratch, rays=rays, stage=1)
-                except Exception:  # the trace is a replay aid; warming it is optional
+                    trace.record(scratch, rays=changed, stage=1)
+                    trace.take_chunk()
+                except Exception:
                     pass
         return time.perf_counter() - t0
 

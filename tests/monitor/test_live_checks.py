@@ -331,3 +331,57 @@ def test_a_stopped_spindle_at_one_poll_does_not_blame_the_whole_gap(example):
     # off at both polls: it is (Y6 at X68 is off the stock; the X-8 pass of line 13 cuts)
     s.step(_state(0.06, mw["end_work"][k + 1, :3] - (20.0, 0, 0), spindle=0.0))
     assert [f["line"] for f in s.findings if f["kind"] == "spindle_stopped_cutting"] == [13]
+
+
+WARM_UP_SCRIPT = """
+import json, sys, tempfile
+from pathlib import Path
+from numba.core.registry import CPUDispatcher
+from monitor.alerts import Alerter
+from monitor.commands.dry_run import EXAMPLE_JOB, virtual_controller
+from monitor.job import load_job
+from monitor.runfile import RunWriter
+from monitor.session import Session, load_moves, run_controller
+
+def signatures():
+    out = {}
+    for name, mod in list(sys.modules.items()):
+        if name.split(".")[0] in ("sim", "monitor", "drivers"):
+            for attr, v in list(vars(mod).items()):
+                if isinstance(v, CPUDispatcher):
+                    out[name + "." + attr] = len(v.signatures)
+    return out
+
+job = load_job(EXAMPLE_JOB)
+moves, program = load_moves(job)
+w = RunWriter(Path(tempfile.mkdtemp()) / "r.sqlite")
+s = Session(job, moves, run=w, alerter=Alerter(run=w), program=program)
+s.warm_up()
+before = signatures()
+vc = virtual_controller(moves, speed=1.0, rate=50, clock="sim")
+vc.connect()
+run_controller(s, vc, 0.0, done=lambda: vc.done)
+vc.close()
+s.finish()
+w.close()
+after = signatures()
+print(json.dumps({"grew": {k: [before.get(k, 0), v] for k, v in after.items() if v != before.get(k, 0)},
+                  "kinds": sorted({f["kind"] for f in s.findings})}))
+"""
+
+
+def test_warm_up_compiles_everything_the_run_needs():
+    """With a cold numba cache a kernel first met mid-run stalls the loop for seconds while
+    the machine runs on: after warm_up() a whole dry run (run file and trace included)
+    must not add a compiled signature to any kernel. In a fresh process, so kernels other
+    tests compiled do not hide one the warm-up missed."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    out = subprocess.run([sys.executable, "-c", WARM_UP_SCRIPT], capture_output=True, text=True, timeout=300,
+                         cwd=Path(__file__).resolve().parents[2])
+    assert out.returncode == 0, out.stderr[-2000:]
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["grew"] == {}
+    assert got["kinds"] == ["gouge", "rapid_into_stock"]
