@@ -101,3 +101,16 @@ def test_runs_of_offending_moves_are_what_merging_single_findings_gives():
     key = [(f.lines, f.stages, f.line, f.stage, f.depth, f.position) for f in runs]
     assert key == [(f.lines, f.stages, f.line, f.stage, f.depth, f.position) for f in merged]
     assert [f.depth for f in runs] == [7.0, 9.0, 6.0] and runs[0].line == 30
+
+
+def test_look_ahead_on_a_window_finds_the_same_depth_and_leaves_the_model_alone():
+    tool = parse_tool_spec("flat:6")
+    m = polyline([(20, 20, 12), (20, 20, 6.5), (30, 25, 6.5), (30, 25, 12)], kinds=[F, F, R])
+    ch = Checker(stock(0.25), tool, max_depth_of_cut=2.0)
+    before = ch.grid.top().copy()
+    ahead = [f for f in ch.predict(m) if f.kind == "depth_of_cut"]
+    assert np.array_equal(ch.grid.top(), before, equal_nan=True)
+    _, now = ch.cut_and_check(m)
+    now = [f for f in now if f.kind == "depth_of_cut"]
+    assert [(f.lines, f.depth) for f in ahead] == [(f.lines, f.depth) for f in now]
+    assert now[0].depth == pytest.approx(3.5, abs=1e-6) and now[0].lines == (10, 20)
