@@ -107,8 +107,14 @@ def _fast_vm(moves):
     return VirtualMachine(cfg, position=moves["start"][0])
 
 
-def _follow(job, moves, controller, vm, feeder):
+def _session(job, moves):
+    """A session compiled and ready before the machine starts (as run_session does)."""
     s = Session(job, moves, alerter=Alerter())
+    s.warm_up()
+    return s
+
+
+def _follow(s, controller, vm, feeder):
 
     def done():
         with vm.lock:
@@ -128,13 +134,14 @@ def test_grbl_peer_over_pty(example):
     from drivers.virtual.runner import RealTimeRunner
 
     job, moves = example
+    s = _session(job, moves)
     vm = _fast_vm(moves)
     feeder = ProgramFeeder(moves)
     peer = GrblPeer(vm, run=False)
     path = peer.serve_pty()
     runner = RealTimeRunner(vm, speed=12.0, on_tick=feeder).start()
     try:
-        s = _follow(job, moves, open_controller(f"grbl://{path}"), vm, feeder)
+        s = _follow(s, open_controller(f"grbl://{path}"), vm, feeder)
     finally:
         runner.stop()
         peer.close()
@@ -149,12 +156,13 @@ def test_modbus_peer_over_tcp(example):
     from drivers.virtual.runner import RealTimeRunner
 
     job, moves = example
+    s = _session(job, moves)
     vm = _fast_vm(moves)
     feeder = ProgramFeeder(moves)
     server = ModbusVirtualServer(vm, load_map("generic")).start()
     runner = RealTimeRunner(vm, speed=12.0, on_tick=feeder).start()
     try:
-        s = _follow(job, moves, open_controller(f"modbus+tcp://127.0.0.1:{server.port}?map=generic"), vm, feeder)
+        s = _follow(s, open_controller(f"modbus+tcp://127.0.0.1:{server.port}?map=generic"), vm, feeder)
     finally:
         runner.stop()
         server.stop()
