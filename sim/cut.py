@@ -125,6 +125,7 @@ class Cutter:
         self.tool = tool
         self.tol = tol
         self.tools = dict(tools or {})
+        self._top = grid.frame.is_top  # frames are immutable; asked on every batch
 
     # --- public API ---------------------------------------------------------------------
     def cut_moves(self, moves: np.ndarray, move_ids=None, record_changes: bool = True) -> CutResult:
@@ -184,7 +185,7 @@ class Cutter:
         multi = np.zeros(n, bool)
         ids = np.zeros(n, np.int32)
         work = self._plan(moves, np.arange(n), ids, body, multi)
-        if sweep.has_exact_sweep(body) and self.grid.frame.is_top:
+        if self._exact(body):
             # single-segment moves measure in place; arcs (several chords) on scratch copies
             p0, p1, sm, sid = work.seg_arrays()
             single = ~multi[sm]
@@ -236,7 +237,7 @@ class Cutter:
             yield int(a), int(b), self.tools.get(int(col[a]), self.tool)
 
     def _exact(self, body) -> bool:
-        return self.grid.frame.is_top and sweep.has_exact_sweep(body)
+        return self._top and sweep.has_exact_sweep(body)
 
     def _step(self) -> float:
         return self.tol.instance_fraction * self.grid.frame.spacing
@@ -254,8 +255,8 @@ class Cutter:
         start = tip_positions(moves, "start")
         end = tip_positions(moves, "end")
         bad = ~(np.isfinite(start).all(axis=1) & np.isfinite(end).all(axis=1))
-        lin = np.isin(kind, _LINEAR_KINDS) & ~bad
-        arc = np.isin(kind, _ARC_KINDS) & ~bad
+        lin = ((kind == _LINEAR_KINDS[0]) | (kind == _LINEAR_KINDS[1])) & ~bad
+        arc = ((kind == _ARC_KINDS[0]) | (kind == _ARC_KINDS[1])) & ~bad
         exact = self._exact(body)
         length = body.flute_length if isinstance(body, Tool) else body.top
         # the pieces of every row: (first point, last point) arrays per row
