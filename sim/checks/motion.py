@@ -588,14 +588,16 @@ class Engagement:
         if chg_ptr.size != n + 1:
             raise InputError(f"cut result covers {chg_ptr.size - 1} moves, expected {n} with changes recorded")
         piece_ptr = np.searchsorted(row, np.arange(n + 1)).astype(np.int64)
-        if self._buf is None:
-            self._buf = (np.full(f.n_rays, np.nan), np.full(f.n_rays, np.nan))
-        _engage_changed(self.top, x0, y0, f.spacing, f.nu, f.nv, pf, piece_ptr, self.shape, self.R, self.slack,
-                        self.env_d, self.env_h, self.core, chg_ptr, chg_rays, self._buf[0], self._buf[1], doc, core)
+        arcs = bool(np.any(np.diff(piece_ptr) > 1))
         # ball and flat lines follow the cutter's own closed forms; sampled envelopes
-        # and arc chords only approximate it, so those take the model's heights
-        exact = self.shape != SHAPE_TABLE and not np.any(np.diff(piece_ptr) > 1)
-        if grid is not None and chg_rays.size and not exact:
+        # and arc chords only approximate it, so those take the model's heights after
+        resync = grid is not None and chg_rays.size > 0 and (self.shape == SHAPE_TABLE or arcs)
+        if self._buf is None and (arcs or resync):  # per-ray scratch, only when needed
+            self._buf = (np.full(f.n_rays, np.nan), np.full(f.n_rays, np.nan))
+        buf = self._buf if self._buf is not None else (np.zeros(0), np.zeros(0))
+        _engage_changed(self.top, x0, y0, f.spacing, f.nu, f.nv, pf, piece_ptr, self.shape, self.R, self.slack,
+                        self.env_d, self.env_h, self.core, chg_ptr, chg_rays, buf[0], buf[1], doc, core)
+        if resync:
             _resync_top(grid.S, chg_rays, self.top, self._buf[0])
         return doc, core
 
