@@ -399,3 +399,24 @@ def test_rays_along_y_are_cut_by_instances_of_motion():
     np.testing.assert_allclose(g.segments(80, 8), [[0, 7], [13, 20]], atol=0.01)
     probed = c.probe_moves(moves_of((MoveKind.FEED, (10, 10, 5), (30, 10, 5))))
     assert probed[0] == pytest.approx(8 * SP**2 * chord.sum(), rel=1e-3)  # z 5 .. 6.75 left
+
+
+def test_short_flutes_below_the_top_split_rays_and_the_pool_grows_mid_batch():
+    # flutes 2 mm long fed 5 mm below the top: the exact kernel splits every ray it
+    # reaches, more rays than the initial pool holds (the kernel stops, the pool grows, it
+    # resumes where it stopped)
+    g = stock()
+    cap0 = g.store["pool_near"].size
+    t = parse_tool_spec("flat:6:L=2")
+    res = Cutter(g, t).cut_moves(moves_of((MoveKind.FEED, (2, 10.1, 5), (38, 10.1, 5))),
+                                 move_ids=[3])
+    assert g.store["pool_near"].size > cap0
+    split = g.counts == 2
+    assert split.sum() > cap0
+    pts = g.frame.ray_points().reshape(-1, 3)
+    inside = dist_to_segment_2d(pts, (2, 10.1), (38, 10.1)) < 3
+    np.testing.assert_array_equal(split.reshape(-1), inside)
+    np.testing.assert_allclose(g.segments(80, 40), [[0, 5], [7, 10]])
+    np.testing.assert_array_equal(g.face_ids(80, 40), [[0, 3], [3, 0]])
+    assert res.removed[0] == pytest.approx(inside.sum() * 2 * SP**2, rel=1e-9)
+    assert res.changed_ptr[-1] == inside.sum()
