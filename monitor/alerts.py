@@ -147,6 +147,9 @@ class Alerter:
         rec["happened_line"] = f.get("line")
         if self.run is not None:
             self.run.update_finding(idx + 1, rec)
+        if self.console is not None:  # a note, not a second alert: no bell, no colour
+            self.console.print(f"[dim]{_escape(rec.get('kind', '?').upper().replace('_', ' '))} line "
+                               f"{rec.get('line', '?')}: happened as predicted[/dim]", highlight=False)
         if self.json_stream is not None:
             self.json_stream.write(json.dumps({"event": "finding_update", "id": idx + 1, "kind": rec.get("kind"),
                                                "line": rec.get("line"), "status": "happened", "t": t},

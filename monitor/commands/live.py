@@ -65,7 +65,13 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
         program_text = job.program.read_text(errors="replace") if job.program else ""
         session = Session(job, moves, run=writer, alerter=alerter, program_text=program_text, program=program)
         status = StatusLine(console, enabled=console is not None)
-        session.warm_up()  # compile before connecting: a dry run's machine starts at connect
+        # compile before connecting (a dry run's machine starts at connect); on a first run
+        # numba compiles for up to a minute, so say what is going on
+        if console is not None:
+            with console.status("preparing: compiling the simulation kernels (slow only the first time)"):
+                session.warm_up()
+        else:
+            session.warm_up()
         controller.connect()
         # the setup made many long-lived objects (move table rows, meshes, tools): keep
         # the collector from walking them again during the run (no gen-2 pauses per poll)

@@ -67,9 +67,9 @@ def test_bell_and_format():
 
 
 def test_predicted_then_happened_is_updated_not_realerted(tmp_path):
-    out = io.StringIO()
+    out, term = io.StringIO(), io.StringIO()
     run = RunWriter(tmp_path / "r.sqlite")
-    a = Alerter(json_stream=out, run=run)
+    a = Alerter(console=Console(file=term, width=200, force_terminal=True), json_stream=out, run=run, bell=True)
     rapid = {"kind": "rapid_into_stock", "line": 36, "lines": [36], "stage": 30, "stages": [30],
              "position": [68.0, 1.0, -10.0], "lead_time_s": 4.3, "predicted": True, "status": "predicted"}
     assert a.offer([rapid], t=1.0) == [rapid]
@@ -81,6 +81,9 @@ def test_predicted_then_happened_is_updated_not_realerted(tmp_path):
     assert a.offer([live], t=5.1) == []  # seen again: still one record, not updated twice
     events = [json.loads(x) for x in out.getvalue().splitlines()]
     assert [e["event"] for e in events] == ["finding", "finding_update"]
+    text = term.getvalue()
+    assert text.count("RAPID INTO STOCK line 36 at") == 1 and text.count("happened as predicted") == 1
+    assert text.count("\a") == 1  # the note rings no bell
     # a long live gouge followed along one line stays one finding; far along is followed too
     g = [gouge(line=40, pos=(x, 5.0, -1.0), lead=0.0) for x in np.arange(0.0, 80.0, 2.0)]
     for f in g:
