@@ -354,9 +354,9 @@ def _bottom(shape, rx, ry, z0, ux, uy, m, sin_t, ell, R, R2, slack, inv_dstep, e
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy")
-def _cut_run(top_r, n, rx0, ry, sp, shape, z0, ux, uy, m, sin_t, ell, R, R2, slack, inv_dstep, env_h,
+def _cut_run(top, r0, n, rx0, ry, sp, shape, z0, ux, uy, m, sin_t, ell, R, R2, slack, inv_dstep, env_h,
              h_min, monotone, core2):
-    """Lower ``n`` consecutive rays of one grid row (``top_r`` their heights, the first at
+    """Lower ``n`` consecutive rays of one grid row (``top[r0:r0 + n]``, the first at
     ``rx0, ry`` from the piece start) under one piece; ``(thickest cut, thickest cut
     within the core)``. One loop per shape, branch-free, so that it vectorises."""
     dk = 0.0
@@ -365,10 +365,10 @@ def _cut_run(top_r, n, rx0, ry, sp, shape, z0, ux, uy, m, sin_t, ell, R, R2, sla
         for q in range(n):
             v, d2 = _bottom(SHAPE_BALL, rx0 + q * sp, ry, z0, ux, uy, m, sin_t, ell, R, R2, slack, inv_dstep,
                             env_h, h_min, monotone)
-            t_old = top_r[q]
+            t_old = top[r0 + q]
             cut = t_old - v
             good = cut > 0.0  # False for empty rays (NaN) and rays the tool misses (inf)
-            top_r[q] = v if good else t_old
+            top[r0 + q] = v if good else t_old
             c = cut if good else 0.0
             dk = max(dk, c)
             ck = max(ck, c if d2 <= core2 else 0.0)
@@ -376,10 +376,10 @@ def _cut_run(top_r, n, rx0, ry, sp, shape, z0, ux, uy, m, sin_t, ell, R, R2, sla
         for q in range(n):
             v, d2 = _bottom(SHAPE_FLAT, rx0 + q * sp, ry, z0, ux, uy, m, sin_t, ell, R, R2, slack, inv_dstep,
                             env_h, h_min, monotone)
-            t_old = top_r[q]
+            t_old = top[r0 + q]
             cut = t_old - v
             good = cut > 0.0
-            top_r[q] = v if good else t_old
+            top[r0 + q] = v if good else t_old
             c = cut if good else 0.0
             dk = max(dk, c)
             ck = max(ck, c if d2 <= core2 else 0.0)
@@ -387,10 +387,10 @@ def _cut_run(top_r, n, rx0, ry, sp, shape, z0, ux, uy, m, sin_t, ell, R, R2, sla
         for q in range(n):
             v, d2 = _bottom(SHAPE_TABLE, rx0 + q * sp, ry, z0, ux, uy, m, sin_t, ell, R, R2, slack, inv_dstep,
                             env_h, h_min, monotone)
-            t_old = top_r[q]
+            t_old = top[r0 + q]
             cut = t_old - v
             good = cut > 0.0
-            top_r[q] = v if good else t_old
+            top[r0 + q] = v if good else t_old
             c = cut if good else 0.0
             dk = max(dk, c)
             ck = max(ck, c if d2 <= core2 else 0.0)
@@ -422,7 +422,7 @@ def _engage(top, x0, y0, sp, nu, nv, pf, row, shape, R, slack, env_d, env_h, cor
             if i1 < i0:
                 break
             r0 = j * nu + i0
-            dk, ck = _cut_run(top[r0:r0 + i1 - i0 + 1], i1 - i0 + 1, x0 + i0 * sp - ax, y0 + j * sp - ay, sp,
+            dk, ck = _cut_run(top, r0, i1 - i0 + 1, x0 + i0 * sp - ax, y0 + j * sp - ay, sp,
                               shape, pf[q, 2], pf[q, 3], pf[q, 4], pf[q, 5], pf[q, 6], pf[q, 7], R, R2,
                               slack, inv_dstep, env_h, h_min, monotone, core2)
             doc[k] = max(doc[k], dk)
@@ -463,7 +463,7 @@ def _engage_changed(top, x0, y0, sp, nu, nv, pf, piece_ptr, shape, R, slack, env
                 e = m + 1
                 while e < cb and chg_rays[e] == r0 + (e - m) and i0 + (e - m) < nu:
                     e += 1
-                d1, c1 = _cut_run(top[r0:r0 + e - m], e - m, x0 + i0 * sp - pf[qa, 0], y0 + j * sp - pf[qa, 1], sp,
+                d1, c1 = _cut_run(top, r0, e - m, x0 + i0 * sp - pf[qa, 0], y0 + j * sp - pf[qa, 1], sp,
                                   shape, pf[qa, 2], pf[qa, 3], pf[qa, 4], pf[qa, 5], pf[qa, 6], pf[qa, 7], R, R2,
                                   slack, inv_dstep, env_h, h_min, monotone, core2)
                 dk = max(dk, d1)
