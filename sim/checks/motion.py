@@ -532,9 +532,13 @@ class Engagement:
     axial depth of cut (thickest column of material cut at any ray, mm) and the
     material cut under the tool centre (rays within ``core`` mm of the axis path).
 
-    A top-view estimate for monitoring (multi-segment rays count from their top): it keeps
-    its own height map, so it can run before or after the real cut. ``top`` is the stock's
-    heights (``DexelGrid.top()``, (nv, nu), NaN where empty); the frame must look along +Z.
+    A top-view measure for monitoring (multi-segment rays count from their top): it keeps
+    its own height map. Standalone, :meth:`run` walks every ray under the tool; after the
+    real cut (the Checker's way) it looks only at the rays the cut changed, which costs a
+    fraction of the cut. Ball and flat ends use the exact lowest point of the swept sphere
+    or disc (the cutter's closed forms), other tools a sampled lower envelope.
+    ``top`` is the stock's heights (``DexelGrid.top()``, (nv, nu), NaN where empty); the
+    frame must look along +Z.
     """
 
     def __init__(self, frame, top, tool, chord: float = 0.01):
