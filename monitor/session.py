@@ -120,6 +120,9 @@ class Session:
         self._trace = None
         self._trace_from = 0
         self._fill_horizon = False
+        self.view = None                 # a monitor.render.live.ViewFeed, or None
+        self.line_source = None          # a monitor.linesync.StreamedLines, or None
+        self._changed: np.ndarray | None = None
         if run is not None:
             run.put_meta("job", job.text)
             run.put_meta("program", program_text)
@@ -177,6 +180,20 @@ class Session:
                     pass
         return time.perf_counter() - t0
 
+    def attach_view(self, feed) -> None:
+        """Post every state to ``feed`` (a :class:`monitor.render.live.ViewFeed`): the
+        rays each step changed with their new tops, the tool pose, the progress and the
+        findings. Costs the loop O(changed rays) per state; the drawing is the feed's."""
+        self.view = feed
+
+    def _post_view(self, tip: np.ndarray, s: SyncResult, wco: np.ndarray) -> None:
+        from monitor.render.live import tops_of
+
+        rays, self._changed = self._changed, None
+        tops = tops_of(self.live, rays) if rays is not None and rays.size else None
+        tool = self.wp.tool(int(self.moves["tool"][s.row])) if len(self.moves) else None
+        self.view.post(rays, tops, tip=tip, tool=tool, progress=s.progress, findings=self.findings, wco=wco)
+
     # -- positions
     def tip(self, state: MachineState, row: int | None = None) -> np.ndarray:
         """Live tool tip in work coordinates (3,) mm."""
@@ -205,7 +222,11 @@ class Session:
         row_hint = self.last_sync.row if self.last_sync is not None else None
         tip = self.tip(state, row_hint)
         prev = self.last_sync
-        s = self.sync.update(tip, t=state.t, line=state.line)
+        line = state.line
+        if self.line_source is not None:
+            # the lines a sender streams (passthrough) say where in the program it is
+            line = self.line_source.line_for(state, tip, self.sync)
+        s = self.sync.update(tip, t=state.t, line=line)
         if s.how != "line" and self.job.work_offset is not None:
             tip = self.tip(state, s.row)
         info = StepInfo(s)
@@ -224,6 +245,8 @@ class Session:
         fresh += self._predict(s, state)
         if fresh:
             info.new_findings = self._alert(fresh, state)
+        if self.view is not None:
+            self._post_view(tip, s, wco)
         self.last, self.last_sync = state, s
         info.seconds = time.perf_counter() - t0
         return info
@@ -237,6 +260,8 @@ class Session:
             done = self.moves[:s.row]
             Cutter(self.live, self.wp.default_tool, self.wp.tol, tools=self.wp.tools).cut_moves(
                 done, move_ids=np.arange(1, s.row + 1), record_changes=False)
+            if self.view is not None:  # the whole model may have changed
+                self._changed = np.arange(self.live.frame.n_rays, dtype=np.int64)
         self.lookahead.anchor(self.live, s.row, self._wco(state, s.row))
         self._fill_horizon = True  # the first state may take long: predict the whole horizon now
 
@@ -253,6 +278,8 @@ class Session:
         if rpm == 0.0 and self.last is not None and _spindle_rpm(self.last) != 0.0:
             rpm = None
         removed, rays, found = self.live_checks.cut(pts, rows, rpm)
+        if self.view is not None and rays.size:
+            self._changed = rays if self._changed is None else np.union1d(self._changed, rays)
         if self.run is not None:
             self.run.append_cut(self.stage, {"points": pts}, t=state.t, move_id=s.row + 1, line=s.line)
             if removed > 0 and rays.size:

@@ -1,12 +1,22 @@
 """``dexmon live JOB``: monitor a running machine.
 
-    dexmon live JOB.toml [--controller URL] [--run FILE] [--quiet | --json] [job flags]
+    dexmon live JOB.toml [--controller URL] [--run FILE] [--quiet | --json]
+                         [--view | --frames DIR] [job flags]
 
 Polls the job's controller, follows the program, cuts the real path into the stock,
 predicts findings over the look-ahead horizon and alerts each once (terminal, JSON lines,
 bell, and feed hold only when the job enables it). Everything goes to a run file (by
 default a new one under ./runs/, whose path is printed first). Exit 0 clean, 1 findings,
 2 error.
+
+``--view`` opens a window that redraws the shaded model as the machine cuts, with the
+tool, the path ahead and the findings marked; ``--frames DIR`` writes the same frames as
+numbered PNG files (no display needed). Either is drawn by a thread of its own, at most
+``--view-fps`` frames a second, from the rays each state changed.
+
+With a passthrough URL (``grbl+passthrough:///dev/ttyUSB0``) dexmon opens the machine's
+port and prints the pseudo-terminal (and TCP port) to point your own G-code sender at;
+the lines the sender streams tell the monitor where in the program the machine is.
 """
 
 from __future__ import annotations
@@ -22,6 +32,10 @@ HELP = "monitor a running machine from a job file"
 
 #: GIL switch interval during a run, s (Python's default is 0.005)
 REALTIME_SWITCH_S = 0.0005
+#: live view frame rate cap, frames/s
+DEFAULT_VIEW_FPS = 15.0
+#: how long the main thread waits for a frame before letting the window handle events, s
+WINDOW_PUMP_S = 0.05
 
 
 def add_common_arguments(parser) -> None:
@@ -30,6 +44,12 @@ def add_common_arguments(parser) -> None:
     out = parser.add_mutually_exclusive_group()
     out.add_argument("--quiet", action="store_true", help="print nothing; the exit status says it all")
     out.add_argument("--json", action="store_true", help="JSON lines on stdout: start, each finding, summary")
+    view = parser.add_mutually_exclusive_group()
+    view.add_argument("--view", action="store_true",
+                      help="a window redrawing the shaded model, tool, path ahead and findings as it cuts")
+    view.add_argument("--frames", metavar="DIR", help="write the live view's frames as PNG files into DIR")
+    parser.add_argument("--view-fps", type=float, default=DEFAULT_VIEW_FPS, metavar="N",
+                        help=f"frames per second at most for --view/--frames (default {DEFAULT_VIEW_FPS:g})")
     add_job_arguments(parser)
 
 
@@ -44,15 +64,17 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
 
     from monitor.alerts import Alerter
     from monitor.runfile import RunWriter, default_run_path
-    from monitor.session import Session, load_moves, run_controller
+    from monitor.session import Session, load_moves
     from monitor.status import StatusLine
 
+    view_opts = _view_options(args)  # before anything is opened: a bad --view is one line
     moves, program = load_moves(job)
     run_path = Path(args.run) if getattr(args, "run", None) else default_run_path(default_run_dir)
     quiet, as_json = bool(getattr(args, "quiet", False)), bool(getattr(args, "json", False))
     console = None if quiet or as_json else Console(highlight=False)
     err_console = Console(stderr=True, highlight=False)
     writer = RunWriter(run_path)
+    feed = None
     try:
         if as_json:
             _jsonl({"event": "start", "run": str(run_path), "program": str(job.program),
@@ -64,6 +86,14 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
                           feed_hold=controller.feed_hold if job.feed_hold else None, run=writer)
         program_text = job.program.read_text(errors="replace") if job.program else ""
         session = Session(job, moves, run=writer, alerter=alerter, program_text=program_text, program=program)
+        if hasattr(controller, "learned_lines"):
+            from monitor.linesync import StreamedLines
+
+            session.line_source = StreamedLines(controller, program_text, session.moves)
+            if done is None:
+                done = session.line_source.finished
+        if view_opts is not None:
+            feed = _start_view(session, *view_opts)
         status = StatusLine(console, enabled=console is not None)
         # compile before connecting (a dry run's machine starts at connect); on a first run
         # numba compiles for up to a minute, so say what is going on
@@ -73,6 +103,7 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
         else:
             session.warm_up()
         controller.connect()
+        _announce_endpoints(controller, console, as_json)
         # the setup made many long-lived objects (move table rows, meshes, tools): keep
         # the collector from walking them again during the run (no gen-2 pauses per poll)
         gc.collect()
@@ -83,17 +114,25 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
         sys.setswitchinterval(REALTIME_SWITCH_S)
         try:
             with status:
-                run_controller(session, controller, 1.0 / job.poll_hz, status=status, done=done)
+                _follow(session, controller, 1.0 / job.poll_hz, status, done, feed)
         except KeyboardInterrupt:
             err_console.print("interrupted; the run file keeps everything so far")
         finally:
             sys.setswitchinterval(switch)
             gc.unfreeze()
             controller.close()
+            if feed is not None:
+                feed.close()
         summary = session.finish()
         summary["run"] = str(run_path)
+        if feed is not None:
+            summary["frames"] = feed.frames
+            if feed.error is not None:
+                err_console.print(f"live view stopped: {type(feed.error).__name__}: {feed.error}")
     finally:
         writer.close()
+        if feed is not None:
+            feed.view.close()
     if as_json:
         _jsonl(summary)
     elif not quiet:
@@ -102,6 +141,91 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
         console.print(f"[{colour}]{n} finding(s)[/{colour}]"
                       + (f": {', '.join(summary['kinds'])}" if n else "") + f"; run file {run_path}")
     return 1 if summary["findings"] else 0
+
+
+def _view_options(args):
+    """``(frames dir or None, fps)`` when ``--view``/``--frames`` was given, else None;
+    InputError when ``--view`` has no display."""
+    from sim.errors import InputError
+
+    want_window, frames = bool(getattr(args, "view", False)), getattr(args, "frames", None)
+    if not want_window and not frames:
+        return None
+    fps = getattr(args, "view_fps", DEFAULT_VIEW_FPS)
+    if fps is None or not fps > 0:
+        raise InputError(f"expected a positive number of frames per second, got {fps}", "--view-fps")
+    if want_window:
+        from monitor.render.view3d import has_display
+
+        if not has_display():
+            raise InputError("no display for a window ($DISPLAY is not set); use --frames DIR to write "
+                             "the frames as PNG files instead", "--view")
+    return frames, float(fps)
+
+
+def _start_view(session, frames, fps: float):
+    """A LiveView of the session's live model fed from its own thread (kernels compiled
+    here, before the machine is followed)."""
+    from monitor.render.live import LiveView, ViewFeed
+
+    wp = session.wp
+    tool = wp.tool(int(session.moves["tool"][0])) if len(session.moves) else wp.default_tool
+    view = LiveView(wp.frame, tool=tool, out_dir=frames, title=f"dexmon {session.job.program or ''}")
+    heights = session.live.top()
+    view.render(heights, session.path.point_at(0.0) if len(session.path) else None)  # compile the shading
+    feed = ViewFeed(view, heights, path=session.path, horizon=session.lookahead.horizon_end, fps=fps)
+    session.attach_view(feed)
+    return feed.start()
+
+
+def _announce_endpoints(controller, console, as_json: bool) -> None:
+    """Tell the user where to point their own G-code sender (passthrough controllers)."""
+    ends = getattr(controller, "sender_endpoints", None)
+    if not ends:
+        return
+    if as_json:
+        _jsonl({"event": "passthrough", **ends})
+    elif console is not None:
+        where = []
+        if ends.get("pty"):
+            where.append(f"serial port {ends['pty']}")
+        if ends.get("tcp"):
+            where.append(f"TCP {ends.get('host', '127.0.0.1')}:{ends['tcp']}")
+        console.print(f"[bold]point your G-code sender at {' or '.join(where)}[/bold] "
+                      f"(the machine is on {ends.get('machine', '?')})")
+
+
+def _follow(session, controller, period: float, status, done, feed) -> None:
+    """Run the loop; with a window the loop runs on a worker thread, since the window
+    belongs to the main thread (GUI toolkits are not thread-safe)."""
+    import threading
+
+    from monitor.session import run_controller
+
+    if feed is None or not feed.view.is_window:
+        run_controller(session, controller, period, status=status, done=done)
+        return
+    stop = threading.Event()
+    failed: list[BaseException] = []
+
+    def loop():
+        try:
+            run_controller(session, controller, period, status=status, stop=stop, done=done)
+        except BaseException as exc:  # noqa: BLE001 - re-raised on the main thread
+            failed.append(exc)
+
+    worker = threading.Thread(target=loop, name="dexmon session", daemon=True)
+    worker.start()
+    try:
+        while worker.is_alive():
+            feed.pump(WINDOW_PUMP_S)
+    except KeyboardInterrupt:
+        stop.set()
+        worker.join()
+        raise
+    worker.join()
+    if failed:
+        raise failed[0]
 
 
 def _jsonl(obj) -> None:

@@ -4,19 +4,45 @@
 tool inverse-shaded at its pose, the path ahead and the predicted findings ringed. With a
 display it shows a window (matplotlib, updated in place); without one, or when ``out_dir``
 is given, it writes the frames as numbered PNG files.
+
+:class:`ViewFeed` connects a view to the session loop without slowing the loop down: the
+loop hands over only what changed (the new tops of the rays it cut, the tool pose, the
+progress, the findings) and a render thread of its own keeps a private copy of the top
+heights, draws at most ``fps`` frames a second and writes them (``--frames``) or passes
+them to the main thread that owns the window (``--view``).
 """
 
 from __future__ import annotations
 
+import threading
 import time
 from pathlib import Path
 
+import numba as nb
 import numpy as np
 
 from monitor.render import shaded
 from monitor.render.animate import reduce_factor
 from monitor.render.view3d import has_display
+from sim.dexel_store import ray_top
 from sim.errors import InputError
+
+
+@nb.njit(cache=True, nogil=True)
+def _tops_of(S, rays, out):
+    for k in range(rays.size):
+        out[k] = ray_top(S, rays[k])
+
+
+def tops_of(grid, rays: np.ndarray) -> np.ndarray:
+    """Top (largest ``s``, mm) of the material on each of ``rays`` (k,) int64 flat ray
+    indices of ``grid``, float32 (k,); NaN where a ray is empty. O(k): the live loop
+    calls it with the rays one step changed."""
+    rays = np.ascontiguousarray(rays, dtype=np.int64)
+    out = np.empty(rays.size, np.float32)
+    if rays.size:
+        _tops_of(grid.S, rays, out)
+    return out
 
 
 def _positions(findings) -> np.ndarray | None:
@@ -112,7 +138,12 @@ class LiveView:
         if self.max_fps > 0 and now - self._last_t < 1.0 / self.max_fps:
             return False
         self._last_t = now
-        img = self.render(heights_or_grid, tool_pose, path_ahead, findings, ids)
+        self.present(self.render(heights_or_grid, tool_pose, path_ahead, findings, ids))
+        return True
+
+    def present(self, img: np.ndarray) -> None:
+        """Show ``img`` (RGB uint8 from :meth:`render`) in the window, or write it as the
+        next numbered PNG. The window must be presented from the thread that made it."""
         self.frames_drawn += 1
         self.last_image = img
         if self.out_dir is not None:
@@ -124,7 +155,15 @@ class LiveView:
                 self._im.set_data(img)
             self._fig.canvas.draw_idle()
             self._fig.canvas.flush_events()
-        return True
+
+    def process_events(self) -> None:
+        """Let the window handle its events (resize, close) between frames."""
+        if self._fig is not None:
+            self._fig.canvas.flush_events()
+
+    @property
+    def is_window(self) -> bool:
+        return self.out_dir is None
 
     def close(self) -> None:
         if self._fig is not None:
@@ -137,3 +176,164 @@ class LiveView:
     def __exit__(self, *exc):
         self.close()
         return False
+
+
+def path_ahead(path, progress: float, end: float, max_points: int = 4000) -> np.ndarray:
+    """The program path from program time ``progress`` to ``end`` (s), float64 (k, 3) mm:
+    the point at ``progress``, then every segment end up to ``end`` (at most
+    ``max_points``, the nearest kept). ``path`` is a :class:`monitor.sync.ProgramPath`."""
+    if path is None or len(path) == 0 or not np.isfinite(progress):
+        return np.zeros((0, 3))
+    k0 = path.segment_at(progress)
+    k1 = min(path.segment_at(max(end, progress)) + 1, k0 + max_points)
+    return np.concatenate([path.point_at(progress)[None, :], path.p1[k0:k1]])
+
+
+def finding_positions(findings, wco=None) -> np.ndarray:
+    """Where to ring ``findings`` (session records) on the live model, float64 (m, 3) mm in
+    work coordinates: travel limits are told in machine coordinates, so ``wco`` (6,) is
+    taken off them."""
+    pts = []
+    w = np.zeros(3) if wco is None else np.asarray(wco, np.float64).reshape(-1)[:3]
+    for f in list(findings):
+        p = f.get("position") if isinstance(f, dict) else getattr(f, "position", None)
+        if p is None or len(p) < 3:
+            continue
+        q = np.asarray([float(v) for v in p[:3]])
+        kind = f.get("kind") if isinstance(f, dict) else getattr(f, "kind", "")
+        if kind == "travel_limit":
+            q = q - w
+        if np.all(np.isfinite(q)):
+            pts.append(q)
+    return np.asarray(pts, np.float64).reshape(-1, 3)
+
+
+class ViewFeed:
+    """Draw a :class:`LiveView` of a live model from its own thread.
+
+    The session loop calls :meth:`post` once per state with only what changed; posting
+    costs a lock and two list appends. The render thread applies the posted ray tops to
+    its own copy of the heights, so it never reads the model the loop is cutting, and
+    draws at most ``fps`` frames a second (states arriving in between are merged into the
+    next frame). With ``--frames`` the render thread writes the PNGs itself; a window must
+    be drawn by the main thread, which calls :meth:`pump` while the loop runs elsewhere.
+
+    Parameters
+    ----------
+    view : LiveView
+    heights : float32 (nv, nu) mm, the model's top heights when the feed starts.
+    path : monitor.sync.ProgramPath or None, for the path ahead.
+    horizon : callable(progress s) -> program time s where the path ahead ends.
+    fps : frames per second at most.
+    """
+
+    def __init__(self, view: LiveView, heights: np.ndarray, path=None, horizon=None, fps: float = 15.0):
+        if not fps > 0:
+            raise InputError(f"expected a positive number of frames per second, got {fps}", "--view-fps")
+        self.view = view
+        self.path = path
+        self.horizon = horizon or (lambda progress: progress + 5.0)
+        self.period = 1.0 / float(fps)
+        self.heights = np.array(heights, np.float32, copy=True).reshape(view.frame.shape)
+        self._flat = self.heights.reshape(-1)
+        self._cond = threading.Condition()
+        self._rays: list[np.ndarray] = []
+        self._tops: list[np.ndarray] = []
+        self._pose = None        # (tip (3,), tool, progress, findings, wco)
+        self._posted = 0         # posts so far
+        self._drawn = 0          # posts reflected in the last frame
+        self._ready: np.ndarray | None = None   # a frame waiting for the window
+        self._stop = False
+        self.frame_seconds: list[float] = []    # render (+ write) time of every frame
+        self.error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="dexmon live view", daemon=True)
+
+    def start(self) -> "ViewFeed":
+        self._thread.start()
+        return self
+
+    @property
+    def frames(self) -> int:
+        return len(self.frame_seconds)
+
+    # -- the loop's side
+    def post(self, rays: np.ndarray | None, tops: np.ndarray | None, tip=None, tool=None,
+             progress: float | None = None, findings=None, wco=None) -> None:
+        """Hand over one state: ``rays`` (k,) int64 the step changed and their new ``tops``
+        (k,) float32 mm, the tool ``tip`` (3,) mm in work coordinates and the ``tool``
+        there, the program ``progress`` s, the ``findings`` list (read, not copied, by
+        the render thread) and the work offset ``wco``."""
+        with self._cond:
+            if rays is not None and len(rays):
+                self._rays.append(rays)
+                self._tops.append(tops)
+            self._pose = (tip, tool, progress, findings, wco)
+            self._posted += 1
+            self._cond.notify_all()
+
+    # -- the render thread
+    def _run(self) -> None:
+        last = -np.inf
+        try:
+            while True:
+                with self._cond:
+                    self._cond.wait_for(lambda: self._stop or self._posted != self._drawn)
+                    if self._posted == self._drawn:
+                        return  # stopping, and everything posted is drawn
+                    # the frame budget: merge what arrives meanwhile into one frame
+                    wait = last + self.period - time.monotonic()
+                    if wait > 0 and not self._stop:
+                        self._cond.wait_for(lambda: self._stop, wait)
+                    rays, tops, self._rays, self._tops = self._rays, self._tops, [], []
+                    pose, self._drawn = self._pose, self._posted
+                last = time.monotonic()
+                self._draw(rays, tops, pose)
+        except BaseException as exc:  # noqa: BLE001 - a view failure must not stop the monitor
+            self.error = exc
+            with self._cond:
+                self._cond.notify_all()
+
+    def _draw(self, rays, tops, pose) -> None:
+        t0 = time.perf_counter()
+        for r, h in zip(rays, tops):  # in posting order: a ray cut twice keeps its latest top
+            self._flat[r] = h
+        tip, tool, progress, findings, wco = pose if pose is not None else (None,) * 5
+        ahead = None
+        if progress is not None and self.path is not None:
+            ahead = path_ahead(self.path, progress, self.horizon(progress))
+        if tool is not None:
+            self.view.tool = tool
+        img = self.view.render(self.heights, tip, ahead, finding_positions(findings or (), wco))
+        if self.view.is_window:
+            with self._cond:
+                self._ready = img.copy()
+                self._cond.notify_all()
+        else:
+            self.view.present(img)
+        self.frame_seconds.append(time.perf_counter() - t0)
+
+    # -- the main thread's side (window)
+    def pump(self, timeout: float) -> bool:
+        """Show the newest frame in the window if one is ready within ``timeout`` s, and let
+        the window handle its events; True if a frame was shown."""
+        with self._cond:
+            self._cond.wait_for(lambda: self._ready is not None or self.error is not None
+                                or (self._stop and not self._thread.is_alive()), timeout)
+            img, self._ready = self._ready, None
+        if img is not None:
+            self.view.present(img)
+        else:
+            self.view.process_events()
+        return img is not None
+
+    def close(self, timeout: float = 10.0) -> None:
+        """Draw what is still posted, stop the render thread and (window) show the last
+        frame."""
+        with self._cond:
+            self._stop = True
+            self._cond.notify_all()
+        if self._thread.is_alive():
+            self._thread.join(timeout)
+        if self.view.is_window and self._ready is not None:
+            img, self._ready = self._ready, None
+            self.view.present(img)
