@@ -8,6 +8,10 @@ URL                                driver
 ``modbus+tcp://host:port?map=F``    Modbus TCP controller with a register map
 ``modbus+rtu:///dev/ttyUSB1?map=F``  Modbus RTU
 ``virtual://PROGRAM?speed=N``       the in-process virtual controller
+``grbl+passthrough:///dev/ttyUSB0``  GRBL behind your own sender: dexmon opens the
+                                   port and offers a pty (``?tcp=PORT``: and a
+                                   TCP port) that the sender streams through
+``grbl+passthrough+socket://h:p``   the same for a networked GRBL
 =================================  ===========================================
 
 Drivers register their scheme in :data:`SCHEMES` lazily (module path and class name),
@@ -30,6 +34,9 @@ SCHEMES: dict[str, str] = {
     "modbus+tcp": "drivers.modbus.driver:from_url",
     "modbus+rtu": "drivers.modbus.driver:from_url",
     "virtual": "drivers.virtual.controller:from_url",
+    "grbl+passthrough": "drivers.grbl.passthrough:from_url",
+    "grbl+passthrough+socket": "drivers.grbl.passthrough:from_url",
+    "grbl+passthrough+rfc2217": "drivers.grbl.passthrough:from_url",
 }
 
 

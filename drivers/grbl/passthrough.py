@@ -16,6 +16,16 @@ sender when the sender has one outstanding, otherwise it answers an own poll and
 swallowed. A sender ``?`` that arrives while an own poll is outstanding is not sent
 again: the report on its way is handed to the sender instead (GRBL may answer two close
 ``?`` with one report, so sending both could leave a reply nobody asked for).
+
+URLs (see :func:`from_url`; registered in :mod:`drivers.registry`)::
+
+    grbl+passthrough:///dev/ttyUSB0?tcp=2323            machine on a serial device
+    grbl+passthrough+socket://192.168.1.50:23?pty=1     machine over TCP (pyserial socket://)
+
+Query parameters: ``baud`` (115200), ``rate`` (reports/s, 20), ``pty`` (1: offer a
+pseudo-terminal; 0: TCP only), ``link`` (a symlink to the pty, a stable path for the
+sender), ``tcp`` (also offer this TCP port; 0: any free one), ``host`` (the address the
+TCP port listens on, 127.0.0.1).
 """
 
 from __future__ import annotations
@@ -26,6 +36,7 @@ import threading
 import time
 from dataclasses import dataclass
 from typing import Callable
+from urllib.parse import parse_qsl, urlsplit
 
 import serial
 
@@ -372,6 +383,23 @@ class Passthrough(Controller):
     def last_state(self) -> MachineState | None:
         return self._state
 
+    @property
+    def learned_lines(self) -> list[LearnedLine]:
+        """Every line the sender streamed, in order (appended as they pass)."""
+        return self.lines
+
+    @property
+    def sender_endpoints(self) -> dict:
+        """Where the sender connects, after :meth:`start`: ``pty`` path and/or ``tcp``
+        port (with ``host``), and the ``machine`` port they lead to."""
+        out: dict = {"machine": self.port}
+        if self.sender_path:
+            out["pty"] = self.sender_path
+        if self.sender_port is not None:
+            out["tcp"] = self.sender_port
+            out["host"] = self._tcp_host
+        return out
+
     def poll(self, timeout: float = 0.5) -> MachineState:
         """The next status report seen (own poll or the sender's), stamped at arrival."""
         with self._cond:
@@ -406,3 +434,42 @@ class Passthrough(Controller):
     def feed_hold(self) -> None:
         """Hold the machine's feed (the only command the monitor may send)."""
         self._write_machine(p.RT_FEED_HOLD)
+
+
+def from_url(url: str) -> Passthrough:
+    """A :class:`Passthrough` for ``url`` (not started). See the module docstring."""
+    parts = urlsplit(url)
+    scheme = parts.scheme
+    params = dict(parse_qsl(parts.query, keep_blank_values=True))
+    if scheme == "grbl+passthrough":
+        port = parts.path if not parts.netloc else parts.netloc + parts.path
+        if not port:
+            raise DriverError(f"controller URL {url!r}: expected the machine's device path, "
+                              "e.g. grbl+passthrough:///dev/ttyUSB0")
+    elif scheme.startswith("grbl+passthrough+"):
+        inner = scheme[len("grbl+passthrough+"):]
+        if not parts.netloc:
+            raise DriverError(f"controller URL {url!r}: expected host:port, "
+                              "e.g. grbl+passthrough+socket://192.168.1.50:23")
+        port = f"{inner}://{parts.netloc}{parts.path}"
+    else:
+        raise DriverError(f"controller URL {url!r}: not a passthrough URL "
+                          "(grbl+passthrough://, grbl+passthrough+socket://)")
+    known = {"baud": int, "rate": float, "pty": int, "tcp": int, "host": str, "link": str}
+    kw = {}
+    for key, value in params.items():
+        if key not in known:
+            raise DriverError(f"controller URL {url!r}: unknown parameter {key!r}; expected one of {', '.join(known)}")
+        try:
+            kw[key] = known[key](value)
+        except ValueError:
+            raise DriverError(f"controller URL {url!r}: parameter {key}={value!r} is not a number") from None
+    if "tcp" in kw and not 0 <= kw["tcp"] <= 65535:
+        raise DriverError(f"controller URL {url!r}: tcp={kw['tcp']} is not a TCP port (0-65535)")
+    pty = bool(kw.get("pty", 1))
+    if not pty and "tcp" not in kw:
+        raise DriverError(f"controller URL {url!r}: pty=0 needs tcp=PORT, or the sender has nowhere to connect")
+    pt = Passthrough(port, baud=kw.get("baud", 115200), rate=kw.get("rate", 20.0), pty=pty,
+                     tcp_port=kw.get("tcp"), tcp_host=kw.get("host", "127.0.0.1"), link=kw.get("link"))
+    pt.url = url
+    return pt
