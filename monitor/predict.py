@@ -2,7 +2,7 @@
 
 Everything here is in the job's *work coordinates* (the coordinates the program, stock,
 fixtures and design are written in): the move table is turned into a work-coordinate
-table whose tip is ``end_work`` (:func:`work_moves`), and the dexel frame covers the stock
+table whose tip is the work position ``end - wco`` (:func:`work_moves`), and the dexel frame covers the stock
 and fixtures. Travel limits are machine coordinates of the controlled point; they are
 shifted into work coordinates by the work offset in force (:func:`limits_in_work`) and the
 findings shifted back (:func:`finding_to_machine`).
@@ -32,7 +32,7 @@ from monitor.sync import ProgramPath
 from sim.checks.findings import Finding
 from sim.errors import InputError
 from sim.frame import Frame
-from sim.gcode.moves import MOVE_DTYPE, MoveKind, Plane
+from sim.gcode.moves import MOVE_DTYPE, MoveKind, Plane, as_move_table, work_end, work_start
 from sim.grid import DexelGrid
 from sim.tolerance import Tolerance
 
@@ -48,15 +48,19 @@ def work_moves(moves: np.ndarray) -> np.ndarray:
     """A copy of a move table with ``start/end`` replaced by the work coordinates of the tip.
 
     ``tool_length`` becomes 0 (work coordinates are the tip's) and arc centres are shifted
-    into the work system of their row, so the cutter sweeps the tip where the program put it.
+    into the work system of their row, so the cutter sweeps the tip where the program put it;
+    ``wco`` becomes 0 (the table is its own work system). Tables written before the ``wco``
+    column (old run files) are converted first.
     """
+    moves = as_move_table(moves)
     out = moves.copy()
-    shift = np.asarray(moves["start_work"][:, :3], np.float64) - np.asarray(moves["start"][:, :3], np.float64)
+    shift = -np.asarray(moves["wco"][:, :3], np.float64)
     shift[:, 2] += moves["tool_length"]  # machine Z of the controlled point = tip + length
-    out["start"] = moves["start_work"]
-    out["end"] = moves["end_work"]
+    out["start"] = work_start(moves)
+    out["end"] = work_end(moves)
     out["center"] = moves["center"] + shift
     out["tool_length"] = 0.0
+    out["wco"] = 0.0
     return out
 
 
@@ -478,8 +482,6 @@ class LiveChecks:
         end[:, :3] = pts[1:]
         start[:, 3:] = self._rot0[rows]
         end[:, 3:] = self._rot1[rows]
-        m["start_work"] = start
-        m["end_work"] = end
         m["feed"] = self._feed[rows]
         m["tool"] = self._tool[rows]
         if spindle_rpm is None:

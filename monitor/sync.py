@@ -36,8 +36,8 @@ def row_seconds(moves: np.ndarray, rapid_rate: float = DEFAULT_RAPID_RATE,
     """Programmed duration of every row, float64 (n,), s (length / feed; dwell rows their dwell).
 
     Accelerations are ignored; a better estimate (``Program.cycle_time``) can be used
-    instead wherever it exists. ``position`` picks the ``start_work/end_work`` or ``start/end``
-    columns.
+    instead wherever it exists. ``position`` picks work coordinates (``start/end - wco``) or
+    the machine ``start/end`` columns.
     """
     lengths = row_lengths(moves, position)
     kind = moves["kind"]
@@ -53,9 +53,8 @@ def row_seconds(moves: np.ndarray, rapid_rate: float = DEFAULT_RAPID_RATE,
 
 def row_lengths(moves: np.ndarray, position: str = "work") -> np.ndarray:
     """Path length of every row, float64 (n,), mm (arcs by their true length, helix included)."""
-    a, b = _cols(position)
-    p0 = moves[a][:, :3]
-    p1 = moves[b][:, :3]
+    p0, p1 = _ends(moves, position)
+    p0, p1 = p0[:, :3], p1[:, :3]
     lengths = np.linalg.norm(p1 - p0, axis=1)
     arc = np.isin(moves["kind"], (MoveKind.ARC_CW, MoveKind.ARC_CCW))
     for r in np.nonzero(arc)[0]:
@@ -64,8 +63,11 @@ def row_lengths(moves: np.ndarray, position: str = "work") -> np.ndarray:
     return lengths
 
 
-def _cols(position: str) -> tuple[str, str]:
-    return ("start_work", "end_work") if position == "work" else ("start", "end")
+def _ends(moves: np.ndarray, position: str) -> tuple[np.ndarray, np.ndarray]:
+    """(start, end) positions, each (n, 6) (or (6,) for one row), mm: work or machine."""
+    if position == "work":
+        return moves["start"] - moves["wco"], moves["end"] - moves["wco"]
+    return moves["start"], moves["end"]
 
 
 def _plane_axes(plane: int) -> tuple[int, int, int]:
@@ -75,14 +77,14 @@ def _plane_axes(plane: int) -> tuple[int, int, int]:
 
 def _arc_points(row, position: str, chord: float) -> np.ndarray:
     """Points along one arc row, (k, 3) mm, first = start and last = end, chord error <= ``chord``."""
-    a, b = _cols(position)
-    p0 = np.asarray(row[a][:3], np.float64)
-    p1 = np.asarray(row[b][:3], np.float64)
+    s, e = _ends(row, position)
+    p0 = np.asarray(s[:3], np.float64)
+    p1 = np.asarray(e[:3], np.float64)
     c = np.asarray(row["center"], np.float64)
     if not np.all(np.isfinite(c)):
         return np.stack([p0, p1])
     if position == "work":  # the centre is stored in machine coords: shift by this row's offset
-        c = c + (np.asarray(row["start_work"][:3]) - np.asarray(row["start"][:3]))
+        c = c - np.asarray(row["wco"][:3], np.float64)
     i, j, k = _plane_axes(row["plane"])
     r0 = np.hypot(p0[i] - c[i], p0[j] - c[j])
     if r0 <= 1e-9:
@@ -149,13 +151,13 @@ class ProgramPath:
         secs = row_seconds(moves, position=position) if seconds is None else np.asarray(seconds, np.float64)
         if secs.shape != (n,):
             raise ValueError(f"seconds must have shape ({n},), got {secs.shape}")
-        a, b = _cols(position)
+        s, e = _ends(moves, position)
         # tip = controlled point minus the G43 length in the machine columns
         lift = np.zeros((n, 3))
         if position == "machine":
             lift[:, 2] = moves["tool_length"]
-        starts = np.asarray(moves[a][:, :3], np.float64) - lift
-        ends = np.asarray(moves[b][:, :3], np.float64) - lift
+        starts = np.asarray(s[:, :3], np.float64) - lift
+        ends = np.asarray(e[:, :3], np.float64) - lift
         row_t1 = np.cumsum(secs)
         row_t0 = row_t1 - secs
         arc = np.isin(moves["kind"], (MoveKind.ARC_CW, MoveKind.ARC_CCW))

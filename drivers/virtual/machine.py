@@ -410,8 +410,7 @@ class VirtualMachine:
         row["start"] = self._planned_end
         row["end"] = tgt
         # a jog keeps the work offset in force (else track_row_wco would take end - 0)
-        row["start_work"] = self._planned_end - self.wco
-        row["end_work"] = tgt - self.wco
+        row["wco"] = self.wco
         row["feed"] = float(feed)
         if self._row is not None:
             for k in ("spindle", "spindle_dir", "coolant", "tool"):
@@ -513,7 +512,7 @@ class VirtualMachine:
     def _begin_row(self, blk: _Block) -> None:
         self._row = blk.row
         if self.track_row_wco:
-            wco = np.asarray(blk.row["end"]) - np.asarray(blk.row["end_work"])
+            wco = np.asarray(blk.row["wco"])
             if np.all(np.isfinite(wco)):
                 self.wco = wco.astype(np.float64)
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
 import sys
 
 HELP = "print a program's move table (jsonl or csv)"
@@ -22,6 +23,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--var", help="LinuxCNC parameter (.var) file: work offsets, G28/G30 (in --machine-units)")
     parser.add_argument("--machine-units", choices=("mm", "inch"), default="mm",
                         help="units of the tool table and .var file (default mm)")
+    parser.add_argument("--subroutine-path", action="append", metavar="DIRS", default=[],
+                        help="directories searched for o<name> call subroutine files (<name>.ngc), "
+                             f"'{os.pathsep}'-separated like LinuxCNC's SUBROUTINE_PATH; repeatable; "
+                             "the program's own directory is searched last")
     parser.add_argument("--format", choices=("jsonl", "csv"), default="jsonl", help="output format (default jsonl)")
     parser.add_argument("--keep-going", action="store_true",
                         help="list every error (on stderr) instead of stopping at the first")
@@ -45,8 +50,8 @@ def rows_as_dicts(prog, moves, times=None):
             "file": prog.files[int(r["file"])] if int(r["file"]) else None,
             "line": int(r["line"]),
             "kind": KIND_NAMES.get(kind, str(kind)),
-            "start": _axes(r["start_work"], n_axes),
-            "end": _axes(r["end_work"], n_axes),
+            "start": _axes(r["start"] - r["wco"], n_axes),
+            "end": _axes(r["end"] - r["wco"], n_axes),
             "end_machine": _axes(r["end"], n_axes),
             "feed": round(float(r["feed"]), 6),
             "spindle": float(r["spindle"]),
@@ -58,8 +63,7 @@ def rows_as_dicts(prog, moves, times=None):
         if d["file"] is None:
             del d["file"]
         if kind in (2, 3):
-            off = r["start"][:3] - r["start_work"][:3]
-            d["center"] = [round(float(c), 6) for c in (r["center"] - off)]
+            d["center"] = [round(float(c), 6) for c in (r["center"] - r["wco"][:3])]
             d["plane"] = PLANE_NAMES[int(r["plane"])]
             d["turns"] = int(r["turns"])
         if float(r["inverse_time"]):
@@ -74,8 +78,13 @@ def rows_as_dicts(prog, moves, times=None):
 def run(args) -> int:
     from sim.gcode import load_program
 
+    sub_path = [d for arg in args.subroutine_path for d in arg.split(os.pathsep) if d]
+    for d in sub_path:
+        if not os.path.isdir(d):
+            print(f"dexmon moves: error: --subroutine-path {d!r} is not a directory", file=sys.stderr)
+            return 2
     prog = load_program(args.program, dialect=args.dialect, tool_table=args.tool_table, var_file=args.var,
-                        machine_units=args.machine_units, keep_going=args.keep_going)
+                        machine_units=args.machine_units, keep_going=args.keep_going, subroutine_path=sub_path)
     moves = prog.moves
     if args.linearize is not None:
         if not (args.linearize > 0 and math.isfinite(args.linearize)):

@@ -279,8 +279,7 @@ def run_simple(it, fl: FastLines, start: int, stop: int, snapshot) -> bool:
             rows["kind"] = np.where(motion[ri] == 0, MoveKind.RAPID, MoveKind.FEED)
             rows["start"] = starts
             rows["end"] = ends
-            rows["start_work"] = starts - off
-            rows["end_work"] = ends - off
+            rows["wco"] = off
             rows["center"] = np.nan
             rows["plane"] = meta[7]
             rows["turns"] = 0

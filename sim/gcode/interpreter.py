@@ -467,12 +467,9 @@ class Interpreter:
     def emit(self, kind: int, start, end, center=NAN3, turns: int = 0, feed: float = 0.0,
              inverse: float = 0.0, dwell: float = 0.0, meta: tuple | None = None) -> None:
         """Append one move row; ``start``/``end`` machine coordinates (6), mm/deg."""
-        off = self.offsets()
-        sw = tuple(start[i] - off[i] for i in range(6))
-        ew = tuple(end[i] - off[i] for i in range(6))
         m = meta or self.meta()
         self._rows.append((
-            m[0], m[1], kind, tuple(start), tuple(end), sw, ew, center,
+            m[0], m[1], kind, tuple(start), tuple(end), tuple(self.offsets()), center,
             m[7], turns, feed, inverse, m[2], m[3], m[4], m[5], m[6], dwell,
         ))
         self._row_line.append(m[8])

@@ -81,11 +81,8 @@ def linearize(moves: np.ndarray, tolerance=None) -> np.ndarray:
         last = k[sel] == counts[s_src]
         p1[last] = moves["end"][s_src[last]]
         p0[k[sel] == 1] = moves["start"][s_src[k[sel] == 1]]
-        off = moves["start"][s_src] - moves["start_work"][s_src]
         out["start"][sel] = p0
         out["end"][sel] = p1
-        out["start_work"][sel] = p0 - off
-        out["end_work"][sel] = p1 - off
         out["kind"][sel] = MoveKind.FEED
         out["center"][sel] = np.nan
         out["turns"][sel] = 0

@@ -3,7 +3,11 @@
 Every consumer (dexel cutting, the virtual controller, look-ahead, replay) reads this one
 layout. Positions are of the *controlled point* in machine coordinates, like a
 controller's MPos; the tool tip is ``end - [0, 0, tool_length]`` (G43 length offset).
-Work coordinates are those of the work system active on that row.
+Work coordinates are not stored: ``wco`` is the work coordinate offset in force on the
+row (G5x + G92 + the G43 length offset in Z, what GRBL reports as WCO), so the work
+position is ``machine - wco`` (:func:`work_start`, :func:`work_end`), bit for bit what
+the interpreter computed. One offset per row holds because an offset can only change
+between moves, never during one.
 
 Units: mm for X Y Z, degrees for A B C, mm/min for feed, rpm for spindle, s for dwell.
 """
@@ -44,8 +48,7 @@ MOVE_DTYPE = np.dtype(
         ("kind", np.uint8),          # MoveKind
         ("start", np.float64, 6),    # machine coords X Y Z A B C at the start
         ("end", np.float64, 6),      # machine coords at the end
-        ("start_work", np.float64, 6),  # work coords (active system) at the start
-        ("end_work", np.float64, 6),    # work coords at the end
+        ("wco", np.float64, 6),      # work coordinate offset in force: machine - work
         ("center", np.float64, 3),   # arc centre, machine coords (NaN for non-arcs)
         ("plane", np.uint8),         # Plane
         ("turns", np.int32),         # arc: 1 + extra full turns (P word); 0 otherwise
@@ -66,6 +69,40 @@ def empty_moves(n: int = 0) -> np.ndarray:
     moves = np.zeros(n, dtype=MOVE_DTYPE)
     moves["center"] = np.nan
     return moves
+
+
+def work_start(moves: np.ndarray) -> np.ndarray:
+    """Work coordinates X Y Z A B C at the start of each row, (n, 6) float64: ``start - wco``."""
+    return moves["start"] - moves["wco"]
+
+
+def work_end(moves: np.ndarray) -> np.ndarray:
+    """Work coordinates X Y Z A B C at the end of each row, (n, 6) float64: ``end - wco``."""
+    return moves["end"] - moves["wco"]
+
+
+#: the layout before ``wco`` replaced the two work-position columns (run files written then)
+_LEGACY_WORK = ("start_work", "end_work")
+
+
+def as_move_table(moves: np.ndarray) -> np.ndarray:
+    """``moves`` as MOVE_DTYPE: a MOVE_DTYPE array unchanged, an older table converted.
+
+    Tables from before the ``wco`` column (``start_work``/``end_work`` fields, e.g. in old
+    run files) get ``wco = start - start_work``. Raises ValueError for any other dtype.
+    """
+    moves = np.asarray(moves)
+    if moves.dtype == MOVE_DTYPE:
+        return moves
+    names = moves.dtype.names or ()
+    want = set(MOVE_DTYPE.names) - {"wco"}
+    if not (want <= set(names) and set(_LEGACY_WORK) <= set(names)):
+        raise ValueError(f"not a move table: fields {names}")
+    out = np.empty(moves.shape, MOVE_DTYPE)
+    for name in want:
+        out[name] = moves[name]
+    out["wco"] = moves["start"] - moves["start_work"]
+    return out
 
 
 def tip_positions(moves: np.ndarray, which: str = "end") -> np.ndarray:

@@ -23,10 +23,8 @@ def program_moves() -> np.ndarray:
     m["kind"] = MoveKind.FEED
     m["kind"][0] = MoveKind.RAPID
     for k in range(n):
-        for col in ("start", "start_work"):
-            m[col][k, :3] = PATH[k]
-        for col in ("end", "end_work"):
-            m[col][k, :3] = PATH[k + 1]
+        m["start"][k, :3] = PATH[k]
+        m["end"][k, :3] = PATH[k + 1]
     m["feed"] = 600.0
     m["tool"] = 1
     return m

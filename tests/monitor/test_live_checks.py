@@ -28,7 +28,7 @@ from monitor.runfile import RunReader, RunWriter
 from monitor.session import Session, load_moves, run_controller
 from monitor.sync import ProgramPath
 from sim.checks.findings import Finding
-from sim.gcode.moves import MoveKind, empty_moves
+from sim.gcode.moves import MoveKind, empty_moves, work_end
 
 GOUGE_LINE, RAPID_LINE = 22, 36
 DESIGN_TOP = -5.0  # the example's design is the box 5..55 x 5..35 x -20..-5
@@ -117,7 +117,7 @@ def test_live_spindle_stopped_and_rapid_are_found_on_the_real_path(example):
     # the facing row at line 11 (G1 X68 at Y2, Z-5) runs with the spindle reported stopped
     k = int(np.nonzero(moves["line"] == 11)[0][0])
     s = Session(job, moves, program=program)
-    p0, p1 = moves["end_work"][k - 1, :3], moves["end_work"][k, :3]
+    p0, p1 = work_end(moves)[k - 1, :3], work_end(moves)[k, :3]
     t = 0.0
     for f in np.linspace(0.0, 0.5, 12):
         s.step(_state(t, p0 + f * (p1 - p0), spindle=0.0))
@@ -174,10 +174,8 @@ def test_live_checks_unit_gouge_depth_is_exact(example):
     m["kind"] = MoveKind.FEED
     m["line"] = 77
     m["spindle"], m["spindle_dir"], m["feed"], m["tool"] = 10000, 1, 600, 1
-    for col in ("start", "start_work"):
-        m[col][0, :3] = (10, 20, -5.3)
-    for col in ("end", "end_work"):
-        m[col][0, :3] = (40, 20, -5.3)
+    m["start"][0, :3] = (10, 20, -5.3)
+    m["end"][0, :3] = (40, 20, -5.3)
     wp = build_workpiece(job, m)
     lc = LiveChecks(wp, work_moves(m))
     pts = np.array([[10.0, 20.0, -5.3], [25.0, 20.0, -5.3], [40.0, 20.0, -5.3]])
@@ -290,12 +288,12 @@ def test_first_state_fills_the_horizon_then_work_is_budgeted(example):
     s.lookahead.budget_rays = 1.0  # one row per later state
     mw = s.moves
     k = int(np.nonzero(moves["line"] == 11)[0][0])
-    s.step(_state(0.0, mw["start_work"][k, :3]))
+    s.step(_state(0.0, mw["start"][k, :3]))
     assert s.lookahead.behind(s.last_sync.progress) == 0 and s.lookahead.next_row > k + 2  # not one row
     # the spindle jumps far ahead of the scratch model (the operator ran from line 30):
     # the look-ahead restarts from the live model there instead of predicting the past
     j = int(np.nonzero(moves["line"] == 30)[0][0])
-    s.step(MachineState(t=0.02, mpos=tuple(mw["start_work"][j, :3]) + (0, 0, 0), state=RunState.RUN,
+    s.step(MachineState(t=0.02, mpos=tuple(mw["start"][j, :3]) + (0, 0, 0), state=RunState.RUN,
                         spindle=10000.0, line=30))
     assert s.last_sync.row == j and s.lookahead.next_row == j + 1
 
@@ -306,7 +304,7 @@ def test_live_fixture_collision_off_the_program(example):
     job = dataclasses.replace(job, work_offset=(0.0, 0.0, 0.0), design=None)
     s = Session(job, moves, program=program)
     k = int(np.nonzero(moves["line"] == 9)[0][0])  # G0 X-8 Y2 at Z5, left of the block
-    p = np.array(s.moves["end_work"][k, :3])
+    p = np.array(s.moves["end"][k, :3])
     s.step(_state(0.0, p))
     for n, y in enumerate(np.linspace(2.0, 20.0, 10)):  # along Y at X-14, Z5: through the clamp's end
         s.step(_state(0.02 * (n + 1), (-14.0, y, 5.0)))
@@ -324,12 +322,12 @@ def test_a_stopped_spindle_at_one_poll_does_not_blame_the_whole_gap(example):
     s = Session(job, moves, program=program)
     mw = s.moves
     k = int(np.nonzero(moves["line"] == 11)[0][0])
-    s.step(_state(0.0, mw["start_work"][k, :3], spindle=10000.0))
-    s.step(_state(0.02, mw["start_work"][k, :3] + (1.0, 0, 0), spindle=10000.0))
-    s.step(_state(0.04, mw["end_work"][k, :3], spindle=0.0))  # on at the last poll, off now
+    s.step(_state(0.0, mw["start"][k, :3], spindle=10000.0))
+    s.step(_state(0.02, mw["start"][k, :3] + (1.0, 0, 0), spindle=10000.0))
+    s.step(_state(0.04, mw["end"][k, :3], spindle=0.0))  # on at the last poll, off now
     assert s.stage == 2 and not [f for f in s.findings if f["kind"] == "spindle_stopped_cutting"]
     # off at both polls: it is (Y6 at X68 is off the stock; the X-8 pass of line 13 cuts)
-    s.step(_state(0.06, mw["end_work"][k + 1, :3] - (20.0, 0, 0), spindle=0.0))
+    s.step(_state(0.06, mw["end"][k + 1, :3] - (20.0, 0, 0), spindle=0.0))
     assert [f["line"] for f in s.findings if f["kind"] == "spindle_stopped_cutting"] == [13]
 
 

@@ -78,3 +78,26 @@ def test_time_and_linearize(tmp_path, capsys):
 def test_bad_options(tmp_path, bad):
     prog = _write(tmp_path, "G0 X1\n")
     assert main(["moves", prog, *bad]) == 2
+
+
+def test_subroutine_path(tmp_path, capsys):
+    """o<name> call finds <name>.ngc in --subroutine-path directories (':'-separated or repeated)."""
+    subs = tmp_path / "subs"
+    subs.mkdir()
+    (subs / "square.ngc").write_text("o<square> sub\nG1 X#1 F100\nY#1\nX0\nY0\no<square> endsub\nM2\n")
+    prog_dir = tmp_path / "prog"
+    prog_dir.mkdir()
+    prog = _write(prog_dir, "G21 G0 X0 Y0\no<square> call [5]\nM2\n")
+    assert main(["moves", prog]) == 2
+    assert "no osquare sub" in capsys.readouterr().err.replace("<", "").replace(">", "")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["moves", prog, "--subroutine-path", f"{empty}:{subs}"]) == 0
+    rows = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    feeds = [r["end"][:2] for r in rows if r["kind"] == "feed"]
+    assert feeds == [[5, 0], [5, 5], [0, 5], [0, 0]]
+    assert {r.get("file") for r in rows if r["kind"] == "feed"} == {str(subs / "square.ngc")}
+    assert main(["moves", prog, "--subroutine-path", str(empty), "--subroutine-path", str(subs)]) == 0
+    capsys.readouterr()
+    assert main(["moves", prog, "--subroutine-path", str(tmp_path / "nope")]) == 2
+    assert "not a directory" in capsys.readouterr().err

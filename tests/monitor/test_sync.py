@@ -16,7 +16,7 @@ def table(points, kinds, feed=600.0, first_line=10):
     m = empty_moves(n)
     m["line"] = np.arange(first_line, first_line + n)
     m["kind"] = kinds
-    for col, src in (("start", pts[:-1]), ("end", pts[1:]), ("start_work", pts[:-1]), ("end_work", pts[1:])):
+    for col, src in (("start", pts[:-1]), ("end", pts[1:])):
         m[col][:, :3] = src
     m["feed"] = np.where(np.asarray(kinds) == MoveKind.RAPID, 0.0, feed)
     return m
@@ -60,8 +60,8 @@ def test_row_seconds_and_lengths():
 def test_arc_is_flattened_with_its_true_length():
     m = empty_moves(1)
     m["kind"] = MoveKind.ARC_CCW
-    m["start"][0, :3] = m["start_work"][0, :3] = (10, 0, 0)
-    m["end"][0, :3] = m["end_work"][0, :3] = (-10, 0, 0)
+    m["start"][0, :3] = (10, 0, 0)
+    m["end"][0, :3] = (-10, 0, 0)
     m["center"][0] = (0, 0, 0)
     m["feed"] = 600
     m["turns"] = 1

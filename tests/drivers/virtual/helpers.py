@@ -26,9 +26,7 @@ def rows(*moves, start=(0.0, 0.0, 0.0)):
         for k, v in extra.items():
             out[k][i] = v
         pos = e
-    out["start_work"] = out["start"]
-    out["end_work"] = out["end"]
-    return out
+    return out  # wco 0: work coordinates = machine
 
 
 def line(end, feed):

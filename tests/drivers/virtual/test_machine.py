@@ -346,7 +346,7 @@ def test_snapshot_fields():
     r["spindle"] = 1000
     r["spindle_dir"] = -1
     r["coolant"] = 2
-    r["end_work"][0] = r["end"][0] - (-3.0, 1.0, 2.0, 0, 0, 0)
+    r["wco"][0] = (-3.0, 1.0, 2.0, 0, 0, 0)
     vm.queue(r)
     vm.set_spindle_override(120)
     vm.advance(0.25)

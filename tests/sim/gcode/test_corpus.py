@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim.gcode import GCodeError, MoveKind, load_program
+from sim.gcode import GCodeError, MoveKind, load_program, work_end
 
 TABLES = {
     "linuxcnc_mmount.ngc": "linuxcnc_mmount.tbl",
@@ -76,14 +76,14 @@ def test_corpus_units_and_offsets(shared):
     prog = _load(shared, "linuxcnc_mmount.ngc")
     assert prog.state_at(60).units == 200
     m = prog.moves
-    wco_x = (m["end"] - m["end_work"])[:, 0]
+    wco_x = m["wco"][:, 0]
     assert np.isclose(wco_x, 2 * 25.4).any()        # G55 X
     assert np.isclose(wco_x, -1 * 25.4).any()       # G56 X
     # cds.ngc is inch: 4 in stock, cutter never below 0.94 in from the top at Z=2 in
     cds = _load(shared, "linuxcnc_cds.ngc").moves
-    assert cds["end_work"][:, 2].min() >= (2 - 0.94) * 25.4 - 1e-6
+    assert work_end(cds)[:, 2].min() >= (2 - 0.94) * 25.4 - 1e-6
     # G43 H1 adds T1 Z0.511 in: machine Z = work Z + 12.9794 mm
-    np.testing.assert_allclose((cds["end"] - cds["end_work"])[-1, 2], 0.511 * 25.4)
+    np.testing.assert_allclose(cds["wco"][-1, 2], 0.511 * 25.4)
 
 
 def test_comp_corpus_tool_radius_is_applied(shared):

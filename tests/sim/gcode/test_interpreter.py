@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from sim.gcode import GCodeError, Interpreter, MoveKind, interpret, load_program
+from sim.gcode import GCodeError, Interpreter, MoveKind, interpret, load_program, work_end
 from sim.tooltable import ToolEntry
 
 
@@ -16,7 +16,7 @@ def run(text, **kw):
 
 
 def ends(text, **kw):
-    return run(text, **kw)["end_work"][:, :3]
+    return work_end(run(text, **kw))[:, :3]
 
 
 # ------------------------------------------------------------------ basics, units, modes
@@ -138,7 +138,8 @@ def test_offsets_stack_g5x_g92_g43():
     rap = m[m["kind"] == MoveKind.RAPID]
     np.testing.assert_allclose(rap["end"][0, :3], [100, 50, 30])   # Z = -20 + 50 tool length
     np.testing.assert_allclose(rap["end"][1, :3], [100, 51, 30])   # G92 X10 here: X10 is the same place
-    np.testing.assert_allclose(rap["end_work"][1, :3], [10, 1, 0])
+    np.testing.assert_allclose(work_end(rap)[1, :3], [10, 1, 0])
+    np.testing.assert_allclose(rap["wco"][1, :3], [90, 50, 30])  # G55 + G92 + tool length in Z
     assert rap["tool_length"][0] == 50.0
     st = p.state_at(7)
     np.testing.assert_allclose(st.g92_offset[:3], [-10, 0, 0])
@@ -399,3 +400,34 @@ def test_cycle_time_trapezoid_and_junction():
 def test_dwell_time_counts():
     total, per = interpret("G4 P2.5\nM2").cycle_time()
     assert total == pytest.approx(2.5) and per[0] == pytest.approx(2.5)
+
+
+def test_wco_column_and_work_positions():
+    """``wco`` = G5x + G92 + tool length in Z on every row; work = machine - wco, exactly."""
+    from sim.gcode import as_move_table, work_start
+    from sim.gcode.moves import MOVE_DTYPE
+
+    table = {1: ToolEntry(number=1, pocket=1, diameter=6.0, z_offset=40.0, offsets={"Z": 40.0})}
+    p = interpret("G21 G10 L2 P1 X5 Y-3 Z-10\nT1 M6 G43 H1\nG0 X1 Y1 Z1\nG92 X0\nG1 X2 F100\nG2 X4 I1\nG49 G0 Z0\nM2",
+                  tool_table=table)
+    m = p.moves
+    assert MOVE_DTYPE.itemsize == 226 and "wco" in MOVE_DTYPE.names
+    moving = m[np.isin(m["kind"], (MoveKind.RAPID, MoveKind.FEED, MoveKind.ARC_CW))]
+    np.testing.assert_array_equal(moving["wco"][:, :3], [[5, -3, 30], [6, -3, 30], [6, -3, 30], [6, -3, -10]])
+    np.testing.assert_array_equal(work_end(moving)[:, :3], [[1, 1, 1], [2, 1, 1], [4, 1, 1], [4, 1, 0]])
+    np.testing.assert_array_equal(work_start(moving)[1:], work_end(moving)[:-1] + moving["wco"][:-1] - moving["wco"][1:])
+    # an arc centre in work coordinates is centre - wco
+    arc = moving[2]
+    np.testing.assert_array_equal(arc["center"] - arc["wco"][:3], [3, 1, 1])
+    # a table of the old layout (start_work/end_work, e.g. from an old run file) converts
+    legacy_dt = np.dtype([(n, MOVE_DTYPE[n]) for n in MOVE_DTYPE.names if n != "wco"]
+                         + [("start_work", np.float64, 6), ("end_work", np.float64, 6)])
+    old = np.zeros(len(m), legacy_dt)
+    for n in legacy_dt.names:
+        old[n] = work_start(m) if n == "start_work" else work_end(m) if n == "end_work" else m[n]
+    back = as_move_table(old)
+    assert back.dtype == MOVE_DTYPE
+    np.testing.assert_allclose(back["wco"], m["wco"], atol=1e-12)
+    assert as_move_table(m) is m
+    with pytest.raises(ValueError, match="not a move table"):
+        as_move_table(np.zeros(2, [("x", float)]))
