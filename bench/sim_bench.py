@@ -1,11 +1,16 @@
 """Material-removal benchmark: one JSON line per case.
 
     python bench/sim_bench.py [--shared ../shared] [--case wavy_finish] [--no-check]
+                              [--mode plain|record|journal ...]
 
 Cases (stock box 0,0,0,100,100,20 at 0.1 mm, 1001 x 1001 rays):
 
 * ``wavy_finish`` - ~40k short G1 moves with a 6 mm ball end mill;
 * ``pocket_rough`` - pocket roughing with arcs, 6 mm flat end mill.
+
+Modes (one line each, field ``mode``): ``plain`` cuts with ``record_changes=False``;
+``record`` keeps the changed rays and depths of cut; ``journal`` also the segment
+journal (``journal_segments``: how many segments it holds).
 
 Figures (best of ``--repeat`` runs, each on fresh stock): moves, seconds (wall),
 cpu_seconds, moves_per_s (wall), moves_per_s_cpu,
@@ -59,6 +64,7 @@ def warm_up(tool, moves) -> None:
     grid = DexelGrid.from_intervals(frame, np.zeros(frame.shape), np.full(frame.shape, 20.0))
     Cutter(grid, tool).cut_moves(moves[:50], record_changes=False)
     Cutter(grid, tool).cut_moves(moves[:50], record_changes=True)
+    Cutter(grid, tool).cut_moves(moves[:50], journal=True)
 
 
 # --- the independent reference ------------------------------------------------------
@@ -154,7 +160,7 @@ def reference_heights(frame: Frame, tool, moves, top: float, dr: float = 0.0) ->
     return np.maximum(H, STOCK[2])
 
 
-def run_case(name: str, shared: Path, check: bool, repeat: int = 3) -> dict:
+def run_case(name: str, shared: Path, check: bool, repeat: int = 3, mode: str = "plain") -> dict:
     rel, spec = CASES[name]
     path = shared / rel
     tool = parse_tool_spec(spec)
@@ -168,11 +174,12 @@ def run_case(name: str, shared: Path, check: bool, repeat: int = 3) -> dict:
         cutter = Cutter(grid, tool)
         c0 = time.process_time()
         w0 = time.perf_counter()
-        res = cutter.cut_moves(moves, record_changes=False)
+        res = cutter.cut_moves(moves, record_changes=mode != "plain", journal=mode == "journal")
         wall = min(wall, time.perf_counter() - w0)
         cpu = min(cpu, time.process_time() - c0)
     out = {
         "case": name,
+        "mode": mode,
         "tool": spec,
         "moves": int(len(moves)),
         "rays": grid.frame.n_rays,
@@ -185,6 +192,10 @@ def run_case(name: str, shared: Path, check: bool, repeat: int = 3) -> dict:
         "grid_mb": round(grid.nbytes() / 2**20, 2),
         "load_seconds": round(load_s, 3),
     }
+    if mode != "plain":
+        out["changed_entries"] = int(res.changed_rays.size)
+    if mode == "journal":
+        out["journal_segments"] = int(res.journal_near.size)
     out["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
     if check:
         # a ray within 1e-6 mm of the swept boundary may fall either side: accept both
@@ -205,13 +216,17 @@ def main(argv=None) -> int:
     ap.add_argument("--case", choices=sorted(CASES), action="append")
     ap.add_argument("--no-check", action="store_true", help="skip the reference height check")
     ap.add_argument("--repeat", type=int, default=3, help="runs per case; the best is reported (default 3)")
+    ap.add_argument("--mode", choices=["plain", "record", "journal"], action="append",
+                    help="what the cut records (default: plain and journal)")
     args = ap.parse_args(argv)
     shared = Path(args.shared)
     if not shared.is_dir():
         print(f"sim_bench: {shared} not found (pass --shared)", file=sys.stderr)
         return 2
     for name in args.case or list(CASES):
-        print(json.dumps(run_case(name, shared, not args.no_check, args.repeat)), flush=True)
+        for mode in args.mode or ["plain", "journal"]:
+            print(json.dumps(run_case(name, shared, not args.no_check and mode == "plain",
+                                      args.repeat, mode)), flush=True)
     return 0
 
 

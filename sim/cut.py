@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -41,6 +41,12 @@ _ARC_KINDS = (int(MoveKind.ARC_CW), int(MoveKind.ARC_CCW))
 _Z_AXIS = np.array([0.0, 0.0, 1.0])
 
 
+_EMPTY_I64 = np.zeros(0, np.int64)
+_EMPTY_F32 = np.zeros(0, np.float32)
+_EMPTY_I32 = np.zeros(0, np.int32)
+_PTR0 = np.zeros(1, np.int64)
+
+
 @dataclass
 class CutResult:
     """What a batch cut did.
@@ -49,12 +55,37 @@ class CutResult:
     changed_ptr: int64 (n_moves + 1,); ``changed_rays[changed_ptr[k]:changed_ptr[k+1]]``
     are the flat ray indices move ``k`` changed (sorted, unique). Empty when changes were
     not recorded. seconds: wall time of the cut.
+    changed_depth: float32 aligned with ``changed_rays``, mm: the material the move took
+    off that ray from the top down (top before the move minus the new top; where the top
+    did not move - a split below it - or the ray was emptied, the length removed).
+
+    The journal (only with ``cut_moves(..., journal=True)``; else empty): for each entry
+    ``e`` of ``changed_rays``, the ray's complete segment list right after that move:
+    ``journal_near/far[journal_seg_ptr[e]:journal_seg_ptr[e+1]]`` (float32 mm, sorted)
+    with face ids ``journal_near_id/far_id`` (int32). An entry without segments means
+    the move emptied the ray.
     """
 
     removed: np.ndarray
     changed_ptr: np.ndarray
     changed_rays: np.ndarray
     seconds: float
+    changed_depth: np.ndarray = field(default_factory=_EMPTY_F32.copy)
+    journal_seg_ptr: np.ndarray = field(default_factory=_PTR0.copy)
+    journal_near: np.ndarray = field(default_factory=_EMPTY_F32.copy)
+    journal_far: np.ndarray = field(default_factory=_EMPTY_F32.copy)
+    journal_near_id: np.ndarray = field(default_factory=_EMPTY_I32.copy)
+    journal_far_id: np.ndarray = field(default_factory=_EMPTY_I32.copy)
+
+    @property
+    def has_journal(self) -> bool:
+        return self.journal_seg_ptr.size == self.changed_rays.size + 1
+
+    def journal_segments(self, e: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(near, far, near_id, far_id) of journal entry ``e`` (the ray ``changed_rays[e]``)."""
+        a, b = self.journal_seg_ptr[e], self.journal_seg_ptr[e + 1]
+        return (self.journal_near[a:b], self.journal_far[a:b],
+                self.journal_near_id[a:b], self.journal_far_id[a:b])
 
     def changed(self, k: int) -> np.ndarray:
         """Flat ray indices move ``k`` changed."""
@@ -128,27 +159,32 @@ class Cutter:
         self._top = grid.frame.is_top  # frames are immutable; asked on every batch
 
     # --- public API ---------------------------------------------------------------------
-    def cut_moves(self, moves: np.ndarray, move_ids=None, record_changes: bool = True) -> CutResult:
+    def cut_moves(self, moves: np.ndarray, move_ids=None, record_changes: bool = True,
+                  journal: bool = False) -> CutResult:
         """Cut every row of ``moves`` (MOVE_DTYPE) in order.
 
         move_ids: int (n,) face ids to write (default row index + 1; 0 is the stock).
         record_changes: False skips the changed-ray lists (saves memory on long programs).
+        journal: also return every changed ray's segments after each move (see
+        :class:`CutResult`); implies ``record_changes``.
         """
         t0 = time.perf_counter()
         n = len(moves)
         ids = self._ids(n, move_ids)
         removed = np.zeros(n, np.float64)
-        chg_r: list[np.ndarray] = []
-        chg_m: list[np.ndarray] = []
+        record = bool(record_changes or journal)
+        logs: list[tuple] = []
         multi = np.zeros(n, bool)
         for lo, hi, tool in self._tool_runs(moves):
             sub = moves[lo:hi]
-            work = self._plan(sub, np.arange(lo, hi), ids[lo:hi], self._body(tool), multi)
-            r, m = self._execute(work, self._body(tool), removed, probe=False, record=record_changes)
-            chg_r.append(r)
-            chg_m.append(m)
-        ptr, rays = self._csr(n, chg_r, chg_m, multi, record_changes)
-        return CutResult(removed * self.grid.frame.spacing**2, ptr, rays, time.perf_counter() - t0)
+            rows = np.arange(lo, hi)
+            work = self._plan(sub, rows, ids[lo:hi], self._body(tool), multi)
+            logs += self._execute(work, self._body(tool), removed, probe=False, record=record,
+                                  journal=journal)
+        res = self._result(n, logs, record, journal)
+        res.removed = removed * self.grid.frame.spacing**2
+        res.seconds = time.perf_counter() - t0
+        return res
 
     def cut_segment(self, p0, p1, move_id: int, axis=None, axis1=None) -> float:
         """Cut one straight move of the tip from ``p0`` to ``p1`` ((3,) mm); return mm^3 removed.
@@ -327,13 +363,13 @@ class Cutter:
         return work
 
     # --- execution ----------------------------------------------------------------------
-    def _execute(self, work: _Work, body, removed, probe: bool, record: bool, force_instances=False):
-        """Run the kernels over the planned work; return changed (rays, moves) arrays."""
+    def _execute(self, work: _Work, body, removed, probe: bool, record: bool, force_instances=False,
+                 journal: bool = False) -> list[tuple]:
+        """Run the kernels over the planned work; return the change logs (see :meth:`_loop`)."""
         grid = self.grid
         f = grid.frame
         eps = self.tol.length
-        rays_out: list[np.ndarray] = []
-        moves_out: list[np.ndarray] = []
+        logs: list[tuple] = []
         p0, p1, sm, sid = work.seg_arrays()
         if len(p0) and not force_instances:
             tp = sweep.body_params(body)
@@ -341,9 +377,9 @@ class Cutter:
             if len(p0) >= 64 and not probe:  # lets chained moves skip rays already cut
                 tops = grid.top()
                 top_bound = float(np.nanmax(tops)) if np.isfinite(tops).any() else -np.inf
-            self._loop(lambda S, st, cr, cm: K.cut_linear_batch(
+            self._loop(lambda S, st, B: K.cut_linear_batch(
                 S, f.origin[0], f.origin[1], f.spacing, f.nu, f.nv, p0, p1, sm, sid, tp, eps,
-                probe, record, removed, cr, cm, st, top_bound), len(p0), record, rays_out, moves_out)
+                probe, record, journal, removed, B, st, top_bound), len(p0), record, journal, logs)
         tips, axes, pm, pid = work.pose_arrays()
         if len(tips):
             prof = sweep.body_profile(body)
@@ -351,48 +387,72 @@ class Cutter:
             axes_l = np.ascontiguousarray(np.stack([axes @ f.u, axes @ f.v, axes @ f.direction], axis=1))
             axes_l /= np.linalg.norm(axes_l, axis=1, keepdims=True)
             rmax = float(prof[:, 1].max())
-            self._loop(lambda S, st, cr, cm: K.cut_poses(
+            self._loop(lambda S, st, B: K.cut_poses(
                 S, f.spacing, f.nu, f.nv, tips_l, axes_l, pm, pid, prof, rmax, eps, probe, record,
-                removed, cr, cm, st), len(tips), record, rays_out, moves_out)
-        if not rays_out:
-            return np.zeros(0, np.int64), np.zeros(0, np.int64)
-        return np.concatenate(rays_out), np.concatenate(moves_out)
+                journal, removed, B, st), len(tips), record, journal, logs)
+        return logs
 
-    def _loop(self, call, n_items, record, rays_out, moves_out):
-        state = np.array([0, -1, -1, 0], np.int64)
-        cap = 1 << 16 if record else 1
-        chg_r = np.empty(cap, np.int64)
-        chg_m = np.empty(cap, np.int64)
+    def _loop(self, call, n_items, record, journal, logs):
+        """Call a batch kernel until it is done, growing the pool and the log buffers.
+
+        Appends (rays, moves, depth, jcount, jnear, jfar, jnear_id, jfar_id) to ``logs``
+        when recording (the journal arrays empty without ``journal``).
+        """
+        state = np.zeros(K.STATE_SIZE, np.int64)
+        state[1] = state[2] = -1
+        cap = (1 << 14) if record else 1
+        jcap = (1 << 14) if journal else 1
+        B = [np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.float64),
+             np.empty(cap, np.float64), np.empty(cap if journal else 1, np.int64),
+             np.empty(jcap, np.float32), np.empty(jcap, np.float32),
+             np.empty(jcap, np.int32), np.empty(jcap, np.int32)]
         while True:
-            status = call(self.grid.S, state, chg_r, chg_m)
+            status = call(self.grid.S, state, tuple(B))
             if status == K.DONE:
                 break
             if status == K.STOP_POOL:
                 ds.grow_pool(self.grid.store, max(1024, self.grid.store["pool_near"].size))
             elif status == K.STOP_CHANGES:
                 used = int(state[3])
-                chg_r = np.concatenate([chg_r[:used], np.empty(max(cap, used), np.int64)])
-                chg_m = np.concatenate([chg_m[:used], np.empty(max(cap, used), np.int64)])
-        used = int(state[3])
+                for q in range(5 if journal else 4):
+                    B[q] = np.concatenate([B[q][:used], np.empty(max(B[q].size, used), B[q].dtype)])
+            elif status == K.STOP_JOURNAL:
+                used = int(state[5])
+                for q in range(5, 9):
+                    B[q] = np.concatenate([B[q][:used], np.empty(max(B[q].size, used, 1024), B[q].dtype)])
         if record:
-            rays_out.append(chg_r[:used].copy())
-            moves_out.append(chg_m[:used].copy())
+            used = int(state[3])
+            ju = int(state[5])
+            logs.append((B[0][:used], B[1][:used], B[2][:used].astype(np.float32),
+                         B[4][:used] if journal else _EMPTY_I64,
+                         B[5][:ju], B[6][:ju], B[7][:ju], B[8][:ju]))
 
-    def _csr(self, n, chg_r, chg_m, multi, record):
+    def _result(self, n, logs, record, journal) -> CutResult:
+        """The CSR of changed rays (and journal) from the kernels' logs, in move order.
+
+        The kernels close each move's log sorted by ray with one entry per ray, and moves
+        run in order, so concatenation is the CSR; no sort here.
+        """
         ptr = np.zeros(n + 1, np.int64)
-        if not record:
-            return ptr, np.zeros(0, np.int64)
-        rays = np.concatenate(chg_r) if chg_r else np.zeros(0, np.int64)
-        mv = np.concatenate(chg_m) if chg_m else np.zeros(0, np.int64)
-        # sorted unique (move, ray) pairs: several chords / instances of one move may
-        # change the same ray
-        if multi.any():
-            key = np.unique(mv * self.grid.frame.n_rays + rays)
-            mv = key // self.grid.frame.n_rays
-            rays = key - mv * self.grid.frame.n_rays
-        # else: the kernels emit moves in order and each move's rays in increasing order
+        res = CutResult(np.zeros(n), ptr, _EMPTY_I64, 0.0)
+        if not record or not logs:
+            if journal:
+                res.journal_seg_ptr = np.zeros(1, np.int64)
+            return res
+        if len(logs) == 1:
+            rays, mv, depth, jc, jn, jf, jni, jfi = logs[0]
+        else:
+            rays, mv, depth, jc, jn, jf, jni, jfi = (np.concatenate(p) for p in zip(*logs))
         np.cumsum(np.bincount(mv, minlength=n), out=ptr[1:])
-        return ptr, rays
+        res.changed_rays = rays
+        res.changed_depth = depth
+        if journal:
+            jp = np.zeros(len(rays) + 1, np.int64)
+            np.cumsum(jc, out=jp[1:])
+            res.journal_seg_ptr = jp
+            res.journal_near, res.journal_far = jn, jf
+            res.journal_near_id, res.journal_far_id = jni, jfi
+        return res
 
     def _probe_scratch(self, moves, body) -> np.ndarray:
         """Probe by cutting a scratch copy of the rays the moves can reach (length units)."""

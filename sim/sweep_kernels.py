@@ -45,6 +45,11 @@ N_PARAMS = 7
 DONE = 0
 STOP_POOL = 1
 STOP_CHANGES = 2
+STOP_JOURNAL = 3
+
+#: int64 ``state`` of a batch kernel: [k, j, i, n_changed, first entry of the current move,
+#: journal segments used]
+STATE_SIZE = 6
 
 
 
@@ -328,18 +333,112 @@ def _rows_any(tp, x0, y0, z0, dz, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
 
 
 @nb.njit(cache=True)
+def finish_move(S, B, mstart, nchg, journal, state):
+    """Close the changed-ray log of one move: entries ``mstart .. nchg`` of the buffers.
+
+    B: (chg_ray int64, chg_move int64, chg_val float64, chg_len float64, jcount int64,
+    jnear float32, jfar float32, jnear_id int32, jfar_id int32). While a move runs every
+    change appends (ray, move, material top before that change, length removed); here
+    the move's entries are sorted by ray and merged (one per distinct ray: highest top,
+    summed length), ``chg_val`` becomes the depth of cut on that ray (top before the move
+    minus the new top; the removed length where the top did not move or the ray was
+    emptied) and, with ``journal``, the ray's whole segment list after the move is
+    appended at ``state[5]`` (``jcount[e]`` segments for entry ``e``).
+
+    Returns the new entry count, or -1 (nothing changed) when the journal buffers lack
+    room.
+    """
+    chg_ray = B[0]
+    chg_val = B[2]
+    chg_len = B[3]
+    jcount = B[4]
+    jn = B[5]
+    jf = B[6]
+    jni = B[7]
+    jfi = B[8]
+    cnt = S[0]
+    if nchg <= mstart:
+        return nchg
+    if journal:
+        need = 0
+        for e in range(mstart, nchg):
+            need += cnt[chg_ray[e]]
+        if state[5] + need > jn.size:
+            return -1
+    ordered = True
+    for e in range(mstart + 1, nchg):
+        if chg_ray[e] <= chg_ray[e - 1]:
+            ordered = False
+            break
+    w = nchg
+    if not ordered:
+        m = nchg - mstart
+        order = np.argsort(chg_ray[mstart:nchg], kind="mergesort")
+        rr = chg_ray[mstart:nchg].copy()
+        tt = chg_val[mstart:nchg].copy()
+        ll = chg_len[mstart:nchg].copy()
+        w = mstart
+        for q in range(m):
+            o = order[q]
+            r = rr[o]
+            if w > mstart and chg_ray[w - 1] == r:
+                if tt[o] > chg_val[w - 1]:
+                    chg_val[w - 1] = tt[o]
+                chg_len[w - 1] += ll[o]
+            else:
+                chg_ray[w] = r
+                chg_val[w] = tt[o]
+                chg_len[w] = ll[o]
+                w += 1
+    ju = state[5]
+    for e in range(mstart, w):
+        r = chg_ray[e]
+        c = cnt[r]
+        depth = chg_len[e]
+        if c > 0:
+            top = np.float64(ds.ray_top(S, r))
+            drop = chg_val[e] - top
+            if drop > 0.0:
+                depth = drop
+        chg_val[e] = depth
+        if journal:
+            for q in range(c):
+                n, f, nid, fid = ds.get_seg(S, r, q)
+                jn[ju] = n
+                jf[ju] = f
+                jni[ju] = nid
+                jfi[ju] = fid
+                ju += 1
+            jcount[e] = c
+    state[5] = ju
+    return w
+
+
+@nb.njit(cache=True, inline="always")
+def _log_change(B, nchg, r, mv, top_before, got):
+    B[0][nchg] = r
+    B[1][nchg] = mv
+    B[2][nchg] = top_before
+    B[3][nchg] = got
+
+
+@nb.njit(cache=True)
 def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps, probe,
-                     record, removed, chg_ray, chg_move, state, top_bound=np.inf):
+                     record, journal, removed, B, state, top_bound=np.inf):
     """Sweep the body ``tp`` along each straight tip move ``P0[k] -> P1[k]`` and cut it.
 
     S: store tuple; grid rays at ``(gx0 + i*sp, gy0 + j*sp)``, ``nu x nv`` of them.
     P0, P1: float64 (n, 3) tip positions, mm. seg_move: int64 (n,) index of the output
     move each segment belongs to; seg_id: int32 (n,) face id it writes.
-    probe: measure the overlap instead of cutting. record: log changed rays.
+    probe: measure the overlap instead of cutting. record: log changed rays (one entry
+    per move and distinct ray, with its depth of cut; see :func:`finish_move`).
+    journal: also log each changed ray's segments after the move (needs ``record``).
     removed: float64 (n_moves,) accumulates removed (or overlapping) *length* (mm).
-    chg_ray / chg_move: int64 buffers of changed rays; state: int64 [k, j, i, n_changed]
-    where to resume. Returns DONE, STOP_POOL (grow the pool, call again) or STOP_CHANGES
-    (grow the buffers, call again); the state says where it stopped.
+    B: the log buffers (see :func:`finish_move`); state: int64 (STATE_SIZE,) where to
+    resume. Returns DONE, STOP_POOL (grow the pool, call again), STOP_CHANGES (grow
+    B[0..4], call again) or STOP_JOURNAL (grow B[5..8]); the state says where it stopped.
+    A move's entries are closed when the next move starts (segments of one move are
+    consecutive), so the journal holds each ray as it was after the whole move.
     top_bound: no material anywhere lies above this (mm; ``inf`` when unknown).
 
     A move that starts exactly where the batch's previous move ended skips the rays
@@ -368,6 +467,8 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     j_resume = state[1]
     i_resume = state[2]
     nchg = state[3]
+    mstart = state[4]
+    chg_ray = B[0]
     cap = 4096
     buf_lo = np.empty(cap, np.float32)
     buf_hi = np.empty(cap, np.float32)
@@ -375,6 +476,14 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     row_ilo = np.empty(nv + 1, np.int64)
     row_off = np.empty(nv + 2, np.int64)
     for k in range(k0, n):
+        if (record and k > 0 and seg_move[k] != seg_move[k - 1]
+                and not (k == k0 and j_resume >= 0)):
+            w = finish_move(S, B, mstart, nchg, journal, state)
+            if w < 0:
+                _save(state, k, -1, -1, nchg, mstart)
+                return STOP_JOURNAL
+            nchg = w
+            mstart = nchg
         x0 = P0[k, 0]
         y0 = P0[k, 1]
         z0 = P0[k, 2]
@@ -475,11 +584,9 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                     removed[mv] += overlap_length(S, r, lo, hi)
                     continue
                 if record and nchg >= chg_ray.size:
-                    state[0] = k
-                    state[1] = j
-                    state[2] = i
-                    state[3] = nchg
+                    _save(state, k, j, i, nchg, mstart)
                     return STOP_CHANGES
+                top_before = f_
                 got = -2.0
                 if c == 1:
                     keep_low = lo - n_ > eps
@@ -497,24 +604,38 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                         near_id[r] = fid
                         got = hi - n_
                 if got == -2.0:  # a split or a ray of several segments
+                    if c > 1:
+                        top_before = ds.ray_top(S, r)
                     got = ds.subtract_interval(S, r, lo, hi, fid, eps)
                     if got == ds.POOL_FULL:
-                        state[0] = k
-                        state[1] = j
-                        state[2] = i
-                        state[3] = nchg
+                        _save(state, k, j, i, nchg, mstart)
                         return STOP_POOL
                 if got > 0.0:
                     removed[mv] += got
                     if record:
-                        chg_ray[nchg] = r
-                        chg_move[nchg] = mv
+                        _log_change(B, nchg, r, mv, top_before, got)
                         nchg += 1
-    state[0] = n
-    state[1] = -1
-    state[2] = -1
-    state[3] = nchg
+    if record:
+        w = finish_move(S, B, mstart, nchg, journal, state)
+        if w < 0:
+            _save(state, n, -1, -1, nchg, mstart)
+            return STOP_JOURNAL
+        nchg = w
+        mstart = nchg
+    _save(state, n, -1, -1, nchg, mstart)
     return DONE
+
+
+@nb.njit(cache=True, inline="always")
+def _save(state, k, j, i, nchg, mstart):
+    state[0] = k
+    state[1] = j
+    state[2] = i
+    state[3] = nchg
+    state[4] = mstart
+
+
+
 
 
 # --- instances of motion: any frame, any axis, any profile ----------------------------
@@ -640,7 +761,7 @@ def pose_intervals(prof, tip, axis, px, py, out, buf):
 
 @nb.njit(cache=True)
 def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, probe, record,
-              removed, chg_ray, chg_move, state):
+              journal, removed, B, state):
     """Cut (or probe) one tool instance per row of ``tips``/``axes`` (frame-local, mm).
 
     Rays are at local ``(i*sp, j*sp)``. Other arguments and the return value as for
@@ -656,7 +777,17 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
     j_resume = state[1]
     i_resume = state[2]
     nchg = state[3]
+    mstart = state[4]
+    chg_ray = B[0]
     for k in range(k0, n):
+        if (record and k > 0 and pose_move[k] != pose_move[k - 1]
+                and not (k == k0 and j_resume >= 0)):
+            w = finish_move(S, B, mstart, nchg, journal, state)
+            if w < 0:
+                _save(state, k, -1, -1, nchg, mstart)
+                return STOP_JOURNAL
+            nchg = w
+            mstart = nchg
         tip = tips[k]
         ax = axes[k]
         ua = tip[0] + bot_h * ax[0]
@@ -684,12 +815,11 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
                 if m == 0:
                     continue
                 if record and nchg >= chg_ray.size:
-                    state[0] = k
-                    state[1] = j
-                    state[2] = i
-                    state[3] = nchg
+                    _save(state, k, j, i, nchg, mstart)
                     return STOP_CHANGES
                 changed = False
+                top_before = ds.ray_top(S, r) if record else 0.0
+                got_sum = 0.0
                 for q in range(m):
                     lo = np.float64(np.float32(ivs[q, 0]))
                     hi = np.float64(np.float32(ivs[q, 1]))
@@ -699,23 +829,23 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
                     got = ds.subtract_interval(S, r, lo, hi, fid, eps)
                     if got == ds.POOL_FULL:
                         if changed and record:
-                            chg_ray[nchg] = r
-                            chg_move[nchg] = mv
+                            _log_change(B, nchg, r, mv, top_before, got_sum)
                             nchg += 1
-                        state[0] = k
-                        state[1] = j
-                        state[2] = i
-                        state[3] = nchg
+                        _save(state, k, j, i, nchg, mstart)
                         return STOP_POOL
                     if got > 0.0:
                         removed[mv] += got
+                        got_sum += got
                         changed = True
                 if changed and record:
-                    chg_ray[nchg] = r
-                    chg_move[nchg] = mv
+                    _log_change(B, nchg, r, mv, top_before, got_sum)
                     nchg += 1
-    state[0] = n
-    state[1] = -1
-    state[2] = -1
-    state[3] = nchg
+    if record:
+        w = finish_move(S, B, mstart, nchg, journal, state)
+        if w < 0:
+            _save(state, n, -1, -1, nchg, mstart)
+            return STOP_JOURNAL
+        nchg = w
+        mstart = nchg
+    _save(state, n, -1, -1, nchg, mstart)
     return DONE
