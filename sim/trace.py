@@ -61,6 +61,15 @@ class _Column:
         self.buf[self.n:self.n + m] = values
         self.n += m
 
+    def reserve(self, m: int) -> np.ndarray:
+        """Make room for ``m`` more values; returns the buffer (fill ``buf[n:n+m]``, then
+        advance ``n``)."""
+        if self.n + m > self.buf.size:
+            new = np.empty(max(2 * self.buf.size, self.n + m), self.buf.dtype)
+            new[:self.n] = self.buf[:self.n]
+            self.buf = new
+        return self.buf
+
     def push(self, value) -> None:
         if self.n == self.buf.size:
             new = np.empty(2 * self.buf.size, self.buf.dtype)
@@ -203,6 +212,19 @@ def _check_stage(last: int, stage: int) -> int:
     return stage
 
 
+def _batch_stages(last_stage: int, stages, n_moves: int) -> np.ndarray:
+    """Stages of a batch's moves: given (checked non-decreasing from ``last_stage``) or
+    ``last_stage + 1, + 2, ...``; int64 (n_moves,)."""
+    if stages is None:
+        return last_stage + 1 + np.arange(n_moves, dtype=np.int64)
+    st = np.asarray(stages, np.int64).reshape(-1)
+    if st.size != n_moves:
+        raise InputError(f"{st.size} stages given for {n_moves} moves")
+    if n_moves and (st[0] < last_stage or np.any(np.diff(st) < 0)):
+        raise InputError(f"trace stages must not decrease: got stage {int(st.min())} after {last_stage}")
+    return st
+
+
 def _rays_arg(rays, n_rays: int) -> np.ndarray:
     if rays is None:
         return np.arange(n_rays, dtype=np.int64)
@@ -247,6 +269,99 @@ class _Keyframe:
 
 # --- the z-trace --------------------------------------------------------------------------
 
+#: fields a far-only (rule 5) edit writes; the others stay shared between keyframes
+_FAR_FIELDS = ("far", "far_id", "pool_far", "pool_far_id")
+_POOL_FIELDS = ("pool_near", "pool_far", "pool_near_id", "pool_far_id")
+#: keyframe work (array elements copied or events replayed) done per record call at least
+KEYFRAME_BUDGET = 1 << 18
+
+
+def _snapshot_sharing(store: dict, prev: dict | None, general: bool) -> dict:
+    """A snapshot of ``store``; when only far-only edits happened since keyframe ``prev``
+    (``general`` False), the fields they cannot touch are ``prev``'s arrays, shared."""
+    if prev is None or general:
+        return _store_snapshot(store)
+    out = dict(prev)
+    top = int(store["pool_top"][0])
+    for k in _FAR_FIELDS:
+        v = store[k]
+        out[k] = v[:max(top, 16)].copy() if k.startswith("pool_") else v.copy()
+    return out
+
+
+class _KeyBuilder:
+    """A keyframe built in small steps off the recording path.
+
+    Starts from the latest keyframe (sharing every array no event in between can touch),
+    copies the rest in slices, then replays the blocks up to ``block`` in slices, so no
+    single call costs more than about ``budget`` array elements / events.
+    """
+
+    def __init__(self, trace: "ZTrace", block: int):
+        self.trace = trace
+        self.block = int(block)
+        base = trace._keyframes[-1]
+        self.base = base
+        self.cur = base.block
+        tr = trace
+        self.general = bool(tr._g_ptr.a[self.block] > tr._g_ptr.a[base.block])
+        self.work = dict(base.data)
+        fields = ds.STORE_FIELDS if self.general else _FAR_FIELDS
+        # (field, destination, source) copies still to do, sliced as the budget allows
+        self.copies = []
+        top = int(base.data["pool_top"][0])
+        spare = 2 * int(tr._gs_ptr.a[self.block] - tr._gs_ptr.a[base.block]) + 64 if self.general else 0
+        for k in fields:
+            src = base.data[k]
+            size = max(top + spare, src.size) if k in _POOL_FIELDS else src.size
+            dst = np.zeros(size, src.dtype) if size != src.size else np.empty_like(src)
+            self.work[k] = dst
+            self.copies.append([dst, src, 0])
+
+    def step(self, budget: int) -> int:
+        """Do up to ``budget`` units of work; returns the units used (0 when finished)."""
+        used = 0
+        while self.copies and used < budget:
+            dst, src, lo = self.copies[0]
+            hi = min(src.size, lo + budget - used)
+            dst[lo:hi] = src[lo:hi]
+            used += hi - lo
+            self.copies[0][2] = hi
+            if hi >= src.size:
+                self.copies.pop(0)
+        tr = self.trace
+        while not self.copies and self.cur < self.block and used < budget:
+            ev = tr._f_ptr.a + tr._g_ptr.a  # events before each block boundary (view)
+            stop = int(np.searchsorted(ev, ev[self.cur] + (budget - used), side="left"))
+            stop = min(max(stop, self.cur + 1), self.block)
+            tr._replay_store(self.work, self.cur, stop)
+            used += int(ev[stop] - ev[self.cur])
+            self.cur = stop
+        return used
+
+    @property
+    def done(self) -> bool:
+        return not self.copies and self.cur >= self.block
+
+    def finish(self) -> _Keyframe:
+        data = self.work
+        if self.general:  # trim the pool's spare room
+            data = _store_snapshot(data)
+        return _Keyframe(self.block, int(self.trace._stage.a[self.block - 1]), data)
+
+
+class _Cursor:
+    """What a caller's grid holds: the trace's state after ``block`` blocks, and which of
+    its arrays still equal which keyframe arrays (so a restore can skip them)."""
+
+    __slots__ = ("owner", "block", "clean")
+
+    def __init__(self, owner, block, clean):
+        self.owner = owner
+        self.block = block
+        self.clean = clean
+
+
 class ZTrace:
     """Complete trace of a dexel model (Blasquez & Poiraudeau rules 1-5) with keyframes.
 
@@ -258,26 +373,33 @@ class ZTrace:
     stage : int
         The stage of ``grid`` (normally 0: the stock).
     keyframe_every : int, optional
-        Take a keyframe (a copy of the model) after this many recorded ray changes;
-        default ``2 * n_rays``. Keyframes are an in-memory index, not serialised.
+        A keyframe (a copy of the model) falls due after this many recorded ray changes;
+        default ``n_rays``. Keyframes are an in-memory index, not serialised. They are
+        built a slice at a time by later record calls (:meth:`maintain`), never all at
+        once on the recording path; keyframes between which only far-only edits happened
+        share every array but the FarZ values and ids.
     max_keyframes : int
         When exceeded, every other keyframe is dropped and the spacing doubles, so memory
         stays bounded on long runs.
     """
 
     def __init__(self, grid: DexelGrid, stage: int = 0, keyframe_every: int | None = None,
-                 max_keyframes: int = 24):
+                 max_keyframes: int = 32):
         self.frame = grid.frame
         self.tol = grid.tol
         self.n_rays = grid.frame.n_rays
         self._mirror = grid.copy()
         self.first_stage = int(stage)
-        self.keyframe_every = int(keyframe_every or 2 * self.n_rays)
+        self.keyframe_every = int(keyframe_every or self.n_rays)
         self.max_keyframes = int(max_keyframes)
         self._init = _store_snapshot(grid.store)
         self._keyframes = [_Keyframe(0, self.first_stage, self._init)]
-        self._since_key = 0
+        self._next_due = self.keyframe_every  # events count at which a keyframe falls due
+        self._due: list[int] = []  # block counts whose keyframes are still to build
+        self._builder: _KeyBuilder | None = None
         self.truncated = False
+        self._state = np.zeros(2, np.int64)
+        self._cnt = np.zeros(3, np.int64)
         # block columns
         self._stage = _Column(np.int64)
         self._f_ptr = _Column(np.int64)
@@ -315,54 +437,131 @@ class ZTrace:
         """Ray changes recorded (far-only edits plus general rewrites)."""
         return self._f_ray.n + self._g_ray.n
 
+    def _event_columns(self, n_events: int, n_segs: int) -> tuple:
+        """The event column buffers with room for ``n_events`` events / ``n_segs`` segments."""
+        return (self._f_ray.reserve(n_events), self._f_val.reserve(n_events), self._f_id.reserve(n_events),
+                self._g_ray.reserve(n_events), self._g_count.reserve(n_events),
+                self._g_near.reserve(n_segs), self._g_far.reserve(n_segs),
+                self._g_nid.reserve(n_segs), self._g_fid.reserve(n_segs))
+
+    def _set_counts(self) -> None:
+        self._f_ray.n = self._f_val.n = self._f_id.n = int(self._cnt[0])
+        self._g_ray.n = self._g_count.n = int(self._cnt[1])
+        self._g_near.n = self._g_far.n = self._g_nid.n = self._g_fid.n = int(self._cnt[2])
+
     def record(self, grid: DexelGrid, rays=None, stage: int | None = None) -> int:
         """Record the changes of ``rays`` (flat indices; None = all) of ``grid`` as ``stage``.
 
         ``rays`` may over-cover (unchanged rays are skipped) but must include every ray that
-        changed since the last record. Returns the number of rays that changed.
+        changed since the last record. Returns the number of rays that changed. One
+        compiled pass over ``rays``; keyframe work due is done a slice at a time.
         """
         stage = self.last_stage + 1 if stage is None else _check_stage(self.last_stage, stage)
         if not grid.frame.same_rays(self.frame):
             raise InputError("recorded grid is not on the trace's dexel frame")
         rays = _rays_arg(rays, self.n_rays)
-        kind = np.empty(rays.size, np.int8)
-        fval = np.empty(rays.size, np.float32)
-        fid = np.empty(rays.size, np.int32)
-        n_far, n_gen = tk.diff_rays(grid.S, self._mirror.S, rays, kind, fval, fid)
-        if n_far == rays.size:
-            f_ray, f_val, f_id = rays, fval, fid
-        else:
-            m = kind == tk.FAR_ONLY
-            f_ray, f_val, f_id = rays[m], fval[m], fid[m]
-        tk.set_last_far(self._mirror.S, f_ray, f_val, f_id)
-        self._f_ray.append(f_ray)
-        self._f_val.append(f_val)
-        self._f_id.append(f_id)
-        if n_gen:
-            g_ray = rays[kind == tk.GENERAL]
-            gn, gf, gni, gfi, gc = grid.segments_of(g_ray)
-            self._mirror._write_rays(g_ray, gc, gn, gf, gni, gfi)
-            self._g_ray.append(g_ray)
-            self._g_count.append(gc.astype(np.int16))
-            self._g_near.append(gn)
-            self._g_far.append(gf)
-            self._g_nid.append(gni)
-            self._g_fid.append(gfi)
-        self._close_block(stage)
-        return int(n_far + n_gen)
+        n_segs = int(grid.store["count"][rays].sum(dtype=np.int64)) if rays.size < self.n_rays \
+            else int(grid.store["count"].sum(dtype=np.int64))
+        before = self.n_changes
+        cnt, state = self._cnt, self._state
+        cnt[:] = (self._f_ray.n, self._g_ray.n, self._g_near.n)
+        state[0] = 0
+        while True:
+            cols = self._event_columns(rays.size, n_segs)
+            status = tk.ingest_grid(self._mirror.S, grid.S, rays, state, cnt, *cols)
+            if status == tk.DONE:
+                break
+            ds.grow_pool(self._mirror.store, 2 * n_segs + 64)
+        self._set_counts()
+        self._close_blocks(np.array([stage], np.int64), cnt[0:1].copy(), cnt[1:2].copy(), cnt[2:3].copy())
+        return self.n_changes - before
 
-    def _close_block(self, stage: int) -> None:
-        self._stage.push(stage)
-        self._f_ptr.push(self._f_ray.n)
-        self._g_ptr.push(self._g_ray.n)
-        self._gs_ptr.push(self._g_near.n)
-        self._since_key += (self._f_ptr.a[-1] - self._f_ptr.a[-2]) + (self._g_ptr.a[-1] - self._g_ptr.a[-2])
-        if self._since_key >= self.keyframe_every:
-            self._take_keyframe()
+    def record_journal(self, changed_ptr, changed_rays, seg_ptr, near, far, near_id, far_id,
+                       stages=None) -> int:
+        """Record a batch cut's journal: one block per move, equal to recording each move
+        by itself.
 
-    def _take_keyframe(self) -> None:
-        self._keyframes.append(_Keyframe(self.n_blocks, self.last_stage, _store_snapshot(self._mirror.store)))
-        self._since_key = 0
+        changed_ptr : int64 (n_moves + 1,), changed_rays : int (n_entries,)
+            The CSR of rays each move changed (``CutResult.changed_ptr`` / ``changed_rays``).
+        seg_ptr : int64 (n_entries + 1,); near, far : float32 (n_segs,) mm; near_id,
+            far_id : int32 (n_segs,)
+            Entry e's complete segment list after its move (``CutResult.journal_*``).
+        stages : int (n_moves,), optional
+            Stage of each move, non-decreasing and not below :attr:`last_stage`; default
+            ``last_stage + 1, + 2, ...``.
+
+        Returns the number of ray changes recorded. One compiled pass over the entries.
+        """
+        ptr = np.ascontiguousarray(changed_ptr, np.int64)
+        n_moves = ptr.size - 1
+        stages = _batch_stages(self.last_stage, stages, n_moves)
+        rays = np.ascontiguousarray(changed_rays, np.int64)
+        seg_ptr = np.ascontiguousarray(seg_ptr, np.int64)
+        cols = [np.ascontiguousarray(x, dt) for x, dt in
+                ((near, np.float32), (far, np.float32), (near_id, np.int32), (far_id, np.int32))]
+        n_entries = rays.size
+        if ptr[0] != 0 or ptr[-1] != n_entries or np.any(np.diff(ptr) < 0) \
+                or seg_ptr.size != n_entries + 1 or (n_entries and (seg_ptr[0] != 0 or np.any(np.diff(seg_ptr) < 0))):
+            raise InputError("cut journal pointers are inconsistent with its entries")
+        n_segs = int(seg_ptr[-1])
+        if any(c.size < n_segs for c in cols):
+            raise InputError(f"cut journal holds fewer than its {n_segs} segments")
+        if n_entries and (rays.min() < 0 or rays.max() >= self.n_rays):
+            raise InputError("cut journal ray index beyond the frame")
+        before = self.n_changes
+        blk = [np.empty(n_moves, np.int64) for _ in range(3)]
+        cnt, state = self._cnt, self._state
+        cnt[:] = (self._f_ray.n, self._g_ray.n, self._g_near.n)
+        state[:] = 0
+        while True:
+            out = self._event_columns(n_entries, n_segs)
+            status = tk.ingest_journal(self._mirror.S, ptr, rays, seg_ptr, *cols, state, cnt,
+                                       *blk, *out)
+            if status == tk.DONE:
+                break
+            ds.grow_pool(self._mirror.store, 2 * n_segs + 64)
+        self._set_counts()
+        self._close_blocks(stages, *blk, budget=4 * (self.n_changes - before))
+        return self.n_changes - before
+
+    def _close_blocks(self, stages, f_end, g_end, s_end, budget: int = 0) -> None:
+        """Append block rows (stage, column ends) and schedule the keyframes that fall due."""
+        b0 = self.n_blocks
+        self._stage.append(stages)
+        self._f_ptr.append(f_end)
+        self._g_ptr.append(g_end)
+        self._gs_ptr.append(s_end)
+        ev = self._f_ptr.a + self._g_ptr.a
+        total = int(ev[-1])
+        while total >= self._next_due:
+            b = int(np.searchsorted(ev, self._next_due, side="left", sorter=None))
+            b = max(b, b0 + 1)
+            self._due.append(b)
+            self._next_due = int(ev[b]) + self.keyframe_every
+        if self._due or self._builder is not None:
+            self.maintain(max(budget, KEYFRAME_BUDGET))
+
+    def maintain(self, budget: int | None = None) -> bool:
+        """Advance the keyframes that fell due by up to ``budget`` units of work (array
+        elements copied or events replayed; None = finish them). True when none is left.
+        """
+        left = np.inf if budget is None else int(budget)
+        while left > 0:
+            if self._builder is None:
+                while self._due and self._due[0] <= self._keyframes[-1].block:
+                    self._due.pop(0)
+                if not self._due:
+                    return True
+                self._builder = _KeyBuilder(self, self._due.pop(0))
+            used = self._builder.step(int(min(left, 1 << 62)))
+            left -= max(used, 1)
+            if self._builder.done:
+                self._add_keyframe(self._builder.finish())
+                self._builder = None
+        return self._builder is None and not self._due
+
+    def _add_keyframe(self, key: _Keyframe) -> None:
+        self._keyframes.append(key)
         if len(self._keyframes) > self.max_keyframes:
             # keep the stock and every other one: memory bounded, spacing doubles
             self._keyframes = [self._keyframes[0]] + self._keyframes[2::2]
@@ -387,58 +586,108 @@ class ZTrace:
         self._g_count.append(g_count.astype(np.int16))
         for col, x in zip((self._g_near, self._g_far, self._g_nid, self._g_fid), gsegs):
             col.append(x)
-        # replay into the mirror, stopping where a keyframe falls due
-        changes = np.cumsum(f_n + g_n)
-        b, done = b0, 0
+        # replay into the mirror, stopping where a keyframe falls due to snapshot it
+        ev = self._f_ptr.a + self._g_ptr.a
+        b = b0
         while b < self.n_blocks:
-            due = np.searchsorted(changes, done + self.keyframe_every - self._since_key, side="left")
-            stop = min(b0 + int(due) + 1, self.n_blocks)
+            due = int(np.searchsorted(ev, self._next_due, side="left"))
+            stop = min(max(due, b + 1), self.n_blocks)
             self._replay(self._mirror, b, stop)
-            new_done = int(changes[stop - b0 - 1])
-            self._since_key += new_done - done
-            done, b = new_done, stop
-            if self._since_key >= self.keyframe_every:
-                self._keyframes.append(_Keyframe(b, int(self._stage.a[b - 1]), _store_snapshot(self._mirror.store)))
-                self._since_key = 0
-                if len(self._keyframes) > self.max_keyframes:
-                    self._keyframes = [self._keyframes[0]] + self._keyframes[2::2]
-                    self.keyframe_every *= 2
+            b = stop
+            if int(ev[b]) >= self._next_due:
+                prev = self._keyframes[-1]
+                general = bool(self._g_ptr.a[b] > self._g_ptr.a[prev.block])
+                self._add_keyframe(_Keyframe(b, int(self._stage.a[b - 1]),
+                                             _snapshot_sharing(self._mirror.store, prev.data, general)))
+                self._next_due = int(ev[b]) + self.keyframe_every
 
     # --- rebuilding -----------------------------------------------------------------
     def _blocks_upto(self, stage: int) -> int:
         return int(np.searchsorted(self._stage.a, int(stage), side="right"))
 
-    def grid_at(self, stage: int) -> DexelGrid:
-        """The model as it was at ``stage`` (a new DexelGrid, ray for ray equal).
+    def _events(self, b0: int, b1: int) -> int:
+        return int(self._f_ptr.a[b1] - self._f_ptr.a[b0] + self._g_ptr.a[b1] - self._g_ptr.a[b0])
 
-        Stages before the first give the initial model; stages after the last, the last.
-        Cost: a copy of the nearest keyframe plus the changes recorded since it.
-        """
-        b = self._blocks_upto(stage)
+    def _key_for(self, b: int) -> _Keyframe:
         key = self._keyframes[0]
         for k in self._keyframes:
             if k.block <= b:
                 key = k
-        spare = 2 * int(self._gs_ptr.a[b] - self._gs_ptr.a[key.block])
-        grid = DexelGrid(self.frame, self.tol, _store_copy(key.data, spare))
-        self._replay(grid, key.block, b)
-        return grid
+        return key
 
-    def rewind(self, stage: int) -> DexelGrid:
+    def grid_at(self, stage: int, out: DexelGrid | None = None) -> DexelGrid:
+        """The model as it was at ``stage`` (ray for ray equal).
+
+        Stages before the first give the initial model; stages after the last, the last.
+        out : DexelGrid, optional
+            A grid to fill and return instead of a new one. When ``out`` was last filled by
+            this trace (and not edited since), only the changes between its stage and
+            ``stage`` are applied when that is cheaper than restoring the nearest keyframe
+            (copying the arrays that differ from it) and replaying from there; stepping
+            back always goes through a keyframe.
+        """
+        b = self._blocks_upto(stage)
+        key = self._key_for(b)
+        spare = 2 * int(self._gs_ptr.a[b] - self._gs_ptr.a[key.block]) + 64
+        if out is None:
+            grid = DexelGrid(self.frame, self.tol, _store_copy(key.data, spare))
+            self._replay(grid, key.block, b)
+            return grid
+        if not out.frame.same_rays(self.frame):
+            raise InputError("grid_at: out is not on the trace's dexel frame")
+        cur = getattr(out, "_ztrace_cursor", None)
+        if cur is not None and cur.owner is not self:
+            cur = None
+        from_key = self._events(key.block, b) + self.n_rays // 2  # restoring costs a copy
+        if cur is not None and key.block <= cur.block <= b and self._events(cur.block, b) <= from_key:
+            start, clean = cur.block, cur.clean
+        else:
+            self._restore(out, key, spare, cur.clean if cur is not None else {})
+            start, clean = key.block, dict(key.data)
+        self._replay(out, start, b)
+        if self._g_ptr.a[b] > self._g_ptr.a[start]:
+            clean = {}
+        elif self._f_ptr.a[b] > self._f_ptr.a[start]:
+            clean = {k: v for k, v in clean.items() if k not in _FAR_FIELDS}
+        out._ztrace_cursor = _Cursor(self, b, clean)
+        return out
+
+    def _restore(self, out: DexelGrid, key: _Keyframe, spare: int, clean: dict) -> None:
+        """Make ``out`` equal to keyframe ``key`` copying only what differs from it."""
+        st = out.store
+        out._ztrace_cursor = None  # half-restored until the caller sets it again
+        top = int(key.data["pool_top"][0])
+        for k in ds.STORE_FIELDS:
+            src = key.data[k]
+            if clean.get(k) is src and st[k].size >= (top if k in _POOL_FIELDS else src.size):
+                continue
+            if k in _POOL_FIELDS:
+                if st[k].size < top + spare:
+                    st[k] = np.zeros(max(top + spare, 1024), src.dtype)
+                st[k][:top] = src[:top]
+            elif k == "pool_top":
+                st[k][0] = top
+            else:
+                np.copyto(st[k], src)
+
+    def rewind(self, stage: int, out: DexelGrid | None = None) -> DexelGrid:
         """Alias of :meth:`grid_at` for going back in time (keyframes make it cheap)."""
-        return self.grid_at(stage)
+        return self.grid_at(stage, out)
 
     def _replay(self, grid: DexelGrid, b0: int, b1: int) -> None:
+        self._replay_store(grid.store, b0, b1)
+
+    def _replay_store(self, store: dict, b0: int, b1: int) -> None:
         cols = (self._f_ptr.a, self._f_ray.a, self._f_val.a, self._f_id.a, self._g_ptr.a,
                 self._gs_ptr.a, self._g_ray.a, self._g_count.a, self._g_near.a, self._g_far.a,
                 self._g_nid.a, self._g_fid.a)
         while b0 < b1:
-            b0 = tk.replay_blocks(grid.S, b0, b1, *cols)
+            b0 = tk.replay_blocks(ds.store_tuple(store), b0, b1, *cols)
             if b0 < 0:
                 raise InputError(f"corrupt trace: block {-1 - b0} (stage {self._stage.a[-1 - b0]}) "
                                  "edits the top of a ray that holds no material")
             if b0 < b1:
-                ds.grow_pool(grid.store, 2 * int(self._gs_ptr.a[b0 + 1] - self._gs_ptr.a[b0]) + 64)
+                ds.grow_pool(store, 2 * int(self._gs_ptr.a[b0 + 1] - self._gs_ptr.a[b0]) + 64)
 
     def current(self) -> DexelGrid:
         """A copy of the model at the last recorded stage."""
@@ -511,7 +760,16 @@ class ZTrace:
         return int(sum(c.nbytes for c in cols))
 
     def keyframe_nbytes(self) -> int:
-        return int(sum(sum(v.nbytes for v in k.data.values()) for k in self._keyframes[1:]))
+        """Bytes of the keyframes (arrays shared between keyframes counted once; the stock's
+        arrays not counted)."""
+        seen = {id(v) for v in self._keyframes[0].data.values()}
+        total = 0
+        for k in self._keyframes[1:]:
+            for v in k.data.values():
+                if id(v) not in seen:
+                    seen.add(id(v))
+                    total += v.nbytes
+        return int(total)
 
     # --- serialisation -------------------------------------------------------------
     def header_arrays(self) -> dict[str, np.ndarray]:
@@ -661,7 +919,7 @@ class TimeTrace:
 
     def __init__(self, grid_or_heights, stage: int = 0, ids: np.ndarray | None = None,
                  frame: Frame | None = None, keyframe_every: int | None = None,
-                 max_keyframes: int = 64):
+                 max_keyframes: int = 48):
         if isinstance(grid_or_heights, DexelGrid):
             frame = grid_or_heights.frame
             top = grid_or_heights.top().reshape(-1).copy()
@@ -680,10 +938,13 @@ class TimeTrace:
         self._top = top
         self._top_id = tid
         self._init = (top.copy(), tid.copy())
-        self.keyframe_every = int(keyframe_every or 4 * self.n_rays)
+        self.keyframe_every = int(keyframe_every or self.n_rays)
         self.max_keyframes = int(max_keyframes)
         self._keyframes = [_Keyframe(0, self.first_stage, self._init)]
         self._since_key = 0
+        self._due: list[int] = []   # block counts whose keyframes are still to build
+        self._builder = None        # [block, top, tid, copied, element done]
+        self._cursors: dict[int, tuple] = {}
         self.truncated = False
         self._stage = _Column(np.int64)
         self._ptr = _Column(np.int64)
@@ -721,6 +982,35 @@ class TimeTrace:
         self._append(stage, *(x[:k] for x in out))
         return int(k)
 
+    def record_journal(self, changed_ptr, changed_rays, seg_ptr, far, far_id, stages=None) -> int:
+        """Record a batch cut's journal (see :meth:`ZTrace.record_journal`): one block per
+        move, equal to recording each move by itself. Returns the elements recorded."""
+        ptr = np.ascontiguousarray(changed_ptr, np.int64)
+        n_moves = ptr.size - 1
+        stages = _batch_stages(self.last_stage, stages, n_moves)
+        rays = np.ascontiguousarray(changed_rays, np.int64)
+        seg_ptr = np.ascontiguousarray(seg_ptr, np.int64)
+        far = np.ascontiguousarray(far, np.float32)
+        far_id = np.ascontiguousarray(far_id, np.int32)
+        if seg_ptr.size != rays.size + 1 or ptr[-1] != rays.size or far.size < seg_ptr[-1] \
+                or far_id.size < seg_ptr[-1]:
+            raise InputError("cut journal pointers are inconsistent with its entries")
+        if rays.size and (rays.min() < 0 or rays.max() >= self.n_rays):
+            raise InputError("cut journal ray index beyond the frame")
+        m = rays.size
+        n0 = self._ray.n
+        cols = (self._ray.reserve(m), self._val.reserve(m), self._id.reserve(m),
+                self._prev.reserve(m), self._prev_id.reserve(m))
+        blk = np.empty(n_moves, np.int64)
+        k = tk.top_changes_journal(ptr, rays, seg_ptr, far, far_id, self._top, self._top_id,
+                                   *(c[n0:] for c in cols), blk)
+        for c in (self._ray, self._val, self._id, self._prev, self._prev_id):
+            c.n = n0 + int(k)
+        self._stage.append(stages)
+        self._ptr.append(n0 + blk)
+        self._schedule(int(k), budget=4 * int(k))
+        return int(k)
+
     def record_heights(self, heights: np.ndarray, ids: np.ndarray, stage: int | None = None) -> int:
         """Record a whole new visible surface (nv, nu) heights / face ids (e.g. from a viewer)."""
         stage = self.last_stage + 1 if stage is None else _check_stage(self.last_stage, stage)
@@ -741,32 +1031,101 @@ class TimeTrace:
         self._prev_id.append(prev_id)
         self._stage.push(stage)
         self._ptr.push(self._ray.n)
-        self._since_key += ray.size
+        self._schedule(ray.size)
+
+    def _schedule(self, n_new: int, budget: int = 0) -> None:
+        """Note ``n_new`` elements just appended; keyframes due are built a slice at a time."""
+        self._since_key += n_new
         if self._since_key >= self.keyframe_every:
-            self._keyframes.append(_Keyframe(self.n_blocks, stage, (self._top.copy(), self._top_id.copy())))
+            self._due.append(self.n_blocks)
             self._since_key = 0
-            if len(self._keyframes) > self.max_keyframes:
-                self._keyframes = [self._keyframes[0]] + self._keyframes[2::2]
-                self.keyframe_every *= 2
+        if self._due or self._builder is not None:
+            self.maintain(max(budget, KEYFRAME_BUDGET))
+
+    def maintain(self, budget: int | None = None) -> bool:
+        """Advance due keyframes by up to ``budget`` elements (None = finish them)."""
+        left = np.inf if budget is None else int(budget)
+        while left > 0:
+            if self._builder is None:
+                while self._due and self._due[0] <= self._keyframes[-1].block:
+                    self._due.pop(0)
+                if not self._due:
+                    return True
+                base = self._keyframes[-1]
+                self._builder = [self._due.pop(0), base.data[0].copy(), base.data[1].copy(), base.block]
+            b1, top, tid, cur = self._builder
+            p = self._ptr.a
+            stop = int(np.searchsorted(p, p[cur] + left, side="left")) if np.isfinite(left) else b1
+            stop = min(max(stop, cur + 1), b1)
+            tk.scatter_values(top, tid, self._ray.a[p[cur]:p[stop]], self._val.a[p[cur]:p[stop]],
+                              self._id.a[p[cur]:p[stop]])
+            left -= max(int(p[stop] - p[cur]), 1)
+            self._builder[3] = stop
+            if stop >= b1:
+                self._keyframes.append(_Keyframe(b1, int(self._stage.a[b1 - 1]), (top, tid)))
+                self._builder = None
+                if len(self._keyframes) > self.max_keyframes:
+                    self._keyframes = [self._keyframes[0]] + self._keyframes[2::2]
+                    self.keyframe_every *= 2
+        return self._builder is None and not self._due
 
     def _blocks_upto(self, stage: int) -> int:
         return int(np.searchsorted(self._stage.a, int(stage), side="right"))
 
-    def state_at(self, stage: int) -> tuple[np.ndarray, np.ndarray]:
-        """Heights (nv, nu) float32 mm (NaN = no material) and top face ids (nv, nu) int32."""
+    def state_at(self, stage: int, out: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Heights (nv, nu) float32 mm (NaN = no material) and top face ids (nv, nu) int32.
+
+        out : (heights, ids), optional
+            Arrays of ``n_rays`` values (float32, int32, C-contiguous) to fill and return.
+            When this trace filled them last (and they were not edited since), only the
+            elements between their stage and ``stage`` are applied, forwards or backwards
+            (each element keeps the value it replaced), when that is cheaper than copying
+            the nearest keyframe.
+        """
+        import weakref
         b = self._blocks_upto(stage)
         key = self._keyframes[0]
         for k in self._keyframes:
             if k.block <= b:
                 key = k
-        top, tid = key.data[0].copy(), key.data[1].copy()
-        p0, p1 = int(self._ptr.a[key.block]), int(self._ptr.a[b])
-        tk.scatter_values(top, tid, self._ray.a[p0:p1], self._val.a[p0:p1], self._id.a[p0:p1])
+        p = self._ptr.a
+        if out is None:
+            top, tid = key.data[0].copy(), key.data[1].copy()
+            start = key.block
+        else:
+            top, tid = (np.asarray(x).reshape(-1) for x in out)
+            if top.size != self.n_rays or tid.size != self.n_rays or top.dtype != np.float32 \
+                    or tid.dtype != np.int32 or not (np.shares_memory(top, out[0]) and np.shares_memory(tid, out[1])):
+                raise InputError(f"state_at: out must be float32 and int32 arrays of {self.n_rays} values")
+            cur = self._cursors.get(id(out[0]))
+            cur_b = None
+            if cur is not None and cur[0]() is out[0] and cur[1]() is out[1]:
+                cur_b = cur[2]
+            from_key = int(p[b] - p[key.block]) + self.n_rays // 4
+            if cur_b is not None and abs(int(p[b] - p[cur_b])) <= from_key:
+                start = cur_b
+            else:
+                np.copyto(top, key.data[0])
+                np.copyto(tid, key.data[1])
+                start = key.block
+            if len(self._cursors) > 64:
+                self._cursors = {k: v for k, v in self._cursors.items() if v[0]() is not None}
+            self._cursors[id(out[0])] = (weakref.ref(out[0]), weakref.ref(out[1]), b)
+        if start <= b:
+            p0, p1 = int(p[start]), int(p[b])
+            tk.scatter_values(top, tid, self._ray.a[p0:p1], self._val.a[p0:p1], self._id.a[p0:p1])
+        else:
+            tk.undo_values(top, tid, self._ray.a, self._prev.a, self._prev_id.a, int(p[b]), int(p[start]))
+        if out is not None:
+            return out
         return top.reshape(self.frame.shape), tid.reshape(self.frame.shape)
 
-    def heights_at(self, stage: int) -> np.ndarray:
+    def heights_at(self, stage: int, out: tuple | None = None) -> np.ndarray:
         """The visible surface at ``stage``: heights (nv, nu) float32 mm, NaN where empty."""
-        return self.state_at(stage)[0]
+        return self.state_at(stage, out)[0]
+
+    def keyframe_nbytes(self) -> int:
+        return int(sum(k.data[0].nbytes + k.data[1].nbytes for k in self._keyframes[1:]))
 
     def frames(self, first: int, last: int, step: int = 1):
         """Yield ``(stage, heights, ids)`` from stage ``first`` to ``last`` (both included),
@@ -945,20 +1304,59 @@ class Trace:
         """Record a ``sim.cut.CutResult`` (all its moves) as one stage."""
         self.record(grid, changed_rays_of(cut_result), stage)
 
-    def grid_at(self, stage: int) -> DexelGrid:
+    def record_batch(self, cut_result, stages=None) -> None:
+        """Record every move of a batch cut as its own stage, from the cut's journal.
+
+        cut_result : ``sim.cut.CutResult`` of ``Cutter.cut_moves(..., journal=True)``
+            (``changed_ptr``, ``changed_rays``, ``journal_seg_ptr``, ``journal_near``,
+            ``journal_far``, ``journal_near_id``, ``journal_far_id``).
+        stages : int (n_moves,), optional
+            Stage of each move (non-decreasing); default ``last_stage + 1, + 2, ...``.
+
+        Equal, stage for stage, to cutting and recording the moves one at a time; costs
+        one compiled pass over the changed rays per trace (plus keyframe work spread over
+        later calls).
+        """
+        need = ("changed_ptr", "changed_rays", "journal_seg_ptr", "journal_near", "journal_far",
+                "journal_near_id", "journal_far_id")
+        if any(getattr(cut_result, k, None) is None for k in need):
+            raise InputError("the cut result carries no journal: cut with journal=True")
+        n_moves = len(cut_result.changed_ptr) - 1
+        stages = _batch_stages(self.last_stage, stages, n_moves)
+        j = cut_result
+        if self.z is not None:
+            self.z.record_journal(j.changed_ptr, j.changed_rays, j.journal_seg_ptr, j.journal_near,
+                                  j.journal_far, j.journal_near_id, j.journal_far_id, stages)
+        if self.t is not None:
+            self.t.record_journal(j.changed_ptr, j.changed_rays, j.journal_seg_ptr, j.journal_far,
+                                  j.journal_far_id, stages)
+
+    def maintain(self, budget: int | None = None) -> bool:
+        """Advance keyframes that fell due (None = finish them): for idle moments or the
+        run-file writer, off the poll loop's critical path. True when none is left."""
+        done = True
+        if self.z is not None:
+            done &= self.z.maintain(budget)
+        if self.t is not None:
+            done &= self.t.maintain(budget)
+        return done
+
+    def grid_at(self, stage: int, out: DexelGrid | None = None) -> DexelGrid:
+        """The model at ``stage``; ``out`` is a grid to reuse (see :meth:`ZTrace.grid_at`)."""
         if self.z is None:
             raise InputError("this run has no z-trace: the model cannot be rebuilt")
-        return self.z.grid_at(stage)
+        return self.z.grid_at(stage, out)
 
-    def heights_at(self, stage: int) -> np.ndarray:
+    def heights_at(self, stage: int, out: tuple | None = None) -> np.ndarray:
         if self.t is not None:
-            return self.t.heights_at(stage)
+            return self.t.heights_at(stage, out)
         return self.z.grid_at(stage).top()
 
-    def state_at(self, stage: int) -> tuple[np.ndarray, np.ndarray]:
-        """Heights (nv, nu) and top face ids (nv, nu) at ``stage``."""
+    def state_at(self, stage: int, out: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Heights (nv, nu) and top face ids (nv, nu) at ``stage`` (``out``: arrays to reuse,
+        see :meth:`TimeTrace.state_at`)."""
         if self.t is not None:
-            return self.t.state_at(stage)
+            return self.t.state_at(stage, out)
         g = self.z.grid_at(stage)
         top = np.empty(g.frame.n_rays, np.float32)
         tid = np.empty(g.frame.n_rays, np.int32)

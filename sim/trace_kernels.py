@@ -177,3 +177,169 @@ def chain_prev(top, top_id, rays, vals, ids, prev, prev_id):
         prev_id[q] = top_id[r]
         top[r] = vals[q]
         top_id[r] = ids[q]
+
+
+# --- ingest: diff new ray states against the mirror, update it, emit trace events ------------
+
+#: ingest kernels' return codes
+DONE = 0
+POOL_FULL = 1
+
+
+@nb.njit(cache=True)
+def _ingest_one(M, r, nn, nf, nni, nfi, c, cnt, f_ray, f_val, f_id,
+                g_ray, g_count, g_near, g_far, g_nid, g_fid):
+    """Compare ray ``r`` of the mirror ``M`` with its new segments (``c`` of them), bring
+    the mirror up to date and append the event. Returns UNCHANGED / FAR_ONLY / GENERAL,
+    or -1 (nothing changed, nothing emitted) when the mirror's pool is full."""
+    c_old = M[0][r]
+    general = c != c_old
+    if not general:
+        if c == 0:
+            return UNCHANGED
+        for k in range(c):
+            n0, f0, ni0, fi0 = ds.get_seg(M, r, k)
+            if nn[k] != n0 or nni[k] != ni0:
+                general = True
+                break
+            if k < c - 1 and (nf[k] != f0 or nfi[k] != fi0):
+                general = True
+                break
+    if not general:
+        n0, f0, ni0, fi0 = ds.get_seg(M, r, c - 1)
+        if nf[c - 1] == f0 and nfi[c - 1] == fi0:
+            return UNCHANGED
+        if c == 1:
+            M[2][r] = nf[0]
+            M[4][r] = nfi[0]
+        else:
+            p = M[5][r] + c - 2
+            M[8][p] = nf[c - 1]
+            M[10][p] = nfi[c - 1]
+        q = cnt[0]
+        f_ray[q] = r
+        f_val[q] = nf[c - 1]
+        f_id[q] = nfi[c - 1]
+        cnt[0] = q + 1
+        return FAR_ONLY
+    if not ds.write_ray(M, r, nn, nf, nni, nfi, c):
+        return -1
+    q = cnt[1]
+    g_ray[q] = r
+    g_count[q] = c
+    s = cnt[2]
+    for k in range(c):
+        g_near[s + k] = nn[k]
+        g_far[s + k] = nf[k]
+        g_nid[s + k] = nni[k]
+        g_fid[s + k] = nfi[k]
+    cnt[1] = q + 1
+    cnt[2] = s + c
+    return GENERAL
+
+
+@nb.njit(cache=True)
+def ingest_journal(M, ptr, rays, seg_ptr, jn, jf, jni, jfi, state, cnt, blk_f, blk_g, blk_s,
+                   f_ray, f_val, f_id, g_ray, g_count, g_near, g_far, g_nid, g_fid):
+    """Record a cut journal move by move into the z-trace columns (one block per move).
+
+    ptr (n_moves+1,) int64, rays (n_entries,) int64: the CSR of changed rays; entry e's
+    segments after its move are ``j*[seg_ptr[e]:seg_ptr[e+1]]``. ``state`` (2,) int64 =
+    (move, entry) to resume from; ``cnt`` (3,) int64 = events written so far (far-only,
+    general, general segments) into the output columns. ``blk_*[k]`` get the column ends
+    after move k. Returns DONE, or POOL_FULL with ``state`` set to redo (grow the mirror's
+    pool and call again).
+    """
+    n_moves = ptr.size - 1
+    for k in range(state[0], n_moves):
+        e0 = ptr[k] if state[1] < ptr[k] else state[1]
+        for e in range(e0, ptr[k + 1]):
+            a = seg_ptr[e]
+            b = seg_ptr[e + 1]
+            got = _ingest_one(M, rays[e], jn[a:b], jf[a:b], jni[a:b], jfi[a:b], b - a, cnt,
+                              f_ray, f_val, f_id, g_ray, g_count, g_near, g_far, g_nid, g_fid)
+            if got < 0:
+                state[0] = k
+                state[1] = e
+                return POOL_FULL
+        blk_f[k] = cnt[0]
+        blk_g[k] = cnt[1]
+        blk_s[k] = cnt[2]
+    state[0] = n_moves
+    return DONE
+
+
+@nb.njit(cache=True)
+def ingest_grid(M, S, rays, state, cnt, f_ray, f_val, f_id, g_ray, g_count, g_near, g_far,
+                g_nid, g_fid):
+    """Record the rays of grid store ``S`` that differ from the mirror ``M`` (one block).
+
+    Resumes at ray ``state[0]``; returns DONE, or POOL_FULL with ``state[0]`` to redo.
+    """
+    cap = 8
+    nn = np.empty(cap, np.float32)
+    nf = np.empty(cap, np.float32)
+    nni = np.empty(cap, np.int32)
+    nfi = np.empty(cap, np.int32)
+    for q in range(state[0], rays.size):
+        r = rays[q]
+        c = S[0][r]
+        if c > cap:
+            cap = 2 * c
+            nn = np.empty(cap, np.float32)
+            nf = np.empty(cap, np.float32)
+            nni = np.empty(cap, np.int32)
+            nfi = np.empty(cap, np.int32)
+        for k in range(c):
+            nn[k], nf[k], nni[k], nfi[k] = ds.get_seg(S, r, k)
+        got = _ingest_one(M, r, nn, nf, nni, nfi, c, cnt, f_ray, f_val, f_id,
+                          g_ray, g_count, g_near, g_far, g_nid, g_fid)
+        if got < 0:
+            state[0] = q
+            return POOL_FULL
+    state[0] = rays.size
+    return DONE
+
+
+@nb.njit(cache=True)
+def top_changes_journal(ptr, rays, seg_ptr, jf, jfi, cur_top, cur_id, out_ray, out_top,
+                        out_id, out_prev, out_prev_id, blk):
+    """Rule 6 from a cut journal: per move, the rays whose visible surface changed.
+
+    Like :func:`top_changes` with each entry's top read from the journal (the last FarZ
+    of its segments, NaN and id 0 when emptied). ``blk[k]`` gets the output count after
+    move k. Returns the number of changes.
+    """
+    m = 0
+    for k in range(ptr.size - 1):
+        for e in range(ptr[k], ptr[k + 1]):
+            r = rays[e]
+            b = seg_ptr[e + 1]
+            if b == seg_ptr[e]:
+                t = np.float32(np.nan)
+                tid = np.int32(0)
+            else:
+                t = jf[b - 1]
+                tid = jfi[b - 1]
+            old = cur_top[r]
+            same = (t == old) or (np.isnan(t) and np.isnan(old))
+            if same and tid == cur_id[r]:
+                continue
+            out_ray[m] = r
+            out_top[m] = t
+            out_id[m] = tid
+            out_prev[m] = old
+            out_prev_id[m] = cur_id[r]
+            cur_top[r] = t
+            cur_id[r] = tid
+            m += 1
+        blk[k] = m
+    return m
+
+
+@nb.njit(cache=True)
+def undo_values(dst_val, dst_id, rays, prev, prev_id, lo, hi):
+    """Undo time elements ``hi-1`` down to ``lo``: each ray ends at its oldest previous top."""
+    for q in range(hi - 1, lo - 1, -1):
+        dst_val[rays[q]] = prev[q]
+        dst_id[rays[q]] = prev_id[q]
