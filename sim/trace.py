@@ -1319,7 +1319,8 @@ class Trace:
         """
         need = ("changed_ptr", "changed_rays", "journal_seg_ptr", "journal_near", "journal_far",
                 "journal_near_id", "journal_far_id")
-        if any(getattr(cut_result, k, None) is None for k in need):
+        if any(getattr(cut_result, k, None) is None for k in need) \
+                or not getattr(cut_result, "has_journal", True):
             raise InputError("the cut result carries no journal: cut with journal=True")
         n_moves = len(cut_result.changed_ptr) - 1
         stages = _batch_stages(self.last_stage, stages, n_moves)

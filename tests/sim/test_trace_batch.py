@@ -1,0 +1,207 @@
+"""Recording a batch cut's journal, rebuilding into a caller's grid, amortised keyframes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import sim.trace as trace_mod
+from sim.cut import Cutter
+from sim.errors import InputError
+from sim.gcode.moves import MoveKind, Plane, empty_moves
+from sim.tools import parse_tool_spec
+from sim.trace import Trace, TimeTrace, ZTrace, model_difference, same_model
+from tests.sim.trace_helpers import box, journal_of, program
+
+
+def _per_stage_and_batch(n_moves=30, seed=2, keyframe_every=300):
+    """The mixed program recorded ray set by ray set, and as one hand-built journal."""
+    g = box()
+    one = Trace(g.copy(), keyframe_every=keyframe_every)
+    snaps = {0: g.copy()}
+    steps = []
+    for s, rays in program(g, n_moves=n_moves, seed=seed):
+        one.record(g, rays, s)
+        snaps[s] = g.copy()
+        steps.append((s, rays))
+    g2 = box()
+    journal, stages, _ = journal_of(program(g2, n_moves=n_moves, seed=seed), g2)
+    batch = Trace(box(), keyframe_every=keyframe_every)
+    batch.record_batch(journal, stages)
+    return one, batch, snaps
+
+
+def test_batch_journal_equals_recording_each_stage():
+    one, batch, snaps = _per_stage_and_batch()
+    assert batch.z.n_blocks == one.z.n_blocks == len(snaps) - 1
+    a, b = one.to_arrays(), batch.to_arrays()
+    assert a.keys() == b.keys()
+    for k in a:  # the same log, event for event
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    assert batch.z._g_ray.n > 0 and batch.z._f_ray.n > 0   # rules 2-4 and rule 5 both seen
+    batch.maintain(None)
+    for s, ref in snaps.items():
+        assert same_model(batch.grid_at(s), ref), s
+        assert np.array_equal(batch.heights_at(s), ref.top(), equal_nan=True), s
+
+
+def test_batch_journal_default_stages_and_errors():
+    g = box()
+    journal, stages, snaps = journal_of(program(g, n_moves=6, seed=5), g)
+    tr = Trace(box())
+    tr.record_batch(journal)               # stages 1..6
+    assert tr.last_stage == 6 and same_model(tr.grid_at(6), snaps[6])
+    with pytest.raises(InputError, match="decrease"):
+        tr.record_batch(journal, stages)    # 1..6 again after 6
+    with pytest.raises(InputError, match="stages given"):
+        tr.record_batch(journal, stages[:3] + 10)
+    bare = type("R", (), {"changed_ptr": journal.changed_ptr, "changed_rays": journal.changed_rays})()
+    with pytest.raises(InputError, match="journal=True"):
+        tr.record_batch(bare)
+    bad = type(journal)(**vars(journal))
+    bad.journal_seg_ptr = journal.journal_seg_ptr[:-1]
+    with pytest.raises(InputError, match="inconsistent"):
+        Trace(box()).record_batch(bad)
+
+
+def _moves():
+    mv = empty_moves(7)
+    rows = [((1, 1, 12), (1, 1, 8.5)),           # plunge into the 10 mm stock
+            ((1, 1, 8.5), (18, 3, 8.0)),
+            ((18, 3, 8.0), (18, 12, 7.0)),
+            ((18, 12, 7.0), (4, 12, 7.0)),          # an arc below
+            ((4, 12, 7.0), (4, 4, 6.5)),
+            ((4, 4, 6.5), (40, 40, 6.5)),           # leaves the stock: changes few rays
+            ((40, 40, 6.5), (40, 40, 30))]          # changes nothing
+    for k, (a, b) in enumerate(rows):
+        mv["kind"][k] = MoveKind.FEED
+        mv["start"][k, :3] = a
+        mv["end"][k, :3] = b
+        mv["feed"][k] = 600
+        mv["line"][k] = k + 1
+    mv["kind"][3] = MoveKind.ARC_CCW
+    mv["center"][3] = (11, 12, 7.0)
+    mv["plane"][3] = Plane.XY
+    mv["turns"][3] = 1
+    return mv
+
+
+def test_real_batch_cut_with_journal_equals_cutting_move_by_move():
+    moves = _moves()
+    ids = np.arange(1, len(moves) + 1)
+    tool = parse_tool_spec("ball:4")
+    g1 = box(50, 34, 0.5, 0.0, 10.0)
+    per_move = Trace(g1, keyframe_every=400)
+    cut = Cutter(g1, tool)
+    snaps = {0: g1.copy()}
+    for k in range(len(moves)):
+        res = cut.cut_moves(moves[k:k + 1], move_ids=ids[k:k + 1])
+        per_move.record_cut(g1, res, k + 1)
+        snaps[k + 1] = g1.copy()
+    g2 = box(50, 34, 0.5, 0.0, 10.0)
+    batch = Trace(g2, keyframe_every=400)
+    res = Cutter(g2, tool).cut_moves(moves, move_ids=ids, journal=True)
+    batch.record_batch(res)
+    assert same_model(g1, g2)
+    assert batch.z.n_blocks == len(moves) and batch.t.n_blocks == len(moves)
+    assert batch.z.n_changes == per_move.z.n_changes and batch.t.n_changes == per_move.t.n_changes
+    out = None
+    for s in range(len(moves) + 1):
+        assert same_model(batch.grid_at(s), snaps[s]), s
+        out = batch.grid_at(s, out=out)
+        assert same_model(out, snaps[s]), s
+        assert np.array_equal(batch.heights_at(s), snaps[s].top(), equal_nan=True), s
+    # no journal: a clear error, not a wrong trace
+    res2 = Cutter(box(50, 34, 0.5, 0.0, 10.0), tool).cut_moves(moves, move_ids=ids)
+    with pytest.raises(InputError, match="journal"):
+        Trace(box(50, 34, 0.5, 0.0, 10.0)).record_batch(res2)
+
+
+@pytest.fixture(scope="module")
+def recorded():
+    one, batch, snaps = _per_stage_and_batch(n_moves=36, seed=11, keyframe_every=150)
+    batch.maintain(None)
+    return batch, snaps
+
+
+def test_grid_at_into_a_reused_grid_any_order(recorded):
+    tr, snaps = recorded
+    assert len(tr.z._keyframes) > 3
+    out = box()   # any grid on the frame; its contents are overwritten
+    rng = np.random.default_rng(0)
+    order = list(range(37)) + list(range(36, -1, -1)) + list(rng.integers(-3, 40, 60))
+    for s in order:
+        got = tr.grid_at(int(s), out=out)
+        assert got is out
+        ref = snaps[min(max(int(s), 0), 36)]
+        assert model_difference(out, ref).size == 0, s
+
+
+def test_two_reused_grids_do_not_share_state(recorded):
+    tr, snaps = recorded
+    a, b = box(), box()
+    for s in (5, 30, 12, 36, 2):
+        tr.grid_at(s, out=a)
+        tr.grid_at(36 - s, out=b)
+        assert same_model(a, snaps[s]) and same_model(b, snaps[36 - s])
+    c = tr.grid_at(9)   # a fresh grid is independent of the reused ones
+    c.subtract(0, 0, -100, 100, 99)
+    assert same_model(tr.grid_at(9, out=a), snaps[9])
+
+
+def test_state_at_into_reused_arrays_forwards_and_backwards(recorded):
+    tr, snaps = recorded
+    n = tr.frame.n_rays
+    top, tid = np.empty(n, np.float32), np.empty(n, np.int32)
+    for s in (0, 3, 4, 20, 36, 35, 10, 1, 36, 0, 18):
+        h, ids = tr.state_at(s, out=(top, tid))
+        assert h is top
+        ref_h, ref_id = tr.t.state_at(s)   # fresh arrays, from a keyframe
+        assert np.array_equal(top.reshape(ref_h.shape), snaps[s].top(), equal_nan=True), s
+        assert np.array_equal(tid, ref_id.reshape(-1)), s
+    with pytest.raises(InputError, match="float32"):
+        tr.state_at(3, out=(np.empty(n, np.float64), tid))
+
+
+def test_keyframes_are_built_a_slice_per_record_and_match_the_model(monkeypatch):
+    monkeypatch.setattr(trace_mod, "KEYFRAME_BUDGET", 64)   # force many small steps
+    g = box()
+    z = ZTrace(g, keyframe_every=120)
+    t = TimeTrace(g, keyframe_every=120)
+    snaps = {0: g.copy()}
+    partial = 0
+    for s, rays in program(g, n_moves=40, seed=9):
+        z.record(g, rays, s)
+        t.record(g, rays, s)
+        snaps[s] = g.copy()
+        partial += z._builder is not None
+    assert partial > 0            # some keyframes took several record calls
+    z.maintain(None)
+    t.maintain(None)
+    assert len(z._keyframes) > 4 and len(t._keyframes) > 4
+    for key in z._keyframes:      # each keyframe is the model at its stage
+        from sim.grid import DexelGrid
+        kg = DexelGrid(z.frame, z.tol, {k: v.copy() for k, v in key.data.items()})
+        assert same_model(kg, snaps[key.stage]), key.stage
+    for key in t._keyframes:
+        assert np.array_equal(key.data[0].reshape(g.frame.shape), snaps[key.stage].top(), equal_nan=True)
+    for s in snaps:
+        assert same_model(z.grid_at(s), snaps[s])
+        assert np.array_equal(t.heights_at(s), snaps[s].top(), equal_nan=True)
+
+
+def test_far_only_keyframes_share_the_arrays_cuts_from_above_cannot_touch():
+    from tests.sim.trace_helpers import ball_cut
+    g = box(30, 30, 1.0)
+    z = ZTrace(g, keyframe_every=50)
+    for s in range(1, 30):
+        rays = ball_cut(g, (s % 29, (7 * s) % 29, 9.5 - 0.1 * s), 3.0, s)
+        z.record(g, rays, s)
+    z.maintain(None)
+    keys = z._keyframes
+    assert len(keys) > 3
+    for k in keys[1:]:
+        assert k.data["count"] is keys[0].data["count"]
+        assert k.data["near"] is keys[0].data["near"]
+        assert k.data["far"] is not keys[0].data["far"]
+    assert z.keyframe_nbytes() <= (len(keys) - 1) * g.frame.n_rays * 8 + 4096
