@@ -157,6 +157,7 @@ class Cutter:
         self.tol = tol
         self.tools = dict(tools or {})
         self._top = grid.frame.is_top  # frames are immutable; asked on every batch
+        self._params: dict[int, tuple] = {}  # id(body) -> (body, kernel parameters)
 
     # --- public API ---------------------------------------------------------------------
     def cut_moves(self, moves: np.ndarray, move_ids=None, record_changes: bool = True,
@@ -294,6 +295,9 @@ class Cutter:
         lin = ((kind == _LINEAR_KINDS[0]) | (kind == _LINEAR_KINDS[1])) & ~bad
         arc = ((kind == _ARC_KINDS[0]) | (kind == _ARC_KINDS[1])) & ~bad
         exact = self._exact(body)
+        if exact and not arc.any():  # the live monitor's few rows per poll: no per-row work
+            work.segments(start[lin], end[lin], rows[lin], ids[lin])
+            return work
         length = body.flute_length if isinstance(body, Tool) else body.top
         # the pieces of every row: (first point, last point) arrays per row
         pieces: dict[int, np.ndarray] = {}
@@ -372,7 +376,10 @@ class Cutter:
         logs: list[tuple] = []
         p0, p1, sm, sid = work.seg_arrays()
         if len(p0) and not force_instances:
-            tp = sweep.body_params(body)
+            tp = self._params.get(id(body))
+            if tp is None or tp[0] is not body:
+                tp = self._params[id(body)] = (body, sweep.body_params(body))
+            tp = tp[1]
             top_bound = np.inf
             if len(p0) >= 64 and not probe:  # lets chained moves skip rays already cut
                 tops = grid.top()
@@ -400,8 +407,9 @@ class Cutter:
         """
         state = np.zeros(K.STATE_SIZE, np.int64)
         state[1] = state[2] = -1
-        cap = (1 << 14) if record else 1
-        jcap = (1 << 14) if journal else 1
+        # small batches (the live monitor's few rows per poll) start small: allocation shows
+        cap = (1 << 14 if n_items > 8 else 1 << 11) if record else 1
+        jcap = cap if journal else 1
         B = [np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.float64),
              np.empty(cap, np.float64), np.empty(cap if journal else 1, np.int64),
              np.empty(jcap, np.float32), np.empty(jcap, np.float32),
