@@ -1,12 +1,19 @@
 """Bulk interpretation of runs of simple lines (bit-identical to the per-line path).
 
 Most of a CAM program's lines are ``[N..] [G0|G1] [X..] [Y..] [Z..] [F..]`` in absolute
-mode. Such lines are recognised with one compiled regular expression and executed in
-bulk: a numba loop does exactly the float operations the per-line interpreter does
+mode. Such lines are recognised and their numbers parsed with vectorised numpy over the
+raw bytes, a chunk of lines at a time, and executed in bulk straight into the
+interpreter's move table. The float operations are exactly the per-line interpreter's
 (``work = value * units``, ``machine = work + offset``, missing axes carried as
-``(machine - offset) + offset``), so the rows are identical bit for bit. Everything
-else (expressions, comments, other words, G91, comp, inverse time...) goes through the
-full interpreter.
+``(machine - offset) + offset``), so the rows are identical bit for bit. Everything else
+(expressions, comments, other words, G91, comp, inverse time...) goes through the full
+interpreter.
+
+Memory is what this module is about: a program is held once, as its UTF-8 bytes plus one
+int32 offset per line (:class:`SourceLines`); no Python object is made per simple line
+and every temporary array is bounded by :data:`CHUNK` lines. numba is deliberately not
+used here: importing it costs ~170 MB of resident memory, more than the whole budget of
+interpreting a million lines beside the 226 MB move table.
 """
 
 from __future__ import annotations
@@ -14,304 +21,314 @@ from __future__ import annotations
 import re
 
 import numpy as np
-from numba import njit
 
-from sim.gcode.moves import MOVE_DTYPE, MoveKind
+from sim.gcode.moves import MoveKind
 
-_NUM = r"([-+]?(?:\d+\.?\d*|\.\d+))"
-SIMPLE = re.compile(
-    rf"[ \t]*(?:[Nn]\d+[ \t]*)?(?:[Gg]0*([01])[ \t]*)?(?:[Xx]{_NUM}[ \t]*)?(?:[Yy]{_NUM}[ \t]*)?"
-    rf"(?:[Zz]{_NUM}[ \t]*)?(?:[Ff]{_NUM}[ \t]*)?\r?"
-)
-CHUNK = 1 << 16  # rows per output chunk (bounds the extra memory of assembling the table)
+#: lines scanned and executed per chunk (bounds the temporaries: ~1-2 MB at 13 bytes/line)
+CHUNK = 1 << 14
+#: longest number (sign excluded) the scanner parses; longer ones go to the per-line path
+MAX_NUMBER_CHARS = 17
 
-
-_POW10 = np.array([10.0 ** k for k in range(23)])  # exact doubles 1e0 .. 1e22
+_POW10_F = np.array([10.0 ** k for k in range(23)])            # exact doubles 1e0 .. 1e22
+_POW10_I = np.array([10 ** k for k in range(18)], dtype=np.int64)
+_TWO53 = 1 << 53
 _ODD_BREAKS = re.compile("[\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029]")
+_ODD_BREAKS_ASCII = re.compile(rb"[\x0b\x0c\x1c\x1d\x1e]")
+
+# byte classes of the scanner
+_SPACE, _DIGIT, _DOT, _SIGN = 0, 1, 2, 3
+_LETTER0 = 4                      # 4 + slot: G X Y Z F N (slots 0..5)
+_OTHER_LETTER, _EOL, _OTHER = 10, 11, 12
+_SLOTS = "GXYZFN"
+_N_SLOT = 5
+
+
+def _byte_classes() -> np.ndarray:
+    lut = np.full(256, _OTHER, dtype=np.uint8)
+    lut[[ord(" "), ord("\t")]] = _SPACE
+    lut[ord("0"):ord("9") + 1] = _DIGIT
+    lut[ord(".")] = _DOT
+    lut[[ord("+"), ord("-")]] = _SIGN
+    for c in range(26):
+        lut[ord("A") + c] = lut[ord("a") + c] = _OTHER_LETTER
+    for slot, ch in enumerate(_SLOTS):
+        lut[ord(ch)] = lut[ord(ch.lower())] = _LETTER0 + slot
+    lut[[10, 13]] = _EOL  # a CR only ever precedes the LF here (see split_lines)
+    return lut
+
+
+_CLASS = _byte_classes()
 
 
 class SourceLines:
-    """The lines of an ASCII text without a list of strings: offsets into the text.
+    """The lines of a program held as UTF-8 bytes and line offsets; a line's str is made on demand.
 
-    Behaves like ``text.splitlines()`` (for texts whose only breaks are \\n and \\r\\n).
+    Behaves like ``text.splitlines()``: ``len``, indexing (str), slicing (list), iteration.
+    ``starts`` (n + 1,) int32/int64: line ``i`` is ``data[starts[i]:starts[i + 1] - 1]``
+    less a trailing CR.
     """
 
-    def __init__(self, text: str, starts: np.ndarray, ends: np.ndarray):
-        self.text = text
+    def __init__(self, data: bytes, starts: np.ndarray):
+        self.data = data
         self.starts = starts
-        self.ends = ends
 
     def __len__(self) -> int:
-        return len(self.starts)
+        return len(self.starts) - 1
+
+    def span(self, i: int) -> tuple[int, int]:
+        """Byte offsets ``(begin, end)`` of line ``i`` (end excludes CR LF)."""
+        s, e = int(self.starts[i]), int(self.starts[i + 1]) - 1
+        if e > s and self.data[e - 1] == 13:
+            e -= 1
+        return s, e
 
     def __getitem__(self, i):
         if isinstance(i, slice):
             return [self[k] for k in range(*i.indices(len(self)))]
+        n = len(self)
         if i < 0:
-            i += len(self.starts)
-        return self.text[self.starts[i]:self.ends[i]]
+            i += n
+        if not 0 <= i < n:
+            raise IndexError("line index out of range")
+        s, e = self.span(i)
+        return self.data[s:e].decode("utf-8", "surrogatepass")
 
     def __iter__(self):
-        for i in range(len(self.starts)):
+        for i in range(len(self)):
             yield self[i]
 
+    def line_of(self, offsets) -> np.ndarray:
+        """Line index (int64) of each byte offset in ``offsets``."""
+        return np.searchsorted(self.starts, np.asarray(offsets), side="right") - 1
 
-def split_lines(text: str):
-    """``(lines, data)``: lines like ``text.splitlines()`` and the uint8 bytes when fast scanning applies.
 
-    Fast scanning applies to ASCII texts whose line breaks are only \\n or \\r\\n.
+def split_lines(text) -> SourceLines:
+    """A program's lines, like ``str.splitlines()`` of its text, without a str per line.
+
+    ``text`` is a str, or bytes (decoded as UTF-8, invalid bytes replaced). Texts whose
+    only line breaks are LF or CR LF keep their bytes as they are; any other break
+    (lone CR, VT, FF, U+2028 ...) is normalised to LF first, so line numbers are those
+    of ``splitlines()`` either way.
     """
-    if not text.isascii() or _ODD_BREAKS.search(text) or text.count("\r") != text.count("\r\n"):
-        return text.splitlines(), None
-    data = np.frombuffer(text.encode("ascii"), dtype=np.uint8)
-    nl = np.flatnonzero(data == 10)
-    starts = np.concatenate(([0], nl + 1))
-    ends = np.concatenate((nl, [len(data)]))
-    if len(starts) and starts[-1] == len(data):  # text ends with a newline: no empty last line
-        starts, ends = starts[:-1], ends[:-1]
-    cr = (ends > starts) & (data[np.maximum(ends - 1, 0)] == 13)
-    ends = ends - cr
-    return SourceLines(text, starts, ends), data
+    if isinstance(text, (bytes, bytearray, memoryview)):
+        data = bytes(text)
+        if not data.isascii() or _ODD_BREAKS_ASCII.search(data) or data.count(b"\r") != data.count(b"\r\n"):
+            return split_lines(data.decode("utf-8", errors="replace"))
+    elif _ODD_BREAKS.search(text) or text.count("\r") != text.count("\r\n"):
+        data = "\n".join(text.splitlines()).encode("utf-8", "surrogatepass")
+    else:
+        data = text.encode("utf-8", "surrogatepass")
+    nl = np.flatnonzero(np.frombuffer(data, dtype=np.uint8) == 10)
+    dtype = np.int32 if len(data) < 2**31 - 2 else np.int64
+    tail = [len(data) + 1] if data and data[-1:] != b"\n" else []  # last line without a newline
+    starts = np.concatenate((np.zeros(1, dtype), (nl + 1).astype(dtype), np.array(tail, dtype)))
+    return SourceLines(data, starts)
 
 
-@njit(cache=True)
-def _number(b, k, end, pow10):
-    """Parse [+-]digits[.digits] at b[k:end]; returns (value, next index, ok). Exact like float()."""
-    neg = False
-    if k < end and (b[k] == 43 or b[k] == 45):
-        neg = b[k] == 45
-        k += 1
-    m = 0
-    nd = 0
-    frac = 0
-    while k < end and 48 <= b[k] <= 57:
-        m = m * 10 + (b[k] - 48)
-        nd += 1
-        k += 1
-        if m > 9007199254740992:
-            return 0.0, k, False
-    if k < end and b[k] == 46:
-        k += 1
-        while k < end and 48 <= b[k] <= 57:
-            m = m * 10 + (b[k] - 48)
-            nd += 1
-            frac += 1
-            k += 1
-            if m > 9007199254740992 or frac > 22:
-                return 0.0, k, False
-    if nd == 0:
-        return 0.0, k, False
-    v = m / pow10[frac]
-    return (-v if neg else v), k, True
+def scan(lines: SourceLines, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
+    """Find the simple lines among lines ``a:b`` and parse their numbers.
+
+    Returns ``simple`` (b - a,) bool and ``values`` (b - a, 5) float64: the G, X, Y, Z, F
+    values as written (NaN when absent or the line is not simple). A simple line has
+    only N G X Y Z F words (any order, each at most once, at least one besides N), G0 or
+    G1, N a non-negative integer, numbers ``[+-]digits[.digits]`` of at most
+    :data:`MAX_NUMBER_CHARS` characters whose digits fit 2**53: such a number divided
+    by an exact power of ten is the correctly rounded double, the same as ``float()``.
+    """
+    nl = b - a
+    simple = np.zeros(nl, dtype=np.bool_)
+    vals = np.full((nl, 5), np.nan)
+    if nl <= 0:
+        return simple, vals
+    s0 = int(lines.starts[a])
+    s1 = min(int(lines.starts[b]), len(lines.data))
+    L = s1 - s0
+    buf = np.full(L + MAX_NUMBER_CHARS + 3, 10, dtype=np.uint8)  # padded with LFs: reads past the end are EOL
+    buf[:L] = np.frombuffer(lines.data, dtype=np.uint8, count=L, offset=s0)
+    cls = _CLASS[buf]
+    rel = lines.starts[a:b + 1].astype(np.int64) - s0
+    rel[-1] = min(rel[-1], L + 1)
+
+    def line_at(pos):
+        return np.searchsorted(rel, pos, side="right") - 1
+
+    bad = np.zeros(nl, dtype=np.bool_)
+    bad[line_at(np.flatnonzero((cls[:L] == _OTHER_LETTER) | (cls[:L] == _OTHER)))] = True
+
+    # words: a letter, an optional sign, then a run of digits and dots
+    pos = np.flatnonzero((cls[:L] >= _LETTER0) & (cls[:L] < _OTHER_LETTER))
+    slot = cls[pos].astype(np.int64) - _LETTER0
+    line = line_at(pos)
+    signed = cls[pos + 1] == _SIGN
+    q = pos + 1 + signed
+    isnum = (cls == _DIGIT) | (cls == _DOT)
+    not_num = np.flatnonzero(~isnum)
+    r = not_num[np.searchsorted(not_num, q)]
+    length = r - q
+    word_bad = (length < 1) | (length > MAX_NUMBER_CHARS) | (cls[r] == _SIGN)
+
+    # every sign and every digit/dot of a line must belong to one of its words
+    def per_line(mask):
+        c = np.zeros(L + 2, dtype=np.int64)
+        np.cumsum(mask[:L], out=c[1:L + 1])
+        c[L + 1] = c[L]
+        return c[rel[1:]] - c[rel[:-1]]
+
+    ok_len = np.where(word_bad, 0, length)
+    bad |= per_line(cls == _SIGN) != np.bincount(line, weights=signed, minlength=nl)
+    bad |= per_line(isnum) != np.bincount(line, weights=ok_len, minlength=nl)
+    bad |= (np.bincount(line * 6 + slot, minlength=6 * nl).reshape(nl, 6) > 1).any(axis=1)
+
+    # the numbers: a (words, MAX_NUMBER_CHARS) matrix of their characters
+    cols = np.arange(MAX_NUMBER_CHARS)
+    chars = buf[q[:, None] + cols]
+    inside = cols < length[:, None]
+    digit = inside & (chars >= 48) & (chars <= 57)
+    dot = inside & (chars == 46)
+    nd = digit.sum(axis=1)
+    before = np.cumsum(digit, axis=1)
+    power = nd[:, None] - before  # digits after each digit in its number
+    m = np.where(digit, (chars.astype(np.int64) - 48) * _POW10_I[np.clip(power, 0, 17)], 0).sum(axis=1)
+    has_dot = dot.any(axis=1)
+    frac = np.where(has_dot, nd - before[np.arange(len(q)), dot.argmax(axis=1)], 0)
+    word_bad |= (nd == 0) | (dot.sum(axis=1) > 1) | (m > _TWO53)
+    v = m.astype(np.float64) / _POW10_F[frac]
+    v = np.where(signed & (buf[pos + 1] == 45), -v, v)
+    is_g = slot == 0
+    word_bad |= is_g & (v != 0.0) & (v != 1.0)
+    is_n = slot == _N_SLOT
+    word_bad |= is_n & ((v != np.floor(v)) | (v < 0.0) | (v > 9999999.0))
+    bad[line[word_bad]] = True
+    useful = np.bincount(line[~is_n], minlength=nl) > 0
+    simple = ~bad & useful
+    keep = ~is_n & simple[line]
+    vals[line[keep], slot[keep]] = v[keep]
+    return simple, vals
 
 
-@njit(cache=True)
-def _scan(b, starts, ends, pow10, vals, simple):
-    """Mark simple lines ([N] [G0|G1] [X] [Y] [Z] [F], any order, once each) and store their values."""
-    for li in range(starts.shape[0]):
-        k = starts[li]
-        end = ends[li]
-        ok = True
-        seen = 0
-        useful = False
-        while k < end:
-            c = b[k]
-            if c == 32 or c == 9:
-                k += 1
-                continue
-            if 97 <= c <= 122:
-                c -= 32
-            if c == 78:
-                slot = 5
-            elif c == 71:
-                slot = 0
-            elif c == 88:
-                slot = 1
-            elif c == 89:
-                slot = 2
-            elif c == 90:
-                slot = 3
-            elif c == 70:
-                slot = 4
-            else:
-                ok = False
-                break
-            bit = 1 << slot
-            if seen & bit:
-                ok = False
-                break
-            seen |= bit
-            v, k, good = _number(b, k + 1, end, pow10)
-            if not good:
-                ok = False
-                break
-            if k < end and b[k] != 32 and b[k] != 9 and not (65 <= (b[k] & 223) <= 90):
-                ok = False
-                break
-            if slot == 0:
-                if v != 0.0 and v != 1.0:
-                    ok = False
-                    break
-            if slot == 5 and (v != np.floor(v) or v < 0.0 or v > 9999999.0):
-                ok = False
-                break
-            if slot != 5:
-                vals[li, slot] = v
-                useful = True
-        simple[li] = ok and useful
+class ChunkScanner:
+    """Scan results for the chunk of :data:`CHUNK` lines holding a given line (the last one kept)."""
+
+    def __init__(self, lines: SourceLines):
+        self.lines = lines
+        self.a = self.b = -1
+        self.simple = self.values = self.run_end = None
+
+    def at(self, i: int):
+        """``(a, simple, values, run_end)`` of the chunk starting at line ``a`` that holds line ``i``.
+
+        ``run_end[k]``: chunk index of the first non-simple line at or after ``k`` (or the
+        chunk length).
+        """
+        if not self.a <= i < self.b:
+            a = i - i % CHUNK
+            b = min(a + CHUNK, len(self.lines))
+            simple, values = scan(self.lines, a, b)
+            not_simple = np.flatnonzero(~simple)
+            ends = np.append(not_simple, b - a)
+            self.run_end = ends[np.searchsorted(not_simple, np.arange(b - a), side="left")]
+            self.a, self.b, self.simple, self.values = a, b, simple, values
+        return self.a, self.simple, self.values, self.run_end
 
 
-class FastLines:
-    """Per main-file line: is it simple, and its G, X, Y, Z, F values (NaN when absent)."""
-
-    def __init__(self, lines, data: np.ndarray | None = None):
-        n = len(lines)
-        vals = np.full((n, 5), np.nan)
-        if data is not None and isinstance(lines, SourceLines):
-            simple = np.zeros(n, dtype=np.bool_)
-            _scan(data, lines.starts, lines.ends, _POW10, vals, simple)
-            vals[~simple] = np.nan
-        else:
-            found = []
-            fm = SIMPLE.fullmatch
-            for s in lines:
-                m = fm(s)
-                found.append(m.groups(default="") if m else None)
-            simple = np.array([g is not None and any(g) for g in found], dtype=np.bool_)
-            for i in np.flatnonzero(simple):
-                vals[i] = [float(v) if v else np.nan for v in found[i]]
-        self.simple = simple
-        self.values = vals
-        # index of the first non-simple line at or after each line
-        nxt = np.arange(n + 1)
-        not_simple = np.flatnonzero(~self.simple)
-        pos = np.searchsorted(not_simple, np.arange(n), side="left")
-        ends = np.append(not_simple, n)
-        self.run_end = ends[pos]
-        del nxt
+def _carry(off: float, p: np.ndarray) -> np.ndarray:
+    """One line's update of an axis with no word on it: ``(machine - offset) + offset``."""
+    return (p - off) + off
 
 
-@njit(cache=True)
-def _positions(vals, pos0, off, factor, motion0):
-    """Machine end positions (n, 6), motion (n,), moved (n,) bool for a run of simple lines."""
-    n = vals.shape[0]
-    end = np.empty((n, 6))
-    motion = np.empty(n, dtype=np.int64)
-    moved = np.zeros(n, dtype=np.bool_)
-    pos = pos0.copy()
-    mo = motion0
-    for k in range(n):
-        g = vals[k, 0]
-        if g == g:
-            mo = 0 if g == 0.0 else 10
-        motion[k] = mo
-        has = False
-        for i in range(3):
-            v = vals[k, 1 + i]
-            if v == v:
-                has = True
-        if has:
-            for i in range(6):
-                if i < 3 and vals[k, 1 + i] == vals[k, 1 + i]:
-                    target = vals[k, 1 + i] * factor
-                else:
-                    target = pos[i] - off[i]
-                pos[i] = target + off[i]
-            moved[k] = True
-        for i in range(6):
-            end[k, i] = pos[i]
-    return end, motion, moved
+def run_simple(it, vals: np.ndarray, first: int, snapshot) -> bool:
+    """Execute simple main-file lines in bulk on interpreter ``it``.
 
-
-def run_simple(it, fl: FastLines, start: int, stop: int, snapshot) -> bool:
-    """Execute main-file lines ``start:stop`` (all simple) in bulk on interpreter ``it``.
-
-    Returns False (having done nothing) when the state or the lines need the full
-    interpreter: not absolute mode, comp on, inverse time or feed per rev, or a feed
-    move with no feed rate.
+    ``vals`` (k, 5) G X Y Z F values of lines ``first .. first + k - 1`` (0-based) from
+    :func:`scan`. Returns False (having done nothing) when the state or the lines need
+    the full interpreter: not absolute mode, comp on, inverse time or feed per rev, a
+    feed move with no feed rate, a negative F.
     """
     if it.distance != 900 or it.comp != 400 or it.feed_mode != 940 or it.ended or it.comp_engine is not None:
         return False
-    if it.motion not in (0, 10) and np.isnan(fl.values[start, 0]):
+    k = len(vals)
+    gcol, fcol = vals[:, 0], vals[:, 4]
+    has_g = ~np.isnan(gcol)
+    if it.motion not in (0, 10) and not has_g[0]:
         return False
+    has_f = ~np.isnan(fcol)
+    if (fcol[has_f] < 0).any():
+        return False
+    idx = np.arange(k)
+    # modal motion (0 or 10) and feed word of every line, carried from the interpreter
+    last_g = np.maximum.accumulate(np.where(has_g, idx, -1))
+    mo0 = it.motion if it.motion in (0, 10) else -1
+    motion = np.where(last_g >= 0, np.where(gcol[np.maximum(last_g, 0)] == 0.0, 0, 10), mo0)
+    last_f = np.maximum.accumulate(np.where(has_f, idx, -1))
+    feed_word = np.where(last_f >= 0, fcol[np.maximum(last_f, 0)], it.feed_word)
+    feed_set = (last_f >= 0) | it.feed_set
+    feed = feed_word * it.factor
+    moved = ~np.isnan(vals[:, 1:4]).all(axis=1)
+    is_feed = moved & (motion == 10)
+    if (is_feed & ((feed <= 0) | (~feed_set if it.grbl else False))).any():
+        return False  # the per-line path reports the error at its line
+    ri = np.flatnonzero(moved)
+    n = len(ri)
     off = np.array(it.offsets(), dtype=np.float64)
+    pos0 = np.array(it.pos, dtype=np.float64)
+    end = np.empty((n, 6))
+    if n:
+        for i in range(6):
+            if i < 3:
+                w = vals[ri, 1 + i]
+                given = ~np.isnan(w)
+                base = w * it.factor + off[i]
+                last = np.maximum.accumulate(np.where(given, np.arange(n), -1))
+                carried = _carry(off[i], np.where(last >= 0, base[np.maximum(last, 0)], pos0[i]))
+                col = np.where(given, base, carried)
+                missing = ~given
+            else:
+                col = np.full(n, _carry(off[i], pos0[i]))
+                missing = np.ones(n, dtype=np.bool_)
+            # one carry is a fixed point of the next (so k carries = one); checked, not assumed
+            if not np.array_equal(_carry(off[i], col[missing]), col[missing]):
+                return False
+            end[:, i] = col
     meta = it.meta()
     it._seal()
-    pos = np.array(it.pos, dtype=np.float64)
-    mo = it.motion if it.motion in (0, 10) else -1
-    fw = it.feed_word
-    fset = it.feed_set
-    fcol_all = fl.values[start:stop, 4]
-    if (fcol_all[~np.isnan(fcol_all)] < 0).any():
-        return False
-    n0 = it._n
-    # rows of this run, exactly: the table grows once instead of by steps
-    it.reserve(int(np.count_nonzero(~np.isnan(fl.values[start:stop, 1:4]).all(axis=1))))
-    changes = []  # (line index, motion, feed word) where the modal state changes
-    prev_m, prev_f = it.motion, it.feed_word
-    for a in range(start, stop, CHUNK):
-        b = min(stop, a + CHUNK)
-        vals = fl.values[a:b]
-        end, motion, moved = _positions(vals, pos, off, it.factor, mo)
-        fcol = vals[:, 4]
-        has_f = ~np.isnan(fcol)
-        last = np.where(has_f, np.arange(len(vals)), -1)
-        np.maximum.accumulate(last, out=last)
-        feed_word = np.where(last >= 0, fcol[np.maximum(last, 0)], fw)
-        feed_set = (last >= 0) | fset
-        feed = feed_word * it.factor
-        is_feed = moved & (motion == 10)
-        if (is_feed & ((feed <= 0) | (~feed_set if it.grbl else False))).any():
-            it._n = n0  # refuse the whole run: the per-line path reports the error
-            return False
-        ri = np.flatnonzero(moved)
-        n = len(ri)
-        if n:
-            ends = end[ri]
-            i = it.reserve(n)
-            rows = it._table[i:i + n]
-            starts = np.empty((n, 6))
-            starts[0] = pos
-            starts[1:] = ends[:-1]
-            line_no = (a + 1 + ri).astype(np.int32)
-            rows["file"] = meta[0]
-            rows["line"] = line_no
-            rows["kind"] = np.where(motion[ri] == 0, MoveKind.RAPID, MoveKind.FEED)
-            rows["start"] = starts
-            rows["end"] = ends
-            rows["wco"] = off
-            rows["center"] = np.nan
-            rows["plane"] = meta[7]
-            rows["turns"] = 0
-            rows["feed"] = np.where(motion[ri] == 0, 0.0, feed[ri])
-            rows["inverse_time"] = 0.0
-            rows["spindle"] = meta[2]
-            rows["spindle_dir"] = meta[3]
-            rows["tool"] = meta[4]
-            rows["tool_length"] = meta[5]
-            rows["coolant"] = meta[6]
-            rows["dwell"] = 0.0
-            it._table_lines[i:i + n] = line_no
-            it._n += n
-            del rows
-        prev_motion = np.concatenate(([prev_m], motion[:-1]))
-        prev_feed = np.concatenate(([prev_f], feed_word[:-1]))
-        for k in np.flatnonzero((motion != prev_motion) | (feed_word != prev_feed)):
-            changes.append((a + int(k) + 1, int(motion[k]), float(feed_word[k])))
-        pos = end[-1].copy()
-        mo = int(motion[-1])
-        fw = float(feed_word[-1])
-        fset = bool(feed_set[-1])
-        prev_m, prev_f = mo, fw
-    for line, m, f in changes:
-        it.motion = m
-        it.feed_word = f
-        it.main_line = it.line = line
+    if n:
+        j = it.reserve(n)
+        rows = it._table[j:j + n]
+        rows["end"] = end
+        rows["start"][0] = pos0
+        rows["start"][1:] = end[:-1]
+        line_no = (first + 1 + ri).astype(np.int32)
+        rows["file"] = meta[0]
+        rows["line"] = line_no
+        rows["kind"] = np.where(motion[ri] == 0, MoveKind.RAPID, MoveKind.FEED)
+        rows["wco"] = off
+        rows["center"] = np.nan
+        rows["plane"] = meta[7]
+        rows["turns"] = 0
+        rows["feed"] = np.where(motion[ri] == 0, 0.0, feed[ri])
+        rows["inverse_time"] = 0.0
+        rows["spindle"] = meta[2]
+        rows["spindle_dir"] = meta[3]
+        rows["tool"] = meta[4]
+        rows["tool_length"] = meta[5]
+        rows["coolant"] = meta[6]
+        rows["dwell"] = 0.0
+        it._table_lines[j:j + n] = line_no
+        it._n += n
+        del rows
+    # a modal state snapshot wherever motion or feed word changes, as the per-line path does
+    prev_motion = np.concatenate(([it.motion], motion[:-1]))
+    prev_feed = np.concatenate(([it.feed_word], feed_word[:-1]))
+    for c in np.flatnonzero((motion != prev_motion) | (feed_word != prev_feed)):
+        it.motion = int(motion[c])
+        it.feed_word = float(feed_word[c])
+        it.main_line = it.line = first + int(c) + 1
         snapshot()
-    it.pos = [float(v) for v in pos]
-    it.motion = mo
-    it.feed_word = fw
-    it.feed_set = fset
-    it.line = it.main_line = stop
+    if n:
+        it.pos = [float(v) for v in end[-1]]
+    it.motion = int(motion[-1])
+    it.feed_word = float(feed_word[-1])
+    it.feed_set = bool(feed_set[-1])
+    it.line = it.main_line = first + k
     snapshot()
     return True

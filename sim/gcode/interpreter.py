@@ -253,7 +253,7 @@ class Interpreter:
         self._row_line: list[int] = []   # main-file line that caused each row
         # sealed rows live in one table grown in place (ndarray.resize: no second copy)
         self._table = np.zeros(0, dtype=MOVE_DTYPE)
-        self._table_lines = np.zeros(0, dtype=np.int64)
+        self._table_lines = np.zeros(0, dtype=np.int32)
         self._n = 0
         self.main_line = 0
         self.params = _Params(self)
@@ -340,11 +340,26 @@ class Interpreter:
         if self.comp_engine is not None:
             self.comp_engine = None
 
+    def expect(self, rows: int) -> None:
+        """Size the (still empty) table for about ``rows`` rows.
+
+        ``np.zeros`` takes fresh zero pages from the OS that cost no memory until written,
+        so a generous guess is free, while growing later (``ndarray.resize`` zero-fills
+        what it adds) is not.
+        """
+        if self._n == 0 and rows > len(self._table):
+            self._table = np.zeros(rows, dtype=MOVE_DTYPE)
+            self._table_lines = np.zeros(rows, dtype=np.int32)
+
     def reserve(self, extra: int) -> int:
-        """Make room for ``extra`` more sealed rows; return the index of the first one."""
+        """Make room for ``extra`` more sealed rows; return the index of the first one.
+
+        Grows in place (``ndarray.resize``: no second copy) by at most 64k rows beyond the
+        need, so a large table overshoots by a bounded amount.
+        """
         need = self._n + extra
         if need > len(self._table):
-            cap = max(need, int(len(self._table) * 1.25), 1024)
+            cap = max(need, len(self._table) + max(1024, min(len(self._table) // 4, 1 << 16)))
             self._table.resize(cap, refcheck=False)
             self._table_lines.resize(cap, refcheck=False)
         return self._n
@@ -367,7 +382,7 @@ class Interpreter:
         table.resize(self._n, refcheck=False)
         lines.resize(self._n, refcheck=False)
         self._table = np.zeros(0, dtype=MOVE_DTYPE)
-        self._table_lines = np.zeros(0, dtype=np.int64)
+        self._table_lines = np.zeros(0, dtype=np.int32)
         self._n = 0
         return table, lines
 

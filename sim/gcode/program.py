@@ -21,6 +21,8 @@ from sim.gcode.moves import MOVE_DTYPE
 from sim.gcode.parser import parse_line
 from sim.gcode.state import ModalState
 
+SEAL_ROWS = 2048  # pending row tuples moved into the table this often
+
 _STRUCT_OPEN = {"SUB", "IF", "WHILE", "DO", "REPEAT"}
 _LOOPS = {"WHILE", "DO", "REPEAT"}
 
@@ -31,8 +33,8 @@ class _Source:
 
     name: str
     index: int
-    lines: list
-    blocks: list = field(default_factory=list)   # Block or LineError per line
+    lines: object                                # SourceLines: str per line on demand
+    blocks: dict = field(default_factory=dict)   # line -> Block or LineError (o-words, cached lines)
     end_of: dict = field(default_factory=dict)   # opening line -> closing line (indices)
     owner: dict = field(default_factory=dict)    # elseif/else/end/break/continue -> opening line
     branches: dict = field(default_factory=dict)  # if line -> [elseif/else lines]
@@ -40,31 +42,51 @@ class _Source:
     subs: dict = field(default_factory=dict)     # label -> sub line
     struct_errors: list = field(default_factory=list)  # (line index, LineError)
     percent_end: int | None = None
-    text: str | None = None
-    data: object = None
+    cached: object = None  # (n,) bool: lines whose parsed block is kept (loop/sub bodies); None = all
+
+    def block(self, i: int, dialect: str):
+        """Line ``i`` parsed (a Block, or the LineError it raised); kept only where it will be read again."""
+        b = self.blocks.get(i)
+        if b is None:
+            try:
+                b = parse_line(self.lines[i], dialect)
+            except LineError as exc:
+                b = exc
+            if self.cached is None or self.cached[i]:
+                self.blocks[i] = b
+        return b
 
 
 _OWORD_LINE = re.compile(r"[ \t]*(?:/[ \t]*)?(?:[Nn][ \t]*\d+[ \t]*)?[Oo]")
 
 
-_OWORD_LINES = re.compile(r"^[ \t]*(?:/[ \t]*)?(?:[Nn][ \t]*\d+[ \t]*)?[Oo]", re.MULTILINE)
+_OWORD_LINES = re.compile(rb"^[ \t]*(?:/[ \t]*)?(?:[Nn][ \t]*\d+[ \t]*)?[Oo]", re.MULTILINE)
 
 
-def _prepare(name: str, index: int, text: str, dialect: str) -> _Source:
-    from sim.gcode.fastpath import SourceLines, split_lines
+def _percent_end(lines) -> int | None:
+    """With a '%' as the first non-blank character, the line of the next '%' line (else None)."""
+    data = lines.data
+    pct = [m.start() for m in re.finditer(rb"%", data)]
+    if not pct or data[:pct[0]].decode("utf-8", "surrogatepass").strip():
+        return None
+    first = int(lines.line_of(pct[0]))
+    for i in sorted({int(i) for i in lines.line_of(pct[1:])}):
+        if i > first and lines[i].lstrip().startswith("%"):
+            return i
+    return None
 
-    lines, data = split_lines(text)
-    src = _Source(name, index, lines, text=text)
-    src.data = data
+
+def _prepare(name: str, index: int, text, dialect: str) -> _Source:
+    """Split ``text`` (str or UTF-8 bytes) into lines and find its o-word structure."""
+    from sim.gcode.fastpath import split_lines
+
+    lines = split_lines(text)
+    del text  # the lines hold the only copy from here on
+    src = _Source(name, index, lines)
     # lines are parsed when first executed; only o-word lines are needed up front
-    blocks: list = [None] * len(lines)
-    src.blocks = blocks
-    if isinstance(lines, SourceLines):
-        pos = np.fromiter((m.start() for m in _OWORD_LINES.finditer(text)), dtype=np.int64)
-        candidates = np.searchsorted(lines.starts, pos, side="right") - 1
-    else:
-        candidates = [i for i, raw in enumerate(lines) if _OWORD_LINE.match(raw)]
-    for i in candidates:
+    blocks = src.blocks
+    pos = np.fromiter((m.start() for m in _OWORD_LINES.finditer(lines.data)), dtype=np.int64)
+    for i in lines.line_of(pos):
         i = int(i)
         raw = lines[i]
         if _OWORD_LINE.match(raw):
@@ -73,14 +95,11 @@ def _prepare(name: str, index: int, text: str, dialect: str) -> _Source:
             except LineError as exc:
                 blocks[i] = exc
     # '%' delimiters: a first '%' line means the program ends at the next one
-    m = re.search(r"\S", text)
-    if m is not None and text[m.start()] == "%":
-        first = int(np.searchsorted(lines.starts, m.start(), side="right") - 1) if isinstance(lines, SourceLines) \
-            else next(i for i, raw in enumerate(lines) if raw.strip())
-        src.percent_end = next((i for i in range(first + 1, len(lines)) if lines[i].lstrip().startswith("%")), None)
+    src.percent_end = _percent_end(lines)
     stack: list[tuple[str, str, int]] = []  # (keyword, label, line index)
-    for i, b in enumerate(blocks):
-        if b is None or isinstance(b, LineError) or b.oword is None:
+    for i in sorted(blocks):
+        b = blocks[i]
+        if isinstance(b, LineError) or b.oword is None:
             continue
         label, kw, _args, col = b.oword
         if not isinstance(label, str):
@@ -141,6 +160,12 @@ def _prepare(name: str, index: int, text: str, dialect: str) -> _Source:
         col = blocks[i].oword[3]
         src.struct_errors.append((i, LineError(f"o{label} {kw.lower()} is never closed (no o{label} {close})", col)))
     src.struct_errors.sort(key=lambda e: e[0])
+    if index == 0:
+        # the main program runs top to bottom: only lines inside loops and subs run twice
+        src.cached = np.zeros(len(lines), dtype=np.bool_)
+        for opener, closer in src.end_of.items():
+            if src.kind.get(opener) in ("SUB", "WHILE", "DO", "REPEAT"):
+                src.cached[opener:closer + 1] = True
     return src
 
 
@@ -167,8 +192,8 @@ class Program:
         self.machine_units = machine_units
         self._snapshots = snapshots
         self._snap_lines = np.maximum.accumulate(np.asarray(snapshot_lines, dtype=np.int64)) if snapshot_lines else np.zeros(0, np.int64)
-        self._row_main = (np.maximum.accumulate(np.asarray(row_main_line, dtype=np.int64)) if len(row_main_line)
-                          else np.zeros(0, np.int64))
+        row_main = np.array(row_main_line, dtype=np.int32, copy=None)
+        self._row_main = np.maximum.accumulate(row_main, out=row_main)  # in place: no second table-sized array
 
     def __len__(self) -> int:
         return len(self.moves)
@@ -271,11 +296,13 @@ class _Runner:
         self.snapshot()
         end_index = main.percent_end
         fl = None
+        # room for a row per main line up front: untouched zeroed pages cost no memory, and
+        # the table then rarely has to grow (which would touch what it adds)
+        it.expect(len(main.lines) + 64)
         if self.fast:
-            from sim.gcode.fastpath import FastLines, run_simple
+            from sim.gcode.fastpath import ChunkScanner, run_simple
 
-            fl = FastLines(main.lines, main.data)
-            main.data = None
+            fl = ChunkScanner(main.lines)
         while True:
             limit = len(src.lines) if not (depth == 0 and src is main and end_index is not None) else end_index
             if pc >= limit:
@@ -295,21 +322,17 @@ class _Runner:
                 break
             if depth == 0:
                 it.main_line = pc + 1
-                if fl is not None and fl.simple[pc] and not it.ended:
-                    stop = int(fl.run_end[pc])
-                    if end_index is not None:
-                        stop = min(stop, end_index)
-                    if stop - pc >= 8 and run_simple(it, fl, pc, stop, self.snapshot):
-                        steps += stop - pc - 1
-                        pc = stop
-                        continue
-            b = src.blocks[pc]
-            if b is None:
-                try:
-                    b = parse_line(src.lines[pc], it.dialect)
-                except LineError as exc:
-                    b = exc
-                src.blocks[pc] = b  # loops come back to their lines
+                if fl is not None and not it.ended:
+                    a, simple, values, run_end = fl.at(pc)
+                    if simple[pc - a]:
+                        stop = a + int(run_end[pc - a])
+                        if end_index is not None:
+                            stop = min(stop, end_index)
+                        if stop - pc >= 8 and run_simple(it, values[pc - a:stop - a], pc, self.snapshot):
+                            steps += stop - pc - 1
+                            pc = stop
+                            continue
+            b = src.block(pc, it.dialect)
             it.line = pc + 1
             it.file_index = src.index
             if isinstance(b, LineError):
@@ -332,6 +355,8 @@ class _Runner:
                     del it._rows[n_rows:], it._row_line[n_rows:]
                     self.fail(src, pc, LineError(f"cannot compute this line: {exc}"))
                 self.snapshot()
+                if len(it._rows) >= SEAL_ROWS:
+                    it._seal()  # rows as compact table rows, not Python tuples
                 if it.ended:
                     break
                 pc += 1
@@ -410,7 +435,7 @@ class _Runner:
             if cond():
                 return None
             for br in src.branches.get(i, []):
-                bb = src.blocks[br]
+                bb = src.block(br, it.dialect)
                 if src.kind[br] == "ELSE":
                     return ("jump", br + 1)
                 _l, _k, bargs, bcol = bb.oword
@@ -479,11 +504,11 @@ def _read_var(var_file):
     return read_var_file(var_file)
 
 
-def interpret(text: str, filename: str = "<string>", dialect: str = "linuxcnc", tool_table=None,
+def interpret(text: str | bytes, filename: str = "<string>", dialect: str = "linuxcnc", tool_table=None,
               var_file=None, machine_units: str = "mm", keep_going: bool = False,
               subroutine_path=None, max_steps: int = MAX_STEPS, block_delete: bool = True,
               fast: bool = True) -> Program:
-    """Interpret G-code ``text``; return a :class:`Program`.
+    """Interpret G-code ``text`` (str, or bytes decoded as UTF-8); return a :class:`Program`.
 
     ``tool_table`` is a path (LinuxCNC format, in ``machine_units``) or ``{n: ToolEntry}``;
     ``var_file`` a LinuxCNC .var path or ``{param: value}`` (in ``machine_units``).
@@ -514,8 +539,8 @@ def load_program(path, dialect: str = "linuxcnc", tool_table=None, var_file=None
         data = path.read_bytes()
     except OSError as exc:
         raise GCodeError(f"cannot read program: {exc.strerror or exc}", str(path), 0) from None
-    text = data.decode("utf-8", errors="replace")
-    del data  # the text is all that is needed from here on
-    return interpret(text, filename=str(path), dialect=dialect, tool_table=tool_table, var_file=var_file,
+    # the bytes are passed on as they are: for an ASCII file they become the program's
+    # only copy (no str of the whole text, no str per line)
+    return interpret(data, filename=str(path), dialect=dialect, tool_table=tool_table, var_file=var_file,
                      machine_units=machine_units, keep_going=keep_going, subroutine_path=subroutine_path,
                      **kwargs)
