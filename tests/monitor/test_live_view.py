@@ -187,3 +187,21 @@ def test_feed_needs_a_positive_rate(tmp_path):
     f = Frame.top(0, 0, 4, 4, 1.0)
     with pytest.raises(InputError, match="frames per second"):
         ViewFeed(LiveView(f, out_dir=tmp_path), np.zeros(f.shape, np.float32), fps=0)
+
+
+@pytest.mark.parametrize("max_size", [None, 40])
+def test_incremental_shading_equals_shading_everything(tmp_path, max_size):
+    """Re-shading only the changed box gives the picture of shading the whole model, also
+    at the grid's edges and when the picture strides over rays."""
+    g = box(81, 61, 0.5)
+    inc = LiveView(g.frame, tool=3.0, out_dir=tmp_path / "a", max_size=max_size)
+    full = LiveView(g.frame, tool=3.0, out_dir=tmp_path / "b", max_size=max_size)
+    inc.render(g.top())
+    nu = g.frame.nu
+    for k, (x, y) in enumerate([(0.0, 0.0), (20.0, 15.0), (40.0, 30.0), (21.0, 16.0), (39.5, 0.0)]):
+        rays = ball_cut(g, (x, y, 8.5), 2.5, k + 1)
+        changed = (int(rays.min()) // nu, int(rays.max()) // nu + 1, int((rays % nu).min()), int((rays % nu).max()) + 1)
+        tip = np.array([x, y, 8.5])
+        got = inc.render(g.top(), tip, None, [{"position": [x, y, 9.0]}], changed=changed).copy()
+        want = full.render(g.top(), tip, None, [{"position": [x, y, 9.0]}])
+        assert np.array_equal(got, want), k
