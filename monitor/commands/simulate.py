@@ -1,7 +1,16 @@
-"""``dexmon simulate``: cut a whole program into a stock model and report what it removed.
+"""``dexmon simulate``: cut a whole program into a stock model, check it, report.
 
     dexmon simulate PROGRAM --stock box:X0,Y0,Z0,X1,Y1,Z1 --tool ball:6 --resolution 0.1
+                    [--design part.stl --tolerance 0.002] [--fixture box:...] [--limits ...]
                     [--heights out.npy] [--stl out.stl] [--json]
+    dexmon simulate JOB.toml [same flags, which replace the job's]
+
+The whole program is cut with no controller and checked on the way (gouge and undercut
+against ``--design``, rapids into stock, shank / holder contact, fixtures, travel limits,
+depth of cut, a stopped spindle). Exit status: 0 clean, 1 findings, 2 bad input.
+A JOB file (TOML, see ``monitor.job``) gives program, stock, fixtures, tools (with shank
+and holder), design, tolerances, limits and resolution; everything is in its work
+coordinates.
 
 The first motion row is not cut when it is a rapid: it starts from wherever the machine
 was before the program (the interpreter assumes machine zero), so it is positioning.
@@ -24,21 +33,22 @@ import numpy as np
 
 from sim.errors import InputError
 
-HELP = "cut a whole program into a stock model and report removal"
+HELP = "cut and check a whole program (or a JOB.toml) without a machine; findings table or --json"
 
 _NUM = r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?"
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("program", help="G-code program (.nc/.ngc/.gcode)")
+    parser.add_argument("program", help="G-code program (.nc/.ngc/.gcode) or a job file (.toml)")
     parser.add_argument("--stock", default=None,
                         help="box:X0,Y0,Z0,X1,Y1,Z1 (mm, machine coords) or a closed STL/OBJ mesh file")
     parser.add_argument("--resume", default=None, metavar="RUN:STAGE",
                         help="start from the model rebuilt at STAGE of a recorded run (instead of --stock)")
     parser.add_argument("--tool", default=None,
                         help="flat:D, ball:D, bull:D:r, vbit:D:angle, drill:D[:angle], optionally :L=flute_length")
-    parser.add_argument("--resolution", type=float, default=0.2, help="dexel spacing in mm (default 0.2)")
-    parser.add_argument("--dialect", choices=("linuxcnc", "grbl"), default="linuxcnc")
+    parser.add_argument("--resolution", type=float, default=None,
+                        help="dexel spacing in mm (default 0.2, or the job's)")
+    parser.add_argument("--dialect", choices=("linuxcnc", "grbl"), default=None)
     parser.add_argument("--tool-table", default=None, help="LinuxCNC tool table (tools follow the T column)")
     parser.add_argument("--tool-table-units", choices=("mm", "inch"), default="mm",
                         help="units of the numbers in the tool table (default mm)")
@@ -47,6 +57,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--heights", default=None, metavar="OUT.npy", help="write top-surface heights (float32 ny x nx)")
     parser.add_argument("--stl", default=None, metavar="OUT.stl", help="write the cut stock as an STL mesh")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    parser.add_argument("--no-checks", action="store_true", help="only cut (no findings, exit 0)")
+    from sim.checks.report import add_check_arguments
+
+    add_check_arguments(parser)
 
 
 def parse_stock_box(spec: str) -> tuple[np.ndarray, np.ndarray]:
@@ -110,9 +124,26 @@ def load_moves(path: str, dialect: str = "linuxcnc", tool_table=None) -> np.ndar
     return load_program(path, dialect=dialect, tool_table=tool_table).moves
 
 
-def run(args) -> int:
-    from sim.cut import Cutter
+def _skip_first_rapid(moves: np.ndarray) -> tuple[np.ndarray, bool]:
+    """The table to cut, and whether its leading rapid was made a no-op.
+
+    The machine's position before the program is unknown (the interpreter starts at
+    machine zero), so a leading rapid is positioning, not a move into the stock.
+    """
     from sim.gcode.moves import MoveKind
+
+    cutting = np.isin(moves["kind"], [MoveKind.RAPID, MoveKind.FEED, MoveKind.ARC_CW, MoveKind.ARC_CCW])
+    first = int(np.argmax(cutting))
+    skip = bool(cutting.any() and moves["kind"][first] == MoveKind.RAPID)
+    todo = moves.copy()
+    if skip:
+        todo["kind"][first] = MoveKind.PAUSE
+    return todo, skip
+
+
+def run(args) -> int:
+    if str(args.program).lower().endswith(".toml"):
+        return _run_job(args)
     from sim.tools import parse_tool_spec
     from sim.tooltable import read_tool_table, tool_from_entry
 
@@ -120,6 +151,7 @@ def run(args) -> int:
         raise InputError("give the tool as --tool SPEC (e.g. --tool ball:6) or a --tool-table")
     if not Path(args.program).is_file():
         raise InputError("no such program file", where=args.program)
+    resolution = 0.2 if args.resolution is None else args.resolution
     table = read_tool_table(args.tool_table, args.tool_table_units) if args.tool_table else None
     tool = parse_tool_spec(args.tool) if args.tool else None
     tools = {}
@@ -137,32 +169,123 @@ def run(args) -> int:
 
         grid, _ = resume_grid(args.resume)
     elif args.stock:
-        grid = build_stock(args.stock, args.resolution, args.memory_limit)
+        grid = build_stock(args.stock, resolution, args.memory_limit)
     else:
         raise InputError("give the stock as --stock box:X0,Y0,Z0,X1,Y1,Z1 (or a mesh), or --resume RUN:STAGE")
-    stock_volume = grid.volume()
-    moves = load_moves(args.program, args.dialect, table)
+    moves = load_moves(args.program, args.dialect or "linuxcnc", table)
+    checker = None
+    if not args.no_checks:
+        from sim.checks.report import checker_from_args
+
+        checker = checker_from_args(args, grid, tool, tools)
+    return _simulate(args, str(args.program), moves, grid, tool, tools, checker)
+
+
+def _run_job(args) -> int:
+    """``dexmon simulate JOB.toml``: the job's program, stock, fixtures, tools, design,
+    tolerances, limits and resolution; the flags given replace the job's."""
+    import dataclasses
+
+    from monitor.job import ToolDef, load_job, parse_solid_spec, require
+    from monitor.predict import MIN_VOLUME, build_workpiece, limits_in_work, work_moves
+    from sim.checks.motion import parse_limits
+    from sim.checks.report import _positive
+    from sim.tooltable import read_tool_table
+
+    path = Path(args.program)
+    if not path.is_file():
+        raise InputError("no such job file", where=str(path))
+    if args.resume:
+        raise InputError("--resume is not available with a job file; give a program", where="--resume")
+    job = load_job(path)
+    if args.stock:
+        spec = args.stock if ":" in args.stock else f"stl:{args.stock}"
+        job.stock = parse_solid_spec(spec, "--stock")
+    if args.tool:
+        job.default_tool = ToolDef(0, args.tool)
+        job.tools = {}
+    if args.tool_table:
+        job.tool_table = Path(args.tool_table)
+    if args.dialect:
+        job.dialect = args.dialect
+    if args.resolution is not None:
+        if not (math.isfinite(args.resolution) and args.resolution > 0):
+            raise InputError(f"must be a positive length in mm, got {args.resolution:g}", where="--resolution")
+        job.resolution = float(args.resolution)
+    if args.design:
+        spec = args.design
+        job.design = parse_solid_spec(spec if ":" in spec and not spec.lower().endswith((".stl", ".obj"))
+                                      else f"stl:{spec}", "--design")
+    if args.fixture:
+        job.fixtures = [parse_solid_spec(f, "--fixture") for f in args.fixture]
+    if args.limits:
+        job.limits = parse_limits(args.limits)
+    t_l = _positive(args.tolerance, "--tolerance")
+    t_h = _positive(args.undercut_tolerance, "--undercut-tolerance")
+    if t_l or t_h:
+        job.tolerance = dataclasses.replace(job.tolerance, gouge=t_l or job.tolerance.gouge,
+                                            undercut=t_h or t_l or job.tolerance.undercut)
+    require(job, "program", "stock", "tools")
+    if not Path(job.program).is_file():
+        raise InputError("no such program file", where=f"{path}: [program] path {job.program}")
+    table = read_tool_table(job.tool_table) if job.tool_table else None
+    moves = work_moves(load_moves(job.program, job.dialect, table))
+    est = DexelGrid_estimate(job)
+    if est > args.memory_limit * 2**20:
+        raise InputError(f"the job's dexel grid needs about {est / 2**20:.0f} MB, over the "
+                         f"{args.memory_limit:.0f} MB limit; use a coarser --resolution", where="--resolution")
+    wp = build_workpiece(job, moves)
+    checker = None
+    if not args.no_checks:
+        from sim.checks.checker import Checker
+
+        wco = job.work_offset if job.work_offset is not None else (0.0, 0.0, 0.0)
+        checker = Checker(wp.stock, wp.default_tool, design=wp.design, fixtures=wp.fixtures,
+                          limits=limits_in_work(job.limits, wco), tol=job.tolerance, tools=wp.tools,
+                          max_depth_of_cut=_positive(args.max_depth_of_cut, "--max-depth-of-cut"),
+                          min_volume=MIN_VOLUME)
+    out = {"job": str(path)}
+    return _simulate(args, str(job.program), moves, wp.stock, wp.default_tool, wp.tools, checker, out)
+
+
+def DexelGrid_estimate(job) -> int:
+    """Bytes of the job's stock grid (its stock box at its resolution), 0 when unknown."""
+    from sim.grid import DexelGrid
+
+    b = job.stock.bounds() if job.stock is not None else None
+    if b is None:
+        return 0
+    (x0, y0, _), (x1, y1, _) = b
+    n = (int((x1 - x0) / job.resolution) + 1) * (int((y1 - y0) / job.resolution) + 1)
+    return DexelGrid.estimate_bytes(n)
+
+
+def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None) -> int:
+    """Cut (and check) ``moves`` into ``grid``; print the report; return the exit status."""
+    from sim.checks.report import final_findings
+    from sim.cut import Cutter
+    from sim.gcode.moves import MoveKind
+
     kinds = moves["kind"]
     cutting = np.isin(kinds, [MoveKind.RAPID, MoveKind.FEED, MoveKind.ARC_CW, MoveKind.ARC_CCW])
     if not cutting.any():
-        raise InputError("the program has no motion to simulate (empty program?)", where=args.program)
-
-    cutter = Cutter(grid, tool, tools=tools or None)
+        raise InputError("the program has no motion to simulate (empty program?)", where=program)
+    stock_volume = grid.volume()
+    todo, skip_first = _skip_first_rapid(moves)
     t0 = time.perf_counter()
-    # the machine's position before the program is unknown (the interpreter starts at
-    # machine zero), so a leading rapid is positioning, not a move into the stock
-    first = int(np.argmax(cutting))
-    skip_first = bool(kinds[first] == MoveKind.RAPID)
-    todo = moves.copy()
-    if skip_first:
-        todo["kind"][first] = MoveKind.PAUSE
-    res = cutter.cut_moves(todo, record_changes=False)
+    if checker is not None:
+        res, _ = checker.cut_and_check(todo)
+        findings = final_findings(checker)
+    else:
+        res = Cutter(grid, tool, tools=tools or None).cut_moves(todo, record_changes=False)
+        findings = []
     seconds = time.perf_counter() - t0
     removed = float(res.removed.sum())
     rapid_removed = float(res.removed[kinds == MoveKind.RAPID].sum())
 
-    out = {
-        "program": str(args.program),
+    out = dict(out or {})
+    out.update({
+        "program": program,
         "moves": int(len(moves)),
         "motion_moves": int(cutting.sum()),
         "cutting_moves": int((res.removed > 0).sum()),
@@ -176,7 +299,9 @@ def run(args) -> int:
         "tool": tool.describe(),
         "resolution": grid.frame.spacing,
         "grid": [grid.frame.nu, grid.frame.nv],
-    }
+        "checked": checker is not None,
+        "findings": [f.to_json() for f in findings],
+    })
     if args.heights:
         hp = Path(args.heights)
         if not hp.parent.is_dir():
@@ -198,9 +323,29 @@ def run(args) -> int:
         pct = 100.0 * removed / stock_volume if stock_volume > 0 else 0.0
         w(f"removed {removed:.3f} mm^3 of {stock_volume:.3f} mm^3 stock ({pct:.1f}%) in {seconds:.3f} s"
           + (f" ({out['moves_per_s']:.0f} moves/s)\n" if out["moves_per_s"] else "\n"))
-        if rapid_removed > 0:
+        if rapid_removed > 0 and checker is None:
             w(f"warning: rapid moves removed {rapid_removed:.3f} mm^3\n")
+        if checker is not None:
+            w(findings_table(findings))
         for key in ("heights", "stl"):
             if key in out:
                 w(f"wrote {out[key]}\n")
-    return 0
+    return 1 if findings else 0
+
+
+def findings_table(findings) -> str:
+    """The findings as a fixed-width text table (one row each), or a 'no findings' line."""
+    if not findings:
+        return "no findings\n"
+    rows = [("kind", "line", "X", "Y", "Z", "depth mm", "volume mm^3", "what")]
+    for f in findings:
+        where = str(f.line) if len(f.lines) <= 1 else f"{f.lines[0]}-{f.lines[-1]}"
+        num = lambda v, d: "" if math.isnan(v) else f"{v:.{d}f}"  # noqa: E731
+        rows.append((f.kind, where, *(f"{v:.3f}" for v in f.position), num(f.depth, 4), num(f.volume, 3),
+                     str(f)))
+    widths = [max(len(r[c]) for r in rows) for c in range(len(rows[0]) - 1)]
+    lines = [f"{len(findings)} finding{'s' if len(findings) != 1 else ''}:"]
+    for r in rows:
+        lines.append("  ".join(c.ljust(w) if k < 2 else c.rjust(w) for k, (c, w) in enumerate(zip(r, widths)))
+                     + "  " + r[-1])
+    return "\n".join(lines) + "\n"

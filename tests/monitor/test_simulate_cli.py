@@ -52,7 +52,7 @@ def test_text_output(capsys):
 
 def test_heights_nan_where_no_material_is_left(capsys, tmp_path):
     prog = tmp_path / "through.nc"
-    prog.write_text("G21 G90\nG0 X10 Y10 Z30\nG1 Z-1 F100\nG0 Z30\nM2\n")
+    prog.write_text("G21 G90\nM3 S10000\nG0 X10 Y10 Z30\nG1 Z-1 F100\nG0 Z30\nM2\n")
     heights = tmp_path / "h.npy"
     rc, out, err = run(capsys, prog, "--stock", "box:0,0,0,20,20,5", "--tool", "flat:4",
                        "--resolution", 0.5, "--heights", heights)
