@@ -460,20 +460,12 @@ class ZTrace:
         if not grid.frame.same_rays(self.frame):
             raise InputError("recorded grid is not on the trace's dexel frame")
         rays = _rays_arg(rays, self.n_rays)
-        n_segs = int(grid.store["count"][rays].sum(dtype=np.int64)) if rays.size < self.n_rays \
-            else int(grid.store["count"].sum(dtype=np.int64))
-        before = self.n_changes
-        cnt, state = self._cnt, self._state
-        cnt[:] = (self._f_ray.n, self._g_ray.n, self._g_near.n)
-        state[0] = 0
-        while True:
-            cols = self._event_columns(rays.size, n_segs)
-            status = tk.ingest_grid(self._mirror.S, grid.S, rays, state, cnt, *cols)
-            if status == tk.DONE:
-                break
-            ds.grow_pool(self._mirror.store, 2 * n_segs + 64)
-        self._set_counts()
-        self._close_blocks(np.array([stage], np.int64), cnt[0:1].copy(), cnt[1:2].copy(), cnt[2:3].copy())
+        # the rays' segments as a one-move journal: one compiled pass does the rest
+        n, f, ni, fi, counts = grid.segments_of(rays)
+        seg_ptr = np.zeros(rays.size + 1, np.int64)
+        np.cumsum(counts, out=seg_ptr[1:])
+        return self._ingest(np.array([0, rays.size], np.int64), rays, seg_ptr, (n, f, ni, fi),
+                            np.array([stage], np.int64), 0)
         return self.n_changes - before
 
     def record_journal(self, changed_ptr, changed_rays, seg_ptr, near, far, near_id, far_id,
@@ -508,6 +500,11 @@ class ZTrace:
             raise InputError(f"cut journal holds fewer than its {n_segs} segments")
         if n_entries and (rays.min() < 0 or rays.max() >= self.n_rays):
             raise InputError("cut journal ray index beyond the frame")
+        return self._ingest(ptr, rays, seg_ptr, cols, stages, budget=None)
+
+    def _ingest(self, ptr, rays, seg_ptr, segs, stages, budget) -> int:
+        n_moves = ptr.size - 1
+        n_entries, n_segs = rays.size, int(seg_ptr[-1])
         before = self.n_changes
         blk = [np.empty(n_moves, np.int64) for _ in range(3)]
         cnt, state = self._cnt, self._state
@@ -515,14 +512,15 @@ class ZTrace:
         state[:] = 0
         while True:
             out = self._event_columns(n_entries, n_segs)
-            status = tk.ingest_journal(self._mirror.S, ptr, rays, seg_ptr, *cols, state, cnt,
+            status = tk.ingest_journal(self._mirror.S, ptr, rays, seg_ptr, *segs, state, cnt,
                                        *blk, *out)
             if status == tk.DONE:
                 break
             ds.grow_pool(self._mirror.store, 2 * n_segs + 64)
         self._set_counts()
-        self._close_blocks(stages, *blk, budget=4 * (self.n_changes - before))
-        return self.n_changes - before
+        new = self.n_changes - before
+        self._close_blocks(stages, *blk, budget=4 * new if budget is None else budget)
+        return new
 
     def _close_blocks(self, stages, f_end, g_end, s_end, budget: int = 0) -> None:
         """Append block rows (stage, column ends) and schedule the keyframes that fall due."""

@@ -187,117 +187,79 @@ POOL_FULL = 1
 
 
 @nb.njit(cache=True)
-def _ingest_one(M, r, nn, nf, nni, nfi, c, cnt, f_ray, f_val, f_id,
-                g_ray, g_count, g_near, g_far, g_nid, g_fid):
-    """Compare ray ``r`` of the mirror ``M`` with its new segments (``c`` of them), bring
-    the mirror up to date and append the event. Returns UNCHANGED / FAR_ONLY / GENERAL,
-    or -1 (nothing changed, nothing emitted) when the mirror's pool is full."""
-    c_old = M[0][r]
-    general = c != c_old
-    if not general:
-        if c == 0:
-            return UNCHANGED
-        for k in range(c):
-            n0, f0, ni0, fi0 = ds.get_seg(M, r, k)
-            if nn[k] != n0 or nni[k] != ni0:
-                general = True
-                break
-            if k < c - 1 and (nf[k] != f0 or nfi[k] != fi0):
-                general = True
-                break
-    if not general:
-        n0, f0, ni0, fi0 = ds.get_seg(M, r, c - 1)
-        if nf[c - 1] == f0 and nfi[c - 1] == fi0:
-            return UNCHANGED
-        if c == 1:
-            M[2][r] = nf[0]
-            M[4][r] = nfi[0]
-        else:
-            p = M[5][r] + c - 2
-            M[8][p] = nf[c - 1]
-            M[10][p] = nfi[c - 1]
-        q = cnt[0]
-        f_ray[q] = r
-        f_val[q] = nf[c - 1]
-        f_id[q] = nfi[c - 1]
-        cnt[0] = q + 1
-        return FAR_ONLY
-    if not ds.write_ray(M, r, nn, nf, nni, nfi, c):
-        return -1
-    q = cnt[1]
-    g_ray[q] = r
-    g_count[q] = c
-    s = cnt[2]
-    for k in range(c):
-        g_near[s + k] = nn[k]
-        g_far[s + k] = nf[k]
-        g_nid[s + k] = nni[k]
-        g_fid[s + k] = nfi[k]
-    cnt[1] = q + 1
-    cnt[2] = s + c
-    return GENERAL
-
-
-@nb.njit(cache=True)
 def ingest_journal(M, ptr, rays, seg_ptr, jn, jf, jni, jfi, state, cnt, blk_f, blk_g, blk_s,
                    f_ray, f_val, f_id, g_ray, g_count, g_near, g_far, g_nid, g_fid):
     """Record a cut journal move by move into the z-trace columns (one block per move).
 
     ptr (n_moves+1,) int64, rays (n_entries,) int64: the CSR of changed rays; entry e's
-    segments after its move are ``j*[seg_ptr[e]:seg_ptr[e+1]]``. ``state`` (2,) int64 =
-    (move, entry) to resume from; ``cnt`` (3,) int64 = events written so far (far-only,
-    general, general segments) into the output columns. ``blk_*[k]`` get the column ends
-    after move k. Returns DONE, or POOL_FULL with ``state`` set to redo (grow the mirror's
-    pool and call again).
+    segments after its move are ``j*[seg_ptr[e]:seg_ptr[e+1]]``. Each entry is compared
+    with the mirror ``M`` (the model before it), which is brought up to date; changes go
+    to the output columns: far-only (rule 5: value and id of the last FarZ) or general
+    (the ray's new segment list). ``state`` (2,) int64 = (move, entry) to resume from;
+    ``cnt`` (3,) int64 = far-only events, general events, general segments written so
+    far. ``blk_*[k]`` get the column ends after move k. Returns DONE, or POOL_FULL with
+    ``state`` set to redo (grow the mirror's pool and call again).
+
+    The body is written out in one loop on purpose: a helper per entry cost ~1 us of
+    argument passing per call.
     """
     n_moves = ptr.size - 1
     for k in range(state[0], n_moves):
         e0 = ptr[k] if state[1] < ptr[k] else state[1]
         for e in range(e0, ptr[k + 1]):
+            r = rays[e]
             a = seg_ptr[e]
-            b = seg_ptr[e + 1]
-            got = _ingest_one(M, rays[e], jn[a:b], jf[a:b], jni[a:b], jfi[a:b], b - a, cnt,
-                              f_ray, f_val, f_id, g_ray, g_count, g_near, g_far, g_nid, g_fid)
-            if got < 0:
+            c = seg_ptr[e + 1] - a
+            general = c != M[0][r]
+            if not general:
+                if c == 0:
+                    continue
+                for i in range(c):
+                    n0, f0, ni0, fi0 = ds.get_seg(M, r, i)
+                    if jn[a + i] != n0 or jni[a + i] != ni0:
+                        general = True
+                        break
+                    if i < c - 1 and (jf[a + i] != f0 or jfi[a + i] != fi0):
+                        general = True
+                        break
+            if not general:
+                last = a + c - 1
+                if c == 1:
+                    if jf[last] == M[2][r] and jfi[last] == M[4][r]:
+                        continue
+                    M[2][r] = jf[last]
+                    M[4][r] = jfi[last]
+                else:
+                    p = M[5][r] + c - 2
+                    if jf[last] == M[8][p] and jfi[last] == M[10][p]:
+                        continue
+                    M[8][p] = jf[last]
+                    M[10][p] = jfi[last]
+                q = cnt[0]
+                f_ray[q] = r
+                f_val[q] = jf[last]
+                f_id[q] = jfi[last]
+                cnt[0] = q + 1
+                continue
+            if not ds.write_ray(M, r, jn[a:a + c], jf[a:a + c], jni[a:a + c], jfi[a:a + c], c):
                 state[0] = k
                 state[1] = e
                 return POOL_FULL
+            q = cnt[1]
+            g_ray[q] = r
+            g_count[q] = c
+            s = cnt[2]
+            for i in range(c):
+                g_near[s + i] = jn[a + i]
+                g_far[s + i] = jf[a + i]
+                g_nid[s + i] = jni[a + i]
+                g_fid[s + i] = jfi[a + i]
+            cnt[1] = q + 1
+            cnt[2] = s + c
         blk_f[k] = cnt[0]
         blk_g[k] = cnt[1]
         blk_s[k] = cnt[2]
     state[0] = n_moves
-    return DONE
-
-
-@nb.njit(cache=True)
-def ingest_grid(M, S, rays, state, cnt, f_ray, f_val, f_id, g_ray, g_count, g_near, g_far,
-                g_nid, g_fid):
-    """Record the rays of grid store ``S`` that differ from the mirror ``M`` (one block).
-
-    Resumes at ray ``state[0]``; returns DONE, or POOL_FULL with ``state[0]`` to redo.
-    """
-    cap = 8
-    nn = np.empty(cap, np.float32)
-    nf = np.empty(cap, np.float32)
-    nni = np.empty(cap, np.int32)
-    nfi = np.empty(cap, np.int32)
-    for q in range(state[0], rays.size):
-        r = rays[q]
-        c = S[0][r]
-        if c > cap:
-            cap = 2 * c
-            nn = np.empty(cap, np.float32)
-            nf = np.empty(cap, np.float32)
-            nni = np.empty(cap, np.int32)
-            nfi = np.empty(cap, np.int32)
-        for k in range(c):
-            nn[k], nf[k], nni[k], nfi[k] = ds.get_seg(S, r, k)
-        got = _ingest_one(M, r, nn, nf, nni, nfi, c, cnt, f_ray, f_val, f_id,
-                          g_ray, g_count, g_near, g_far, g_nid, g_fid)
-        if got < 0:
-            state[0] = q
-            return POOL_FULL
-    state[0] = rays.size
     return DONE
 
 
