@@ -376,12 +376,24 @@ class ErrorMap:
                     if 0 <= ids[w] < ml.size:
                         line = int(ml[ids[w]])
                 depth = float(mag[w])
+                if not math.isfinite(depth):
+                    depth = float(lens[w])
+                # rays where the design has no material at all measure no finite length:
+                # they are counted, not summed (an infinite size helps nobody)
+                ml_len = np.asarray(lens[members], np.float64)
+                fin = np.isfinite(ml_len)
+                if not math.isfinite(depth):
+                    fm = np.where(np.isfinite(mag[members]), mag[members], -np.inf)
+                    depth = float(fm.max()) if np.isfinite(fm).any() else math.nan
+                detail = {"rays": int(members.size)}
+                if not fin.all():
+                    detail["rays_outside_design"] = int((~fin).sum())
                 out.append(Finding(
                     kind=kind, line=line, lines=lines, stage=int(ids[w]), position=tuple(pos),
-                    depth=depth if math.isfinite(depth) else float(lens[w]),
+                    depth=depth,
                     area=members.size * f.spacing**2,
-                    volume=float(lens[members].sum()) * f.spacing**2,
+                    volume=float(ml_len[fin].sum()) * f.spacing**2 if fin.any() else math.nan,
                     stages=tuple(int(x) for x in mids if x > 0),
-                    detail={"rays": int(members.size)},
+                    detail=detail,
                 ))
         return out

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -124,3 +125,64 @@ def test_missing_program_and_open_mesh_stock(capsys, tmp_path):
     rc, out, err = run(capsys, EXAMPLE, "--stock", mesh, "--tool", "flat:6", "--resolution", 1)
     assert rc == 2 and "open.stl" in err and "Traceback" not in err
     assert len(err.strip().splitlines()) == 1
+
+
+# --- checks through the command line ----------------------------------------------------
+
+CARPET_STOCK = "box:0,-82,-10,152,66,5.197857"
+
+
+@pytest.mark.parametrize("tool,gouges", [("ball:8", True), ("ball:6", False)])
+def test_carpet_finishing_path_gouges_with_an_8mm_ball_only(capsys, shared, tool, gouges):
+    parts = shared / "corpus" / "parts"
+    rc, out, err = run(capsys, parts / "carpet1_ball6_finish.ngc", "--stock", CARPET_STOCK, "--tool", tool,
+                       "--resolution", 0.5, "--design", parts / "carpet1.stl", "--tolerance", 0.002, "--json")
+    doc = json.loads(out)
+    found = [f for f in doc["findings"] if f["kind"] == "gouge"]
+    if gouges:
+        assert rc == 1, err
+        assert len(found) >= 1
+        worst = max(found, key=lambda f: f["depth"])
+        assert worst["depth"] == pytest.approx(0.34, abs=0.02)
+        assert worst["line"] > 0 and len(worst["position"]) == 3 and worst["volume"] > 0
+    else:
+        assert found == []
+    # what a 6 mm ball cannot reach is undercut (README: expected), never a collision
+    assert {f["kind"] for f in doc["findings"]} <= {"gouge", "undercut"}
+
+
+JOB = ROOT / "monitor" / "examples" / "clamp_job" / "job.toml"
+
+
+def test_job_file_finds_both_planted_faults(capsys):
+    rc, out, err = run(capsys, JOB, "--json")
+    assert rc == 1, err
+    doc = json.loads(out)
+    assert doc["job"] == str(JOB) and doc["resolution"] == 0.25
+    by_kind = {f["kind"]: f for f in doc["findings"]}
+    assert by_kind["gouge"]["line"] == 22 and by_kind["gouge"]["depth"] == pytest.approx(0.5, abs=0.01)
+    assert by_kind["rapid_into_stock"]["line"] == 36
+    assert all(math.isfinite(v) for f in doc["findings"] for v in f["position"])
+
+
+def test_job_file_text_table_and_flag_overrides(capsys):
+    rc, out, err = run(capsys, JOB, "--resolution", 0.5, "--no-checks")
+    assert rc == 0 and "finding" not in out
+    rc, out, err = run(capsys, JOB, "--resolution", 0.5)
+    assert rc == 1
+    assert "gouge" in out and "rapid_into_stock" in out and "line" in out.splitlines()[3]
+
+
+def test_clean_program_exits_0_and_says_so(capsys, tmp_path):
+    prog = tmp_path / "clean.nc"
+    prog.write_text("G21 G90\nM3 S10000\nG0 X10 Y10 Z8\nG1 Z4 F100\nG1 X20\nG0 Z8\nM5\nM2\n")
+    rc, out, err = run(capsys, prog, "--stock", "box:0,0,0,30,20,5", "--tool", "flat:4", "--resolution", 0.5)
+    assert rc == 0, out + err
+    assert "no findings" in out
+
+
+def test_bad_job_file_is_one_line_exit_2(capsys, tmp_path):
+    job = tmp_path / "bad.toml"
+    job.write_text("[stock]\nbox = [0, 0, 0]\n")
+    rc, out, err = run(capsys, job)
+    assert rc == 2 and "bad.toml" in err and "Traceback" not in err
