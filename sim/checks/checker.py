@@ -123,7 +123,7 @@ class Checker:
                 out += motion.depth_of_cut(moves, doc, self.max_depth_of_cut, ids)
             for tool, rows in self._tool_of_rows(moves):
                 out += motion.plunges(moves[rows], core[rows], tool, self.max_ramp_deg, move_ids=ids[rows])
-        out += collisions.rapid_into_stock(moves, res.removed, ids, self.min_volume)
+        out += collisions.rapid_into_stock(moves, res.removed, ids, self.min_volume, cut=res, grid=grid)
         out += motion.spindle_stopped_cutting(moves, res.removed, ids, self.min_volume)
         if pre:
             out += self._replay_contacts(snapshot, moves, ids, pre)

@@ -27,17 +27,58 @@ def _tip(moves, k):
     return tip
 
 
-def rapid_into_stock(moves: np.ndarray, removed, move_ids=None, min_volume: float = 1e-6) -> list[Finding]:
-    """Rapid rows that removed (or would remove) more than ``min_volume`` mm^3."""
+def rapid_into_stock(moves: np.ndarray, removed, move_ids=None, min_volume: float = 1e-6,
+                     cut=None, grid=None) -> list[Finding]:
+    """Rapid rows that removed (or would remove) more than ``min_volume`` mm^3.
+
+    Position: with ``cut`` (the :class:`~sim.cut.CutResult` of ``moves``) and ``grid``
+    (the model after the cut), the point where the rapid first entered material - of the
+    rays it changed, the material top it met (new top + depth of cut) that comes first
+    along the move - since a machinist looks there; else the move's end.
+    """
     moves = np.asarray(moves)
     ids = move_ids_of(moves, move_ids)
     removed = np.asarray(removed, np.float64)
     bad = np.nonzero((moves["kind"] == int(MoveKind.RAPID)) & (removed > min_volume))[0]
-    return [Finding(kind="rapid_into_stock", line=int(moves["line"][k]), stage=int(ids[k]),
-                    position=tuple(_tip(moves, k)), volume=float(removed[k]),
-                    message=f"rapid (G0) into material at line {int(moves['line'][k])}: "
-                            f"{float(removed[k]):.3f} mm^3")
-            for k in bad]
+    out = []
+    for k in bad:
+        pos = _tip(moves, k)
+        if cut is not None and grid is not None and cut.changed_rays.size:
+            entry = _entry_point(moves, k, cut, grid)
+            if entry is not None:
+                pos = entry
+        out.append(Finding(kind="rapid_into_stock", line=int(moves["line"][k]), stage=int(ids[k]),
+                           position=tuple(float(v) for v in pos), volume=float(removed[k]),
+                           message=f"rapid (G0) into material at line {int(moves['line'][k])}: "
+                                   f"{float(removed[k]):.3f} mm^3"))
+    return out
+
+
+def _entry_point(moves, k, cut, grid):
+    """World point (3,) where move ``k`` first met material, or None (see rapid_into_stock)."""
+    lo, hi = cut.changed_ptr[k], cut.changed_ptr[k + 1]
+    if hi <= lo:
+        return None
+    rays = cut.changed_rays[lo:hi]
+    depth = np.asarray(cut.changed_depth[lo:hi], np.float64) if cut.changed_depth.size else 0.0
+    f = grid.frame
+    top = grid.top().reshape(-1)[rays].astype(np.float64)
+    i, j = rays % f.nu, rays // f.nu
+    start = np.array(moves["start"][k, :3], np.float64)
+    start[2] -= moves["tool_length"][k]
+    end = _tip(moves, k)
+    # emptied rays: the material began at most ``depth`` above the move's lowest tip
+    top = np.where(np.isfinite(top), top, min(start[2], end[2]))
+    pts = f.to_world(np.stack([i * f.spacing, j * f.spacing, top + depth], axis=1))
+    d = end - start
+    n = np.linalg.norm(d)
+    if n == 0:
+        return pts[int(np.argmax(pts[:, 2]))]
+    rel = pts - start
+    along = rel @ (d / n)
+    across = np.linalg.norm(rel - along[:, None] * (d / n), axis=1)
+    # first along the move; among rays as far along (a grid row), the one nearest its line
+    return pts[int(np.lexsort((across, np.round(along / (0.5 * f.spacing))))[0])]
 
 
 def above_flute_body(tool: Tool, length: float = DEFAULT_SHANK_LENGTH) -> Body | None:

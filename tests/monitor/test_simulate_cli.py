@@ -186,3 +186,12 @@ def test_bad_job_file_is_one_line_exit_2(capsys, tmp_path):
     job.write_text("[stock]\nbox = [0, 0, 0]\n")
     rc, out, err = run(capsys, job)
     assert rc == 2 and "bad.toml" in err and "Traceback" not in err
+
+
+def test_rapid_into_stock_is_placed_where_the_rapid_enters_material(capsys):
+    rc, out, err = run(capsys, JOB, "--json")
+    rapid = next(f for f in json.loads(out)["findings"] if f["kind"] == "rapid_into_stock")
+    x, y, z = rapid["position"]
+    # line 36: G0 from X-8 to X68 at Y1 Z-10 through the stock (X 0..60): it enters at X 0
+    assert x == pytest.approx(0.0, abs=0.3) and y == pytest.approx(1.0, abs=0.3)
+    assert -10 < z <= 0

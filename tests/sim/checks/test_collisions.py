@@ -51,7 +51,14 @@ def test_rapid_into_stock_at_its_line():
     m = pocket(extra=[(R, (10, 10, 30), (30, 20, 15))])  # line 80: G0 down into the stock
     _, _, found = run(m)
     assert kinds(found) == [("rapid_into_stock", 80)]
-    assert found[0].volume > 0 and found[0].position == pytest.approx((30, 20, 15))
+    assert found[0].volume > 0
+    # placed where the rapid first meets material: on the stock top (z 20), before the
+    # tip itself gets there (2/3 of the way, at (23.3, 16.7)), within a radius of the path
+    x, y, z = found[0].position
+    assert z == pytest.approx(20.0)
+    t = ((x - 10) * 20 + (y - 10) * 10) / 500
+    assert 0.4 < t < 2 / 3 + 1e-9
+    assert abs(-(x - 10) * 10 + (y - 10) * 20) / np.sqrt(500) <= 3.0 + 1e-9
 
 
 def test_holder_contact_when_plunging_deeper_than_the_tool_sticks_out():
