@@ -24,21 +24,20 @@ import numpy as np
 
 from sim.gcode.moves import MoveKind
 
-#: lines scanned and executed per chunk (bounds the temporaries: ~1-2 MB at 13 bytes/line)
-CHUNK = 1 << 14
+#: lines scanned and executed per chunk (bounds the temporaries: a few MB at most)
+CHUNK = 1 << 13
 #: longest number (sign excluded) the scanner parses; longer ones go to the per-line path
 MAX_NUMBER_CHARS = 17
 
 _POW10_F = np.array([10.0 ** k for k in range(23)])            # exact doubles 1e0 .. 1e22
-_POW10_I = np.array([10 ** k for k in range(18)], dtype=np.int64)
 _TWO53 = 1 << 53
 _ODD_BREAKS = re.compile("[\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029]")
-_ODD_BREAKS_ASCII = re.compile(rb"[\x0b\x0c\x1c\x1d\x1e]")
+_ODD_BREAKS_ASCII = (b"\x0b", b"\x0c", b"\x1c", b"\x1d", b"\x1e")  # `in` on bytes is a memchr
 
-# byte classes of the scanner
-_SPACE, _DIGIT, _DOT, _SIGN = 0, 1, 2, 3
-_LETTER0 = 4                      # 4 + slot: G X Y Z F N (slots 0..5)
-_OTHER_LETTER, _EOL, _OTHER = 10, 11, 12
+# byte classes of the scanner, ordered so that each test is one comparison
+_DIGIT, _DOT, _SIGN, _SPACE = 0, 1, 2, 3   # digit or dot: cls <= _DOT
+_LETTER0 = 4                               # 4 + slot: G X Y Z F N (slots 0..5)
+_EOL, _OTHER_LETTER, _OTHER = 10, 11, 12   # not simple: cls > _EOL
 _SLOTS = "GXYZFN"
 _N_SLOT = 5
 
@@ -97,6 +96,18 @@ class SourceLines:
         for i in range(len(self)):
             yield self[i]
 
+    def find_byte_lines(self, chars: bytes) -> np.ndarray:
+        """Sorted indices (int64) of the lines holding any of the ASCII bytes ``chars``."""
+        lines = []
+        for a, chunk in _byte_chunks(self.data):
+            hit = chunk == chars[0]
+            for c in chars[1:]:
+                hit |= chunk == c
+            pos = np.flatnonzero(hit)
+            if len(pos):
+                lines.append(np.unique(self.line_of(pos + a)))
+        return np.unique(np.concatenate(lines)) if lines else np.zeros(0, np.int64)
+
     def line_of(self, offsets) -> np.ndarray:
         """Line index (int64) of each byte offset in ``offsets``."""
         return np.searchsorted(self.starts, np.asarray(offsets), side="right") - 1
@@ -112,17 +123,38 @@ def split_lines(text) -> SourceLines:
     """
     if isinstance(text, (bytes, bytearray, memoryview)):
         data = bytes(text)
-        if not data.isascii() or _ODD_BREAKS_ASCII.search(data) or data.count(b"\r") != data.count(b"\r\n"):
+        if not data.isascii() or any(c in data for c in _ODD_BREAKS_ASCII) or data.count(b"\r") != data.count(b"\r\n"):
             return split_lines(data.decode("utf-8", errors="replace"))
     elif _ODD_BREAKS.search(text) or text.count("\r") != text.count("\r\n"):
         data = "\n".join(text.splitlines()).encode("utf-8", "surrogatepass")
     else:
         data = text.encode("utf-8", "surrogatepass")
-    nl = np.flatnonzero(np.frombuffer(data, dtype=np.uint8) == 10)
-    dtype = np.int32 if len(data) < 2**31 - 2 else np.int64
-    tail = [len(data) + 1] if data and data[-1:] != b"\n" else []  # last line without a newline
-    starts = np.concatenate((np.zeros(1, dtype), (nl + 1).astype(dtype), np.array(tail, dtype)))
+    n_nl = data.count(b"\n")
+    tail = bool(data) and data[-1:] != b"\n"  # a last line without a newline
+    starts = np.empty(1 + n_nl + tail, dtype=np.int32 if len(data) < 2**31 - 2 else np.int64)
+    starts[0] = 0
+    k = 1
+    for a, chunk in _byte_chunks(data):  # small temporaries (see _byte_chunks)
+        nl = np.flatnonzero(chunk == 10)
+        starts[k:k + len(nl)] = nl + (a + 1)
+        k += len(nl)
+    if tail:
+        starts[k] = len(data) + 1
     return SourceLines(data, starts)
+
+
+def _byte_chunks(data: bytes, step: int = 1 << 20):
+    """``(offset, uint8 view)`` pieces of ``data``.
+
+    Whole-text temporaries (a bool per byte, an int64 per hit) would also raise glibc's
+    dynamic mmap threshold, after which tens of MB of freed chunk temporaries stay resident.
+    """
+    for a in range(0, len(data), step):
+        yield a, np.frombuffer(data, dtype=np.uint8, count=min(step, len(data) - a), offset=a)
+
+
+def _is_word_letter(c: np.ndarray) -> np.ndarray:
+    return (c - np.uint8(_LETTER0)) < 6  # uint8 wraps below _LETTER0
 
 
 def scan(lines: SourceLines, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
@@ -134,6 +166,7 @@ def scan(lines: SourceLines, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
     G1, N a non-negative integer, numbers ``[+-]digits[.digits]`` of at most
     :data:`MAX_NUMBER_CHARS` characters whose digits fit 2**53: such a number divided
     by an exact power of ten is the correctly rounded double, the same as ``float()``.
+    Anything else is left to the per-line parser, so this only has to be sound.
     """
     nl = b - a
     simple = np.zeros(nl, dtype=np.bool_)
@@ -141,59 +174,63 @@ def scan(lines: SourceLines, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
     if nl <= 0:
         return simple, vals
     s0 = int(lines.starts[a])
-    s1 = min(int(lines.starts[b]), len(lines.data))
-    L = s1 - s0
-    buf = np.full(L + MAX_NUMBER_CHARS + 3, 10, dtype=np.uint8)  # padded with LFs: reads past the end are EOL
-    buf[:L] = np.frombuffer(lines.data, dtype=np.uint8, count=L, offset=s0)
-    cls = _CLASS[buf]
-    rel = lines.starts[a:b + 1].astype(np.int64) - s0
-    rel[-1] = min(rel[-1], L + 1)
+    L = min(int(lines.starts[b]), len(lines.data)) - s0
+    # classes of the chunk's bytes, padded with EOL so reads past the end (and at -1, -2) are EOL
+    cls = np.full(L + MAX_NUMBER_CHARS + 3, _EOL, dtype=np.uint8)
+    cls[:L] = _CLASS[np.frombuffer(lines.data, dtype=np.uint8, count=L, offset=s0)]
+    body = cls[:L]
+    rel = lines.starts[a:b + 1] - s0
 
     def line_at(pos):
         return np.searchsorted(rel, pos, side="right") - 1
 
     bad = np.zeros(nl, dtype=np.bool_)
-    bad[line_at(np.flatnonzero((cls[:L] == _OTHER_LETTER) | (cls[:L] == _OTHER)))] = True
+    bad[line_at(np.flatnonzero(body > _EOL))] = True
+    # every sign must follow a word letter; every run of digits and dots must follow one
+    # (or a sign that does): then each number belongs to a word
+    signs = np.flatnonzero(body == _SIGN)
+    bad[line_at(signs[~_is_word_letter(cls[signs - 1])])] = True
+    isnum = body <= _DOT
+    runs = np.flatnonzero(isnum[1:] & ~isnum[:-1]) + 1
+    if L and isnum[0]:
+        runs = np.concatenate(([0], runs))
+    before = cls[runs - 1]
+    owned = _is_word_letter(before) | ((before == _SIGN) & _is_word_letter(cls[runs - 2]))
+    bad[line_at(runs[~owned])] = True
 
-    # words: a letter, an optional sign, then a run of digits and dots
-    pos = np.flatnonzero((cls[:L] >= _LETTER0) & (cls[:L] < _OTHER_LETTER))
-    slot = cls[pos].astype(np.int64) - _LETTER0
+    # the words: a letter, an optional sign, then digits and dots parsed one column at a
+    # time (Horner: exact in int64 for 17 digits; no (words, 17) matrices)
+    pos = np.flatnonzero(_is_word_letter(body))
+    slot = cls[pos] - np.uint8(_LETTER0)
     line = line_at(pos)
     signed = cls[pos + 1] == _SIGN
     q = pos + 1 + signed
-    isnum = (cls == _DIGIT) | (cls == _DOT)
-    not_num = np.flatnonzero(~isnum)
-    r = not_num[np.searchsorted(not_num, q)]
-    length = r - q
-    word_bad = (length < 1) | (length > MAX_NUMBER_CHARS) | (cls[r] == _SIGN)
-
-    # every sign and every digit/dot of a line must belong to one of its words
-    def per_line(mask):
-        c = np.zeros(L + 2, dtype=np.int64)
-        np.cumsum(mask[:L], out=c[1:L + 1])
-        c[L + 1] = c[L]
-        return c[rel[1:]] - c[rel[:-1]]
-
-    ok_len = np.where(word_bad, 0, length)
-    bad |= per_line(cls == _SIGN) != np.bincount(line, weights=signed, minlength=nl)
-    bad |= per_line(isnum) != np.bincount(line, weights=ok_len, minlength=nl)
+    T = len(q)
+    m = np.zeros(T, dtype=np.int64)
+    nd = np.zeros(T, dtype=np.int64)
+    frac = np.zeros(T, dtype=np.int64)
+    ndot = np.zeros(T, dtype=np.int64)
+    length = np.zeros(T, dtype=np.int64)
+    alive = np.ones(T, dtype=np.bool_)
+    raw = np.frombuffer(lines.data, dtype=np.uint8, count=L, offset=s0)
+    for j in range(MAX_NUMBER_CHARS + 1):
+        c = cls[q + j]
+        alive &= c <= _DOT
+        if not alive.any():
+            break
+        if j == MAX_NUMBER_CHARS:  # longer numbers are left to the per-line parser
+            bad[line[alive]] = True
+            break
+        d = alive & (c == _DIGIT)
+        m = np.where(d, m * 10 + (raw[np.minimum(q + j, L - 1)] - 48), m)
+        nd += d
+        frac += d & (ndot > 0)
+        ndot += alive & (c == _DOT)
+        length += alive
+    word_bad = (nd == 0) | (ndot > 1) | (m > _TWO53) | (cls[q + length] == _SIGN)
     bad |= (np.bincount(line * 6 + slot, minlength=6 * nl).reshape(nl, 6) > 1).any(axis=1)
-
-    # the numbers: a (words, MAX_NUMBER_CHARS) matrix of their characters
-    cols = np.arange(MAX_NUMBER_CHARS)
-    chars = buf[q[:, None] + cols]
-    inside = cols < length[:, None]
-    digit = inside & (chars >= 48) & (chars <= 57)
-    dot = inside & (chars == 46)
-    nd = digit.sum(axis=1)
-    before = np.cumsum(digit, axis=1)
-    power = nd[:, None] - before  # digits after each digit in its number
-    m = np.where(digit, (chars.astype(np.int64) - 48) * _POW10_I[np.clip(power, 0, 17)], 0).sum(axis=1)
-    has_dot = dot.any(axis=1)
-    frac = np.where(has_dot, nd - before[np.arange(len(q)), dot.argmax(axis=1)], 0)
-    word_bad |= (nd == 0) | (dot.sum(axis=1) > 1) | (m > _TWO53)
     v = m.astype(np.float64) / _POW10_F[frac]
-    v = np.where(signed & (buf[pos + 1] == 45), -v, v)
+    v = np.where(signed & (raw[np.minimum(pos + 1, L - 1)] == 45), -v, v)
     is_g = slot == 0
     word_bad |= is_g & (v != 0.0) & (v != 1.0)
     is_n = slot == _N_SLOT

@@ -60,9 +60,6 @@ class _Source:
 _OWORD_LINE = re.compile(r"[ \t]*(?:/[ \t]*)?(?:[Nn][ \t]*\d+[ \t]*)?[Oo]")
 
 
-_OWORD_LINES = re.compile(rb"^[ \t]*(?:/[ \t]*)?(?:[Nn][ \t]*\d+[ \t]*)?[Oo]", re.MULTILINE)
-
-
 def _percent_end(lines) -> int | None:
     """With a '%' as the first non-blank character, the line of the next '%' line (else None)."""
     data = lines.data
@@ -85,8 +82,7 @@ def _prepare(name: str, index: int, text, dialect: str) -> _Source:
     src = _Source(name, index, lines)
     # lines are parsed when first executed; only o-word lines are needed up front
     blocks = src.blocks
-    pos = np.fromiter((m.start() for m in _OWORD_LINES.finditer(lines.data)), dtype=np.int64)
-    for i in lines.line_of(pos):
+    for i in lines.find_byte_lines(b"oO"):
         i = int(i)
         raw = lines[i]
         if _OWORD_LINE.match(raw):
