@@ -9,7 +9,19 @@
   last FarZ and the id of the move that made it) of each ray; the heights picture at any
   stage, and animation forwards and backwards in time proportional to the changes shown.
 * Beyond the paper: periodic keyframes, so a rebuild costs the changes since the nearest
-  keyframe rather than the length of the run.
+  keyframe rather than the length of the run. They are built a slice at a time by later
+  record calls (or :meth:`Trace.maintain`), so no record call spikes, and share the
+  arrays far-only edits cannot touch (a 3-axis keyframe costs the FarZ values and ids).
+  ``grid_at(stage, out=grid)`` / ``state_at(stage, out=(heights, ids))`` reuse a
+  caller's model and apply only the changes between its stage and the next one asked
+  for (or restore the nearest keyframe when that is cheaper): a viewer scrubbing a run
+  pays a few milliseconds per stage.
+
+Recording. :meth:`Trace.record` diffs the given rays of a model against the trace's own
+copy (the *mirror*) in one compiled pass; :meth:`Trace.record_batch` does the same from a
+batch cut's journal (``Cutter.cut_moves(..., journal=True)``: every changed ray's
+segments after each move), giving each move its own stage exactly as if it had been cut
+and recorded alone, at the cost of one pass over the journal.
 
 Stages are integers chosen by the caller (a move number, a sync step ...) that never
 decrease from one :meth:`record` to the next; stage ``n`` means "after every record with
@@ -374,7 +386,7 @@ class ZTrace:
         The stage of ``grid`` (normally 0: the stock).
     keyframe_every : int, optional
         A keyframe (a copy of the model) falls due after this many recorded ray changes;
-        default ``n_rays``. Keyframes are an in-memory index, not serialised. They are
+        default ``n_rays // 2``. Keyframes are an in-memory index, not serialised. They are
         built a slice at a time by later record calls (:meth:`maintain`), never all at
         once on the recording path; keyframes between which only far-only edits happened
         share every array but the FarZ values and ids.
@@ -384,13 +396,13 @@ class ZTrace:
     """
 
     def __init__(self, grid: DexelGrid, stage: int = 0, keyframe_every: int | None = None,
-                 max_keyframes: int = 32):
+                 max_keyframes: int = 48):
         self.frame = grid.frame
         self.tol = grid.tol
         self.n_rays = grid.frame.n_rays
         self._mirror = grid.copy()
         self.first_stage = int(stage)
-        self.keyframe_every = int(keyframe_every or self.n_rays)
+        self.keyframe_every = int(keyframe_every or max(self.n_rays // 2, 1))
         self.max_keyframes = int(max_keyframes)
         self._init = _store_snapshot(grid.store)
         self._keyframes = [_Keyframe(0, self.first_stage, self._init)]
@@ -1035,8 +1047,15 @@ class TimeTrace:
         """Note ``n_new`` elements just appended; keyframes due are built a slice at a time."""
         self._since_key += n_new
         if self._since_key >= self.keyframe_every:
-            self._due.append(self.n_blocks)
-            self._since_key = 0
+            # a batch may span several spacings: a keyframe at each block where one falls due
+            p = self._ptr.a
+            total = int(p[-1])
+            nxt = total - self._since_key + self.keyframe_every
+            while nxt <= total:
+                b = int(np.searchsorted(p, nxt, side="left"))
+                self._due.append(b)
+                nxt = int(p[b]) + self.keyframe_every
+            self._since_key = total - (nxt - self.keyframe_every)
         if self._due or self._builder is not None:
             self.maintain(max(budget, KEYFRAME_BUDGET))
 

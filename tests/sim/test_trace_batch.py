@@ -40,6 +40,9 @@ def test_batch_journal_equals_recording_each_stage():
         np.testing.assert_array_equal(a[k], b[k], err_msg=k)
     assert batch.z._g_ray.n > 0 and batch.z._f_ray.n > 0   # rules 2-4 and rule 5 both seen
     batch.maintain(None)
+    # a batch spanning many keyframe spacings gets a keyframe at each (both traces)
+    assert len(batch.z._keyframes) >= batch.z.n_changes // 300 // 2
+    assert len(batch.t._keyframes) >= batch.t.n_changes // 300 // 2
     for s, ref in snaps.items():
         assert same_model(batch.grid_at(s), ref), s
         assert np.array_equal(batch.heights_at(s), ref.top(), equal_nan=True), s
