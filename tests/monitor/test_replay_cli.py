@@ -139,8 +139,8 @@ def test_run_cut_short_mid_write_replays_to_last_complete_stage(tmp_path):
     assert main(["replay", str(copy), "--stage", "end", "--png", str(tmp_path / "c.png")]) == 0
 
 
-PART_A = "G21 G90\nG0 Z15\nG0 X8 Y8\nG1 Z8 F600\nG1 X30 Y10\nG1 Y20 Z7\nG0 Z15\n"
-PART_B = "G21 G90\nG0 Z15\nG0 X12 Y20\nG1 Z6.5 F600\nG1 X28 Y12\nG2 X20 Y8 I-4 J-2\nG0 Z15\nM2\n"
+PART_A = "G21 G90 M3 S12000\nG0 Z15\nG0 X8 Y8\nG1 Z8 F600\nG1 X30 Y10\nG1 Y20 Z7\nG0 Z15\n"
+PART_B = "G21 G90 M3 S12000\nG0 Z15\nG0 X12 Y20\nG1 Z6.5 F600\nG1 X28 Y12\nG2 X20 Y8 I-4 J-2\nG0 Z15\nM2\n"
 STOCK = "box:5,5,0,35,25,10"
 
 
@@ -182,7 +182,8 @@ def test_resumed_simulation_equals_a_straight_one(tmp_path, capsys):
     assert np.array_equal(h_straight, h_resumed, equal_nan=True)
     # resuming from an earlier stage is a different part (the moves after it never ran)
     early = tmp_path / "early.npy"
-    assert main(["simulate", str(b), "--resume", f"{run}:2", *common, "--heights", str(early)]) == 0
+    # (more material is left for part B to meet, so the checks may report findings: exit 1)
+    assert main(["simulate", str(b), "--resume", f"{run}:2", *common, "--heights", str(early)]) in (0, 1)
     assert not np.array_equal(np.load(early), h_straight, equal_nan=True)
     capsys.readouterr()
     assert main(["simulate", str(b), "--resume", f"{run}", *common]) == 2
