@@ -6,6 +6,10 @@ G words), interprets each in a fresh child process and prints one JSON line per 
 ``{"bench": ..., "lines": N, "seconds": s, "lines_per_s": ..., "peak_rss_mb": ..., "rows": ...}``.
 Targets: >= 300,000 lines/s and <= 300 MB for the 1,000,000-line program.
 
+``peak_rss_mb`` is ru_maxrss (MiB) of the fresh child, so it includes the interpreter's
+imports (~38 MiB: Python + numpy) and the move table itself (226 bytes a row);
+``numba_loaded`` says whether the run imported numba (it must not: ~170 MiB by itself).
+
     python bench/gcode_bench.py [--lines 1000000] [--shared ../shared]
 """
 
@@ -55,7 +59,8 @@ def child(path: str, fast: bool) -> None:
     n = sum(1 for _ in open(path))
     print(json.dumps({"lines": n, "seconds": round(dt, 3), "lines_per_s": round(n / dt),
                       "peak_rss_mb": round(peak / 1024, 1), "rss_before_mb": round(base / 1024, 1),
-                      "rows": int(len(prog.moves)), "errors": len(prog.errors)}))
+                      "rows": int(len(prog.moves)), "row_bytes": prog.moves.dtype.itemsize,
+                      "errors": len(prog.errors), "numba_loaded": "numba" in sys.modules}))
 
 
 def main() -> int:
