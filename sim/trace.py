@@ -401,6 +401,11 @@ class ZTrace:
         self.tol = grid.tol
         self.n_rays = grid.frame.n_rays
         self._mirror = grid.copy()
+        # one-segment rays live in this cache (the mirror is stale for them): one 16-byte
+        # read per journal entry decides the common far-only edit
+        self._rec = np.empty((self.n_rays, 4), np.int32)
+        self._recf = self._rec.view(np.float32)
+        tk.simple_rec_from_store(self._mirror.S, self._rec, self._recf)
         self.first_stage = int(stage)
         self.keyframe_every = int(keyframe_every or max(self.n_rays // 2, 1))
         self.max_keyframes = int(max_keyframes)
@@ -522,10 +527,14 @@ class ZTrace:
         cnt, state = self._cnt, self._state
         cnt[:] = (self._f_ray.n, self._g_ray.n, self._g_near.n)
         state[:] = 0
+        segs = [np.ascontiguousarray(x, dt) for x, dt in
+                zip(segs, (np.float32, np.float32, np.int32, np.int32))]
+        jn, jf = segs[0], segs[1]
+        jnb, jfb = jn.view(np.int32), jf.view(np.int32)
         while True:
             out = self._event_columns(n_entries, n_segs)
-            status = tk.ingest_journal(self._mirror.S, ptr, rays, seg_ptr, *segs, state, cnt,
-                                       *blk, *out)
+            status = tk.ingest_journal_fast(self._rec, self._recf, self._mirror.S, ptr, rays, seg_ptr,
+                                            *segs, jnb, jfb, state, cnt, *blk, *out)
             if status == tk.DONE:
                 break
             ds.grow_pool(self._mirror.store, 2 * n_segs + 64)
@@ -597,6 +606,7 @@ class ZTrace:
         for col, x in zip((self._g_near, self._g_far, self._g_nid, self._g_fid), gsegs):
             col.append(x)
         # replay into the mirror, stopping where a keyframe falls due to snapshot it
+        tk.sync_mirror(self._rec, self._recf, self._mirror.S)
         ev = self._f_ptr.a + self._g_ptr.a
         b = b0
         while b < self.n_blocks:
@@ -610,6 +620,7 @@ class ZTrace:
                 self._add_keyframe(_Keyframe(b, int(self._stage.a[b - 1]),
                                              _snapshot_sharing(self._mirror.store, prev.data, general)))
                 self._next_due = int(ev[b]) + self.keyframe_every
+        tk.simple_rec_from_store(self._mirror.S, self._rec, self._recf)
 
     # --- rebuilding -----------------------------------------------------------------
     def _blocks_upto(self, stage: int) -> int:
@@ -701,6 +712,7 @@ class ZTrace:
 
     def current(self) -> DexelGrid:
         """A copy of the model at the last recorded stage."""
+        tk.sync_mirror(self._rec, self._recf, self._mirror.S)
         return self._mirror.copy()
 
     # --- the paper's view: Z elements ---------------------------------------------
