@@ -14,12 +14,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import random
-import threading
 import time
 
-import numpy as np
-
+from _poll_latency import XStepper, poll_summary, watch_x
 from drivers.grbl.driver import from_url
 from drivers.grbl.peer import GrblPeer
 from drivers.virtual.machine import MachineConfig, VirtualMachine
@@ -33,18 +30,6 @@ def main(argv=None) -> dict:
     args = ap.parse_args(argv)
 
     vm = VirtualMachine(MachineConfig(travel_min=None, travel_max=None))
-    changes: list[tuple[float, float]] = []  # (t_change, new x)
-    stop = threading.Event()
-    rng = random.Random(1)
-
-    def changer():
-        x = 0.0
-        while not stop.wait(rng.uniform(0.05, 0.15)):
-            x -= 1.0
-            with vm.lock:
-                vm.position[0] = x
-                changes.append((time.monotonic(), x))
-
     peer = GrblPeer(vm, speed=1.0)
     try:
         if args.transport == "pty":
@@ -53,17 +38,8 @@ def main(argv=None) -> dict:
             url = f"grbl+socket://127.0.0.1:{peer.serve_tcp()}?rate={args.rate:g}"
         c = from_url(url)
         c.connect()
-        th = threading.Thread(target=changer, daemon=True)
-        t_start = time.monotonic()
-        th.start()
-        seen: list[tuple[float, float]] = []
-        for st in c.states():
-            seen.append((st.t, st.mpos[0]))
-            if st.t - t_start >= args.seconds:
-                break
-        stop.set()
-        th.join()
-        elapsed = seen[-1][0] - seen[0][0]
+        with XStepper(vm) as stepper:
+            seen = watch_x(c, args.seconds, time.monotonic())
         request_s = []
         for _ in range(200):
             t0 = time.monotonic()
@@ -74,25 +50,10 @@ def main(argv=None) -> dict:
     finally:
         peer.close()
 
-    ts = np.array([s[0] for s in seen])
-    xs = np.array([s[1] for s in seen])
-    lat = []
-    for t_change, x in changes:
-        idx = np.nonzero((xs <= x + 1e-6) & (ts >= t_change))[0]
-        if len(idx):
-            lat.append(ts[idx[0]] - t_change)
-    lat_ms = np.array(lat) * 1e3
     result = {
         "bench": f"grbl_{args.transport}_poll",
         "target_hz": args.rate,
-        "achieved_hz": round((len(seen) - 1) / elapsed, 2),
-        "polls": len(seen),
-        "changes": len(changes),
-        "latency_ms_p50": round(float(np.percentile(lat_ms, 50)), 2),
-        "latency_ms_p99": round(float(np.percentile(lat_ms, 99)), 2),
-        "latency_ms_max": round(float(lat_ms.max()), 2),
-        "request_ms_p50": round(float(np.percentile(request_s, 50)) * 1e3, 3),
-        "request_ms_p99": round(float(np.percentile(request_s, 99)) * 1e3, 3),
+        **poll_summary(seen, stepper.changes, request_s),
         "garbage_lines": garbage,
     }
     print(json.dumps(result), flush=True)

@@ -13,12 +13,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import random
-import threading
 import time
 
-import numpy as np
-
+from _poll_latency import XStepper, poll_summary, watch_x
 from drivers.modbus.driver import ModbusController
 from drivers.modbus.regmap import load_map
 from drivers.modbus.server import ModbusVirtualServer
@@ -34,60 +31,24 @@ def main(argv=None) -> dict:
 
     regmap = load_map(args.map)
     vm = VirtualMachine(MachineConfig(travel_min=None, travel_max=None))
-    changes: list[tuple[float, float]] = []  # (t_change, new x)
-    stop = threading.Event()
-    rng = random.Random(1)
-
-    def changer():
-        x = 0.0
-        while not stop.wait(rng.uniform(0.05, 0.15)):
-            x -= 1.0
-            with vm.lock:
-                vm.position[0] = x
-                changes.append((time.monotonic(), x))
-
     with ModbusVirtualServer(vm, regmap).start() as srv:
         c = ModbusController(regmap, host="127.0.0.1", port=srv.port, rate=args.rate, timeout=1.0)
         c.connect()
-        th = threading.Thread(target=changer, daemon=True)
-        t_start = time.monotonic()
-        th.start()
-        seen: list[tuple[float, float]] = []
-        request_s = []
-        for st in c.states():
-            seen.append((st.t, st.mpos[0]))
-            if st.t - t_start >= args.seconds:
-                break
-        stop.set()
-        th.join()
-        elapsed = seen[-1][0] - seen[0][0]
+        with XStepper(vm) as stepper:
+            seen = watch_x(c, args.seconds, time.monotonic())
         # request time alone, back to back
+        request_s = []
         for _ in range(200):
             t0 = time.perf_counter()
             c.poll()
             request_s.append(time.perf_counter() - t0)
         c.close()
 
-    ts = np.array([s[0] for s in seen])
-    xs = np.array([s[1] for s in seen])
-    lat = []
-    for t_change, x in changes:
-        idx = np.nonzero((xs <= x + 1e-6) & (ts >= t_change))[0]
-        if len(idx):
-            lat.append(ts[idx[0]] - t_change)
-    lat_ms = np.array(lat) * 1e3
     result = {
         "bench": "modbus_tcp_poll",
         "map": regmap.name,
         "target_hz": args.rate,
-        "achieved_hz": round((len(seen) - 1) / elapsed, 2),
-        "polls": len(seen),
-        "changes": len(changes),
-        "latency_ms_p50": round(float(np.percentile(lat_ms, 50)), 2),
-        "latency_ms_p99": round(float(np.percentile(lat_ms, 99)), 2),
-        "latency_ms_max": round(float(lat_ms.max()), 2),
-        "request_ms_p50": round(float(np.percentile(request_s, 50)) * 1e3, 3),
-        "request_ms_p99": round(float(np.percentile(request_s, 99)) * 1e3, 3),
+        **poll_summary(seen, stepper.changes, request_s),
     }
     print(json.dumps(result), flush=True)
     return result
