@@ -412,6 +412,9 @@ class ZTrace:
         self.max_keyframes = int(max_keyframes)
         self._init = _store_snapshot(grid.store)
         self._keyframes = [_Keyframe(0, self.first_stage, self._init)]
+        #: build due keyframes a slice at a time inside record calls; False leaves them to
+        #: :meth:`maintain` (a live loop calls it off the poll's critical path)
+        self.auto_maintain = True
         self._next_due = self.keyframe_every  # events count at which a keyframe falls due
         self._due: list[int] = []  # block counts whose keyframes are still to build
         self._builder: _KeyBuilder | None = None
@@ -558,7 +561,7 @@ class ZTrace:
             b = max(b, b0 + 1)
             self._due.append(b)
             self._next_due = int(ev[b]) + self.keyframe_every
-        if self._due or self._builder is not None:
+        if self.auto_maintain and (self._due or self._builder is not None):
             self.maintain(max(budget, KEYFRAME_BUDGET))
 
     def maintain(self, budget: int | None = None) -> bool:
@@ -991,6 +994,7 @@ class TimeTrace:
         self.max_keyframes = int(max_keyframes)
         self._keyframes = [_Keyframe(0, self.first_stage, self._init)]
         self._since_key = 0
+        self.auto_maintain = True   # see ZTrace.auto_maintain
         self._due: list[int] = []   # block counts whose keyframes are still to build
         self._builder = None        # [block, top, tid, copied, element done]
         self._cursors: dict[int, tuple] = {}
@@ -1095,7 +1099,7 @@ class TimeTrace:
                 self._due.append(b)
                 nxt = int(p[b]) + self.keyframe_every
             self._since_key = total - (nxt - self.keyframe_every)
-        if self._due or self._builder is not None:
+        if self.auto_maintain and (self._due or self._builder is not None):
             self.maintain(max(budget, KEYFRAME_BUDGET))
 
     def maintain(self, budget: int | None = None) -> bool:
@@ -1332,10 +1336,14 @@ class Trace:
     """
 
     def __init__(self, grid: DexelGrid, stage: int = 0, z: bool = True, time: bool = True,
-                 keyframe_every: int | None = None):
+                 keyframe_every: int | None = None, auto_maintain: bool = True):
         self.frame = grid.frame
         self.z = ZTrace(grid, stage, keyframe_every) if z else None
         self.t = TimeTrace(grid, stage, keyframe_every=keyframe_every) if time else None
+        # auto_maintain False: record calls never build keyframes; call maintain() when idle
+        for tr in (self.z, self.t):
+            if tr is not None:
+                tr.auto_maintain = bool(auto_maintain)
         self._sent_z = 0
         self._sent_t = 0
         self._header_sent = False
