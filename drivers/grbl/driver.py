@@ -737,11 +737,25 @@ def _clean_line(raw: str) -> str:
     return text
 
 
+def url_params(url: str, known: dict[str, Callable[[str], object]]) -> dict[str, object]:
+    """The query parameters of controller URL ``url``, each converted by ``known[name]``
+    (``int``, ``float``, ``str``); the last of repeated names wins. Raises DriverError
+    naming the URL for a name not in ``known`` or a value its converter refuses."""
+    kw = {}
+    for key, value in dict(parse_qsl(urlsplit(url).query, keep_blank_values=True)).items():
+        if key not in known:
+            raise DriverError(f"controller URL {url!r}: unknown parameter {key!r}; expected one of {', '.join(known)}")
+        try:
+            kw[key] = known[key](value)
+        except ValueError:
+            raise DriverError(f"controller URL {url!r}: parameter {key}={value!r} is not a number") from None
+    return kw
+
+
 def from_url(url: str) -> GrblController:
     """A :class:`GrblController` for ``url`` (not connected). See the module docstring."""
     parts = urlsplit(url)
     scheme = parts.scheme
-    params = dict(parse_qsl(parts.query, keep_blank_values=True))
     if scheme in ("grbl", "grbl+pty"):
         port = parts.path if not parts.netloc else parts.netloc + parts.path
         if not port:
@@ -753,15 +767,7 @@ def from_url(url: str) -> GrblController:
             raise DriverError(f"controller URL {url!r}: expected host:port, e.g. grbl+socket://127.0.0.1:2323")
     else:
         raise DriverError(f"controller URL {url!r}: not a GRBL URL (grbl://, grbl+socket://, grbl+pty://)")
-    known = {"baud": int, "rate": float, "timeout": float, "reset": int, "reconnect": int}
-    kw = {}
-    for key, value in params.items():
-        if key not in known:
-            raise DriverError(f"controller URL {url!r}: unknown parameter {key!r}; expected one of {', '.join(known)}")
-        try:
-            kw[key] = known[key](value)
-        except ValueError:
-            raise DriverError(f"controller URL {url!r}: parameter {key}={value!r} is not a number") from None
+    kw = url_params(url, {"baud": int, "rate": float, "timeout": float, "reset": int, "reconnect": int})
     return GrblController(
         port,
         baud=kw.get("baud", 115200),

@@ -36,12 +36,13 @@ import threading
 import time
 from dataclasses import dataclass
 from typing import Callable
-from urllib.parse import parse_qsl, urlsplit
+from urllib.parse import urlsplit
 
 import serial
 
 from drivers.errors import ConnectionLost, DriverError, ProtocolError
 from drivers.grbl import protocol as p
+from drivers.grbl.driver import url_params
 from drivers.grbl.endpoints import Endpoint, PtyEndpoint, TcpEndpoint
 from drivers.state import Controller, MachineState, RunState
 
@@ -440,7 +441,6 @@ def from_url(url: str) -> Passthrough:
     """A :class:`Passthrough` for ``url`` (not started). See the module docstring."""
     parts = urlsplit(url)
     scheme = parts.scheme
-    params = dict(parse_qsl(parts.query, keep_blank_values=True))
     if scheme == "grbl+passthrough":
         port = parts.path if not parts.netloc else parts.netloc + parts.path
         if not port:
@@ -455,15 +455,7 @@ def from_url(url: str) -> Passthrough:
     else:
         raise DriverError(f"controller URL {url!r}: not a passthrough URL "
                           "(grbl+passthrough://, grbl+passthrough+socket://)")
-    known = {"baud": int, "rate": float, "pty": int, "tcp": int, "host": str, "link": str}
-    kw = {}
-    for key, value in params.items():
-        if key not in known:
-            raise DriverError(f"controller URL {url!r}: unknown parameter {key!r}; expected one of {', '.join(known)}")
-        try:
-            kw[key] = known[key](value)
-        except ValueError:
-            raise DriverError(f"controller URL {url!r}: parameter {key}={value!r} is not a number") from None
+    kw = url_params(url, {"baud": int, "rate": float, "pty": int, "tcp": int, "host": str, "link": str})
     if "tcp" in kw and not 0 <= kw["tcp"] <= 65535:
         raise DriverError(f"controller URL {url!r}: tcp={kw['tcp']} is not a TCP port (0-65535)")
     pty = bool(kw.get("pty", 1))
