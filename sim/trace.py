@@ -987,8 +987,13 @@ class TimeTrace:
         self.frame = frame
         self.n_rays = frame.n_rays
         self.first_stage = int(stage)
-        self._top = top
-        self._top_id = tid
+        # the current surface packed (top bits, id) per ray: one 8-byte read per journal
+        # entry; _top / _top_id are strided views of it
+        self._cur = np.empty((self.n_rays, 2), np.int32)
+        self._top = self._cur[:, 0].view(np.float32)
+        self._top_id = self._cur[:, 1]
+        self._top[:] = top
+        self._top_id[:] = tid
         self._init = (top.copy(), tid.copy())
         self.keyframe_every = int(keyframe_every or self.n_rays)
         self.max_keyframes = int(max_keyframes)
@@ -1055,8 +1060,9 @@ class TimeTrace:
         cols = (self._ray.reserve(m), self._val.reserve(m), self._id.reserve(m),
                 self._prev.reserve(m), self._prev_id.reserve(m))
         blk = np.empty(n_moves, np.int64)
-        k = tk.top_changes_journal(ptr, rays, seg_ptr, far, far_id, self._top, self._top_id,
-                                   *(c[n0:] for c in cols), blk)
+        o = [c[n0:] for c in cols]
+        k = tk.top_changes_journal_packed(ptr, rays, seg_ptr, far.view(np.int32), far_id, self._cur,
+                                          o[0], o[1].view(np.int32), o[2], o[3].view(np.int32), o[4], blk)
         for c in (self._ray, self._val, self._id, self._prev, self._prev_id):
             c.n = n0 + int(k)
         self._stage.append(stages)

@@ -466,3 +466,45 @@ def replay_far_only(count, far, far_id, xstart, pool_far, pool_far_id, f_ray, f_
         else:
             return -1 - q
     return hi
+
+
+_NAN_BITS = np.int32(0x7FC00000)
+
+
+@nb.njit(cache=True)
+def top_changes_journal_packed(ptr, rays, seg_ptr, jfb, jfi, cur, out_ray, out_topb, out_id,
+                               out_prevb, out_prev_id, blk):
+    """:func:`top_changes_journal` on a packed current surface: ``cur`` (n_rays, 2) int32 =
+    (top float bits, top face id), one 8-byte read per entry; ``jfb`` / ``out_topb`` /
+    ``out_prevb`` are int32 views of float32 columns. Tops compare as bits (any two NaNs
+    are the same empty ray)."""
+    m = 0
+    for k in range(ptr.size - 1):
+        for e in range(ptr[k], ptr[k + 1]):
+            r = rays[e]
+            b = seg_ptr[e + 1]
+            if b == seg_ptr[e]:
+                t = _NAN_BITS
+                tid = np.int32(0)
+            else:
+                t = jfb[b - 1]
+                tid = jfi[b - 1]
+            old = cur[r, 0]
+            old_id = cur[r, 1]
+            if tid == old_id:
+                if t == old:
+                    continue
+                # NaN payloads differ in their bits, not in meaning
+                if (t & 0x7F800000) == 0x7F800000 and (t & 0x007FFFFF) != 0 \
+                        and (old & 0x7F800000) == 0x7F800000 and (old & 0x007FFFFF) != 0:
+                    continue
+            out_ray[m] = r
+            out_topb[m] = t
+            out_id[m] = tid
+            out_prevb[m] = old
+            out_prev_id[m] = old_id
+            cur[r, 0] = t
+            cur[r, 1] = tid
+            m += 1
+        blk[k] = m
+    return m
