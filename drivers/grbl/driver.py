@@ -46,7 +46,7 @@ class GrblError(DriverError):
     def __init__(self, line: str, code: int):
         self.line = line
         self.code = code
-        self.meaning = p.ERROR_MEANINGS.get(code, f"unknown error code {code}")
+        self.meaning = p.error_meaning(code)
         super().__init__(f"GRBL refused {line!r}: error:{code} ({self.meaning})")
 
 
@@ -55,7 +55,7 @@ class GrblAlarm(DriverError):
 
     def __init__(self, code: int, where: str = ""):
         self.code = code
-        self.meaning = p.ALARM_MEANINGS.get(code, f"unknown alarm code {code}")
+        self.meaning = p.alarm_meaning(code)
         super().__init__(f"GRBL ALARM:{code} ({self.meaning}){' ' + where if where else ''}")
 
 

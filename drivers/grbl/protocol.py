@@ -166,6 +166,16 @@ SUBSTATE_MEANINGS = {
 
 OFFSET_TAGS = ("G54", "G55", "G56", "G57", "G58", "G59", "G28", "G30", "G92")
 
+
+def error_meaning(code: int) -> str:
+    """What GRBL's ``error:code`` means (``"unknown error code N"`` beyond the table)."""
+    return ERROR_MEANINGS.get(code, f"unknown error code {code}")
+
+
+def alarm_meaning(code: int) -> str:
+    """What GRBL's ``ALARM:code`` means (``"unknown alarm code N"`` beyond the table)."""
+    return ALARM_MEANINGS.get(code, f"unknown alarm code {code}")
+
 # --------------------------------------------------------------------------------------
 # Messages
 # --------------------------------------------------------------------------------------
@@ -191,7 +201,7 @@ class Error(Message):
 
     @property
     def meaning(self) -> str:
-        return ERROR_MEANINGS.get(self.code, f"unknown error code {self.code}")
+        return error_meaning(self.code)
 
 
 @dataclass(frozen=True)
@@ -202,7 +212,7 @@ class Alarm(Message):
 
     @property
     def meaning(self) -> str:
-        return ALARM_MEANINGS.get(self.code, f"unknown alarm code {self.code}")
+        return alarm_meaning(self.code)
 
 
 @dataclass(frozen=True)
