@@ -36,6 +36,8 @@ from sim.gcode.moves import MoveKind
 JUMP_S = 2.0
 #: a trace chunk is written every this many stages
 TRACE_CHUNK_STAGES = 50
+#: keyframe work (array elements copied / changes replayed) done per trace chunk written
+TRACE_KEYFRAME_BUDGET = 1 << 20
 
 
 @dataclass
@@ -336,7 +338,8 @@ class Session:
         except ImportError:
             return
         try:
-            self._trace = Trace(self.live, stage=0)
+            # keyframes are built at the run file writer's cadence (flush_trace), not in polls
+            self._trace = Trace(self.live, stage=0, auto_maintain=False)
             self.run.append_trace_chunk(0, 0, self._trace.take_chunk())
         except Exception:  # the trace is a replay aid; the monitor runs without it
             self._trace = None
@@ -355,6 +358,8 @@ class Session:
         if self._trace is not None and self.run is not None and self.stage > self._trace_from:
             self.run.append_trace_chunk(self._trace_from + 1, self.stage, self._trace.take_chunk())
             self._trace_from = self.stage
+            # a slice of any keyframe work due (the trace's in-memory index), off the polls
+            self._trace.maintain(TRACE_KEYFRAME_BUDGET)
 
     def finish(self) -> dict:
         """Flush what is pending; return a summary dict."""

@@ -104,6 +104,25 @@ class RunView:
     def frame(self):
         return self.trace.frame
 
+    def grid_at(self, stage: int):
+        """The model at ``stage`` in one grid this view reuses (overwritten by the next
+        call: copy to keep): stepping between nearby stages applies only the changes."""
+        buf = self.__dict__.get("_grid_buf")
+        self.__dict__["_grid_buf"] = g = self.trace.grid_at(stage, out=buf)
+        return g
+
+    def state_at(self, stage: int) -> tuple[np.ndarray, np.ndarray]:
+        """Heights (nv, nu) float32 mm and top face ids (nv, nu) int32 at ``stage``, in two
+        arrays this view reuses (overwritten by the next call: copy to keep)."""
+        buf = self.__dict__.get("_state_buf")
+        if buf is None:
+            n = self.frame.n_rays
+            buf = self.__dict__["_state_buf"] = (np.empty(n, np.float32), np.empty(n, np.int32))
+        if self.trace.t is None:
+            return self.trace.state_at(stage)
+        h, ids = self.trace.state_at(stage, out=buf)
+        return h.reshape(self.frame.shape), ids.reshape(self.frame.shape)
+
     @property
     def last_stage(self) -> int:
         return self.trace.last_stage
@@ -206,7 +225,7 @@ class RunView:
     def _bottoms(self) -> np.ndarray:
         if self.trace.z is None:
             return np.zeros(self.frame.n_rays)
-        g = self.trace.grid_at(self.trace.z.first_stage)
+        g = self.grid_at(self.trace.z.first_stage)
         return np.nan_to_num(g.store["near"].astype(np.float64))
 
     def removal_per_move(self) -> dict[int, float]:

@@ -83,11 +83,11 @@ def stage_picture(view, stage: int, max_size: int = 800, three_d: bool = False, 
     if three_d:
         from monitor.render import view3d
 
-        grid = tr.grid_at(stage)
+        grid = view.grid_at(stage)
         path = path_points(view)
         return view3d.render_png(grid, None, tool=tool, tip=tip, path=path, findings=marks,
                                  window_size=(max_size, max_size))
-    heights, ids = tr.state_at(stage)
+    heights, ids = view.state_at(stage)
     k = reduce_factor(tr.frame.shape, max_size)
     return frame_picture(heights, ids, tr.frame, k, tool=tool,
                          tip=tip if tip is not None and np.all(np.isfinite(tip)) else None,
@@ -165,7 +165,7 @@ def run(args) -> int:
             from sim.surface import export_stl
 
             n = parse_stage(args.export_stl[0], last, first, "--export-stl")
-            grid = tr.grid_at(n)
+            grid = view.grid_at(n)
             export_stl(grid, args.export_stl[1])
             _say(args, out, {"event": "stl", "stage": n, "path": args.export_stl[1],
                              "volume_mm3": round(grid.volume(), 3)},

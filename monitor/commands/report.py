@@ -103,7 +103,7 @@ def build_report(view, size: int = 480, max_findings: int = 50) -> str:
     tool = view.tool()
 
     def pic(stage, with_marks=True):
-        h, ids = tr.state_at(stage)
+        h, ids = view.state_at(stage)
         info = view.stage_info(stage)
         tip = info.get("tip")
         tip = tip if tip is not None and np.all(np.isfinite(tip)) else None

@@ -151,8 +151,11 @@ def interactive(trace, tool=None, path=None, findings=None, contours: int = 0):
                        findings=findings, contours=contours, off_screen=False)
     surf = pl.meshes[0] if hasattr(pl, "meshes") else None
 
+    n = trace.frame.n_rays
+    buf = (np.empty(n, np.float32), np.empty(n, np.int32))  # one pair reused while sliding
+
     def show(value):
-        h = trace.heights_at(int(round(value)))
+        h = trace.heights_at(int(round(value)), out=buf).reshape(trace.frame.shape)
         fresh = heightfield(trace.frame, h)
         if surf is not None:
             surf.points = fresh.points
