@@ -32,6 +32,20 @@ def test_trace_from_run_file_rebuilds_every_stage(recorded):
         assert np.array_equal(tr.heights_at(s), snaps[s].top(), equal_nan=True)
 
 
+def test_run_view_reuses_one_grid_and_one_heights_pair_any_order(recorded):
+    path, snaps = recorded
+    with RunView(path) as view:
+        g0 = h0 = None
+        for s in (LAST, LAST // 4, LAST // 2, 0, 3 * LAST // 4, LAST // 2, LAST):
+            g = view.grid_at(s)
+            h, ids = view.state_at(s)
+            assert g0 is None or (g is g0 and np.shares_memory(h, h0))   # no new buffers
+            g0, h0 = g, h
+            assert same_model(g, snaps[s]), s
+            assert h.shape == snaps[s].frame.shape
+            assert np.array_equal(h, snaps[s].top(), equal_nan=True), s
+
+
 def test_png_of_a_stage(recorded, tmp_path, capsys):
     import imageio.v3 as iio
 
