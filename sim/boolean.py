@@ -138,21 +138,8 @@ def _combine_all(SA, SB, op, eps, offsets, out_counts, on, of, oni, ofi):
                                on, of, oni, ofi, offsets[r])
 
 
-@nb.njit(cache=True)
-def _pack(offsets, counts, on, of, oni, ofi, pn, pf, pni, pfi):
-    m = 0
-    for r in range(counts.size):
-        o = offsets[r]
-        for k in range(counts[r]):
-            pn[m] = on[o + k]
-            pf[m] = of[o + k]
-            pni[m] = oni[o + k]
-            pfi[m] = ofi[o + k]
-            m += 1
-
-
 def _combine(a: DexelGrid, b: DexelGrid, op: int, what: str) -> DexelGrid:
-    from sim.solids import grid_from_segments  # solids builds on this module's grids
+    from sim.solids import grid_from_segments, pack_segments  # solids builds on this module's grids
 
     _check(a, b, what)
     cap = a.store["count"].astype(np.int64) + b.store["count"].astype(np.int64)
@@ -165,13 +152,7 @@ def _combine(a: DexelGrid, b: DexelGrid, op: int, what: str) -> DexelGrid:
     ofi = np.empty(total, np.int32)
     counts = np.zeros(cap.size, np.int64)
     _combine_all(a.S, b.S, op, a.tol.length, offsets, counts, on, of, oni, ofi)
-    n = int(counts.sum())
-    pn = np.empty(n, np.float32)
-    pf = np.empty(n, np.float32)
-    pni = np.empty(n, np.int32)
-    pfi = np.empty(n, np.int32)
-    _pack(offsets, counts, on, of, oni, ofi, pn, pf, pni, pfi)
-    return grid_from_segments(a.frame, counts, pn, pf, pni, pfi, a.tol)
+    return grid_from_segments(a.frame, counts, *pack_segments(offsets, counts, on, of, oni, ofi), a.tol)
 
 
 def union(a: DexelGrid, b: DexelGrid) -> DexelGrid:

@@ -415,6 +415,22 @@ def _compact(offsets, seg_counts, near, far, ntri, ftri, out_n, out_f, out_nt, o
             m += 1
 
 
+def pack_segments(offsets: np.ndarray, counts: np.ndarray, near: np.ndarray, far: np.ndarray,
+                  near_id: np.ndarray, far_id: np.ndarray):
+    """Segments held in per-ray slots, listed ray after ray as :func:`grid_from_segments`
+    takes them.
+
+    Ray ``r``'s segments sit at ``offsets[r] ... offsets[r] + counts[r] - 1`` of
+    ``near``/``far`` (mm, any float dtype) and ``near_id``/``far_id`` (int); offsets and
+    counts are (n_rays,) int64. Returns ``(near, far, near_id, far_id)``: (n,) float32,
+    float32, int32, int32 with ``n = counts.sum()``.
+    """
+    n = int(counts.sum())
+    out = (np.empty(n, np.float32), np.empty(n, np.float32), np.empty(n, np.int32), np.empty(n, np.int32))
+    _compact(offsets, counts, near, far, near_id, far_id, *out)
+    return out
+
+
 def ray_hits(frame: Frame, mesh):
     """Every crossing of the frame's rays with the mesh triangles, sorted along each ray.
 
@@ -472,13 +488,8 @@ def mesh_grid(frame: Frame, mesh_or_path, face_id: int = 0, tol: Tolerance = DEF
         warnings.warn(f"{name}: {odd} rays crossed the surface an odd number of times "
                       "(self-intersecting or nearly degenerate triangles); their last crossing "
                       "was ignored", RuntimeWarning, stacklevel=2)
-    n_seg = int(seg_counts.sum())
-    out_n = np.empty(n_seg, np.float32)
-    out_f = np.empty(n_seg, np.float32)
-    out_nt = np.empty(n_seg, np.int32)
-    out_ft = np.empty(n_seg, np.int32)
-    _compact(offsets, seg_counts, near, far, ntri, ftri, out_n, out_f, out_nt, out_ft)
-    ids = np.full(n_seg, face_id, np.int32)
+    out_n, out_f, out_nt, out_ft = pack_segments(offsets, seg_counts, near, far, ntri, ftri)
+    ids = np.full(out_n.size, face_id, np.int32)
     grid = grid_from_segments(frame, seg_counts, out_n, out_f, ids, ids, tol)
     if not return_normals:
         return grid
