@@ -169,7 +169,9 @@ def run_case(name: str, shared: Path, check: bool, repeat: int = 3, mode: str = 
     load_s = time.perf_counter() - t0
     warm_up(tool, moves)
     wall = cpu = math.inf
+    res = None
     for _ in range(max(1, repeat)):  # best of N on fresh stock: the machine may be shared
+        res = None  # the last run's result must not count in this run's peak
         grid = stock_grid()
         cutter = Cutter(grid, tool)
         c0 = time.process_time()

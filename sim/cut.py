@@ -44,6 +44,7 @@ _Z_AXIS = np.array([0.0, 0.0, 1.0])
 _EMPTY_I64 = np.zeros(0, np.int64)
 _EMPTY_F32 = np.zeros(0, np.float32)
 _EMPTY_I32 = np.zeros(0, np.int32)
+_EMPTY_F64 = np.zeros(0, np.float64)
 _PTR0 = np.zeros(1, np.int64)
 
 
@@ -94,6 +95,81 @@ class CutResult:
     @property
     def total_removed(self) -> float:
         return float(self.removed.sum())
+
+
+def _grow(a: np.ndarray, size: int) -> None:
+    """Enlarge ``a`` in place to ``size`` elements, keeping its contents.
+
+    ``ndarray.resize`` reallocates, which for large blocks moves the pages instead of
+    copying them, so growing never holds two copies of a log. ``a`` must own its data
+    and have no views.
+    """
+    a.resize(size, refcheck=False)
+
+
+class _Log:
+    """The change log of one batch cut, filled by the kernels (see ``K.finish_move``).
+
+    ray (int64) / depth (float32): one entry per move and distinct ray it changed;
+    jptr (int64): journal segments of entry ``e`` end at ``jptr[e + 1]``; counts (int64
+    (n_moves,)): entries per move; jn / jf (float32), jni / jfi (int32): the journal's
+    segments; s_top / s_len (float64): per-move scratch, reused move after move.
+    Buffers grow by half in place (:func:`_grow`), so at most a third is slack.
+    """
+
+    def __init__(self, n_moves: int, journal: bool, small: bool):
+        cap = 1 << 11 if small else 1 << 16
+        jcap = cap if journal else 1
+        self.journal = journal
+        self.ray = np.empty(cap, np.int64)
+        self.depth = np.empty(cap, np.float32)
+        self.jptr = np.zeros(cap + 1 if journal else 1, np.int64)
+        self.counts = np.zeros(n_moves, np.int64)
+        self.jn = np.empty(jcap, np.float32)
+        self.jf = np.empty(jcap, np.float32)
+        self.jni = np.empty(jcap, np.int32)
+        self.jfi = np.empty(jcap, np.int32)
+        self.s_top = np.empty(1 << 12)
+        self.s_len = np.empty(1 << 12)
+        self.n = 0   # entries closed
+        self.nj = 0  # journal segments used
+
+    def buffers(self) -> tuple:
+        return (self.ray, self.depth, self.jptr, self.counts, self.jn, self.jf, self.jni, self.jfi,
+                self.s_top, self.s_len)
+
+    def grow_entries(self, state) -> None:
+        used, cur = int(state[3]), int(state[4])
+        if used + cur >= self.ray.size:
+            cap = max(self.ray.size + self.ray.size // 2, used + cur + 1)
+            _grow(self.ray, cap)
+            _grow(self.depth, cap)
+            if self.journal:
+                _grow(self.jptr, cap + 1)
+        if cur >= self.s_top.size:
+            self.s_top = np.concatenate([self.s_top, np.empty(self.s_top.size)])
+            self.s_len = np.concatenate([self.s_len, np.empty(self.s_len.size)])
+
+    def grow_journal(self, state) -> None:
+        cap = max(self.jn.size + self.jn.size // 2, int(state[6]), 1024)
+        for a in (self.jn, self.jf, self.jni, self.jfi):
+            _grow(a, cap)
+
+    def trim(self) -> None:
+        """Give back the slack: every buffer cut to what was used."""
+        for a in (self.ray, self.depth):
+            _grow(a, self.n)
+        if self.journal:
+            _grow(self.jptr, self.n + 1)
+            for a in (self.jn, self.jf, self.jni, self.jfi):
+                _grow(a, self.nj)
+        self.s_top = self.s_len = _EMPTY_F64
+
+
+#: buffers of a kernel call that records nothing (never written)
+_NO_LOG = (np.zeros(1, np.int64), np.zeros(1, np.float32), np.zeros(1, np.int64), np.zeros(1, np.int64),
+           np.zeros(1, np.float32), np.zeros(1, np.float32), np.zeros(1, np.int32), np.zeros(1, np.int32),
+           np.zeros(1), np.zeros(1))
 
 
 class _Work:
@@ -174,15 +250,14 @@ class Cutter:
         ids = self._ids(n, move_ids)
         removed = np.zeros(n, np.float64)
         record = bool(record_changes or journal)
-        logs: list[tuple] = []
+        log = _Log(n, journal, n <= 8) if record else None
         multi = np.zeros(n, bool)
         for lo, hi, tool in self._tool_runs(moves):
             sub = moves[lo:hi]
             rows = np.arange(lo, hi)
             work = self._plan(sub, rows, ids[lo:hi], self._body(tool), multi)
-            logs += self._execute(work, self._body(tool), removed, probe=False, record=record,
-                                  journal=journal)
-        res = self._result(n, logs, record, journal)
+            self._execute(work, self._body(tool), removed, probe=False, log=log)
+        res = self._result(n, log)
         res.removed = removed * self.grid.frame.spacing**2
         res.seconds = time.perf_counter() - t0
         return res
@@ -195,7 +270,7 @@ class Cutter:
         """
         removed = np.zeros(1)
         work = self._segment_work(p0, p1, move_id, axis, axis1, self.tool)
-        self._execute(work, self.tool, removed, probe=False, record=False)
+        self._execute(work, self.tool, removed, probe=False, log=None)
         return float(removed[0] * self.grid.frame.spacing**2)
 
     def cut_poses(self, tips, axes, move_id: int, body: Tool | Body | None = None) -> float:
@@ -206,7 +281,7 @@ class Cutter:
         work = _Work()
         work.poses(tips, np.array(axes), 0, int(move_id))
         removed = np.zeros(1)
-        self._execute(work, body, removed, probe=False, record=False, force_instances=True)
+        self._execute(work, body, removed, probe=False, log=None, force_instances=True)
         return float(removed[0] * self.grid.frame.spacing**2)
 
     def probe_moves(self, moves: np.ndarray, body: Tool | Body | None = None) -> np.ndarray:
@@ -228,7 +303,7 @@ class Cutter:
             single = ~multi[sm]
             w1 = _Work()
             w1.segments(p0[single], p1[single], sm[single], sid[single])
-            self._execute(w1, body, out, probe=True, record=False)
+            self._execute(w1, body, out, probe=True, log=None)
             for k in np.nonzero(multi)[0]:
                 out[k] = self._probe_scratch(moves[k:k + 1], body)[0]
         else:
@@ -243,10 +318,10 @@ class Cutter:
         work = self._segment_work(p0, p1, 0, None, None, body)
         out = np.zeros(1)
         if work.seg_p0:
-            self._execute(work, body, out, probe=True, record=False)
+            self._execute(work, body, out, probe=True, log=None)
             return float(out[0] * self.grid.frame.spacing**2)
         scratch = self.grid.copy()
-        Cutter(scratch, self.tool, self.tol)._execute(work, body, out, probe=False, record=False)
+        Cutter(scratch, self.tool, self.tol)._execute(work, body, out, probe=False, log=None)
         return float(out[0] * self.grid.frame.spacing**2)
 
     # --- planning -----------------------------------------------------------------------
@@ -367,13 +442,14 @@ class Cutter:
         return work
 
     # --- execution ----------------------------------------------------------------------
-    def _execute(self, work: _Work, body, removed, probe: bool, record: bool, force_instances=False,
-                 journal: bool = False) -> list[tuple]:
-        """Run the kernels over the planned work; return the change logs (see :meth:`_loop`)."""
+    def _execute(self, work: _Work, body, removed, probe: bool, log: _Log | None,
+                 force_instances=False) -> None:
+        """Run the kernels over the planned work, appending the changes to ``log`` (if any)."""
         grid = self.grid
         f = grid.frame
         eps = self.tol.length
-        logs: list[tuple] = []
+        record = log is not None
+        journal = record and log.journal
         p0, p1, sm, sid = work.seg_arrays()
         if len(p0) and not force_instances:
             tp = self._params.get(id(body))
@@ -386,7 +462,7 @@ class Cutter:
                 top_bound = float(np.nanmax(tops)) if np.isfinite(tops).any() else -np.inf
             self._loop(lambda S, st, B: K.cut_linear_batch(
                 S, f.origin[0], f.origin[1], f.spacing, f.nu, f.nv, p0, p1, sm, sid, tp, eps,
-                probe, record, journal, removed, B, st, top_bound), len(p0), record, journal, logs)
+                probe, record, journal, removed, B, st, top_bound), log)
         tips, axes, pm, pid = work.pose_arrays()
         if len(tips):
             prof = sweep.body_profile(body)
@@ -396,70 +472,47 @@ class Cutter:
             rmax = float(prof[:, 1].max())
             self._loop(lambda S, st, B: K.cut_poses(
                 S, f.spacing, f.nu, f.nv, tips_l, axes_l, pm, pid, prof, rmax, eps, probe, record,
-                journal, removed, B, st), len(tips), record, journal, logs)
-        return logs
+                journal, removed, B, st), log)
 
-    def _loop(self, call, n_items, record, journal, logs):
-        """Call a batch kernel until it is done, growing the pool and the log buffers.
-
-        Appends (rays, moves, depth, jcount, jnear, jfar, jnear_id, jfar_id) to ``logs``
-        when recording (the journal arrays empty without ``journal``).
-        """
+    def _loop(self, call, log: _Log | None) -> None:
+        """Call a batch kernel until it is done, growing the pool and the log's buffers."""
         state = np.zeros(K.STATE_SIZE, np.int64)
         state[1] = state[2] = -1
-        # small batches (the live monitor's few rows per poll) start small: allocation shows
-        cap = (1 << 14 if n_items > 8 else 1 << 11) if record else 1
-        jcap = cap if journal else 1
-        B = [np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.float64),
-             np.empty(cap, np.float64), np.empty(cap if journal else 1, np.int64),
-             np.empty(jcap, np.float32), np.empty(jcap, np.float32),
-             np.empty(jcap, np.int32), np.empty(jcap, np.int32)]
+        if log is not None:
+            state[3] = log.n
+            state[5] = log.nj
         while True:
-            status = call(self.grid.S, state, tuple(B))
+            status = call(self.grid.S, state, _NO_LOG if log is None else log.buffers())
             if status == K.DONE:
                 break
             if status == K.STOP_POOL:
                 ds.grow_pool(self.grid.store, max(1024, self.grid.store["pool_near"].size))
             elif status == K.STOP_CHANGES:
-                used = int(state[3])
-                for q in range(5 if journal else 4):
-                    B[q] = np.concatenate([B[q][:used], np.empty(max(B[q].size, used), B[q].dtype)])
+                log.grow_entries(state)
             elif status == K.STOP_JOURNAL:
-                used = int(state[5])
-                for q in range(5, 9):
-                    B[q] = np.concatenate([B[q][:used], np.empty(max(B[q].size, used, 1024), B[q].dtype)])
-        if record:
-            used = int(state[3])
-            ju = int(state[5])
-            logs.append((B[0][:used], B[1][:used], B[2][:used].astype(np.float32),
-                         B[4][:used] if journal else _EMPTY_I64,
-                         B[5][:ju], B[6][:ju], B[7][:ju], B[8][:ju]))
+                log.grow_journal(state)
+        if log is not None:
+            log.n = int(state[3])
+            log.nj = int(state[5])
 
-    def _result(self, n, logs, record, journal) -> CutResult:
-        """The CSR of changed rays (and journal) from the kernels' logs, in move order.
+    def _result(self, n, log: _Log | None) -> CutResult:
+        """The CSR of changed rays (and journal) from the kernels' log, in move order.
 
-        The kernels close each move's log sorted by ray with one entry per ray, and moves
-        run in order, so concatenation is the CSR; no sort here.
+        The kernels close each move's entries sorted by ray with one entry per ray, and
+        moves run in order, so the log is the CSR; no sort, no copy.
         """
         ptr = np.zeros(n + 1, np.int64)
         res = CutResult(np.zeros(n), ptr, _EMPTY_I64, 0.0)
-        if not record or not logs:
-            if journal:
-                res.journal_seg_ptr = np.zeros(1, np.int64)
+        if log is None:
             return res
-        if len(logs) == 1:
-            rays, mv, depth, jc, jn, jf, jni, jfi = logs[0]
-        else:
-            rays, mv, depth, jc, jn, jf, jni, jfi = (np.concatenate(p) for p in zip(*logs))
-        np.cumsum(np.bincount(mv, minlength=n), out=ptr[1:])
-        res.changed_rays = rays
-        res.changed_depth = depth
-        if journal:
-            jp = np.zeros(len(rays) + 1, np.int64)
-            np.cumsum(jc, out=jp[1:])
-            res.journal_seg_ptr = jp
-            res.journal_near, res.journal_far = jn, jf
-            res.journal_near_id, res.journal_far_id = jni, jfi
+        log.trim()
+        np.cumsum(log.counts, out=ptr[1:])
+        res.changed_rays = log.ray
+        res.changed_depth = log.depth
+        if log.journal:
+            res.journal_seg_ptr = log.jptr
+            res.journal_near, res.journal_far = log.jn, log.jf
+            res.journal_near_id, res.journal_far_id = log.jni, log.jfi
         return res
 
     def _probe_scratch(self, moves, body) -> np.ndarray:
@@ -491,5 +544,5 @@ class Cutter:
         removed = np.zeros(len(moves))
         multi = np.zeros(len(moves), bool)
         work = self._plan(moves, np.arange(len(moves)), np.zeros(len(moves), np.int32), body, multi)
-        self._execute(work, body, removed, probe=False, record=False)
+        self._execute(work, body, removed, probe=False, log=None)
         return removed

@@ -47,9 +47,9 @@ STOP_POOL = 1
 STOP_CHANGES = 2
 STOP_JOURNAL = 3
 
-#: int64 ``state`` of a batch kernel: [k, j, i, n_changed, first entry of the current move,
-#: journal segments used]
-STATE_SIZE = 6
+#: int64 ``state`` of a batch kernel: [k, j, i, entries closed, entries of the current move,
+#: journal segments used, journal segments needed (after STOP_JOURNAL)]
+STATE_SIZE = 7
 
 
 
@@ -333,93 +333,133 @@ def _rows_any(tp, x0, y0, z0, dz, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
 
 
 @nb.njit(cache=True)
-def finish_move(S, B, mstart, nchg, journal, state):
-    """Close the changed-ray log of one move: entries ``mstart .. nchg`` of the buffers.
+def finish_move(S, B, mv, nout, mc, journal, state):
+    """Close the changed-ray log of one move: its ``mc`` entries from ``nout`` on.
 
-    B: (chg_ray int64, chg_move int64, chg_val float64, chg_len float64, jcount int64,
-    jnear float32, jfar float32, jnear_id int32, jfar_id int32). While a move runs every
-    change appends (ray, move, material top before that change, length removed); here
-    the move's entries are sorted by ray and merged (one per distinct ray: highest top,
-    summed length), ``chg_val`` becomes the depth of cut on that ray (top before the move
-    minus the new top; the removed length where the top did not move or the ray was
-    emptied) and, with ``journal``, the ray's whole segment list after the move is
-    appended at ``state[5]`` (``jcount[e]`` segments for entry ``e``).
+    B: (out_ray int64, out_depth float32, jptr int64, counts int64 (n_moves,), jnear
+    float32, jfar float32, jnear_id int32, jfar_id int32, s_top float64, s_len float64).
+    While a move runs every change writes its ray at ``out_ray[nout + q]`` and, in the
+    small per-move scratch, the material top before that change (``s_top[q]``) and the
+    length removed (``s_len[q]``). Here the move's entries are sorted by ray and merged
+    (one per distinct ray: highest top, summed length; already sorted and distinct for a
+    single straight segment, the common case), ``out_depth`` gets the depth of cut on
+    each ray (top before the move minus the new top; the removed length where the top
+    did not move or the ray was emptied), ``counts[mv]`` the number of entries and, with
+    ``journal``, each ray's whole segment list after the move is appended at ``state[5]``
+    with ``jptr[e + 1]`` its end.
 
-    Returns the new entry count, or -1 (nothing changed) when the journal buffers lack
-    room.
+    Returns the new entry count, or -1 (nothing changed; ``state[6]`` = segments needed)
+    when the journal buffers lack room.
     """
-    chg_ray = B[0]
-    chg_val = B[2]
-    chg_len = B[3]
-    jcount = B[4]
-    jn = B[5]
-    jf = B[6]
-    jni = B[7]
-    jfi = B[8]
+    out_ray = B[0]
+    out_depth = B[1]
+    jptr = B[2]
+    counts = B[3]
+    jn = B[4]
+    jf = B[5]
+    jni = B[6]
+    jfi = B[7]
+    s_top = B[8]
+    s_len = B[9]
     cnt = S[0]
-    if nchg <= mstart:
-        return nchg
+    if mc <= 0:
+        return nout
+    end = nout + mc
     if journal:
         need = 0
-        for e in range(mstart, nchg):
-            need += cnt[chg_ray[e]]
+        for e in range(nout, end):
+            need += cnt[out_ray[e]]
         if state[5] + need > jn.size:
+            state[6] = state[5] + need
             return -1
     ordered = True
-    for e in range(mstart + 1, nchg):
-        if chg_ray[e] <= chg_ray[e - 1]:
+    for e in range(nout + 1, end):
+        if out_ray[e] <= out_ray[e - 1]:
             ordered = False
             break
-    w = nchg
+    w = mc
     if not ordered:
-        m = nchg - mstart
-        order = np.argsort(chg_ray[mstart:nchg], kind="mergesort")
-        rr = chg_ray[mstart:nchg].copy()
-        tt = chg_val[mstart:nchg].copy()
-        ll = chg_len[mstart:nchg].copy()
-        w = mstart
-        for q in range(m):
+        order = np.argsort(out_ray[nout:end], kind="mergesort")
+        rr = out_ray[nout:end].copy()
+        tt = s_top[:mc].copy()
+        ll = s_len[:mc].copy()
+        w = 0
+        for q in range(mc):
             o = order[q]
             r = rr[o]
-            if w > mstart and chg_ray[w - 1] == r:
-                if tt[o] > chg_val[w - 1]:
-                    chg_val[w - 1] = tt[o]
-                chg_len[w - 1] += ll[o]
+            if w > 0 and out_ray[nout + w - 1] == r:
+                if tt[o] > s_top[w - 1]:
+                    s_top[w - 1] = tt[o]
+                s_len[w - 1] += ll[o]
             else:
-                chg_ray[w] = r
-                chg_val[w] = tt[o]
-                chg_len[w] = ll[o]
+                out_ray[nout + w] = r
+                s_top[w] = tt[o]
+                s_len[w] = ll[o]
                 w += 1
+    # the store's arrays are read directly (not through ds.get_seg): a call per entry
+    # passing the store tuple costs more than the rest of the loop
+    far = S[2]
+    first = S[5]
+    pool_near = S[7]
+    pool_far = S[8]
+    pool_nid = S[9]
+    pool_fid = S[10]
     ju = state[5]
-    for e in range(mstart, w):
-        r = chg_ray[e]
+    if ordered and not journal:  # each ray changed once: its logged depth is final
+        counts[mv] += w
+        return nout + w
+    for q in range(w):
+        e = nout + q
+        r = out_ray[e]
         c = cnt[r]
-        depth = chg_len[e]
-        if c > 0:
-            top = np.float64(ds.ray_top(S, r))
-            drop = chg_val[e] - top
-            if drop > 0.0:
-                depth = drop
-        chg_val[e] = depth
+        if not ordered:
+            depth = s_len[q]
+            if c > 0:
+                top = far[r] if c == 1 else pool_far[first[r] + c - 2]
+                drop = s_top[q] - np.float64(top)
+                if drop > 0.0:
+                    depth = drop
+            out_depth[e] = depth
         if journal:
-            for q in range(c):
-                n, f, nid, fid = ds.get_seg(S, r, q)
-                jn[ju] = n
-                jf[ju] = f
-                jni[ju] = nid
-                jfi[ju] = fid
+            if c > 0:
+                jn[ju] = S[1][r]
+                jf[ju] = far[r]
+                jni[ju] = S[3][r]
+                jfi[ju] = S[4][r]
                 ju += 1
-            jcount[e] = c
+                p0 = first[r]
+                for p in range(p0, p0 + c - 1):
+                    jn[ju] = pool_near[p]
+                    jf[ju] = pool_far[p]
+                    jni[ju] = pool_nid[p]
+                    jfi[ju] = pool_fid[p]
+                    ju += 1
+            jptr[e + 1] = ju
     state[5] = ju
-    return w
+    counts[mv] += w
+    return nout + w
 
 
 @nb.njit(cache=True, inline="always")
-def _log_change(B, nchg, r, mv, top_before, got):
-    B[0][nchg] = r
-    B[1][nchg] = mv
-    B[2][nchg] = top_before
-    B[3][nchg] = got
+def _log_change(B, nout, mc, r, top_before, got, depth):
+    """Log a change of ray ``r``: its top before, the length removed and the depth of cut
+    (final unless the move changes the ray again; see :func:`finish_move`)."""
+    B[0][nout + mc] = r
+    B[1][nout + mc] = depth
+    B[8][mc] = top_before
+    B[9][mc] = got
+
+
+@nb.njit(cache=True)
+def _depth_after(S, r, top_before, got):
+    """Depth of cut on ray ``r`` changed once: top before minus the top now, or ``got``
+    (the length removed) where the top did not drop or the ray was emptied."""
+    c = S[0][r]
+    if c == 0:
+        return got
+    top = S[2][r] if c == 1 else S[8][S[5][r] + c - 2]
+    drop = top_before - np.float64(top)
+    return drop if drop > 0.0 else got
 
 
 @nb.njit(cache=True)
@@ -436,7 +476,9 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     removed: float64 (n_moves,) accumulates removed (or overlapping) *length* (mm).
     B: the log buffers (see :func:`finish_move`); state: int64 (STATE_SIZE,) where to
     resume. Returns DONE, STOP_POOL (grow the pool, call again), STOP_CHANGES (grow
-    B[0..4], call again) or STOP_JOURNAL (grow B[5..8]); the state says where it stopped.
+    B[0..2] when ``state[3] + state[4]`` fills them, the scratch B[8..9] when ``state[4]``
+    does; call again) or STOP_JOURNAL (grow B[4..7] to ``state[6]``); the state says
+    where it stopped.
     A move's entries are closed when the next move starts (segments of one move are
     consecutive), so the journal holds each ray as it was after the whole move.
     top_bound: no material anywhere lies above this (mm; ``inf`` when unknown).
@@ -457,6 +499,8 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     far = S[2]
     near_id = S[3]
     far_id = S[4]
+    first = S[5]
+    pool_far = S[8]
     code = int(tp[0])
     R = tp[1]
     h_off = tp[4]
@@ -466,9 +510,10 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     k0 = state[0]
     j_resume = state[1]
     i_resume = state[2]
-    nchg = state[3]
-    mstart = state[4]
-    chg_ray = B[0]
+    nout = state[3]
+    mc = state[4]
+    out_ray = B[0]
+    s_top = B[8]
     cap = 4096
     buf_lo = np.empty(cap, np.float32)
     buf_hi = np.empty(cap, np.float32)
@@ -477,13 +522,13 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     row_off = np.empty(nv + 2, np.int64)
     for k in range(k0, n):
         if (record and k > 0 and seg_move[k] != seg_move[k - 1]
-                and not (k == k0 and j_resume >= 0)):
-            w = finish_move(S, B, mstart, nchg, journal, state)
+                and not (k == k0 and j_resume >= 0) and mc > 0):
+            w = finish_move(S, B, seg_move[k - 1], nout, mc, journal, state)
             if w < 0:
-                _save(state, k, -1, -1, nchg, mstart)
+                _save(state, k, -1, -1, nout, mc)
                 return STOP_JOURNAL
-            nchg = w
-            mstart = nchg
+            nout = w
+            mc = 0
         x0 = P0[k, 0]
         y0 = P0[k, 1]
         z0 = P0[k, 2]
@@ -583,8 +628,8 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                 if probe:
                     removed[mv] += overlap_length(S, r, lo, hi)
                     continue
-                if record and nchg >= chg_ray.size:
-                    _save(state, k, j, i, nchg, mstart)
+                if record and (nout + mc >= out_ray.size or mc >= s_top.size):
+                    _save(state, k, j, i, nout, mc)
                     return STOP_CHANGES
                 top_before = f_
                 got = -2.0
@@ -608,31 +653,38 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                         top_before = ds.ray_top(S, r)
                     got = ds.subtract_interval(S, r, lo, hi, fid, eps)
                     if got == ds.POOL_FULL:
-                        _save(state, k, j, i, nchg, mstart)
+                        _save(state, k, j, i, nout, mc)
                         return STOP_POOL
                 if got > 0.0:
                     removed[mv] += got
                     if record:
-                        _log_change(B, nchg, r, mv, top_before, got)
-                        nchg += 1
-    if record:
-        w = finish_move(S, B, mstart, nchg, journal, state)
+                        # the one-segment cases leave the top at ``f_ - got`` or keep it
+                        dep = got
+                        c2 = cnt[r]
+                        if c > 1 and c2 > 0:
+                            t2 = far[r] if c2 == 1 else pool_far[first[r] + c2 - 2]
+                            if top_before - np.float64(t2) > 0.0:
+                                dep = top_before - np.float64(t2)
+                        _log_change(B, nout, mc, r, top_before, got, dep)
+                        mc += 1
+    if record and mc > 0:
+        w = finish_move(S, B, seg_move[n - 1], nout, mc, journal, state)
         if w < 0:
-            _save(state, n, -1, -1, nchg, mstart)
+            _save(state, n, -1, -1, nout, mc)
             return STOP_JOURNAL
-        nchg = w
-        mstart = nchg
-    _save(state, n, -1, -1, nchg, mstart)
+        nout = w
+        mc = 0
+    _save(state, n, -1, -1, nout, mc)
     return DONE
 
 
 @nb.njit(cache=True, inline="always")
-def _save(state, k, j, i, nchg, mstart):
+def _save(state, k, j, i, nout, mc):
     state[0] = k
     state[1] = j
     state[2] = i
-    state[3] = nchg
-    state[4] = mstart
+    state[3] = nout
+    state[4] = mc
 
 
 
@@ -776,18 +828,19 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
     k0 = state[0]
     j_resume = state[1]
     i_resume = state[2]
-    nchg = state[3]
-    mstart = state[4]
-    chg_ray = B[0]
+    nout = state[3]
+    mc = state[4]
+    out_ray = B[0]
+    s_top = B[8]
     for k in range(k0, n):
         if (record and k > 0 and pose_move[k] != pose_move[k - 1]
-                and not (k == k0 and j_resume >= 0)):
-            w = finish_move(S, B, mstart, nchg, journal, state)
+                and not (k == k0 and j_resume >= 0) and mc > 0):
+            w = finish_move(S, B, pose_move[k - 1], nout, mc, journal, state)
             if w < 0:
-                _save(state, k, -1, -1, nchg, mstart)
+                _save(state, k, -1, -1, nout, mc)
                 return STOP_JOURNAL
-            nchg = w
-            mstart = nchg
+            nout = w
+            mc = 0
         tip = tips[k]
         ax = axes[k]
         ua = tip[0] + bot_h * ax[0]
@@ -814,8 +867,8 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
                 m = pose_intervals(prof, tip, ax, i * sp, j * sp, ivs, buf)
                 if m == 0:
                     continue
-                if record and nchg >= chg_ray.size:
-                    _save(state, k, j, i, nchg, mstart)
+                if record and (nout + mc >= out_ray.size or mc >= s_top.size):
+                    _save(state, k, j, i, nout, mc)
                     return STOP_CHANGES
                 changed = False
                 top_before = ds.ray_top(S, r) if record else 0.0
@@ -829,23 +882,25 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
                     got = ds.subtract_interval(S, r, lo, hi, fid, eps)
                     if got == ds.POOL_FULL:
                         if changed and record:
-                            _log_change(B, nchg, r, mv, top_before, got_sum)
-                            nchg += 1
-                        _save(state, k, j, i, nchg, mstart)
+                            _log_change(B, nout, mc, r, top_before, got_sum,
+                                        _depth_after(S, r, top_before, got_sum))
+                            mc += 1
+                        _save(state, k, j, i, nout, mc)
                         return STOP_POOL
                     if got > 0.0:
                         removed[mv] += got
                         got_sum += got
                         changed = True
                 if changed and record:
-                    _log_change(B, nchg, r, mv, top_before, got_sum)
-                    nchg += 1
-    if record:
-        w = finish_move(S, B, mstart, nchg, journal, state)
+                    _log_change(B, nout, mc, r, top_before, got_sum,
+                                        _depth_after(S, r, top_before, got_sum))
+                    mc += 1
+    if record and mc > 0:
+        w = finish_move(S, B, pose_move[n - 1], nout, mc, journal, state)
         if w < 0:
-            _save(state, n, -1, -1, nchg, mstart)
+            _save(state, n, -1, -1, nout, mc)
             return STOP_JOURNAL
-        nchg = w
-        mstart = nchg
-    _save(state, n, -1, -1, nchg, mstart)
+        nout = w
+        mc = 0
+    _save(state, n, -1, -1, nout, mc)
     return DONE
