@@ -97,6 +97,12 @@ class CutResult:
         return float(self.removed.sum())
 
 
+def _larger(size: int) -> int:
+    """Next capacity of a log buffer: +50 %, +25 % once it is large (the slack is touched:
+    ``ndarray.resize`` zero-fills it)."""
+    return size + (size // 2 if size < (1 << 23) else size // 4)
+
+
 def _grow(a: np.ndarray, size: int) -> None:
     """Enlarge ``a`` in place to ``size`` elements, keeping its contents.
 
@@ -114,7 +120,7 @@ class _Log:
     jptr (int64): journal segments of entry ``e`` end at ``jptr[e + 1]``; counts (int64
     (n_moves,)): entries per move; jn / jf (float32), jni / jfi (int32): the journal's
     segments; s_top / s_len (float64): per-move scratch, reused move after move.
-    Buffers grow by half in place (:func:`_grow`), so at most a third is slack.
+    Buffers grow in place (:func:`_grow`, :func:`_larger`): little slack, never two copies.
     """
 
     def __init__(self, n_moves: int, journal: bool, small: bool):
@@ -141,7 +147,7 @@ class _Log:
     def grow_entries(self, state) -> None:
         used, cur = int(state[3]), int(state[4])
         if used + cur >= self.ray.size:
-            cap = max(self.ray.size + self.ray.size // 2, used + cur + 1)
+            cap = max(_larger(self.ray.size), used + cur + 1)
             _grow(self.ray, cap)
             _grow(self.depth, cap)
             if self.journal:
@@ -151,7 +157,7 @@ class _Log:
             self.s_len = np.concatenate([self.s_len, np.empty(self.s_len.size)])
 
     def grow_journal(self, state) -> None:
-        cap = max(self.jn.size + self.jn.size // 2, int(state[6]), 1024)
+        cap = max(_larger(self.jn.size), int(state[6]), 1024)
         for a in (self.jn, self.jf, self.jni, self.jfi):
             _grow(a, cap)
 
