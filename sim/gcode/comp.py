@@ -117,12 +117,7 @@ class CompEngine:
         p1 = (target[0], target[1])
         moved_xy = p0 != p1
         if self.radius == 0.0:
-            end = it.to_machine(target)
-            if rapid:
-                it._rapid_to(end)
-            else:
-                feed, inv = it._feed_rate(col, words or {}, math.dist(it.pos[:3], end[:3]))
-                it._line_to(end, MoveKind.FEED, feed, inv)
+            self._direct(target, rapid, col, words)
             return
         if self.first:
             if not moved_xy:
