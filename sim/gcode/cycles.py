@@ -122,7 +122,7 @@ def canned_cycle(it, motion: int, words, cols, used) -> None:
         if motion == 810:
             move(MoveKind.FEED, aa, bb, bottom)
             move(MoveKind.RAPID, aa, bb, clear)
-        elif motion == 820:
+        elif motion in (820, 860):  # G86 stops the spindle at the bottom: the path is G82's
             move(MoveKind.FEED, aa, bb, bottom)
             dwell_row()
             move(MoveKind.RAPID, aa, bb, clear)
@@ -139,10 +139,6 @@ def canned_cycle(it, motion: int, words, cols, used) -> None:
         elif motion == 850:
             move(MoveKind.FEED, aa, bb, bottom)
             move(MoveKind.FEED, aa, bb, r)
-            move(MoveKind.RAPID, aa, bb, clear)
-        elif motion == 860:
-            move(MoveKind.FEED, aa, bb, bottom)
-            dwell_row()
             move(MoveKind.RAPID, aa, bb, clear)
         elif motion == 890:
             move(MoveKind.FEED, aa, bb, bottom)
