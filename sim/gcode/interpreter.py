@@ -749,22 +749,8 @@ class Interpreter:
             raise LineError("cannot turn cutter compensation on when it is already on", col)
         if self.plane != 170:
             raise LineError("cutter compensation is only supported in the XY plane (G17)", col)
-        if "D" in words:
-            d = words["D"]
-            used.add("D")
-            if d < 0 or d != int(d):
-                raise LineError("D must be a non-negative integer (tool number)", cols["D"])
-            d = int(d)
-        else:
-            d = self.tool
-        radius = 0.0
-        if d != 0:
-            entry = self.tool_table.get(d)
-            if entry is None:
-                if self.has_tool_table:
-                    raise LineError(f"unknown tool D{d}: it is not in the tool table", cols.get("D", col))
-            else:
-                radius = entry.diameter / 2.0
+        entry = self._tool_word_entry("D", words, cols, used, col)
+        radius = 0.0 if entry is None else entry.diameter / 2.0
         self.comp = c
         self.comp_radius = radius
         self.comp_engine = compmod.CompEngine(self, left=(c == 410), radius=radius)
@@ -775,6 +761,26 @@ class Interpreter:
         if eng is not None:
             eng.flush()
 
+    def _tool_word_entry(self, letter: str, words, cols, used, col: int):
+        """The tool table entry a D (G41/G42) or H (G43) word names (``letter``), the
+        current tool without the word; None for tool 0, or for a tool not in the table
+        when the program runs without one (no radius, no length). Raises LineError for a
+        word that is not a non-negative integer or a tool missing from a loaded table."""
+        if letter in words:
+            n = words[letter]
+            used.add(letter)
+            if n < 0 or n != int(n):
+                raise LineError(f"{letter} must be a non-negative integer (tool number)", cols[letter])
+            n = int(n)
+        else:
+            n = self.tool
+        if n == 0:
+            return None
+        entry = self.tool_table.get(n)
+        if entry is None and self.has_tool_table:
+            raise LineError(f"unknown tool {letter}{n}: it is not in the tool table", cols.get(letter, col))
+        return entry
+
     def _set_tool_length(self, mode, words, cols, used) -> None:
         c, col = mode
         if self.comp != 400 and not self.grbl:
@@ -782,24 +788,12 @@ class Interpreter:
         if c == 490:
             self.tlo = [0.0] * 6
         elif c == 430:
-            if "H" in words:
-                h = words["H"]
-                used.add("H")
-                if h < 0 or h != int(h):
-                    raise LineError("H must be a non-negative integer (tool number)", cols["H"])
-                h = int(h)
-            else:
-                h = self.tool
+            entry = self._tool_word_entry("H", words, cols, used, col)
             new = [0.0] * 6
-            if h != 0:
-                entry = self.tool_table.get(h)
-                if entry is None:
-                    if self.has_tool_table:
-                        raise LineError(f"unknown tool H{h}: it is not in the tool table", cols.get("H", col))
-                else:
-                    for k, v in entry.offsets.items():
-                        if k in AXES:
-                            new[AXES.index(k)] = v
+            if entry is not None:
+                for k, v in entry.offsets.items():
+                    if k in AXES:
+                        new[AXES.index(k)] = v
             self.tlo = new
         else:  # G43.1 dynamic
             new = list(self.tlo)
