@@ -183,18 +183,24 @@ class _Reader:
             return ("atan", a, b)
         return ("f", name, a)
 
+    def _angle_name(self, start: int, what: str) -> str:
+        """The lower-cased text of ``<name>`` (the reader stands on '<' and ends past
+        '>'); a missing '>' fails at ``start``, naming ``what``."""
+        j = self.s.find(">", self.i)
+        if j < 0:
+            self.fail(f"{what} has no closing '>'", at=start)
+        name = self.s[self.i + 1 : j].lower()
+        self.i = j + 1
+        return name
+
     def parameter(self):
         start = self.i
         self.i += 1  # '#'
         c = self.peek()
         if c == "<":
-            j = self.s.find(">", self.i)
-            if j < 0:
-                self.fail("named parameter has no closing '>'", at=start)
-            name = self.s[self.i + 1 : j].lower()
+            name = self._angle_name(start, "named parameter")
             if not name:
                 self.fail("empty parameter name", at=start)
-            self.i = j + 1
             return ("n", name)
         if c == "":
             self.fail("'#' must be followed by a parameter number or <name>", at=start)
@@ -234,11 +240,7 @@ class _Reader:
         self.i += 1
         c = self.peek()
         if c == "<":
-            j = self.s.find(">", self.i)
-            if j < 0:
-                self.fail("o-word name has no closing '>'", at=start)
-            label = self.s[self.i + 1 : j].lower()
-            self.i = j + 1
+            label = self._angle_name(start, "o-word name")
         elif c == "#" or c == "[":
             v = self.value()
             label = v
