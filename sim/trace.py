@@ -535,17 +535,36 @@ class ZTrace:
                 zip(segs, (np.float32, np.float32, np.int32, np.int32))]
         jn, jf = segs[0], segs[1]
         jnb, jfb = jn.view(np.int32), jf.view(np.int32)
+        # a batch (budget None) with no keyframe work pending snapshots the mirror where each
+        # keyframe falls due: a copy, instead of replaying the events again later
+        inline = budget is None and self.auto_maintain and not self._due and self._builder is None
+        b0 = self.n_blocks
         while True:
             out = self._event_columns(n_entries, n_segs)
+            stop_at = self._next_due if inline else np.iinfo(np.int64).max
             status = tk.ingest_journal_fast(self._rec, self._recf, self._mirror.S, ptr, rays, seg_ptr,
-                                            *segs, jnb, jfb, state, cnt, *blk, *out)
+                                            *segs, jnb, jfb, state, cnt, *blk, *out, stop_at)
             if status == tk.DONE:
                 break
+            if status == tk.KEYFRAME:
+                self._snapshot_inline(b0, int(state[0]), stages, blk[1])
+                continue
             ds.grow_pool(self._mirror.store, 2 * n_segs + 64)
         self._set_counts()
         new = self.n_changes - before
         self._close_blocks(stages, *blk, budget=4 * new if budget is None else budget)
         return new
+
+    def _snapshot_inline(self, b0: int, k: int, stages, g_end) -> None:
+        """A keyframe of the mirror after the batch's first ``k`` moves (block ``b0 + k``,
+        not yet appended; ``g_end`` holds the batch's general-event ends per move)."""
+        prev = self._keyframes[-1]
+        g_prev = int(self._g_ptr.a[prev.block]) if prev.block <= b0 else int(g_end[prev.block - b0 - 1])
+        general = int(self._cnt[1]) > g_prev
+        tk.sync_mirror(self._rec, self._recf, self._mirror.S)
+        self._add_keyframe(_Keyframe(b0 + k, int(stages[k - 1]),
+                                     _snapshot_sharing(self._mirror.store, prev.data, general)))
+        self._next_due = int(self._cnt[0] + self._cnt[1]) + self.keyframe_every
 
     def _close_blocks(self, stages, f_end, g_end, s_end, budget: int = 0) -> None:
         """Append block rows (stage, column ends) and schedule the keyframes that fall due."""
@@ -995,7 +1014,8 @@ class TimeTrace:
         self._top[:] = top
         self._top_id[:] = tid
         self._init = (top.copy(), tid.copy())
-        self.keyframe_every = int(keyframe_every or self.n_rays)
+        # a rebuild scatters at most this many elements (~5 ns each: ~10 ms for 1M rays)
+        self.keyframe_every = int(keyframe_every or 2 * self.n_rays)
         self.max_keyframes = int(max_keyframes)
         self._keyframes = [_Keyframe(0, self.first_stage, self._init)]
         self._since_key = 0

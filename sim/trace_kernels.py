@@ -184,6 +184,7 @@ def chain_prev(top, top_id, rays, vals, ids, prev, prev_id):
 #: ingest kernels' return codes
 DONE = 0
 POOL_FULL = 1
+KEYFRAME = 2
 
 
 @nb.njit(cache=True)
@@ -330,7 +331,7 @@ def simple_rec_from_store(S, rec, recf):
 @nb.njit(cache=True)
 def ingest_journal_fast(rec, recf, M, ptr, rays, seg_ptr, jn, jf, jni, jfi, jnb, jfb, state, cnt,
                         blk_f, blk_g, blk_s, f_ray, f_val, f_id, g_ray, g_count, g_near,
-                        g_far, g_nid, g_fid):
+                        g_far, g_nid, g_fid, stop_at):
     """:func:`ingest_journal` with a one-segment cache ``rec`` in front of the mirror.
 
     rec : (n_rays, 4) int32: (near bits, far bits, near_id, far_id) of each ray that holds
@@ -341,6 +342,10 @@ def ingest_journal_fast(rec, recf, M, ptr, rays, seg_ptr, jn, jf, jni, jfi, jnb,
     recf : the same memory as ``rec`` viewed as float32 (values are copied through it,
         compared as bits through ``rec``). jnb, jfb : int32 views of ``jn`` / ``jf``.
         Everything else as :func:`ingest_journal`.
+    stop_at : int
+        Return KEYFRAME (``state`` set to resume) after the first move at whose end the
+        events recorded so far (far-only + general) reach this count: the caller snapshots
+        the mirror there, which costs a copy instead of a replay.
     """
     n_moves = ptr.size - 1
     nf = cnt[0]
@@ -426,6 +431,13 @@ def ingest_journal_fast(rec, recf, M, ptr, rays, seg_ptr, jn, jf, jni, jfi, jnb,
         blk_f[k] = nf
         blk_g[k] = ng
         blk_s[k] = ns
+        if nf + ng >= stop_at:
+            cnt[0] = nf
+            cnt[1] = ng
+            cnt[2] = ns
+            state[0] = k + 1
+            state[1] = ptr[k + 1]
+            return KEYFRAME
     cnt[0] = nf
     cnt[1] = ng
     cnt[2] = ns

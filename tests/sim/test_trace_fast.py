@@ -108,3 +108,29 @@ def test_far_only_edit_of_an_empty_ray_is_a_corrupt_trace():
         arrays[k] = np.zeros(n_segs, np.float32 if "nid" not in k and "fid" not in k else np.int32)
     with pytest.raises(InputError, match="corrupt trace"):
         ZTrace.from_arrays(arrays)
+
+
+def test_batch_keyframes_are_snapshots_of_the_model_at_their_stage():
+    from sim.grid import DexelGrid
+    from tests.sim.trace_helpers import program
+    g = box()
+    journal, stages, snaps = journal_of(program(g, n_moves=36, seed=4), g)
+    snaps[0] = box()
+    z = ZTrace(box(), keyframe_every=150)
+    z.record_journal(journal.changed_ptr, journal.changed_rays, journal.journal_seg_ptr,
+                     journal.journal_near, journal.journal_far, journal.journal_near_id,
+                     journal.journal_far_id, stages)
+    assert not z._due and z._builder is None          # taken during the ingest, nothing left
+    keys = z._keyframes
+    assert len(keys) >= z.n_changes // 150 // 2 and len(keys) > 3
+    ev = z._f_ptr.a + z._g_ptr.a
+    for prev, key in zip(keys, keys[1:]):
+        assert key.block > prev.block
+        assert ev[key.block] >= ev[prev.block] + 150 and ev[key.block - 1] < ev[prev.block] + 150
+        kg = DexelGrid(z.frame, z.tol, {k: v.copy() for k, v in key.data.items()})
+        assert same_model(kg, snaps[key.stage]), key.stage
+        if z._g_ptr.a[key.block] == z._g_ptr.a[prev.block]:   # far-only in between: shared
+            assert key.data["count"] is prev.data["count"]
+    out = box()
+    for s in sorted(snaps)[::-1]:
+        assert same_model(z.grid_at(s, out=out), snaps[s]), s
