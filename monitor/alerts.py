@@ -23,6 +23,8 @@ from typing import Callable, TextIO
 
 import numpy as np
 
+from monitor.jsonable import json_default
+
 #: the kinds that justify a feed hold (machine or part at risk), when feed hold is enabled
 HOLD_KINDS = frozenset({"gouge", "rapid_into_stock", "holder_contact", "shank_contact",
                         "above_flute_contact", "fixture_collision", "spindle_stopped_cutting",
@@ -153,7 +155,7 @@ class Alerter:
         if self.json_stream is not None:
             self.json_stream.write(json.dumps({"event": "finding_update", "id": idx + 1, "kind": rec.get("kind"),
                                                "line": rec.get("line"), "status": "happened", "t": t},
-                                              default=_default) + "\n")
+                                              default=json_default) + "\n")
             self.json_stream.flush()
 
     def _emit(self, f: dict, finding_id: int, t) -> None:
@@ -168,7 +170,7 @@ class Alerter:
                 self.console.bell()
                 self._record("bell", "\a", t, finding_id)
         if self.json_stream is not None:
-            self.json_stream.write(json.dumps({"event": "finding", **f}, default=_default) + "\n")
+            self.json_stream.write(json.dumps({"event": "finding", **f}, default=json_default) + "\n")
             self.json_stream.flush()
             self._record("json", f.get("kind", ""), t, finding_id)
         if self.feed_hold is not None and f.get("kind") in HOLD_KINDS:
@@ -207,11 +209,3 @@ def _pos(f: dict) -> np.ndarray:
 
 def _escape(text: str) -> str:
     return text.replace("[", "\\[")
-
-
-def _default(o):
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)

@@ -34,6 +34,7 @@ from typing import Iterator
 
 import numpy as np
 
+from monitor.jsonable import json_default
 from sim.errors import InputError
 
 FORMAT = "dexmon-run"
@@ -210,13 +211,13 @@ class RunWriter:
         """Append one finding as its JSON object (keys ``kind``, ``line``, ``lead_time_s`` indexed)."""
         self._put("INSERT INTO findings(t, kind, line, lead_time_s, json) VALUES (?, ?, ?, ?, ?)",
                   (t, str(finding.get("kind", "")), _int_or_none(finding.get("line")),
-                   _float_or_none(finding.get("lead_time_s")), json.dumps(finding, default=_json_default)))
+                   _float_or_none(finding.get("lead_time_s")), json.dumps(finding, default=json_default)))
 
     def update_finding(self, finding_id: int, finding: dict) -> None:
         """Replace the JSON of finding ``finding_id`` (1-based, in append order), e.g. when a
         predicted finding really happened."""
         self._put("UPDATE findings SET lead_time_s = ?, json = ? WHERE id = ?",
-                  (_float_or_none(finding.get("lead_time_s")), json.dumps(finding, default=_json_default),
+                  (_float_or_none(finding.get("lead_time_s")), json.dumps(finding, default=json_default),
                    int(finding_id)))
 
     def append_alert(self, channel: str, text: str, t: float | None = None, finding_id: int | None = None) -> None:
@@ -344,14 +345,6 @@ def _float_or_none(v):
         return None if v is None else float(v)
     except (TypeError, ValueError):
         return None
-
-
-def _json_default(o):
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, np.generic):
-        return o.item()
-    return str(o)
 
 
 # --- reader ------------------------------------------------------------------------------
