@@ -114,59 +114,53 @@ def _session(job, moves):
     return s
 
 
-def _follow(s, controller, vm, feeder):
+def _follow_over(example, serve):
+    """Follow the example job on the fast virtual machine, run at 12x by a real-time
+    runner, through the controller a peer serves: ``serve(vm) -> (url, close)``."""
+    from drivers.registry import open_controller
+    from drivers.virtual.controller import ProgramFeeder
+    from drivers.virtual.runner import RealTimeRunner
+
+    job, moves = example
+    s = _session(job, moves)
+    vm = _fast_vm(moves)
+    feeder = ProgramFeeder(moves)
+    url, close = serve(vm)
+    runner = RealTimeRunner(vm, speed=12.0, on_tick=feeder).start()
 
     def done():
         with vm.lock:
             return feeder.all_queued and not vm.busy
-    controller.connect()
     try:
-        run_controller(s, controller, 0.01, done=done, max_seconds=60)
+        controller = open_controller(url)
+        controller.connect()
+        try:
+            run_controller(s, controller, 0.01, done=done, max_seconds=60)
+        finally:
+            controller.close()
     finally:
-        controller.close()
+        runner.stop()
+        close()
     return s
 
 
 def test_grbl_peer_over_pty(example):
     from drivers.grbl.peer import GrblPeer
-    from drivers.registry import open_controller
-    from drivers.virtual.controller import ProgramFeeder
-    from drivers.virtual.runner import RealTimeRunner
 
-    job, moves = example
-    s = _session(job, moves)
-    vm = _fast_vm(moves)
-    feeder = ProgramFeeder(moves)
-    peer = GrblPeer(vm, run=False)
-    path = peer.serve_pty()
-    runner = RealTimeRunner(vm, speed=12.0, on_tick=feeder).start()
-    try:
-        s = _follow(s, open_controller(f"grbl://{path}"), vm, feeder)
-    finally:
-        runner.stop()
-        peer.close()
-    check_planted(s.findings)
+    def serve(vm):
+        peer = GrblPeer(vm, run=False)
+        return f"grbl://{peer.serve_pty()}", peer.close
+    check_planted(_follow_over(example, serve).findings)
 
 
 def test_modbus_peer_over_tcp(example):
     from drivers.modbus.regmap import load_map
     from drivers.modbus.server import ModbusVirtualServer
-    from drivers.registry import open_controller
-    from drivers.virtual.controller import ProgramFeeder
-    from drivers.virtual.runner import RealTimeRunner
 
-    job, moves = example
-    s = _session(job, moves)
-    vm = _fast_vm(moves)
-    feeder = ProgramFeeder(moves)
-    server = ModbusVirtualServer(vm, load_map("generic")).start()
-    runner = RealTimeRunner(vm, speed=12.0, on_tick=feeder).start()
-    try:
-        s = _follow(s, open_controller(f"modbus+tcp://127.0.0.1:{server.port}?map=generic"), vm, feeder)
-    finally:
-        runner.stop()
-        server.stop()
-    check_planted(s.findings)
+    def serve(vm):
+        server = ModbusVirtualServer(vm, load_map("generic")).start()
+        return f"modbus+tcp://127.0.0.1:{server.port}?map=generic", server.stop
+    check_planted(_follow_over(example, serve).findings)
 
 
 def test_sigkilled_run_leaves_a_file_that_opens(tmp_path):
