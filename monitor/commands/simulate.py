@@ -35,6 +35,9 @@ from sim.errors import InputError
 
 HELP = "cut and check a whole program (or a JOB.toml) without a machine; findings table or --json"
 
+#: moves cut and checked per call (bounds the changed-ray log: ~500 rays a move at 0.1 mm)
+SIM_BATCH = 2048
+
 _NUM = r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?"
 
 
@@ -124,6 +127,15 @@ def load_moves(path: str, dialect: str = "linuxcnc", tool_table=None) -> np.ndar
     return load_program(path, dialect=dialect, tool_table=tool_table).moves
 
 
+def _cutting_rows(moves: np.ndarray) -> np.ndarray:
+    """bool (n,): rows that can remove material (rapids, feeds, arcs)."""
+    from sim.gcode.moves import MoveKind
+
+    lut = np.zeros(256, bool)
+    lut[[int(MoveKind.RAPID), int(MoveKind.FEED), int(MoveKind.ARC_CW), int(MoveKind.ARC_CCW)]] = True
+    return lut[moves["kind"]]
+
+
 def _skip_first_rapid(moves: np.ndarray) -> tuple[np.ndarray, bool]:
     """The table to cut, and whether its leading rapid was made a no-op.
 
@@ -132,7 +144,7 @@ def _skip_first_rapid(moves: np.ndarray) -> tuple[np.ndarray, bool]:
     """
     from sim.gcode.moves import MoveKind
 
-    cutting = np.isin(moves["kind"], [MoveKind.RAPID, MoveKind.FEED, MoveKind.ARC_CW, MoveKind.ARC_CCW])
+    cutting = _cutting_rows(moves)
     first = int(np.argmax(cutting))
     skip = bool(cutting.any() and moves["kind"][first] == MoveKind.RAPID)
     todo = moves.copy()
@@ -267,28 +279,29 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None) -
     from sim.gcode.moves import MoveKind
 
     kinds = moves["kind"]
-    cutting = np.isin(kinds, [MoveKind.RAPID, MoveKind.FEED, MoveKind.ARC_CW, MoveKind.ARC_CCW])
+    cutting = _cutting_rows(moves)
     if not cutting.any():
         raise InputError("the program has no motion to simulate (empty program?)", where=program)
     stock_volume = grid.volume()
     todo, skip_first = _skip_first_rapid(moves)
     t0 = time.perf_counter()
     if checker is not None:
-        res, _ = checker.cut_and_check(todo)
+        # in batches: one batch's changed-ray log alive at a time, whatever the length
+        per_move = checker.check_program(todo, batch=SIM_BATCH)
         findings = final_findings(checker)
     else:
-        res = Cutter(grid, tool, tools=tools or None).cut_moves(todo, record_changes=False)
+        per_move = Cutter(grid, tool, tools=tools or None).cut_moves(todo, record_changes=False).removed
         findings = []
     seconds = time.perf_counter() - t0
-    removed = float(res.removed.sum())
-    rapid_removed = float(res.removed[kinds == MoveKind.RAPID].sum())
+    removed = float(per_move.sum())
+    rapid_removed = float(per_move[kinds == MoveKind.RAPID].sum())
 
     out = dict(out or {})
     out.update({
         "program": program,
         "moves": int(len(moves)),
         "motion_moves": int(cutting.sum()),
-        "cutting_moves": int((res.removed > 0).sum()),
+        "cutting_moves": int((per_move > 0).sum()),
         "removed_mm3": round(removed, 3),
         "removed_by_rapids_mm3": round(rapid_removed, 3),
         "first_rapid_skipped": skip_first,

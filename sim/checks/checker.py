@@ -61,8 +61,9 @@ class Checker:
         self.max_ramp_deg = max_ramp_deg
         self.min_volume = (0.1 * self.frame.spacing**3) if min_volume is None else float(min_volume)
         self._top_bound = collisions.max_top(stock) if self.frame.is_top else np.inf
-        needs_engagement = max_depth_of_cut is not None or any(
-            not t.center_cutting for t in [tool, *self.tools.values()])
+        # the depth of cut comes from the cut's own log (CutResult.changed_depth); the
+        # engagement's height map is kept only for plunges of non-centre-cutting tools
+        needs_engagement = any(not t.center_cutting for t in [tool, *self.tools.values()])
         self.engagement = (motion.Engagement(self.frame, stock.top(), tool, chord=tol.chord)
                            if needs_engagement and self.frame.is_top else None)
         self._lines = np.zeros(1, np.int64)  # move id -> program line
@@ -105,6 +106,23 @@ class Checker:
         self.findings.extend(batch)
         return res, batch
 
+    def check_program(self, moves: np.ndarray, move_ids=None, batch: int = 2048) -> np.ndarray:
+        """Cut and check a whole program, ``batch`` rows at a time; returns float64 (n,)
+        mm^3 removed by each row.
+
+        Same findings as one :meth:`cut_and_check` of everything (kept in
+        :attr:`findings`), but the changed-ray log of only one batch is alive at a time,
+        so memory stays bounded on long programs.
+        """
+        moves = np.asarray(moves)
+        ids = motion.move_ids_of(moves, move_ids)
+        removed = np.zeros(len(moves))
+        for a in range(0, len(moves), max(int(batch), 1)):
+            b = min(a + max(int(batch), 1), len(moves))
+            res, _ = self.cut_and_check(moves[a:b], ids[a:b])
+            removed[a:b] = res.removed
+        return removed
+
     def _check_batch(self, grid, cutter, moves, ids, error_map, engagement, design_rays, top_bound):
         out: list[Finding] = []
         if self.limits:
@@ -116,11 +134,12 @@ class Checker:
         pre = self._body_candidates(grid, cutter, moves, top_bound)
         snapshot = grid.copy() if pre else None
         res = cutter.cut_moves(moves, move_ids=ids.astype(np.int32))
+        if self.max_depth_of_cut is not None:
+            doc = motion.depth_of_cut_of(res)
+            out += motion.depth_of_cut(moves, doc, self.max_depth_of_cut, ids)
         if engagement is not None:
             # after the cut: only the rays each move changed can have lost material
-            doc, core = engagement.run(moves, cut=res, grid=grid)
-            if self.max_depth_of_cut is not None:
-                out += motion.depth_of_cut(moves, doc, self.max_depth_of_cut, ids)
+            _, core = engagement.run(moves, cut=res, grid=grid)
             for tool, rows in self._tool_of_rows(moves):
                 out += motion.plunges(moves[rows], core[rows], tool, self.max_ramp_deg, move_ids=ids[rows])
         out += collisions.rapid_into_stock(moves, res.removed, ids, self.min_volume, cut=res, grid=grid)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from sim.checks.findings import Finding
-from sim.checks.motion import is_motion, move_ids_of
+from sim.checks.motion import is_arc, is_motion, move_ids_of
 from sim.errors import InputError
 from sim.gcode.moves import MoveKind
 from sim.grid import DexelGrid
@@ -209,5 +209,5 @@ def _near_xy(moves, grid: DexelGrid, radius: float) -> np.ndarray:
     hi_x = np.maximum(s[:, 0], e[:, 0]) + radius
     lo_y = np.minimum(s[:, 1], e[:, 1]) - radius
     hi_y = np.maximum(s[:, 1], e[:, 1]) + radius
-    arc = np.isin(moves["kind"], [int(MoveKind.ARC_CW), int(MoveKind.ARC_CCW)])
+    arc = is_arc(moves)
     return arc | ((hi_x >= x0) & (lo_x <= x1) & (hi_y >= y0) & (lo_y <= y1))

@@ -606,6 +606,25 @@ class Engagement:
         return doc, core
 
 
+def depth_of_cut_of(cut) -> np.ndarray:
+    """Axial depth of cut of each move, float64 (n,) mm, from a :class:`sim.cut.CutResult`
+    with changes recorded: the largest ``changed_depth`` over the rays the move changed
+    (how far it lowered a ray's material top, or the length it took off a ray where the
+    top stayed - a cut below an overhang - or that it emptied); 0 where nothing changed.
+    """
+    ptr = np.asarray(cut.changed_ptr, np.int64)
+    depth = np.asarray(cut.changed_depth)
+    doc = np.zeros(ptr.size - 1)
+    if depth.size == 0:
+        return doc
+    if depth.size != int(ptr[-1]):
+        raise InputError(f"cut result holds {depth.size} depths for {int(ptr[-1])} changed rays")
+    hit = np.nonzero(ptr[1:] > ptr[:-1])[0]
+    # segments of consecutive non-empty moves tile the entries: reduceat over their starts
+    doc[hit] = np.maximum.reduceat(depth, ptr[hit])
+    return doc
+
+
 def depth_of_cut(moves: np.ndarray, doc, limit: float, move_ids=None) -> list[Finding]:
     """Moves whose axial depth of cut ``doc`` (float64 (n,) mm) is over ``limit`` mm: one
     finding per run of consecutive offending moves, at the deepest (what

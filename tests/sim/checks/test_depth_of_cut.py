@@ -114,3 +114,90 @@ def test_look_ahead_on_a_window_finds_the_same_depth_and_leaves_the_model_alone(
     now = [f for f in now if f.kind == "depth_of_cut"]
     assert [(f.lines, f.depth) for f in ahead] == [(f.lines, f.depth) for f in now]
     assert now[0].depth == pytest.approx(3.5, abs=1e-6) and now[0].lines == (10, 20)
+
+
+def sampled_depths(g, tool, part, heights, step=0.02):
+    """Independent depth of cut of each line of ``part``: the tool's lowest height
+    (``tool.lowest_height``) at tip positions every ``step`` mm along the move, on every
+    ray of the grid, against the heights ``heights`` ((n_rays,) float64, lowered here)."""
+    f = g.frame
+    xs = f.origin[0] + np.arange(f.nu) * f.spacing
+    ys = f.origin[1] + np.arange(f.nv) * f.spacing
+    R = tool.cutting_radius
+    out = np.zeros(len(part))
+    for k in range(len(part)):
+        p0 = np.array(part["start"][k, :3], float)
+        p1 = np.array(part["end"][k, :3], float)
+        if np.hypot(*(p1 - p0)[:2]) < 1e-9:  # a plunge: its lowest position is all that counts
+            pts = (p0 if p0[2] < p1[2] else p1)[None, :]
+        else:
+            n = int(np.ceil(np.linalg.norm(p1 - p0) / step)) + 1
+            pts = p0 + np.linspace(0.0, 1.0, n)[:, None] * (p1 - p0)
+        i = np.nonzero((xs >= pts[:, 0].min() - R) & (xs <= pts[:, 0].max() + R))[0]
+        j = np.nonzero((ys >= pts[:, 1].min() - R) & (ys <= pts[:, 1].max() + R))[0]
+        X, Y = np.meshgrid(xs[i], ys[j])
+        d = np.hypot(X.reshape(-1, 1) - pts[:, 0], Y.reshape(-1, 1) - pts[:, 1])
+        low = np.nanmin(np.where(d <= R, pts[:, 2] + np.nan_to_num(tool.lowest_height(np.minimum(d, R)),
+                                                                    nan=np.inf), np.inf), axis=1)
+        rays = (j[:, None] * f.nu + i[None, :]).reshape(-1)
+        cut = heights[rays] - low
+        out[k] = max(float(np.max(cut, initial=0.0)), 0.0)
+        heights[rays] = np.minimum(heights[rays], low)
+    return out
+
+
+@pytest.mark.parametrize("spec", ["flat:6", "ball:6", "bull:6:1"])
+def test_depth_of_cut_from_the_cut_log_equals_the_full_walk(spec):
+    """The Checker's depth of cut (largest ``changed_depth`` of each move) against the
+    engagement walking every ray under the tool (flat, ball: the same closed forms) or
+    the tool sampled every 20 um along each line (bull-nose), batch after batch."""
+    tool = parse_tool_spec(spec)
+    m = wavy_path(np.random.default_rng(3), n=40)
+    g = stock()
+    full = motion.Engagement(g.frame, g.top(), tool, chord=0.001)
+    heights = g.top().reshape(-1).astype(np.float64)
+    cutter = Cutter(g, tool)
+    for a in range(0, len(m), 30):
+        part = m[a:a + 30]
+        line = ~motion.is_arc(part)
+        if spec == "bull:6:1":
+            want = sampled_depths(g, tool, part[line], heights)
+            d_full, _ = full.run(part)
+        else:
+            d_full, _ = full.run(part)
+            want = d_full[line]
+        doc = motion.depth_of_cut_of(cutter.cut_moves(part))
+        assert doc.shape == (len(part),) and doc.dtype == np.float64
+        # float32 faces; sampling misses the true lowest point by up to ~1 um
+        tol = 1e-5 if spec != "bull:6:1" else 2e-3
+        assert doc[line].max() > 0.5
+        assert np.allclose(doc[line], want, atol=tol), np.abs(doc[line] - want).max()
+        assert np.all(doc[~line] >= d_full[~line] - 1e-5)
+        full.top = g.top().reshape(-1).astype(np.float64)  # the walk follows the model
+        heights = full.top.copy()
+
+
+def test_depth_of_cut_below_an_overhang_is_the_length_taken_off():
+    """A T-slot cutter under a ledge: the top stays, the depth is what the cut removed."""
+    from sim.tools import Tool
+
+    g = stock(0.25)
+    # a slot 4..6 mm high under a roof, open up through the roof along the neck's path
+    for j in range(64, 97):
+        for i in range(g.frame.nu):
+            g.subtract(i, j, 4.0, 10.0 if abs(j * 0.25 - 20.0) <= 1.2 else 6.0, move_id=99)
+    tslot = Tool.custom([[0, 3], [1.5, 3], [1.5, 1], [20, 1]])
+    m = polyline([(5, 20, 3.5), (35, 20, 3.5)])  # disc 3.5..5 mm: takes 3.5..4 off each ray
+    doc = motion.depth_of_cut_of(Cutter(g, tslot).cut_moves(m))
+    assert doc[0] == pytest.approx(0.5, abs=1e-5)
+    assert np.nanmax(g.top()) == pytest.approx(10.0)
+
+
+def test_depth_of_cut_of_a_cut_without_changes_is_zero_and_checks_its_input():
+    g = stock(0.25)
+    res = Cutter(g, parse_tool_spec("flat:6")).cut_moves(polyline([(5, 20, 12), (35, 20, 12)]))
+    assert np.array_equal(motion.depth_of_cut_of(res), [0.0])
+    res = Cutter(g, parse_tool_spec("flat:6")).cut_moves(polyline([(5, 20, 9), (35, 20, 9)]))
+    res.changed_depth = res.changed_depth[:-1]
+    with pytest.raises(Exception, match="depths"):
+        motion.depth_of_cut_of(res)
