@@ -158,12 +158,13 @@ def parse_limits(text: str) -> dict[str, tuple[float, float]]:
     return out
 
 
-def _runs_of(ids: np.ndarray) -> list[np.ndarray]:
-    """Positions of ``ids`` split where the ids stop being consecutive."""
+def _runs_of(ids: np.ndarray) -> list[slice]:
+    """Slices of ``ids`` split where the ids stop being consecutive."""
     if ids.size == 0:
         return []
     d = np.diff(ids)
-    return np.split(np.arange(ids.size), np.nonzero((d < 0) | (d > 1))[0] + 1)
+    cuts = [0, *(np.nonzero((d < 0) | (d > 1))[0] + 1).tolist(), int(ids.size)]
+    return [slice(a, b) for a, b in zip(cuts[:-1], cuts[1:])]
 
 
 def _where(lines) -> str:
