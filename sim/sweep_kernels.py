@@ -311,6 +311,60 @@ def _rows_flat(Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrow
             fl_r[q] = ok & ((c > 1) | ((c == 1) & one))
 
 
+@nb.njit(cache=True, error_model="numpy", boundscheck=False)
+def _rows_cone(cot, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
+               row_ilo, row_off, cnt, near, far, lo, hi, flag):
+    """Cone (vbit / drill point) on the rays of one move (see :func:`_rows_ball`).
+
+    Same arithmetic as :func:`linear_interval`'s cone: the lowest point of
+    ``m s + cot sqrt(e^2 + (a - s)^2)`` at ``s = a - |e| g / sqrt(1 - g^2)``, ``g = m / cot``,
+    or at the start (end) when the move climbs (descends) steeper than the cone; the
+    case is the same for every ray of the move, so the loop stays branch-free.
+    """
+    Rc2 = Rc * Rc
+    g = m / cot
+    at_start = g >= 1.0
+    at_end = g <= -1.0
+    sq = math.sqrt(1.0 - g * g) if not (at_start or at_end) else 1.0
+    for jj in range(nrows):
+        i0 = row_ilo[jj]
+        o = row_off[jj]
+        nq = row_off[jj + 1] - o
+        rx = rx0 + i0 * sp
+        ry = ry0 + (jlo + jj) * sp
+        a0 = rx * ux + ry * uy
+        e0 = -rx * uy + ry * ux
+        da = sp * ux
+        de = -sp * uy
+        base = (jlo + jj) * nu + i0
+        lo_r = lo[o:o + nq]
+        hi_r = hi[o:o + nq]
+        fl_r = flag[o:o + nq]
+        cn_r = cnt[base:base + nq]
+        ne_r = near[base:base + nq]
+        fa_r = far[base:base + nq]
+        for q in range(nq):
+            a = a0 + q * da
+            e = e0 + q * de
+            e2 = e * e
+            qc = Rc2 - e2
+            rho_c = math.sqrt(max(qc, 0.0))
+            s_lo = max(a - rho_c, 0.0)
+            s_hi = min(a + rho_c, ell)
+            s_mid = a - abs(e) * g / sq
+            s = s_lo if at_start else (s_hi if at_end else s_mid)
+            s = min(max(s, s_lo), s_hi)
+            w = a - s
+            v = np.float32(z0 + m * s + h_off + math.sqrt(e2 + w * w) * cot)
+            t = np.float32(z0 + h_top + max(m * s_lo, m * s_hi))
+            ok = (qc >= 0.0) & (s_lo <= s_hi) & (v < t)
+            lo_r[q] = v
+            hi_r[q] = t
+            c = cn_r[q]
+            one = (v < fa_r[q]) & (t > ne_r[q])
+            fl_r[q] = ok & ((c > 1) | ((c == 1) & one))
+
+
 @nb.njit(cache=True)
 def _rows_any(tp, x0, y0, z0, dz, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
               row_ilo, row_off, cnt, near, far, lo, hi, flag):
@@ -600,6 +654,9 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                        row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
         elif ell > 0.0 and code == CODE_FLAT:
             _rows_flat(Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
+                       row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
+        elif ell > 0.0 and code == CODE_CONE:
+            _rows_cone(tp[3], Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
                        row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
         else:
             _rows_any(tp, x0, y0, z0, dz, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
