@@ -365,6 +365,123 @@ def _rows_cone(cot, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo,
             fl_r[q] = ok & ((c > 1) | ((c == 1) & one))
 
 
+@nb.njit(cache=True, inline="always")
+def _bull_root(R, rc, m, a, e2, lo_s, hi_s, ga, gb, s0):
+    """Root of the bull-nose slope (:func:`_bull_slope`) in ``(lo_s, hi_s)`` where it goes
+    from ``ga < 0`` to ``gb > 0``; ``s0`` (NaN if none) is a guess - the root of the
+    neighbouring ray, a few ulps away along a row. Secant steps from the guess, kept in
+    the shrinking bracket, with a bisection whenever the bracket fails to halve in two
+    steps; stops when the bracket or the step is within ~1e-12 mm."""
+    s = s0
+    if not (lo_s < s < hi_s):
+        s = (lo_s * gb - hi_s * ga) / (gb - ga)
+        if not (lo_s < s < hi_s):
+            s = 0.5 * (lo_s + hi_s)
+    s_old = np.nan
+    g_old = np.nan
+    width = hi_s - lo_s
+    for it in range(200):
+        g = _bull_slope(R, rc, m, a, e2, s)
+        if g == 0.0:
+            return s
+        if g < 0.0:
+            lo_s = s
+            ga = g
+        else:
+            hi_s = s
+            gb = g
+        if hi_s - lo_s <= 1e-12 * (1.0 + abs(hi_s)):
+            break
+        if g_old == g_old and g != g_old:
+            sn = s - g * (s - s_old) / (g - g_old)
+        else:
+            sn = (lo_s * gb - hi_s * ga) / (gb - ga)
+        if it % 2 == 1:
+            if hi_s - lo_s > 0.5 * width:
+                sn = 0.5 * (lo_s + hi_s)
+            width = hi_s - lo_s
+        if not (lo_s < sn < hi_s):
+            sn = 0.5 * (lo_s + hi_s)
+        if abs(sn - s) <= 1e-13 * (1.0 + abs(s)):
+            return sn
+        s_old = s
+        g_old = g
+        s = sn
+    return s
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _rows_bull(R, rc, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
+               row_ilo, row_off, cnt, near, far, lo, hi, flag):
+    """Bull-nose on the rays of one move (see :func:`_rows_ball`), by the same formulas as
+    :func:`linear_interval`: closed form for level moves, else the root of the monotone
+    slope, each ray's search started from its neighbour's root (:func:`_bull_root`)."""
+    Rc2 = Rc * Rc
+    for jj in range(nrows):
+        i0 = row_ilo[jj]
+        o = row_off[jj]
+        nq = row_off[jj + 1] - o
+        rx = rx0 + i0 * sp
+        ry = ry0 + (jlo + jj) * sp
+        a0 = rx * ux + ry * uy
+        e0 = -rx * uy + ry * ux
+        da = sp * ux
+        de = -sp * uy
+        base = (jlo + jj) * nu + i0
+        s_prev = np.nan
+        for q in range(nq):
+            a = a0 + q * da
+            e = e0 + q * de
+            e2 = e * e
+            qc = Rc2 - e2
+            flag[o + q] = False
+            if qc < 0.0:
+                continue
+            rho_c = math.sqrt(qc)
+            s_lo = max(a - rho_c, 0.0)
+            s_hi = min(a + rho_c, ell)
+            if s_lo > s_hi:
+                continue
+            za = z0 + m * s_lo
+            zb = z0 + m * s_hi
+            top = (za if za > zb else zb) + h_top
+            c = cnt[base + q]
+            if c == 0:
+                continue
+            if c == 1:
+                # a bound first: the tool is nowhere lower than its lowest tip height plus
+                # h* at the ray's distance from the path; a ray whose material lies below
+                # that bound is out of reach (the exact test below would say the same)
+                w0 = a - min(max(a, 0.0), ell)
+                bound = np.float32((za if za < zb else zb) + h_off
+                                   + _hstar(CODE_BULL, R, rc, 0.0, math.sqrt(e2 + w0 * w0)))
+                if bound >= far[base + q]:
+                    continue
+            if m == 0.0:
+                s = min(max(a, s_lo), s_hi)
+                low = z0 + h_off + _hstar(CODE_BULL, R, rc, 0.0, math.sqrt(e2 + (a - s) ** 2))
+            else:
+                ga = _bull_slope(R, rc, m, a, e2, s_lo)
+                gb = _bull_slope(R, rc, m, a, e2, s_hi)
+                if ga >= 0.0:
+                    s = s_lo
+                elif gb <= 0.0:
+                    s = s_hi
+                else:
+                    s = _bull_root(R, rc, m, a, e2, s_lo, s_hi, ga, gb, s_prev)
+                    s_prev = s
+                fa = za + _hstar(CODE_BULL, R, rc, 0.0, math.sqrt(e2 + (a - s_lo) ** 2))
+                fb = zb + _hstar(CODE_BULL, R, rc, 0.0, math.sqrt(e2 + (a - s_hi) ** 2))
+                fs = z0 + m * s + _hstar(CODE_BULL, R, rc, 0.0, math.sqrt(e2 + (a - s) ** 2))
+                low = min(fa, fb, fs) + h_off
+            v = np.float32(low)
+            t = np.float32(top)
+            lo[o + q] = v
+            hi[o + q] = t
+            flag[o + q] = (low < top) and (v < t) and (c > 1 or (c == 1 and v < far[base + q]
+                                                             and t > near[base + q]))
+
+
 @nb.njit(cache=True)
 def _rows_any(tp, x0, y0, z0, dz, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
               row_ilo, row_off, cnt, near, far, lo, hi, flag):
@@ -654,6 +771,9 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                        row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
         elif ell > 0.0 and code == CODE_FLAT:
             _rows_flat(Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
+                       row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
+        elif ell > 0.0 and code == CODE_BULL:
+            _rows_bull(R, tp[2], Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
                        row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
         elif ell > 0.0 and code == CODE_CONE:
             _rows_cone(tp[3], Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
