@@ -402,8 +402,25 @@ def _bull_root(R, rc, m, a, e2, lo_s, hi_s, ga, gb, s0):
             width = hi_s - lo_s
         if not (lo_s < sn < hi_s):
             sn = 0.5 * (lo_s + hi_s)
-        if abs(sn - s) <= 1e-13 * (1.0 + abs(s)):
-            return sn
+        tol = 1e-12 * (1.0 + abs(sn))
+        if abs(sn - s) <= tol:
+            # a tiny step is not proof (the slope is near-vertical at the rim): the root
+            # is at sn only if the slope changes sign across it
+            sa = sn - tol
+            sb = sn + tol
+            if lo_s < sa and sb < hi_s:
+                gl = _bull_slope(R, rc, m, a, e2, sa)
+                gh = _bull_slope(R, rc, m, a, e2, sb)
+                if gl <= 0.0 <= gh:
+                    return sn
+                if gl > 0.0:
+                    hi_s = sa
+                    gb = gl
+                else:
+                    lo_s = sb
+                    ga = gh
+            sn = 0.5 * (lo_s + hi_s)
+            g = np.nan  # no secant through a bisection point
         s_old = s
         g_old = g
         s = sn
