@@ -159,3 +159,23 @@ def test_depth_of_an_arc_groove_and_of_a_split_below_the_top():
     g2 = stock()
     res2 = Cutter(g2, parse_tool_spec("flat:6:L=2")).cut_moves(moves_of((FEED, (5, 10, 4), (35, 10, 4))))
     np.testing.assert_allclose(res2.changed_depth, 2.0, atol=1e-6)  # [4, 6] cut out, top stays
+
+
+def test_log_grows_mid_move_and_matches_the_model():
+    """One move changing ~10k rays (more than the log's and the per-move scratch's first
+    size): the changed rays are exactly the rays whose segments changed, the depths the
+    drop of their tops, the journal each ray's segments after the move."""
+    g = stock(x1=60.0, y1=30.0, sp=0.1)
+    before = g.copy()
+    res = Cutter(g, parse_tool_spec("flat:20:L=20")).cut_moves(
+        moves_of((FEED, (10, 15, 8), (50, 15, 7))), journal=True)
+    top0 = before.top().reshape(-1).astype(np.float64)
+    top1 = g.top().reshape(-1).astype(np.float64)
+    moved = np.nonzero(top1 < top0)[0]
+    assert moved.size > 8000
+    np.testing.assert_array_equal(res.changed_rays, moved)
+    assert res.changed_rays.dtype == np.int64 and res.changed_depth.dtype == np.float32
+    np.testing.assert_allclose(res.changed_depth, (top0 - top1)[moved], atol=1e-6)
+    assert list(res.changed_ptr) == [0, moved.size]
+    assert res.has_journal and np.all(np.diff(res.journal_seg_ptr) == 1)
+    np.testing.assert_array_equal(res.journal_far, top1[moved].astype(np.float32))
