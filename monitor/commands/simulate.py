@@ -22,8 +22,10 @@ where no material is left.
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
+import os
 import re
 import sys
 import time
@@ -52,9 +54,19 @@ def add_arguments(parser) -> None:
     parser.add_argument("--resolution", type=float, default=None,
                         help="dexel spacing in mm (default 0.2, or the job's)")
     parser.add_argument("--dialect", choices=("linuxcnc", "grbl"), default=None)
-    parser.add_argument("--tool-table", default=None, help="LinuxCNC tool table (tools follow the T column)")
-    parser.add_argument("--tool-table-units", choices=("mm", "inch"), default="mm",
-                        help="units of the numbers in the tool table (default mm)")
+    parser.add_argument("--tool-table", default=None,
+                        help="LinuxCNC tool table (tools follow the T column; in --machine-units)")
+    parser.add_argument("--var", default=None, metavar="FILE.var",
+                        help="LinuxCNC parameter (.var) file: work offsets G54..G59.3, G28/G30 "
+                             "(in --machine-units)")
+    parser.add_argument("--machine-units", choices=("mm", "inch"), default=None,
+                        help="units of the tool table and .var file (default mm)")
+    parser.add_argument("--tool-table-units", choices=("mm", "inch"), default=None,
+                        help=argparse.SUPPRESS)  # deprecated alias of --machine-units
+    parser.add_argument("--subroutine-path", action="append", metavar="DIRS", default=[],
+                        help="directories searched for o<name> call subroutine files (<name>.ngc), "
+                             f"'{os.pathsep}'-separated like LinuxCNC's SUBROUTINE_PATH; repeatable; "
+                             "the program's own directory is searched last")
     parser.add_argument("--memory-limit", type=float, default=4096.0, metavar="MB",
                         help="refuse grids needing more than this (default 4096 MB)")
     parser.add_argument("--heights", default=None, metavar="OUT.npy", help="write top-surface heights (float32 ny x nx)")
@@ -118,13 +130,38 @@ def build_stock(spec: str, resolution: float, memory_limit_mb: float = 4096.0):
     return mesh_grid(Frame.top(x0, y0, x1, y1, resolution), path)
 
 
-def load_moves(path: str, dialect: str = "linuxcnc", tool_table=None) -> np.ndarray:
-    """The move table of a program, through the project's G-code interpreter."""
-    try:
-        from sim.gcode import load_program
-    except ImportError:
-        raise InputError("the G-code interpreter (sim.gcode.load_program) is not available in this build") from None
-    return load_program(path, dialect=dialect, tool_table=tool_table).moves
+def machine_units(args) -> str:
+    """``--machine-units`` (or its deprecated alias ``--tool-table-units``), default mm."""
+    mu = getattr(args, "machine_units", None)
+    alias = getattr(args, "tool_table_units", None)
+    if mu and alias and mu != alias:
+        raise InputError(f"--machine-units {mu} contradicts --tool-table-units {alias} "
+                         "(the latter is an old name of the former)", where="--machine-units")
+    return mu or alias or "mm"
+
+
+def subroutine_dirs(args) -> list[str]:
+    """The ``--subroutine-path`` directories, split at the path separator; InputError for one
+    that is not a directory."""
+    dirs = [d for arg in (getattr(args, "subroutine_path", None) or []) for d in arg.split(os.pathsep) if d]
+    for d in dirs:
+        if not os.path.isdir(d):
+            raise InputError("not a directory", where=f"--subroutine-path {d}")
+    return dirs
+
+
+def load_moves(path: str, dialect: str = "linuxcnc", tool_table=None, var_file=None, units: str = "mm",
+               subroutine_path=None) -> np.ndarray:
+    """The move table of a program, through the project's G-code interpreter.
+
+    ``var_file``: LinuxCNC .var path (work offsets, G28/G30), in ``units`` like the tool table.
+    """
+    from sim.gcode import load_program
+
+    if var_file is not None and not Path(var_file).is_file():
+        raise InputError("no such parameter (.var) file", where=f"--var {var_file}")
+    return load_program(path, dialect=dialect, tool_table=tool_table, var_file=var_file,
+                        machine_units=units, subroutine_path=subroutine_path or None).moves
 
 
 def _cutting_rows(moves: np.ndarray) -> np.ndarray:
@@ -164,7 +201,9 @@ def run(args) -> int:
     if not Path(args.program).is_file():
         raise InputError("no such program file", where=args.program)
     resolution = 0.2 if args.resolution is None else args.resolution
-    table = read_tool_table(args.tool_table, args.tool_table_units) if args.tool_table else None
+    units = machine_units(args)
+    sub_dirs = subroutine_dirs(args)
+    table = read_tool_table(args.tool_table, units) if args.tool_table else None
     tool = parse_tool_spec(args.tool) if args.tool else None
     tools = {}
     if table:
@@ -184,7 +223,7 @@ def run(args) -> int:
         grid = build_stock(args.stock, resolution, args.memory_limit)
     else:
         raise InputError("give the stock as --stock box:X0,Y0,Z0,X1,Y1,Z1 (or a mesh), or --resume RUN:STAGE")
-    moves = load_moves(args.program, args.dialect or "linuxcnc", table)
+    moves = load_moves(args.program, args.dialect or "linuxcnc", table, args.var, units, sub_dirs)
     checker = None
     if not args.no_checks:
         from sim.checks.report import checker_from_args
@@ -240,8 +279,9 @@ def _run_job(args) -> int:
     require(job, "program", "stock", "tools")
     if not Path(job.program).is_file():
         raise InputError("no such program file", where=f"{path}: [program] path {job.program}")
-    table = read_tool_table(job.tool_table) if job.tool_table else None
-    moves = work_moves(load_moves(job.program, job.dialect, table))
+    units = machine_units(args)
+    table = read_tool_table(job.tool_table, units) if job.tool_table else None
+    moves = work_moves(load_moves(job.program, job.dialect, table, args.var, units, subroutine_dirs(args)))
     est = DexelGrid_estimate(job)
     if est > args.memory_limit * 2**20:
         raise InputError(f"the job's dexel grid needs about {est / 2**20:.0f} MB, over the "

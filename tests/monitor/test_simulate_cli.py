@@ -195,3 +195,59 @@ def test_rapid_into_stock_is_placed_where_the_rapid_enters_material(capsys):
     # line 36: G0 from X-8 to X68 at Y1 Z-10 through the stock (X 0..60): it enters at X 0
     assert x == pytest.approx(0.0, abs=0.3) and y == pytest.approx(1.0, abs=0.3)
     assert -10 < z <= 0
+
+
+# --- QA 4: the interpreter's options, as `moves` has them -------------------------------------
+
+def test_var_file_places_each_fixture_at_its_work_offset(capsys, tmp_path):
+    # G55 and G56 come only from the .var file (X of G55 = param 5241, of G56 = 5261)
+    prog = tmp_path / "two_stations.ngc"
+    prog.write_text("G21 G90\nM3 S10000\n"
+                    "G55 G0 X0 Y10 Z8\nG1 Z3 F100\nG0 Z8\n"
+                    "G56 G0 X0 Y10 Z8\nG1 Z3 F100\nG0 Z8\nM2\n")
+    var = tmp_path / "sim.var"
+    # in inches (--machine-units inch): 0.393701 in = 10 mm, 1.181102 in = 30 mm
+    var.write_text("5241\t0.393701\n5242\t0.000000\n5243\t0.000000\n"
+                   "5261\t1.181102\n5262\t0.000000\n5263\t0.000000\n")
+    heights = tmp_path / "h.npy"
+    rc, out, err = run(capsys, prog, "--stock", "box:0,0,0,40,20,5", "--tool", "flat:4", "--resolution", 0.5,
+                       "--var", var, "--machine-units", "inch", "--heights", heights, "--no-checks")
+    assert rc == 0, err
+    h = np.load(heights)
+    assert h[20, 20] == 3.0 and h[20, 60] == 3.0   # holes at X10 (G55) and X30 (G56)
+    assert h[20, 0] == 5.0 and h[20, 40] == 5.0     # G54 (X0) untouched, between stations untouched
+    # without the .var file both stations are at offset 0
+    rc, out, err = run(capsys, prog, "--stock", "box:0,0,0,40,20,5", "--tool", "flat:4", "--resolution", 0.5,
+                       "--heights", heights, "--no-checks")
+    h = np.load(heights)
+    assert h[20, 0] == 3.0 and h[20, 20] == 5.0
+
+
+def test_missing_var_file_and_subroutine_dir_are_one_line_errors(capsys, tmp_path):
+    rc, out, err = run(capsys, EXAMPLE, "--stock", STOCK, "--tool", "flat:6", "--var", tmp_path / "no.var")
+    assert rc == 2 and "no.var" in err and len(err.strip().splitlines()) == 1
+    rc, out, err = run(capsys, EXAMPLE, "--stock", STOCK, "--tool", "flat:6", "--subroutine-path",
+                       tmp_path / "nodir")
+    assert rc == 2 and "nodir" in err and len(err.strip().splitlines()) == 1
+
+
+def test_subroutine_path_finds_called_files(capsys, tmp_path):
+    lib = tmp_path / "lib"
+    lib.mkdir()
+    (lib / "spot.ngc").write_text("o<spot> sub\nG0 X#1 Y10 Z8\nG1 Z3 F100\nG0 Z8\no<spot> endsub\nM2\n")
+    prog = tmp_path / "main.ngc"
+    prog.write_text("G21 G90\nM3 S10000\no<spot> call [10]\nM2\n")
+    heights = tmp_path / "h.npy"
+    rc, out, err = run(capsys, prog, "--stock", "box:0,0,0,40,20,5", "--tool", "flat:4", "--resolution", 0.5,
+                       "--subroutine-path", lib, "--heights", heights, "--no-checks")
+    assert rc == 0, err
+    assert np.load(heights)[20, 20] == 3.0
+
+
+def test_tool_table_units_is_an_alias_of_machine_units(capsys, data):
+    base = [EXAMPLE, "--stock", STOCK, "--tool-table", data / "tools_mm.tbl", "--resolution", 1, "--json"]
+    rc, out, err = run(capsys, *base, "--tool-table-units", "mm")
+    rc2, out2, _ = run(capsys, *base, "--machine-units", "mm")
+    assert rc == rc2 == 0 and json.loads(out)["removed_mm3"] == json.loads(out2)["removed_mm3"]
+    rc, out, err = run(capsys, *base, "--machine-units", "mm", "--tool-table-units", "inch")
+    assert rc == 2 and "--machine-units" in err
