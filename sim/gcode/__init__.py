@@ -6,7 +6,7 @@
 [0, 1, 8]
 """
 
-from sim.gcode.errors import GCodeError
+from sim.gcode.errors import GCodeError, ProgramFileError
 from sim.gcode.interpreter import Interpreter
 from sim.gcode.moves import (MOVE_DTYPE, MoveKind, Plane, as_move_table, empty_moves, tip_positions, work_end,
                              work_start)
@@ -14,6 +14,6 @@ from sim.gcode.program import Program, interpret, load_program
 from sim.gcode.state import ModalState
 
 __all__ = [
-    "GCodeError", "Interpreter", "MOVE_DTYPE", "ModalState", "MoveKind", "Plane", "Program",
+    "GCodeError", "Interpreter", "MOVE_DTYPE", "ModalState", "MoveKind", "Plane", "Program", "ProgramFileError",
     "as_move_table", "empty_moves", "interpret", "load_program", "tip_positions", "work_end", "work_start",
 ]

@@ -14,14 +14,17 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.gcode.errors import GCodeError, LineError
+from sim.gcode.errors import GCodeError, LineError, ProgramFileError
 from sim.gcode.expr import evaluate
 from sim.gcode.interpreter import MAX_STEPS, Interpreter
 from sim.gcode.moves import MOVE_DTYPE
 from sim.gcode.parser import parse_line
+from sim.gcode.source_file import check_text, read_program
 from sim.gcode.state import ModalState
 
 SEAL_ROWS = 2048  # pending row tuples moved into the table this often
+#: move kinds that move the machine (rapid, feed, both arcs, probe)
+MOTION_KINDS = (0, 1, 2, 3, 6)
 
 _STRUCT_OPEN = {"SUB", "IF", "WHILE", "DO", "REPEAT"}
 _LOOPS = {"WHILE", "DO", "REPEAT"}
@@ -274,7 +277,10 @@ class _Runner:
         for d in dirs:
             for cand in (d / f"{label}.ngc", d / f"{label}.NGC"):
                 if cand.is_file():
-                    text = cand.read_text(encoding="utf-8", errors="replace")
+                    try:
+                        text = read_program(cand)
+                    except ProgramFileError as exc:
+                        raise LineError(f"o{label} call: {exc}", col) from None
                     s = self.add_source(str(cand), text)
                     if label in s.subs:
                         return s, s.subs[label]
@@ -508,8 +514,14 @@ def interpret(text: str | bytes, filename: str = "<string>", dialect: str = "lin
 
     ``tool_table`` is a path (LinuxCNC format, in ``machine_units``) or ``{n: ToolEntry}``;
     ``var_file`` a LinuxCNC .var path or ``{param: value}`` (in ``machine_units``).
-    Raises :class:`GCodeError` at the first error unless ``keep_going``.
+    Raises :class:`GCodeError` at the first error unless ``keep_going``; bytes that are
+    not text raise its subclass :class:`~sim.gcode.errors.ProgramFileError` whatever
+    ``keep_going`` says. A program with no motion gets the warning "no motion in program".
     """
+    if isinstance(text, (bytes, bytearray, memoryview)):
+        text = check_text(text, filename)
+    elif text.startswith("\ufeff"):
+        text = text[1:]  # a byte order mark is no G-code character
     table = _read_tool_table(tool_table, machine_units)
     var = _read_var(var_file)
     it = Interpreter(dialect=dialect, machine_units=machine_units, tool_table=table, var_params=var,
@@ -523,18 +535,28 @@ def interpret(text: str | bytes, filename: str = "<string>", dialect: str = "lin
         except LineError as exc:
             runner.fail(main, max(len(main.lines) - 1, 0), exc)
     moves, row_lines = it.assemble()
+    kind = moves["kind"]
+    if not ((kind <= 3) | (kind == 6)).any():  # MOTION_KINDS
+        if not main.lines.data.strip():
+            # the "no M2" warning says nothing more about an empty file
+            runner.warnings[:] = [w for w in runner.warnings if "no M2" not in w]
+            runner.warnings.insert(0, f"{filename}: no motion in program (the file is empty)")
+        else:
+            runner.warnings.insert(0, f"{filename}: no motion in program")
     return Program(moves, list(it.files), runner.errors, list(it.messages), runner.warnings,
                    runner.snapshots, runner.snap_lines, row_lines, dialect, machine_units)
 
 
 def load_program(path, dialect: str = "linuxcnc", tool_table=None, var_file=None, machine_units: str = "mm",
                  keep_going: bool = False, subroutine_path=None, **kwargs) -> Program:
-    """Read and interpret the G-code file ``path``; see :func:`interpret`."""
+    """Read and interpret the G-code file ``path``; see :func:`interpret`.
+
+    A missing, unreadable or binary file raises :class:`~sim.gcode.errors.ProgramFileError`
+    (an :class:`~sim.errors.InputError`) with one plain line: ``no such program file: PATH``,
+    ``PATH: not a text G-code file (binary data at byte N)``.
+    """
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise GCodeError(f"cannot read program: {exc.strerror or exc}", str(path), 0) from None
+    data = read_program(path)
     # the bytes are passed on as they are: for an ASCII file they become the program's
     # only copy (no str of the whole text, no str per line)
     return interpret(data, filename=str(path), dialect=dialect, tool_table=tool_table, var_file=var_file,
