@@ -60,9 +60,40 @@ def test_keep_going_lists_all(tmp_path, capsys):
 
 
 def test_missing_file_is_one_line(tmp_path, capsys):
-    assert main(["moves", str(tmp_path / "nope.ngc")]) == 2
+    path = tmp_path / "nope.ngc"
+    assert main(["moves", str(path)]) == 2
     err = capsys.readouterr().err
-    assert "nope.ngc" in err and "Traceback" not in err
+    assert err == f"dexmon moves: error: no such program file: {path}\n"
+
+
+def test_binary_program_is_refused_without_echoing_bytes(tmp_path, capsys):
+    path = tmp_path / "binary.nc"
+    path.write_bytes(b"\x7fELF\x02\x01\x01\x00" + bytes(range(256)) * 4)
+    assert main(["moves", str(path)]) == 2
+    captured = capsys.readouterr()
+    assert captured.err == f"dexmon moves: error: {path}: not a text G-code file (binary data at byte 7)\n"
+    assert captured.out == ""
+
+
+def test_control_characters_are_escaped_in_the_error(tmp_path, capsys):
+    prog = _write(tmp_path, "G21\nG0 X1 \x1b]0;pwned\x07\nM2\n")
+    assert main(["moves", prog]) == 2
+    err = capsys.readouterr().err
+    assert "p.ngc:2:7" in err and "\\x1b]0;pwned\\x07" in err
+    assert not any(c in err for c in "\x1b\x07")
+
+
+@pytest.mark.parametrize("text, warning", [
+    ("", "no motion in program (the file is empty)"),
+    ("(nothing to cut)\nG21 M3 S1000\nM2\n", "no motion in program"),
+])
+def test_no_motion_warns_and_exits_0(tmp_path, capsys, text, warning):
+    prog = _write(tmp_path, text)
+    assert main(["moves", prog]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == f"warning: {prog}: {warning}"
+    if not text:
+        assert len(err) == 1  # no "no M2" warning on top for an empty file
 
 
 def test_time_and_linearize(tmp_path, capsys):
