@@ -32,6 +32,75 @@ HOLD_KINDS = frozenset({"gouge", "rapid_into_stock", "holder_contact", "shank_co
 
 #: points remembered per alerted finding to follow it along (a long gouge)
 MAX_TRACK_POINTS = 4096
+#: what a ``finding_update`` JSON line carries of the grown / happened record
+UPDATE_KEYS = ("kind", "line", "lines", "position", "depth", "area", "volume", "message", "status",
+               "happened_t", "happened_position", "happened_line")
+
+
+def _nan(v) -> float:
+    return math.nan if v is None else float(v)
+
+
+def grow_record(rec: dict, f: dict, merged: set) -> bool:
+    """Merge the repeat ``f`` of an alerted finding into its record ``rec`` in place, as
+    ``sim.checks.findings.merge_findings`` merges the hits of one finding: all lines, the
+    deepest hit's line and position, the maximum depth, the summed area and volume.
+
+    Sizes are only summed over what is new: a repeat from the other source (the live cut
+    of a predicted finding) adds its lines only, and a predicted repeat only for move ids
+    not in ``merged`` (the move ids whose size ``rec`` holds; updated). Returns True when
+    the record changed.
+    """
+    from sim.checks.findings import Finding, describe
+
+    lines = sorted((set(rec.get("lines") or ()) | set(f.get("lines") or ())
+                    | {rec.get("line") or 0, f.get("line") or 0}) - {0})
+    changed = lines != list(rec.get("lines") or ())
+    rec["lines"] = lines
+    same_source = bool(f.get("predicted", True)) == bool(rec.get("predicted", True))
+    ids = _stages(f)
+    # a predicted repeat is new material only for moves not merged yet (the look-ahead
+    # checks each row once, but again after re-anchoring); without move ids it cannot tell
+    new_material = same_source and (not f.get("predicted", True) or bool(ids - merged))
+    if same_source:
+        d0, d1 = _nan(rec.get("depth")), _nan(f.get("depth"))
+        if not math.isnan(d1) and (math.isnan(d0) or d1 > d0):
+            rec["depth"], rec["line"], rec["position"] = d1, f.get("line", rec.get("line")), f.get("position")
+            rec["stage"] = f.get("stage", rec.get("stage"))
+            changed = True
+    if new_material:
+        merged |= ids
+        for name in ("area", "volume"):
+            v = _nan(f.get(name))
+            if not math.isnan(v) and v > 0:
+                rec[name] = round(_nan(rec.get(name)) + v if name in rec else v, 6)
+                changed = True
+    if changed:
+        try:
+            fnd = Finding(kind=rec.get("kind", ""), line=int(rec.get("line") or 0), lines=tuple(lines),
+                          position=tuple(rec.get("position") or (math.nan,) * 3), depth=_nan(rec.get("depth")),
+                          area=_nan(rec.get("area")), volume=_nan(rec.get("volume")),
+                          detail=dict(rec.get("detail") or {}))
+            rec["message"] = _message_like(rec.get("message", ""), fnd, describe(fnd))
+        except (ValueError, TypeError):  # a kind sim does not know: keep its own message
+            pass
+    return changed
+
+
+def _message_like(old: str, f, described: str) -> str:
+    """The grown finding's message: sim's own wording for the kind (its ``describe``),
+    except for kinds whose message is a sentence of their own (a rapid's volume)."""
+    if f.kind == "rapid_into_stock" and not math.isnan(f.volume):
+        where = f"line {f.line}" if len(f.lines) <= 1 else f"lines {f.lines[0]}-{f.lines[-1]}"
+        return f"rapid (G0) into material at {where}: {f.volume:.3f} mm^3"
+    return described
+
+
+def _where(rec: dict) -> str:
+    lines = rec.get("lines") or []
+    if len(lines) > 1:
+        return f"lines {lines[0]}-{lines[-1]}"
+    return f"line {rec.get('line', '?')}"
 
 
 def format_finding(f: dict) -> str:
@@ -79,6 +148,8 @@ class Alerter:
         self.line_radius = float(line_radius)
         self.findings: list[dict] = []  # every alerted finding, in order
         self.holds_sent = 0
+        # finding index -> move ids whose size its record already holds
+        self._merged: dict[int, set] = {}
         # kind -> [[lines seen, points seen (m, 3), index in findings, move ids seen], ...]
         self._by_kind: dict[str, list[list]] = {}
 
@@ -131,7 +202,9 @@ class Alerter:
         return fresh
 
     def _follow(self, f: dict, idx: int, t) -> None:
-        """Grow the alerted finding ``idx`` by its repeat ``f``."""
+        """Grow the alerted finding ``idx`` by its repeat ``f``: its record takes the
+        repeat's lines and (when the repeat measured new material, :func:`grow_record`)
+        its size, and says so in the run file and the JSON stream."""
         for entry in self._by_kind.get(f.get("kind", ""), ()):
             if entry[2] == idx:
                 if entry[1].shape[0] < MAX_TRACK_POINTS:
@@ -140,22 +213,25 @@ class Alerter:
                 entry[3] = entry[3] | _stages(f)
                 break
         rec = self.findings[idx]
-        if f.get("predicted", True) or rec.get("status", "predicted") != "predicted":
+        grew = grow_record(rec, f, self._merged.setdefault(idx, set(_stages(rec))))
+        happened = not f.get("predicted", True) and rec.get("status", "predicted") == "predicted"
+        if happened:
+            rec["status"] = "happened"
+            if t is not None:
+                rec["happened_t"] = float(t)
+            rec["happened_position"] = list(f.get("position") or [])
+            rec["happened_line"] = f.get("line")
+        if not (grew or happened):
             return
-        rec["status"] = "happened"
-        if t is not None:
-            rec["happened_t"] = float(t)
-        rec["happened_position"] = list(f.get("position") or [])
-        rec["happened_line"] = f.get("line")
         if self.run is not None:
             self.run.update_finding(idx + 1, rec)
-        if self.console is not None:  # a note, not a second alert: no bell, no colour
-            self.console.print(f"[dim]{_escape(rec.get('kind', '?').upper().replace('_', ' '))} line "
-                               f"{rec.get('line', '?')}: happened as predicted[/dim]", highlight=False)
+        if happened and self.console is not None:  # a note, not a second alert: no bell, no colour
+            self.console.print(f"[dim]{_escape(rec.get('kind', '?').upper().replace('_', ' '))} "
+                               f"{_escape(_where(rec))}: happened as predicted[/dim]", highlight=False)
         if self.json_stream is not None:
-            self.json_stream.write(json.dumps({"event": "finding_update", "id": idx + 1, "kind": rec.get("kind"),
-                                               "line": rec.get("line"), "status": "happened", "t": t},
-                                              default=json_default) + "\n")
+            upd = {"event": "finding_update", "id": idx + 1,
+                   **{k: rec[k] for k in UPDATE_KEYS if k in rec}, "t": t}
+            self.json_stream.write(json.dumps(upd, default=json_default) + "\n")
             self.json_stream.flush()
 
     def _emit(self, f: dict, finding_id: int, t) -> None:

@@ -29,8 +29,12 @@ def test_each_finding_alerted_once_across_polls(tmp_path):
     fresh = [a.offer(p, t=k * 0.02) for k, p in enumerate(polls)]
     assert [len(f) for f in fresh] == [1, 0, 1, 0]
     assert fresh[2][0]["kind"] == "rapid_into_stock"
-    lines = [json.loads(x) for x in out.getvalue().splitlines()]
+    events = [json.loads(x) for x in out.getvalue().splitlines()]
+    lines = [x for x in events if x["event"] == "finding"]
     assert [x["kind"] for x in lines] == ["gouge", "rapid_into_stock"]
+    # the gouge that grew onto line 13 is updated, not alerted again
+    updates = [x for x in events if x["event"] == "finding_update"]
+    assert [(u["id"], u["lines"]) for u in updates] == [(1, [12, 13])]
     assert all({"kind", "line", "position", "lead_time_s"} <= set(x) for x in lines)
     assert term.getvalue().count("GOUGE line 12") == 1 and "in 3.0 s" in term.getvalue()
     # same kind and line but far away is a different finding
@@ -94,3 +98,33 @@ def test_predicted_then_happened_is_updated_not_realerted(tmp_path):
     stored = r.findings()
     assert stored[0]["status"] == "happened" and stored[0]["happened_t"] == 5.0
     assert len(stored) == 2
+
+
+def test_a_gouge_predicted_in_two_batches_is_one_finding_of_full_size(tmp_path):
+    """The look-ahead checks row 22 in one batch and row 23 in the next: the second hit
+    grows the alerted finding (lines, area, volume) instead of being dropped; a re-check
+    of row 22 after re-anchoring and the live cut of the same gouge add no size."""
+    out = io.StringIO()
+    run = RunWriter(tmp_path / "r.sqlite")
+    a = Alerter(json_stream=out, run=run)
+    first = {"kind": "gouge", "line": 22, "lines": [22], "stage": 16, "position": [30.0, 19.0, -5.5],
+             "depth": 0.5, "area": 50.5625, "volume": 20.1, "lead_time_s": 4.0, "predicted": True,
+             "status": "predicted"}
+    second = dict(first, line=23, lines=[23], stage=17, position=[29.0, 19.0, -5.4], depth=0.4,
+                  area=23.0, volume=6.3, lead_time_s=4.5)
+    assert len(a.offer([first])) == 1
+    assert a.offer([second]) == []
+    assert a.offer([dict(first)]) == []  # row 22 again after a re-anchor
+    live = dict(second, predicted=False, status="happened", area=3.0, volume=1.0)
+    assert a.offer([live], t=9.0) == []
+    rec = a.findings[0]
+    assert rec["lines"] == [22, 23] and rec["line"] == 22 and rec["position"] == [30.0, 19.0, -5.5]
+    assert abs(rec["area"] - 73.5625) < 1e-9 and abs(rec["volume"] - 26.4) < 1e-9
+    assert rec["status"] == "happened" and "lines 22-23" in rec["message"] and "73.562" in rec["message"]
+    updates = [json.loads(x) for x in out.getvalue().splitlines()][1:]
+    assert [u["event"] for u in updates] == ["finding_update", "finding_update"]
+    assert updates[0]["lines"] == [22, 23] and abs(updates[0]["area"] - 73.5625) < 1e-9
+    assert updates[1]["status"] == "happened" and abs(updates[1]["volume"] - 26.4) < 1e-9
+    run.close()
+    stored = RunReader(tmp_path / "r.sqlite").findings()
+    assert len(stored) == 1 and stored[0]["lines"] == [22, 23] and abs(stored[0]["area"] - 73.5625) < 1e-9

@@ -184,3 +184,43 @@ def test_sigkilled_run_leaves_a_file_that_opens(tmp_path):
     assert r.get_array("moves").size > 0 and "[stock]" in r.meta()["job"]
     st = r.states()
     assert np.all(np.diff(st["t"]) >= 0)
+
+
+def test_one_finding_one_position_and_size_in_every_output(example, tmp_path, capsys):
+    """The text alert, the JSON line (with its updates), the run file, replay --findings and
+    simulate give each planted finding the same lines, position and size (QA 1 and 2)."""
+    import io
+
+    from rich.console import Console
+
+    job, moves = example
+    term, js = io.StringIO(), io.StringIO()
+    run = tmp_path / "r.sqlite"
+    vc = virtual_controller(moves, speed=1.0, rate=50, clock="sim")
+    with RunWriter(run) as w:
+        s = Session(job, moves, run=w, alerter=Alerter(console=Console(file=term, width=200), json_stream=js, run=w))
+        vc.connect()
+        run_controller(s, vc, 0.0, done=lambda: vc.done)
+        vc.close()
+        s.finish()
+    # the JSON stream: each finding's last word (its finding line, then its updates)
+    last = {}
+    for x in map(json.loads, js.getvalue().splitlines()):
+        key = x.get("id") or len(last) + 1
+        last[key] = {**last.get(key, {}), **{k: v for k, v in x.items() if k not in ("event", "id")}}
+    stored = RunReader(run).findings()
+    assert main(["simulate", str(EXAMPLE_JOB), "--json"]) == 1
+    sim = [f for x in map(json.loads, capsys.readouterr().out.splitlines()) for f in x.get("findings", [])]
+    assert main(["replay", str(run), "--findings", "--json"]) == 1
+    replayed = [x for x in map(json.loads, capsys.readouterr().out.splitlines()) if x.get("event") == "finding"]
+    for kind, line in (("gouge", GOUGE_LINE), ("rapid_into_stock", RAPID_LINE)):
+        want = next(f for f in sim if f["kind"] == kind)
+        for got in ([f for f in s.findings if f["kind"] == kind][0], [f for f in last.values() if f["kind"] == kind][0],
+                    [f for f in stored if f["kind"] == kind][0], [f for f in replayed if f["kind"] == kind][0]):
+            assert got["line"] == line and got["lines"] == want["lines"], (got, want)
+            assert np.allclose(got["position"], want["position"], atol=1e-6), (got, want)
+            for size in ("area", "volume", "depth"):
+                if size in want:
+                    assert abs(got[size] - want[size]) <= 0.02 * abs(want[size]) + 1e-6, (size, got, want)
+        x, y, z = want["position"]
+        assert f"at ({x:.2f}, {y:.2f}, {z:.2f})" in term.getvalue()
