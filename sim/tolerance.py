@@ -18,6 +18,8 @@ class Tolerance:
         is a gouge.
     undercut : float
         t_h: material more than this above the design surface is undercut (excess).
+        Scallop-sized by default (0.05 mm), independent of ``gouge``: the cusps a
+        ball-end finishing pass leaves are not findings.
     interest : float
         Range of interest: errors beyond this (either sign) are outside the error map
         and shown in the tool colour.
@@ -29,7 +31,7 @@ class Tolerance:
 
     length: float = 1e-6
     gouge: float = 0.002
-    undercut: float = 0.002
+    undercut: float = 0.05
     interest: float = 1.0
     chord: float = 0.001
     instance_fraction: float = 0.5

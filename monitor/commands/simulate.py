@@ -275,7 +275,7 @@ def _run_job(args) -> int:
     t_h = _positive(args.undercut_tolerance, "--undercut-tolerance")
     if t_l or t_h:
         job.tolerance = dataclasses.replace(job.tolerance, gouge=t_l or job.tolerance.gouge,
-                                            undercut=t_h or t_l or job.tolerance.undercut)
+                                            undercut=t_h or job.tolerance.undercut)
     require(job, "program", "stock", "tools")
     if not Path(job.program).is_file():
         raise InputError("no such program file", where=f"{path}: [program] path {job.program}")

@@ -325,7 +325,10 @@ class ErrorMap:
     def findings(self, tol: Tolerance, move_lines=None, rays=None, undercut: bool = True,
                  min_rays: int = 1) -> list[Finding]:
         """Gouge and undercut findings: one per 8-connected region of rays whose worst
-        point is past the tolerance (restricted to ``rays`` when given).
+        point is past the tolerance (restricted to ``rays`` when given). Undercut counts
+        only within the range of interest (``t_h < e <= tol.interest``): material left
+        further from the design (a stock margin around a smaller part, stock no pass came
+        near) is not assessed, as in Huang & Oliver's error map.
 
         ``move_lines``: int array indexed by move id giving its program line (0 = stock).
         Depth: the largest error magnitude (mm). Area: rays x spacing^2 (projected along
@@ -341,11 +344,16 @@ class ErrorMap:
         if rays is not None:
             sel = np.zeros(f.n_rays, bool)
             sel[np.asarray(rays, np.int64)] = True
-        kinds = [("gouge", -self.gouge, self.gouge_id, self.gouge_s, self.gouge_len, tol.gouge)]
+        kinds = [("gouge", -self.gouge, self.gouge_id, self.gouge_s, self.gouge_len, tol.gouge, np.inf)]
         if undercut:
-            kinds.append(("undercut", self.excess, self.excess_id, self.excess_s, self.excess_len, tol.undercut))
-        for kind, mag, ids, ss, lens, limit in kinds:
-            bad = np.nan_to_num(mag, nan=-1.0) > limit
+            # material left beyond the range of interest is not assessed (Huang & Oliver:
+            # shown in the tool colour): stock margins outside the design's footprint, or
+            # stock no pass came near, are not undercuts of the part
+            kinds.append(("undercut", self.excess, self.excess_id, self.excess_s, self.excess_len, tol.undercut,
+                          tol.interest))
+        for kind, mag, ids, ss, lens, limit, ceiling in kinds:
+            m_all = np.nan_to_num(mag, nan=-1.0)
+            bad = (m_all > limit) & (m_all <= ceiling)
             if sel is not None:
                 bad &= sel
             if not bad.any():
@@ -385,7 +393,11 @@ class ErrorMap:
                 if not math.isfinite(depth):
                     fm = np.where(np.isfinite(mag[members]), mag[members], -np.inf)
                     depth = float(fm.max()) if np.isfinite(fm).any() else math.nan
-                detail = {"rays": int(members.size)}
+                mi, mj = members % f.nu, members // f.nu
+                # the region's ray box: hits of later batches merge with it only when they
+                # are next to it (see findings._touch), never just for being consecutive
+                detail = {"rays": int(members.size),
+                          "ray_box": (int(mi.min()), int(mj.min()), int(mi.max()), int(mj.max()))}
                 if not fin.all():
                     detail["rays_outside_design"] = int((~fin).sum())
                 out.append(Finding(

@@ -181,6 +181,10 @@ def _merge_two(a: Finding, b: Finding) -> Finding:
     detail = dict(a.detail)
     for k, v in b.detail.items():
         detail.setdefault(k, v)
+    if "ray_box" in a.detail and "ray_box" in b.detail:
+        ba, bb = a.detail["ray_box"], b.detail["ray_box"]
+        detail["ray_box"] = (min(ba[0], bb[0]), min(ba[1], bb[1]), max(ba[2], bb[2]), max(ba[3], bb[3]))
+        detail["rays"] = a.detail.get("rays", 0) + b.detail.get("rays", 0)
     return replace(
         w,
         lines=a.lines + b.lines,
@@ -203,7 +207,13 @@ def _touch(a: Finding, b: Finding) -> bool:
         return False
     if a.detail.get("group") != b.detail.get("group"):
         return False
-    return b.stages[0] <= a.stages[-1] + 1 and a.stages[0] <= b.stages[-1] + 1
+    if not (b.stages[0] <= a.stages[-1] + 1 and a.stages[0] <= b.stages[-1] + 1):
+        return False
+    ba, bb = a.detail.get("ray_box"), b.detail.get("ray_box")
+    if ba is not None and bb is not None:
+        # error regions (gouge, undercut) of one pass are separate unless they touch
+        return bb[0] <= ba[2] + 1 and ba[0] <= bb[2] + 1 and bb[1] <= ba[3] + 1 and ba[1] <= bb[3] + 1
+    return True
 
 
 def merge_findings(findings) -> list[Finding]:

@@ -14,9 +14,11 @@ def add_check_arguments(parser) -> None:
     g.add_argument("--design", default=None, metavar="PART.stl",
                    help="design part (STL/OBJ, same coordinates as the stock): report gouge and undercut")
     g.add_argument("--tolerance", type=float, default=None, metavar="MM",
-                   help="gouge tolerance t_l in mm (default 0.002); also t_h unless --undercut-tolerance")
+                   help=f"gouge tolerance t_l in mm (default {DEFAULT.gouge:g})")
     g.add_argument("--undercut-tolerance", type=float, default=None, metavar="MM",
-                   help="undercut tolerance t_h in mm (default: --tolerance)")
+                   help=f"undercut tolerance t_h in mm (default {DEFAULT.undercut:g}, about a ball-end "
+                        f"finishing scallop; not tied to --tolerance); material left more than the range "
+                        f"of interest ({DEFAULT.interest:g} mm) from the part is not an undercut")
     g.add_argument("--fixture", action="append", default=[], metavar="box:X0,Y0,Z0,X1,Y1,Z1",
                    help="a fixture the tool must never enter (repeatable)")
     g.add_argument("--limits", default=None, metavar="X0:300,Y0:200,Z-100:0",
@@ -41,7 +43,7 @@ def checker_from_args(args, grid, tool, tools=None):
 
     t_l = _positive(getattr(args, "tolerance", None), "--tolerance")
     t_h = _positive(getattr(args, "undercut_tolerance", None), "--undercut-tolerance")
-    tol = Tolerance(gouge=t_l or DEFAULT.gouge, undercut=t_h or t_l or DEFAULT.undercut)
+    tol = Tolerance(gouge=t_l or DEFAULT.gouge, undercut=t_h or DEFAULT.undercut)
     fixtures = []
     for k, spec in enumerate(getattr(args, "fixture", []) or []):
         text = spec.strip()
@@ -62,10 +64,14 @@ def checker_from_args(args, grid, tool, tools=None):
 def final_findings(checker) -> list:
     """Everything found while cutting plus the whole-model assessment, merged (cutting-time
     gouges are replaced by the whole-model gouge regions when there is a design)."""
-    from sim.checks.findings import merge_findings
+    from sim.checks.findings import KINDS, merge_findings
 
     during = checker.all_findings()
     if checker.design is None:
         return during
     model = checker.assess_model()
-    return merge_findings([f for f in during if f.kind not in ("gouge", "undercut")] + model)
+    # the model's regions come from one 8-connected labelling: separate regions stay
+    # separate even when the same passes made them
+    out = merge_findings([f for f in during if f.kind not in ("gouge", "undercut")]) + model
+    out.sort(key=lambda f: (f.stages[0] if f.stages else f.stage, KINDS.index(f.kind)))
+    return out

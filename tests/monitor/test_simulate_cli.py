@@ -251,3 +251,27 @@ def test_tool_table_units_is_an_alias_of_machine_units(capsys, data):
     assert rc == rc2 == 0 and json.loads(out)["removed_mm3"] == json.loads(out2)["removed_mm3"]
     rc, out, err = run(capsys, *base, "--machine-units", "mm", "--tool-table-units", "inch")
     assert rc == 2 and "--machine-units" in err
+
+
+# --- QA 5: undercut within the range of interest, scallop-sized t_h, worst point ------------
+
+def test_job_stock_margin_around_the_design_is_not_an_undercut(capsys):
+    rc, out, err = run(capsys, JOB, "--json")
+    kinds = sorted(f["kind"] for f in json.loads(out)["findings"])
+    assert kinds == ["gouge", "rapid_into_stock"]
+
+
+def test_sphere_finishing_pass_leaves_undercut_only_in_the_dome_corner(capsys, shared):
+    parts = shared / "corpus" / "parts"
+    rc, out, err = run(capsys, parts / "sphere_on_plate_ball6_finish.ngc", "--stock",
+                       "box:0,0,-1,76.4923,76.4923,30.8718", "--tool", "ball:6", "--resolution", 0.25,
+                       "--design", parts / "sphere_on_plate.stl", "--tolerance", 0.002, "--json")
+    doc = json.loads(out)
+    assert not [f for f in doc["findings"] if f["kind"] != "undercut"]
+    und = doc["findings"]
+    assert und  # the 6 mm ball cannot enter the concave corner where the dome meets the block
+    for f in und:  # every region and its worst point are at that corner, not at a region corner
+        x, y, z = f["position"]
+        assert abs(math.hypot(x - 38.2461, y - 38.2461) - 19.10) < 3.0
+        assert 14.93 < z < 14.94 + 3.0
+        assert 0.05 < f["depth"] <= 1.0

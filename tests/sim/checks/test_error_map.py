@@ -159,3 +159,43 @@ def test_update_keeps_the_worst_point_of_every_ray(design):
 def test_distinct_is_numpy_unique(a):
     a = np.asarray(a, np.int64)
     assert np.array_equal(distinct(a), np.unique(a))
+
+
+# --- undercut regions (QA 5): range of interest, separate regions, worst point --------------
+
+def _two_block_design():
+    """Two closed blocks on a 60 x 50 stock with a margin: A 0..25 x 0..40, top z 15;
+    B 35..60 x 0..40, top sloping from z 14.9 at X35 to z 14.5 at X60."""
+    a = trimesh.creation.box(bounds=[(0, 0, 0), (25, 40, 15)])
+    pts = [(x, y, 0) for x in (35, 60) for y in (0, 40)] + [(35, y, 14.9) for y in (0, 40)] \
+        + [(60, y, 14.5) for y in (0, 40)]
+    b = trimesh.convex.convex_hull(np.array(pts, float))
+    return trimesh.util.concatenate([a, b])
+
+
+def test_undercut_regions_are_separate_in_range_and_placed_at_their_worst_point():
+    from sim.checks.checker import Checker
+    from sim.checks.report import final_findings
+    from sim.solids import box_grid
+    from sim.tools import parse_tool_spec
+    from tests.sim.checks.helpers import polyline
+
+    frame = Frame.top(-5, -5, 65, 45, 0.5)
+    stock = box_grid(frame, (-5, -5, 0), (65, 45, 20))
+    ch = Checker(stock, parse_tool_spec("flat:6"), design=_two_block_design(), tol=Tolerance(gouge=0.01))
+    assert ch.tol.undercut == 0.05  # the default t_h, not tied to t_l
+    pts = [(-8, -8, 30), (-8, -8, 15.3)]
+    for k, y in enumerate(np.arange(-8, 49, 4.0)):  # one raster pass faces everything at z 15.3
+        xs = (-8, 68) if k % 2 == 0 else (68, -8)
+        pts += [(xs[0], y, 15.3), (xs[1], y, 15.3)]
+    ch.check_program(polyline(pts))
+    und = [f for f in final_findings(ch) if f.kind == "undercut"]
+    # the margin and the gap between the blocks are > 1 mm from the part: not assessed;
+    # A (0.3 mm left) and B (0.4 .. 0.8 mm left) are two regions though one pass made both
+    assert len(und) == 2, [str(f) for f in und]
+    a, b = sorted(und, key=lambda f: f.position[0])
+    assert a.depth == pytest.approx(0.3, abs=1e-3) and -0.01 <= a.position[0] <= 25.01
+    assert a.area == pytest.approx(25.5 * 40.5, rel=0.05)
+    assert b.depth == pytest.approx(0.8, abs=0.01)
+    assert b.position[0] == pytest.approx(60, abs=0.6) and b.position[2] == pytest.approx(15.3, abs=1e-3)
+    assert 0 <= b.position[1] <= 40

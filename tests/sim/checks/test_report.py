@@ -31,7 +31,10 @@ def test_options_build_a_checker_whose_findings_are_json(tmp_path):
     args = parse(["--design", str(design), "--tolerance", "0.01", "--fixture", "box:62,0,0,70,40,35",
                   "--limits", "X-20:100,Y-20:80,Z-10:60", "--max-depth-of-cut", "10"])
     ch = checker_from_args(args, grid(), parse_tool_spec("flat:6"))
-    assert ch.tol.gouge == ch.tol.undercut == 0.01
+    # t_h is not tied to t_l: scallop-sized by default
+    assert ch.tol.gouge == 0.01 and ch.tol.undercut == 0.05
+    assert checker_from_args(parse(["--undercut-tolerance", "0.2"]), grid(),
+                             parse_tool_spec("flat:6")).tol.undercut == 0.2
     # a flat pass at 14.9: 0.1 mm into the 15 mm design top
     m = table([(R, (10, 20, 30), (10, 20, 25)), (F, (10, 20, 25), (10, 20, 14.9)),
                (F, (10, 20, 14.9), (50, 20, 14.9)), (R, (50, 20, 14.9), (50, 20, 30))])
