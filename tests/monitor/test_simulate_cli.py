@@ -273,5 +273,5 @@ def test_sphere_finishing_pass_leaves_undercut_only_in_the_dome_corner(capsys, s
     for f in und:  # every region and its worst point are at that corner, not at a region corner
         x, y, z = f["position"]
         assert abs(math.hypot(x - 38.2461, y - 38.2461) - 19.10) < 3.0
-        assert 14.93 < z < 14.94 + 3.0
+        assert 14.93 < z < 14.94 + 6.0  # within a ball diameter of the block top
         assert 0.05 < f["depth"] <= 1.0
