@@ -270,8 +270,12 @@ def test_sphere_finishing_pass_leaves_undercut_only_in_the_dome_corner(capsys, s
     assert not [f for f in doc["findings"] if f["kind"] != "undercut"]
     und = doc["findings"]
     assert und  # the 6 mm ball cannot enter the concave corner where the dome meets the block
-    for f in und:  # every region and its worst point are at that corner, not at a region corner
-        x, y, z = f["position"]
-        assert abs(math.hypot(x - 38.2461, y - 38.2461) - 19.10) < 3.0
-        assert 14.93 < z < 14.94 + 6.0  # within a ball diameter of the block top
-        assert 0.05 < f["depth"] <= 1.0
+    big = max(und, key=lambda f: f["volume"])
+    x, y, z = big["position"]  # the worst point of the region, not a corner of it
+    assert abs(math.hypot(x - 38.2461, y - 38.2461) - 19.10) < 3.0 and 14.93 < z < 14.94 + 3.0
+    assert 0.5 < big["depth"] <= 1.0 and big["lines"][-1] - big["lines"][0] < 20000
+    for f in und:
+        # the rest are scallop crests on the steep dome flanks, where the raster's stepover
+        # measured along the surface grows: just over t_h, a few rays each
+        if f is not big:
+            assert f["depth"] < 0.06 and f["detail"]["rays"] < 30
