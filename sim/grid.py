@@ -144,9 +144,30 @@ class DexelGrid:
         ds.top_all(self.S, out)
         return out.reshape(self.frame.shape)
 
-    def volume(self) -> float:
-        """Material volume, mm^3 (each ray stands for a spacing x spacing column)."""
-        return ds.total_length(self.S) * self.frame.spacing**2
+    def volume(self, weights: str | None = None) -> float:
+        """Material volume, mm^3.
+
+        ``weights=None``: each ray stands for a full spacing x spacing column (the rays
+        include both ends of the frame, so a box is overstated by its edge half-cells).
+        ``weights="trapezoid"``: the trapezoid rule over the frame's rectangle, edge rays
+        count half a column and corner rays a quarter; a box whose sides lie on the first
+        and last rays then gives its exact volume.
+        """
+        if weights is None:
+            return ds.total_length(self.S) * self.frame.spacing**2
+        if weights != "trapezoid":
+            raise ValueError(f"weights must be None or 'trapezoid', got {weights!r}")
+        f = self.frame
+        length = np.empty(f.n_rays)
+        _ray_lengths(self.S, length)
+        length = length.reshape(f.shape)  # (nv, nu)
+        wu = np.ones(f.nu)
+        wv = np.ones(f.nv)
+        if f.nu > 1:
+            wu[[0, -1]] = 0.5
+        if f.nv > 1:
+            wv[[0, -1]] = 0.5
+        return float(wv @ length @ wu) * f.spacing**2
 
     def nbytes(self) -> int:
         """Bytes held by the store (dense arrays plus the whole pool)."""
@@ -180,6 +201,17 @@ class DexelGrid:
 
 
 # --- gather / scatter kernels ---------------------------------------------------------
+
+@nb.njit(cache=True)
+def _ray_lengths(S, out):
+    """Fill ``out`` (n_rays,) float64 with each ray's material length, mm."""
+    for r in range(S[0].size):
+        total = 0.0
+        for k in range(S[0][r]):
+            n, f, nid, fid = ds.get_seg(S, r, k)
+            total += np.float64(f) - np.float64(n)
+        out[r] = total
+
 
 @nb.njit(cache=True)
 def _gather(S, rays, counts, out_n, out_f, out_ni, out_fi):

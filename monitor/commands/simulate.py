@@ -150,6 +150,31 @@ def subroutine_dirs(args) -> list[str]:
     return dirs
 
 
+def stock_true_volume(spec: str | None = None, solid=None) -> float | None:
+    """The stock's exact volume in mm^3 (a box's product of sides, a cylinder's pi r^2 h,
+    a closed mesh's ``mesh.volume``), from a ``--stock`` spec or a job's ``Solid``; None when
+    unknown."""
+    if solid is not None:
+        if solid.kind == "box":
+            b = solid.box
+            return float((b[3] - b[0]) * (b[4] - b[1]) * (b[5] - b[2]))
+        if solid.kind == "cylinder":
+            cx, cy, r, z0, z1 = solid.cylinder
+            return float(math.pi * r * r * (z1 - z0))
+        spec = str(solid.stl) if solid.stl is not None else None
+        if spec is None:
+            return None
+    if spec is None:
+        return None
+    if spec.strip().lower().startswith("box:"):
+        lo, hi = parse_stock_box(spec)
+        return float(np.prod(hi - lo))
+    from sim.solids import load_mesh
+
+    mesh, _ = load_mesh(Path(spec))
+    return float(abs(mesh.volume)) if mesh.is_watertight else None
+
+
 def load_moves(path: str, dialect: str = "linuxcnc", tool_table=None, var_file=None, units: str = "mm",
                subroutine_path=None) -> np.ndarray:
     """The move table of a program, through the project's G-code interpreter.
@@ -229,7 +254,8 @@ def run(args) -> int:
         from sim.checks.report import checker_from_args
 
         checker = checker_from_args(args, grid, tool, tools)
-    return _simulate(args, str(args.program), moves, grid, tool, tools, checker)
+    true_volume = stock_true_volume(args.stock) if args.stock and not args.resume else None
+    return _simulate(args, str(args.program), moves, grid, tool, tools, checker, true_volume=true_volume)
 
 
 def _run_job(args) -> int:
@@ -297,7 +323,8 @@ def _run_job(args) -> int:
                           max_depth_of_cut=_positive(args.max_depth_of_cut, "--max-depth-of-cut"),
                           min_volume=MIN_VOLUME)
     out = {"job": str(path)}
-    return _simulate(args, str(job.program), moves, wp.stock, wp.default_tool, wp.tools, checker, out)
+    return _simulate(args, str(job.program), moves, wp.stock, wp.default_tool, wp.tools, checker, out,
+                     true_volume=stock_true_volume(solid=job.stock))
 
 
 def DexelGrid_estimate(job) -> int:
@@ -312,8 +339,12 @@ def DexelGrid_estimate(job) -> int:
     return DexelGrid.estimate_bytes(n)
 
 
-def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None) -> int:
-    """Cut (and check) ``moves`` into ``grid``; print the report; return the exit status."""
+def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, true_volume=None) -> int:
+    """Cut (and check) ``moves`` into ``grid``; print the report; return the exit status.
+
+    Volumes shown are the stock's exact volume (``true_volume`` when known, else the grid's
+    trapezoid-rule volume) and what the cut removed by the trapezoid rule (edge rays count
+    half a cell, corners a quarter), so a box does not gain its edge half-cells."""
     from sim.checks.report import final_findings
     from sim.cut import Cutter
     from sim.gcode.moves import MoveKind
@@ -322,7 +353,8 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None) -
     cutting = _cutting_rows(moves)
     if not cutting.any():
         raise InputError("the program has no motion to simulate (empty program?)", where=program)
-    stock_volume = grid.volume()
+    grid_before = grid.volume(weights="trapezoid")
+    stock_volume = grid_before if true_volume is None else float(true_volume)
     todo, skip_first = _skip_first_rapid(moves)
     t0 = time.perf_counter()
     if checker is not None:
@@ -333,7 +365,8 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None) -
         per_move = Cutter(grid, tool, tools=tools or None).cut_moves(todo, record_changes=False).removed
         findings = []
     seconds = time.perf_counter() - t0
-    removed = float(per_move.sum())
+    grid_after = grid.volume(weights="trapezoid")
+    removed = max(grid_before - grid_after, 0.0)
     rapid_removed = float(per_move[kinds == MoveKind.RAPID].sum())
 
     out = dict(out or {})
@@ -346,7 +379,7 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None) -
         "removed_by_rapids_mm3": round(rapid_removed, 3),
         "first_rapid_skipped": skip_first,
         "stock_mm3": round(stock_volume, 3),
-        "remaining_mm3": round(grid.volume(), 3),
+        "remaining_mm3": round(max(stock_volume - removed, 0.0), 3),
         "seconds": round(seconds, 4),
         "moves_per_s": round(len(moves) / seconds, 1) if seconds > 0 else None,
         "tool": tool.describe(),

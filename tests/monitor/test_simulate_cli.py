@@ -279,3 +279,22 @@ def test_sphere_finishing_pass_leaves_undercut_only_in_the_dome_corner(capsys, s
         # measured along the surface grows: just over t_h, a few rays each
         if f is not big:
             assert f["depth"] < 0.06 and f["detail"]["rays"] < 30
+
+
+# --- QA 8: the stock's true volume --------------------------------------------------------
+
+def test_box_stock_volume_is_exact_and_removal_is_trapezoid_weighted(capsys, tmp_path):
+    rc, out, err = run(capsys, JOB, "--json", "--no-checks")
+    assert json.loads(out)["stock_mm3"] == pytest.approx(48000.0)
+    rc, out, err = run(capsys, JOB, "--no-checks")
+    assert "of 48000.000 mm^3 stock" in out
+    # a 2 mm deep full-width facing pass (flat:6 past every edge) removes 60 x 40 x 2
+    prog = tmp_path / "face.nc"
+    rows = "".join(f"G0 Y{y}\nG1 Z18\nG1 X68\nG0 Z25\nG0 X-8\n" for y in range(-2, 44, 4))
+    prog.write_text("G21 G90\nM3 S10000 F500\nG0 X-8 Y-2 Z25\n" + rows + "M2\n")
+    rc, out, err = run(capsys, prog, "--stock", "box:0,0,0,60,40,20", "--tool", "flat:6", "--resolution", 0.5,
+                       "--json", "--no-checks")
+    doc = json.loads(out)
+    assert doc["stock_mm3"] == pytest.approx(48000.0)
+    assert doc["removed_mm3"] == pytest.approx(4800.0, abs=1e-3)
+    assert doc["remaining_mm3"] == pytest.approx(43200.0, abs=1e-3)

@@ -107,3 +107,19 @@ def test_memory_limit_is_a_clear_error():
     with pytest.raises(InputError, match="coarser resolution"):
         DexelGrid(f, memory_limit=1024)
     assert DexelGrid.estimate_bytes(f.n_rays) == f.n_rays * 26
+
+
+@pytest.mark.parametrize("spacing", [0.25, 0.4, 1.0])
+def test_trapezoid_volume_of_a_box_is_exact(spacing):
+    # 60 x 40 x 20 = 48000 mm^3; the edge-inclusive rays overstate it by the edge half-cells
+    f = Frame.top(0, 0, 60, 40, spacing)
+    g = box_grid(f, (0, 0, 0), (60, 40, 20))
+    assert g.volume(weights="trapezoid") == pytest.approx(48000.0, rel=1e-9)
+    assert g.volume() == pytest.approx(f.nu * f.nv * spacing**2 * 20)  # default unchanged
+    # a pocket in the middle: interior rays count whole in both rules
+    i, j = int(round(30 / spacing)), int(round(20 / spacing))
+    removed = g.subtract(i, j, 10.0, 25.0, 1)
+    assert removed == pytest.approx(10.0)
+    assert g.volume(weights="trapezoid") == pytest.approx(48000.0 - 10.0 * spacing**2, rel=1e-9)
+    with pytest.raises(ValueError):
+        g.volume(weights="simpson")
