@@ -33,8 +33,8 @@ HOLD_KINDS = frozenset({"gouge", "rapid_into_stock", "holder_contact", "shank_co
 #: points remembered per alerted finding to follow it along (a long gouge)
 MAX_TRACK_POINTS = 4096
 #: what a ``finding_update`` JSON line carries of the grown / happened record
-UPDATE_KEYS = ("kind", "line", "lines", "position", "depth", "area", "volume", "message", "status",
-               "happened_t", "happened_position", "happened_line")
+UPDATE_KEYS = ("kind", "line", "lines", "move", "position", "depth", "area", "volume", "message", "status",
+               "stage", "happened_t", "happened_position", "happened_line")
 
 
 def _nan(v) -> float:
@@ -66,7 +66,8 @@ def grow_record(rec: dict, f: dict, merged: set) -> bool:
         d0, d1 = _nan(rec.get("depth")), _nan(f.get("depth"))
         if not math.isnan(d1) and (math.isnan(d0) or d1 > d0):
             rec["depth"], rec["line"], rec["position"] = d1, f.get("line", rec.get("line")), f.get("position")
-            rec["stage"] = f.get("stage", rec.get("stage"))
+            if f.get("move"):
+                rec["move"] = f["move"]
             changed = True
     if new_material:
         merged |= ids
@@ -221,6 +222,8 @@ class Alerter:
                 rec["happened_t"] = float(t)
             rec["happened_position"] = list(f.get("position") or [])
             rec["happened_line"] = f.get("line")
+            if f.get("stage") is not None:
+                rec["stage"] = f["stage"]  # the live stage it happened at
         if not (grew or happened):
             return
         if self.run is not None:
@@ -269,8 +272,12 @@ class Alerter:
 
 
 def _stages(f: dict) -> frozenset:
-    """Move ids (``stages``, else ``stage``) of a finding; 0 (unknown) is left out."""
-    got = f.get("stages") or ([f["stage"]] if f.get("stage") else [])
+    """Move ids (``moves``/``move``; records older than that: ``stages``/``stage``) of a
+    finding; 0 (unknown) is left out."""
+    if "move" in f or "moves" in f:
+        got = f.get("moves") or ([f["move"]] if f.get("move") else [])
+    else:
+        got = f.get("stages") or ([f["stage"]] if f.get("stage") else [])
     return frozenset(int(x) for x in got if x)
 
 

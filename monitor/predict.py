@@ -514,11 +514,19 @@ def lead_time(finding: Finding, path: ProgramPath, progress: float, feed_overrid
     return max(float(path.row_t0[row]) - float(progress), 0.0) * scale
 
 
-def finding_record(f: Finding, lead: float, t: float | None = None, predicted: bool = True) -> dict:
+def finding_record(f: Finding, lead: float, t: float | None = None, predicted: bool = True,
+                   stage: int | None = None) -> dict:
     """The JSON object of one finding: ``Finding.to_json()`` + ``lead_time_s``, ``predicted``
     and ``status`` (``"predicted"`` ahead of the spindle, ``"happened"`` on the real motion)
-    (+ ``t``)."""
+    (+ ``t``).
+
+    The checker's ``stage`` is a move id (row + 1): it is told as ``move``, so that
+    ``stage`` means one thing in a run, the live stage (the model after the n-th recorded
+    cut, 0 = the stock), given only where the finding happened (``stage``)."""
     d = f.to_json()
+    d["move"] = int(d.pop("stage", 0) or 0)
+    if stage is not None:
+        d["stage"] = int(stage)
     d["lead_time_s"] = round(float(lead), 3) if math.isfinite(lead) else None
     d["predicted"] = bool(predicted)
     d["status"] = "predicted" if predicted else "happened"

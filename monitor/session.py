@@ -286,7 +286,7 @@ class Session:
             self.run.append_cut(self.stage, {"points": pts}, t=state.t, move_id=s.row + 1, line=s.line)
             if removed > 0 and rays.size:
                 self._record_trace(rays)
-        return [finding_record(f, 0.0, state.t, predicted=False) for f in found], removed
+        return [finding_record(f, 0.0, state.t, predicted=False, stage=self.stage) for f in found], removed
 
     def _travelled(self, prev: np.ndarray, tip: np.ndarray, s: SyncResult) -> tuple[np.ndarray, np.ndarray]:
         """The path from the last tip to this one: points (k+1, 3) mm and the program row of

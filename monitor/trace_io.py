@@ -123,9 +123,31 @@ class RunView:
         h, ids = self.trace.state_at(stage, out=buf)
         return h.reshape(self.frame.shape), ids.reshape(self.frame.shape)
 
+    # Stages, one definition for the whole run: stage n is the model after the n-th
+    # recorded cut (the session's stage counter, the ``cuts`` table), stage 0 the stock
+    # when the monitor started. Cuts that removed nothing leave no trace block, so the
+    # trace may end before the last cut: the model stays the same up to it.
+    @property
+    def first_stage(self) -> int:
+        return int((self.trace.z or self.trace.t).first_stage)
+
     @property
     def last_stage(self) -> int:
-        return self.trace.last_stage
+        """The last stage of the run (its last recorded cut; a run cut short: its last
+        stage the trace holds)."""
+        last = self.trace.last_stage
+        tab = self.stage_table
+        if tab.size and not self.trace.truncated:
+            last = max(last, int(tab["stage"].max()))
+        return int(last)
+
+    def check_stage(self, stage: int, where: str = "--stage") -> int:
+        """``stage`` if the run has it, else InputError naming the valid range."""
+        first, last = self.first_stage, self.last_stage
+        if not first <= stage <= last:
+            raise InputError(f"stage must be {first}..{last} ({first}: the stock before the first cut, "
+                             f"{last}: after the last recorded cut), got {stage}", where)
+        return int(stage)
 
     @cached_property
     def moves(self) -> np.ndarray | None:

@@ -131,7 +131,7 @@ def run(args) -> int:
     status = 0
     with RunView(args.run) as view:
         tr = view.trace
-        first, last = (tr.z or tr.t).first_stage, tr.last_stage
+        first, last = view.first_stage, view.last_stage
         did = False
         if tr.truncated:
             print(f"dexmon replay: note: {args.run} was cut short; it replays up to stage {last}",
@@ -139,7 +139,7 @@ def run(args) -> int:
         if args.png:
             if args.stage is None:
                 raise InputError("--png needs --stage N", "--png")
-            n = parse_stage(args.stage, last, first)
+            n = view.check_stage(parse_stage(args.stage, last, first))
             img = stage_picture(view, n, args.size, args.three_d)
             save_png(img, args.png)
             _say(args, out, {"event": "png", "stage": n, "path": args.png, "size": list(img.shape[:2])},
@@ -152,8 +152,8 @@ def run(args) -> int:
                 raise InputError("animations need --from A and --to B", "--gif/--mp4")
             from monitor.render.animate import animate
 
-            a = parse_stage(args.first, last, first, "--from")
-            b = parse_stage(args.last, last, first, "--to")
+            a = view.check_stage(parse_stage(args.first, last, first, "--from"), "--from")
+            b = view.check_stage(parse_stage(args.last, last, first, "--to"), "--to")
             for path in (args.gif, args.mp4):
                 if path:
                     n = animate(tr, a, b, path, fps=args.fps, max_frames=args.frames, max_size=args.size,
@@ -164,7 +164,7 @@ def run(args) -> int:
         if args.export_stl:
             from sim.surface import export_stl
 
-            n = parse_stage(args.export_stl[0], last, first, "--export-stl")
+            n = view.check_stage(parse_stage(args.export_stl[0], last, first, "--export-stl"), "--export-stl")
             grid = view.grid_at(n)
             export_stl(grid, args.export_stl[1])
             _say(args, out, {"event": "stl", "stage": n, "path": args.export_stl[1],
@@ -198,14 +198,36 @@ def run(args) -> int:
 
 
 def format_finding(f: dict) -> str:
+    """One sentence for a person: what, where (lines, X Y Z), how big, and whether it was
+    predicted and happened. E.g. ``Gouge at lines 22-23, X30.000 Y19.000 Z-5.500: 0.500 mm
+    deep, 73.562 mm² of the design, 26.414 mm³; predicted 4.9 s ahead, then happened.``"""
+    kind = str(f.get("kind", "finding")).replace("_", " ")
+    lines = [int(x) for x in (f.get("lines") or ()) if x]
     line = f.get("line")
-    lines = f.get("lines") or []
-    where = f"line {line}" if line not in (None, -1) else "line ?"
     if len(lines) > 1:
-        where += f" (lines {lines[0]}..{lines[-1]}, {f.get('lines_total', len(lines))} in all)"
+        total = f.get("lines_total", len(lines))
+        where = f"lines {lines[0]}-{lines[-1]}" + (f" ({total} lines)" if total != lines[-1] - lines[0] + 1 else "")
+    else:
+        where = f"line {line}" if line not in (None, 0, -1) else "an unknown line"
     pos = f.get("position")
-    at = f" at X{pos[0]:.3f} Y{pos[1]:.3f} Z{pos[2]:.3f}" if isinstance(pos, (list, tuple)) and len(pos) >= 3 else ""
-    return f"{f.get('kind', 'finding')}: {where}{at}: {f.get('message', '')}".rstrip(": ")
+    if isinstance(pos, (list, tuple)) and len(pos) >= 3 and all(v is not None for v in pos[:3]):
+        where += f", X{pos[0]:.3f} Y{pos[1]:.3f} Z{pos[2]:.3f}"
+    sizes = []
+    if f.get("depth") is not None:
+        sizes.append(f"{f['depth']:.3f} mm deep")
+    if f.get("area") is not None:
+        sizes.append(f"{f['area']:.3f} mm² of the design")
+    if f.get("volume") is not None:
+        sizes.append(f"{f['volume']:.3f} mm³")
+    text = f"{kind[:1].upper()}{kind[1:]} at {where}" + (": " + ", ".join(sizes) if sizes else "")
+    lead = f.get("lead_time_s")
+    if f.get("predicted"):
+        ahead = f" {lead:.1f} s ahead" if isinstance(lead, (int, float)) and lead > 0 else ""
+        then = ", then happened" if f.get("status") == "happened" else ", not reached in this run"
+        text += f"; predicted{ahead}{then}"
+    elif f.get("status") == "happened":
+        text += "; seen on the real motion"
+    return text + "."
 
 
 def _say(args, out, obj: dict, text: str) -> None:

@@ -26,6 +26,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("-o", "--output", required=True, metavar="OUT.html", help="HTML file to write")
     parser.add_argument("--size", type=int, default=480, help="pictures at most this many pixels a side")
     parser.add_argument("--max-findings", type=int, default=50, help="pictures for at most this many findings")
+    parser.add_argument("--json", action="store_true", help="print one JSON line instead of text")
 
 
 def png_base64(img: np.ndarray) -> str:
@@ -41,13 +42,16 @@ def _img_tag(img: np.ndarray, alt: str) -> str:
 
 
 def finding_stage(view, f: dict) -> int:
-    """The live stage at which a finding's line was (last) being cut; else the run's end."""
+    """The live stage where a finding is seen: the last cut of any of its lines (so the
+    picture shows all of it), else the stage it happened at, else the run's end."""
     tab = view.stage_table
-    line = f.get("line")
-    if tab.size and line is not None:
-        hit = np.nonzero(tab["line"] == int(line))[0]
+    lines = set(f.get("lines") or ()) | ({int(f["line"])} if f.get("line") is not None else set())
+    if tab.size and lines:
+        hit = np.nonzero(np.isin(tab["line"], sorted(lines)))[0]
         if hit.size:
-            return int(tab["stage"][hit[-1]])
+            return min(int(tab["stage"][hit[-1]]), view.last_stage)
+    if isinstance(f.get("stage"), int) and view.first_stage <= f["stage"] <= view.last_stage:
+        return int(f["stage"])
     return view.last_stage
 
 
@@ -95,7 +99,7 @@ def build_report(view, size: int = 480, max_findings: int = 50) -> str:
     from monitor.render.animate import frame_picture, reduce_factor
 
     tr = view.trace
-    first, last = (tr.z or tr.t).first_stage, tr.last_stage
+    first, last = view.first_stage, view.last_stage
     frame = tr.frame
     k = reduce_factor(frame.shape, size)
     findings = view.findings
@@ -149,10 +153,12 @@ def build_report(view, size: int = 480, max_findings: int = 50) -> str:
             img = crop_around(pic(stage), frame, k, f["position"])
             parts.append(f"<figure>{_img_tag(img, f.get('kind', 'finding'))}"
                          f"<figcaption>stage {stage}</figcaption></figure>")
-        lines = f.get("lines") or ([f["line"]] if f.get("line") is not None else [])
-        parts.append(f"<div><p class='bad'><b>{e(str(f.get('kind', 'finding')))}</b></p>"
-                     f"<p>{e(format_finding(f))}</p><p>lines: {e(', '.join(map(str, lines[:40])))}"
-                     f"{' …' if len(lines) > 40 else ''}</p></div></div>")
+        lines = f.get("lines") or []
+        # the sentence names the line range; list the lines only when a range hides gaps
+        gaps = len(lines) > 2 and lines[-1] - lines[0] + 1 != len(lines)
+        listed = (f"<p>lines: {e(', '.join(map(str, lines[:40])))}{' …' if len(lines) > 40 else ''}</p>"
+                  if gaps else "")
+        parts.append(f"<div><p class='bad'>{e(format_finding(f))}</p>{listed}</div></div>")
     parts.append("<h2>Removal per move</h2><table><tr><th>move</th><th>line</th><th>removed (mm³)</th></tr>")
     moves = view.moves
     for m, v in sorted(removal.items()):
@@ -172,5 +178,8 @@ def run(args) -> int:
         text = build_report(view, args.size, args.max_findings)
         n = len(view.findings)
     out.write_text(text, encoding="utf-8")
-    print(json.dumps({"event": "report", "path": str(out), "findings": n}), file=sys.stdout)
+    if getattr(args, "json", False):
+        print(json.dumps({"event": "report", "path": str(out), "findings": n}), file=sys.stdout)
+    else:
+        print(f"wrote {out} ({n} finding{'s' if n != 1 else ''})", file=sys.stdout)
     return 0

@@ -30,11 +30,13 @@ def program_moves() -> np.ndarray:
     return m
 
 
-def record_run(path, chunk_every: int = 5, stop_after: int | None = None, writer_hook=None):
+def record_run(path, chunk_every: int = 5, stop_after: int | None = None, writer_hook=None, air_cuts: int = 0):
     """Cut the program in small live stages, writing the run file as a session would.
 
     Returns ``(snapshots {stage: DexelGrid}, writer)``; the writer is closed unless
     ``stop_after`` (stages) is given, which leaves it open like a crashed session.
+    ``air_cuts``: that many more recorded cuts at the end that remove nothing (a retract
+    in the air: stages with no trace block), as a session records them.
     """
     grid = box(61, 41, 0.5, 0.0, 10.0)
     moves = program_moves()
@@ -64,6 +66,10 @@ def record_run(path, chunk_every: int = 5, stop_after: int | None = None, writer
             if stop_after is not None and stage >= stop_after:
                 return snaps, w
     store_trace_chunk(w, trace)
+    for _ in range(air_cuts):
+        stage += 1
+        w.append_cut(stage, {"p0": PATH[-1], "p1": PATH[-1] + [0, 0, 5]}, t=stage * 0.1, move_id=len(moves),
+                     line=int(moves["line"][-1]))
     w.append_finding({"kind": "gouge", "line": 13, "lines": [13, 14], "stage": 4,
                       "position": [15.0, 16.0, 6.5], "depth": 0.4, "message": "gouge 0.400 mm deep"})
     w.append_finding({"kind": "rapid_into_stock", "line": 10, "lines": [10], "stage": 1,

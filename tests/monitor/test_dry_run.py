@@ -55,7 +55,9 @@ def test_cli_dry_run_bundled_example(tmp_path, capsys):
     assert out[-1]["event"] == "summary" and out[-1]["findings"] == len(findings)
     # the virtual spindle then really gets there: each record updated, never re-alerted
     updates = [x for x in out if x["event"] == "finding_update"]
-    assert sorted(u["kind"] for u in updates) == ["gouge", "rapid_into_stock"]
+    assert sorted(u["kind"] for u in updates if u["status"] == "happened") == ["gouge", "rapid_into_stock"]
+    # the gouge's second row (line 23) grew the alerted finding rather than being dropped
+    assert [u["lines"] for u in updates if u["kind"] == "gouge"][-1] == [22, 23]
     r = RunReader(run)
     assert [f["kind"] for f in r.findings()] == [f["kind"] for f in findings]
     assert all(f["status"] == "happened" for f in r.findings())

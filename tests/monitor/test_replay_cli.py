@@ -86,7 +86,33 @@ def test_findings_with_lines(recorded, capsys):
     path, _ = recorded
     assert main(["replay", str(path), "--findings"]) == 1
     out = capsys.readouterr().out
-    assert "gouge: line 13 (lines 13..14" in out and "rapid_into_stock: line 10" in out
+    assert "Gouge at lines 13-14, X15.000 Y16.000 Z6.500: 0.400 mm deep." in out
+    assert "Rapid into stock at line 10, X2.000 Y2.000 Z8.000: 3.200 mm³." in out
+    assert out.lower().count("gouge") == 1  # one sentence, no kind repeated by the message
+
+
+def test_stages_are_one_range_everywhere(tmp_path, capsys):
+    """Stage n = the model after the n-th recorded cut, 0 = the stock: cuts that removed
+    nothing still count (the trace ends before them), and a stage outside 0..N is one
+    line naming the range, exit 2 (QA 3)."""
+    path = tmp_path / "air.dexrun"
+    snaps, _ = record_run(path, air_cuts=3)
+    last = LAST + 3
+    with RunView(path) as view:
+        assert view.trace.last_stage == LAST and (view.first_stage, view.last_stage) == (0, last)
+        assert same_model(view.grid_at(last), snaps[LAST])
+    assert main(["replay", str(path), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["last_stage"] == last
+    for stage in ("0", str(last), "end"):
+        assert main(["replay", str(path), "--stage", stage, "--png", str(tmp_path / "ok.png")]) == 0
+    capsys.readouterr()
+    for args in (["--stage", str(last + 1), "--png", str(tmp_path / "x.png")],
+                 ["--export-stl", str(last + 100), str(tmp_path / "x.stl")],
+                 ["--from", "0", "--to", str(last + 1), "--gif", str(tmp_path / "x.gif")]):
+        assert main(["replay", str(path), *args]) == 2
+        err = capsys.readouterr().err
+        assert f"stage must be 0..{last}" in err and len(err.strip().splitlines()) == 1, err
+        assert not (tmp_path / "x.png").exists() and not (tmp_path / "x.stl").exists()
 
 
 def test_export_stl(recorded, tmp_path):

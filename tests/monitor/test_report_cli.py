@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import base64
 import io
+import json
 import re
 
 import numpy as np
@@ -29,7 +30,9 @@ def test_report_has_summary_findings_pictures_and_removal(recorded, tmp_path, ca
     text = out.read_text()
     assert "<h2>Summary</h2>" in text and "programmed cycle time" in text
     assert "0:12.00" in text  # 6 moves x 2 s of row_seconds
-    assert "gouge: line 13" in text and "lines: 13, 14" in text
+    # one sentence per finding, the kind said once (QA 11)
+    assert "Gouge at lines 13-14, X15.000 Y16.000 Z6.500: 0.400 mm deep." in text
+    assert text.lower().count("gouge") == 2  # the sentence and the picture's alt text
     imgs = re.findall(r'src="data:image/png;base64,([^"]+)"', text)
     assert len(imgs) == 4  # start, end, one per finding
     for b in imgs:
@@ -41,7 +44,10 @@ def test_report_has_summary_findings_pictures_and_removal(recorded, tmp_path, ca
     assert [int(r[1]) for r in rows] == list(range(10, 10 + len(PATH) - 1))
     total = sum(float(r[2]) for r in rows)
     assert total == pytest.approx(snaps[0].volume() - snaps[max(snaps)].volume(), abs=0.01)
-    assert "report" in capsys.readouterr().out
+    said = capsys.readouterr().out
+    assert said == f"wrote {out} (2 findings)\n"  # plain text without --json
+    assert main(["report", str(path), "-o", str(out), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out) == {"event": "report", "path": str(out), "findings": 2}
 
 
 def test_report_errors(recorded, tmp_path, capsys):
