@@ -75,12 +75,8 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
     err_console = Console(stderr=True, highlight=False)
     writer = RunWriter(run_path)
     feed = None
+    connected = False
     try:
-        if as_json:
-            _jsonl({"event": "start", "run": str(run_path), "program": str(job.program),
-                    "controller": getattr(controller, "url", "")})
-        elif not quiet:
-            console.print(f"run file: {run_path}")
         alerter = Alerter(console=console, json_stream=sys.stdout if as_json else None,
                           bell=("bell" in job.alerts) and console is not None,
                           feed_hold=controller.feed_hold if job.feed_hold else None, run=writer)
@@ -102,7 +98,13 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
                 session.warm_up()
         else:
             session.warm_up()
-        controller.connect()
+        _connect(controller)
+        connected = True
+        if as_json:
+            _jsonl({"event": "start", "run": str(run_path), "program": str(job.program),
+                    "controller": getattr(controller, "url", "")})
+        elif not quiet:
+            console.print(f"run file: {run_path}")
         _announce_endpoints(controller, console, as_json)
         # the setup made many long-lived objects (move table rows, meshes, tools): keep
         # the collector from walking them again during the run (no gen-2 pauses per poll)
@@ -133,6 +135,8 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
         writer.close()
         if feed is not None:
             feed.view.close()
+        if not connected:  # nothing was followed: leave no empty run file behind
+            _remove_run_file(run_path)
     if as_json:
         _jsonl(summary)
     elif not quiet:
@@ -141,6 +145,52 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
         console.print(f"[{colour}]{n} finding(s)[/{colour}]"
                       + (f": {', '.join(summary['kinds'])}" if n else "") + f"; run file {run_path}")
     return 1 if summary["findings"] else 0
+
+
+def _connect(controller) -> None:
+    """``controller.connect()``; a failure says the operating system's reason when the
+    driver's message lacks it (found in the exception chain, or by one TCP probe)."""
+    from drivers.errors import DriverError
+
+    try:
+        controller.connect()
+    except DriverError as exc:
+        why = os_reason(exc, controller)
+        if why and why.lower() not in str(exc).lower():
+            raise type(exc)(f"{exc}: {why}") from exc
+        raise
+
+
+def os_reason(exc: BaseException, controller=None) -> str | None:
+    """The OS error behind a failed connect: the first ``OSError`` in ``exc``'s chain
+    (``__cause__``/``__context__``), else, for a TCP controller (``host`` and ``port``
+    attributes), what one plain TCP connect to it says; None when nothing is known."""
+    seen = set()
+    e = exc
+    while e is not None and id(e) not in seen:
+        seen.add(id(e))
+        if isinstance(e, OSError) and e is not exc:
+            return e.strerror or str(e)
+        e = e.__cause__ or e.__context__
+    host, port = getattr(controller, "host", None), getattr(controller, "port", None)
+    if host and isinstance(port, int):
+        import socket
+
+        try:
+            with socket.create_connection((host, port), timeout=2.0):
+                return None  # it answers now: the driver's own message is all there is
+        except OSError as err:
+            return err.strerror or str(err)
+    return None
+
+
+def _remove_run_file(path: Path) -> None:
+    for p in (path, path.with_name(path.name + "-wal"), path.with_name(path.name + "-shm"),
+              path.with_name(path.name + "-journal")):
+        try:
+            p.unlink()
+        except OSError:
+            pass
 
 
 def _view_options(args):
