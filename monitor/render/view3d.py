@@ -17,6 +17,35 @@ def _pv():
     return pv
 
 
+def quiet_vtk() -> None:
+    """Keep VTK's own messages off stderr (offscreen it warns about X it does not need):
+    its output window and its logger are switched off."""
+    try:
+        from vtkmodules.vtkCommonCore import vtkLogger, vtkObject, vtkOutputWindow
+
+        vtkObject.GlobalWarningDisplayOff()
+        vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)
+        vtkOutputWindow.GetInstance().SetDisplayModeToNever()
+    except (ImportError, AttributeError):  # another VTK build: its messages stay
+        pass
+
+
+def solid_surface(grid):
+    """The dexel model as a closed ``pv.PolyData`` solid (top, walls and bottom, from
+    ``sim.surface.surface_mesh``) with point data ``height`` = Z, mm; None when empty."""
+    pv = _pv()
+    from sim.surface import surface_arrays
+
+    verts, faces, _ = surface_arrays(grid)
+    if len(faces) == 0:
+        return None
+    faces = np.asarray(faces, np.int64)
+    cells = np.hstack([np.full((len(faces), 1), 3, np.int64), faces]).reshape(-1)
+    mesh = pv.PolyData(np.asarray(verts, np.float64), cells)
+    mesh.point_data["height"] = mesh.points[:, 2].copy()
+    return mesh
+
+
 def heightfield(frame, heights: np.ndarray, floor: float | None = None):
     """A ``pv.StructuredGrid`` of the visible surface (nv, nu) heights, mm, in world coords.
 
@@ -96,17 +125,30 @@ def build_plotter(grid=None, heights=None, frame=None, errors=None, tol=None, to
         heights = grid.top()
     if heights is None or frame is None:
         raise InputError("build_plotter needs a grid or heights and a frame")
+    if off_screen:
+        quiet_vtk()
     surf = heightfield(frame, heights)
+    solid = solid_surface(grid) if grid is not None and errors is None else None
     pl = pv.Plotter(off_screen=off_screen, window_size=list(window_size))
     pl.set_background("#1c1e24")
-    if errors is not None and (color_by in ("auto", "error")):
+    if solid is not None:
+        # the stock as a solid with its sides, coloured by the real height range
+        z = solid.point_data["height"]
+        clim = (float(z.min()), float(z.max()) if z.max() > z.min() else float(z.min()) + 1.0)
+        pl.add_mesh(solid, scalars="height", cmap="viridis", clim=clim, show_scalar_bar=True,
+                    scalar_bar_args={"title": "height (mm)", "fmt": "%.1f"})
+    elif errors is not None and (color_by in ("auto", "error")):
         cmap, clim = error_cmap(tol)
         surf.point_data["error (mm)"] = np.asarray(errors, np.float64).T.reshape(-1, order="F")
         pl.add_mesh(surf, scalars="error (mm)", cmap=cmap, clim=clim, nan_color="#ebc828", n_colors=cmap.N,
                     show_scalar_bar=True, scalar_bar_args={"title": "error (mm)"}, smooth_shading=True)
     else:
-        pl.add_mesh(surf, scalars="height", cmap="viridis", nan_color="#30323a",
-                    show_scalar_bar=True, scalar_bar_args={"title": "height (mm)"}, smooth_shading=True)
+        h = np.asarray(heights, np.float64)
+        fin = h[np.isfinite(h)]
+        clim = (float(fin.min()), float(max(fin.max(), fin.min() + 1.0))) if fin.size else (0.0, 1.0)
+        pl.add_mesh(surf, scalars="height", cmap="viridis", nan_color="#30323a", clim=clim,
+                    show_scalar_bar=True, scalar_bar_args={"title": "height (mm)", "fmt": "%.1f"},
+                    smooth_shading=True)
     if contours:
         lines = surf.contour(isosurfaces=int(contours), scalars="height")
         if lines.n_points:

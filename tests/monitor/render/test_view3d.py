@@ -68,3 +68,28 @@ def test_interactive_needs_a_display(monkeypatch):
     monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
     with pytest.raises(InputError, match="display"):
         view3d.interactive(None)
+
+
+def test_replay_3d_is_a_solid_with_its_real_height_range_and_quiet_vtk(tmp_path, capfd):
+    """QA 10: the stock is a closed solid (walls down to its bottom) coloured over the real
+    height range, and VTK prints nothing offscreen."""
+    pytest.importorskip("pyvista")
+    from monitor.render import view3d
+    from tests.sim.trace_helpers import ball_cut, box
+
+    grid = box(41, 31, 0.5, 0.0, 10.0)  # a 20 x 15 x 10 mm block
+    ball_cut(grid, np.array([10.0, 7.5, 7.0]), 3.0, 1)
+    solid = view3d.solid_surface(grid)
+    lo, hi = np.asarray(solid.bounds).reshape(3, 2).T
+    assert hi[2] == pytest.approx(10.0) and lo[2] == pytest.approx(0.0)  # sides down to the bottom
+    assert solid.point_data["height"].min() == pytest.approx(0.0)
+    pl = view3d.build_plotter(grid=grid, off_screen=True, window_size=(200, 200))
+    try:
+        rng = pl.mapper.scalar_range
+    finally:
+        pl.close()
+    assert rng[0] == pytest.approx(0.0) and rng[1] == pytest.approx(10.0)
+    capfd.readouterr()
+    img = view3d.render_png(grid, str(tmp_path / "s.png"), window_size=(200, 200))
+    assert img.shape == (200, 200, 3) and img.std() > 10
+    assert capfd.readouterr().err == ""
