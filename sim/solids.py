@@ -226,8 +226,8 @@ def check_closed(mesh, name: str = "mesh") -> None:
     if not problems:
         problems.append("edges do not pair up")
     raise InputError("mesh is not watertight: " + " and ".join(problems)
-                     + "; a solid needs a closed surface (repair it, or use heightfield_grid "
-                       "for an open design surface)", where=name)
+                     + "; a stock or fixture must be a closed solid: repair the mesh so that every "
+                       "edge joins exactly two triangles", where=name)
 
 
 def _project(frame: Frame, mesh):

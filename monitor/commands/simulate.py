@@ -175,6 +175,23 @@ def stock_true_volume(spec: str | None = None, solid=None) -> float | None:
     return float(abs(mesh.volume)) if mesh.is_watertight else None
 
 
+def flute_note(label: str, spec: str | None, tool) -> str | None:
+    """The note saying a flute length was assumed (``spec`` without ``L=``, or a tool
+    table entry, which has no flute length), else None."""
+    if spec is not None and re.search(r"(^|:)\s*L\s*=", spec, re.IGNORECASE):
+        return None
+    L = tool.flute_length
+    how = f"4xD = {L:g} mm" if abs(L - 4.0 * tool.diameter) < 1e-9 else f"{L:g} mm"
+    return f"flute length not given for {label}: assumed {how} (give it as :L=)"
+
+
+def design_note(checker, name) -> str | None:
+    """The note saying an open design surface is read as a height field."""
+    if checker is None or checker.design is None or checker.design.closed:
+        return None
+    return f"design {name} is an open surface: material is taken as everything below it"
+
+
 def load_moves(path: str, dialect: str = "linuxcnc", tool_table=None, var_file=None, units: str = "mm",
                subroutine_path=None) -> np.ndarray:
     """The move table of a program, through the project's G-code interpreter.
@@ -255,7 +272,14 @@ def run(args) -> int:
 
         checker = checker_from_args(args, grid, tool, tools)
     true_volume = stock_true_volume(args.stock) if args.stock and not args.resume else None
-    return _simulate(args, str(args.program), moves, grid, tool, tools, checker, true_volume=true_volume)
+    notes = []
+    if args.tool:
+        notes.append(flute_note(f"--tool {args.tool}", args.tool, tool))
+    for num in sorted(set(int(t) for t in moves["tool"]) & set(tools)):
+        notes.append(flute_note(f"T{num} (tool table)", None, tools[num]))
+    notes.append(design_note(checker, args.design))
+    return _simulate(args, str(args.program), moves, grid, tool, tools, checker, true_volume=true_volume,
+                     notes=[n for n in notes if n])
 
 
 def _run_job(args) -> int:
@@ -323,8 +347,17 @@ def _run_job(args) -> int:
                           max_depth_of_cut=_positive(args.max_depth_of_cut, "--max-depth-of-cut"),
                           min_volume=MIN_VOLUME)
     out = {"job": str(path)}
+    notes = []
+    used = set(int(t) for t in moves["tool"])
+    for num, td in sorted(job.tools.items()):
+        if num in used and num in wp.tools:
+            notes.append(flute_note(f"T{num}", td.spec, wp.tools[num]))
+    if job.default_tool is not None and (not job.tools or used - set(job.tools)):
+        notes.append(flute_note(f"T{job.default_tool.number}" if job.default_tool.number else "the tool",
+                                job.default_tool.spec, wp.default_tool))
+    notes.append(design_note(checker, job.design.stl if job.design is not None else None))
     return _simulate(args, str(job.program), moves, wp.stock, wp.default_tool, wp.tools, checker, out,
-                     true_volume=stock_true_volume(solid=job.stock))
+                     true_volume=stock_true_volume(solid=job.stock), notes=[n for n in notes if n])
 
 
 def DexelGrid_estimate(job) -> int:
@@ -339,7 +372,8 @@ def DexelGrid_estimate(job) -> int:
     return DexelGrid.estimate_bytes(n)
 
 
-def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, true_volume=None) -> int:
+def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, true_volume=None,
+              notes=()) -> int:
     """Cut (and check) ``moves`` into ``grid``; print the report; return the exit status.
 
     Volumes shown are the stock's exact volume (``true_volume`` when known, else the grid's
@@ -387,6 +421,7 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
         "grid": [grid.frame.nu, grid.frame.nv],
         "checked": checker is not None,
         "findings": [f.to_json() for f in findings],
+        "notes": list(notes),
     })
     if args.heights:
         hp = Path(args.heights)
@@ -403,6 +438,8 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
     if args.json:
         print(json.dumps(out))
     else:
+        for n in notes:
+            print(f"note: {n}", file=sys.stderr)
         w = sys.stdout.write
         w(f"{out['program']}: {out['moves']} moves ({out['cutting_moves']} removed material), "
           f"tool {out['tool']}, grid {grid.frame.nu} x {grid.frame.nv} rays at {grid.frame.spacing:g} mm\n")
@@ -419,19 +456,86 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
     return 1 if findings else 0
 
 
+#: one short sentence per kind for the text table
+WHAT = {
+    "gouge": "cut into the part",
+    "undercut": "material left on the part",
+    "rapid_into_stock": "a rapid (G0) went through material",
+    "holder_contact": "the tool holder touches material",
+    "shank_contact": "the shank touches material",
+    "above_flute_contact": "the tool above its flutes touches material",
+    "fixture_collision": "the tool enters a fixture",
+    "spindle_stopped_cutting": "cuts with the spindle stopped",
+    "non_center_cutting_plunge": "plunges a tool that does not cut at its centre",
+    "depth_of_cut": "cuts deeper than --max-depth-of-cut",
+    "travel_limit": "an axis goes past its travel limit",
+}
+
+#: a kind with more findings than this gets a summary line and only its worst rows
+MAX_ROWS_PER_KIND = 5
+
+
+def _lines_text(f) -> str:
+    return str(f.line) if len(f.lines) <= 1 else f"{f.lines[0]}-{f.lines[-1]}"
+
+
+def _size_text(f) -> str:
+    parts = []
+    if not math.isnan(f.depth):
+        parts.append(f"{f.depth:.3f} mm" + (" deep" if f.kind in ("gouge", "depth_of_cut") else ""))
+    if not math.isnan(f.volume):
+        parts.append(f"{f.volume:.1f} mm^3")
+    elif not math.isnan(f.area):
+        parts.append(f"{f.area:.1f} mm^2")
+    return ", ".join(parts)
+
+
+def _what_text(f) -> str:
+    what = WHAT.get(f.kind, f.kind.replace("_", " "))
+    group = f.detail.get("group")
+    if group and f.kind in ("fixture_collision", "travel_limit"):
+        what += f" ({group})"
+    hits = f.detail.get("hits")
+    if hits and hits > 1:
+        what += f", on {hits} passes"
+    return what
+
+
+def _severity(f) -> float:
+    for v in (f.depth, f.volume, f.area):
+        if not math.isnan(v):
+            return v
+    return 0.0
+
+
 def findings_table(findings) -> str:
-    """The findings as a fixed-width text table (one row each), or a 'no findings' line."""
+    """The findings as a fixed-width text table: kind, lines, X Y Z, size, one short
+    sentence; a kind with many findings gets a summary line and only its worst rows."""
     if not findings:
         return "no findings\n"
-    rows = [("kind", "line", "X", "Y", "Z", "depth mm", "volume mm^3", "what")]
+    by_kind: dict[str, list] = {}
     for f in findings:
-        where = str(f.line) if len(f.lines) <= 1 else f"{f.lines[0]}-{f.lines[-1]}"
-        num = lambda v, d: "" if math.isnan(v) else f"{v:.{d}f}"  # noqa: E731
-        rows.append((f.kind, where, *(f"{v:.3f}" for v in f.position), num(f.depth, 4), num(f.volume, 3),
-                     str(f)))
+        by_kind.setdefault(f.kind, []).append(f)
+    head = [f"{len(findings)} finding{'s' if len(findings) != 1 else ''}:"]
+    shown = []
+    for kind, fs in by_kind.items():
+        if len(fs) > MAX_ROWS_PER_KIND:
+            worst = max(fs, key=_severity)
+            lines = sorted({ln for f in fs for ln in f.lines})
+            x, y, z = worst.position
+            head.append(f"{kind}: {len(fs)} findings on lines {lines[0]}-{lines[-1]}, worst at line {worst.line} "
+                        f"(X{x:.3f} Y{y:.3f} Z{z:.3f}, {_size_text(worst)}); the {MAX_ROWS_PER_KIND} worst "
+                        "are listed (--json lists all)")
+            keep = set(map(id, sorted(fs, key=_severity, reverse=True)[:MAX_ROWS_PER_KIND]))
+            fs = [f for f in fs if id(f) in keep]
+        shown += fs
+    shown.sort(key=lambda f: (f.stages[0] if f.stages else f.stage))
+    rows = [("kind", "lines", "X", "Y", "Z", "size", "what")]
+    for f in shown:
+        rows.append((f.kind, _lines_text(f), *(f"{v:.3f}" for v in f.position), _size_text(f), _what_text(f)))
     widths = [max(len(r[c]) for r in rows) for c in range(len(rows[0]) - 1)]
-    lines = [f"{len(findings)} finding{'s' if len(findings) != 1 else ''}:"]
+    out = head
     for r in rows:
-        lines.append("  ".join(c.ljust(w) if k < 2 else c.rjust(w) for k, (c, w) in enumerate(zip(r, widths)))
-                     + "  " + r[-1])
-    return "\n".join(lines) + "\n"
+        out.append("  ".join(c.ljust(w) if k in (0, 1, 5) else c.rjust(w)
+                             for k, (c, w) in enumerate(zip(r, widths))) + "  " + r[-1])
+    return "\n".join(out) + "\n"

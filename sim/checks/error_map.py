@@ -72,6 +72,9 @@ class DesignModel:
         The design part. Closed: a solid by parity. Open: a height field along the rays.
     offset : (3,) mm
         Translation applied to the mesh first (e.g. a work offset).
+    require_height_field : bool
+        Refuse (InputError naming the file) an open mesh that some ray crosses more than
+        once: only an open surface over its footprint has a meaningful "below".
 
     Attributes
     ----------
@@ -87,8 +90,10 @@ class DesignModel:
         Watertight mesh (parity) or open sheet (height field).
     """
 
-    def __init__(self, frame: Frame, mesh_or_path, offset=(0.0, 0.0, 0.0), name: str | None = None):
+    def __init__(self, frame: Frame, mesh_or_path, offset=(0.0, 0.0, 0.0), name: str | None = None,
+                 require_height_field: bool = True):
         mesh = load_mesh(mesh_or_path)
+        self.require_height_field = require_height_field
         self.name = name or (str(mesh_or_path) if not hasattr(mesh_or_path, "faces") else "design")
         self.frame = frame
         self.mesh = mesh
@@ -123,6 +128,16 @@ class DesignModel:
             # edges of an open sheet collapse into it)
             has = counts > 0
             top_k = ptr[1:] - 1
+            spread = np.zeros(f.n_rays)
+            spread[has] = hit_s[top_k[has]] - hit_s[ptr[:-1][has]]
+            if self.require_height_field and spread.size and spread.max() > 1e-4:
+                r = int(np.argmax(spread))
+                x, y, _ = f.to_world(np.array([(r % f.nu) * f.spacing, (r // f.nu) * f.spacing, 0.0]))
+                raise InputError(
+                    "the design is an open surface (not watertight) but not a height field: the ray "
+                    f"at X{x:.3f} Y{y:.3f} crosses it {int(counts[r])} times ({spread[r]:.3f} mm apart); "
+                    "give a closed solid, or an open surface that each vertical ray crosses once",
+                    where=self.name)
             new_ptr = np.zeros_like(ptr)
             np.cumsum(has, out=new_ptr[1:])
             hit_s = hit_s[top_k[has]]

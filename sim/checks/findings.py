@@ -252,6 +252,44 @@ def merge_findings(findings) -> list[Finding]:
     return out
 
 
+def group_passes(findings, reach: float) -> list[Finding]:
+    """Merge hits of one kind that repeat along consecutive passes over one place.
+
+    After :func:`merge_findings` a raster that rubs the same feature on every pass still
+    gives one finding per pass. Here, in stage order, a hit joins an earlier group of its
+    kind (and ``detail["group"]``) when its position is within ``reach`` mm in X and Y of
+    the box of that group's positions (a pass's stepover away). Error regions (findings
+    with a ``ray_box``) are left as they are. The merged finding keeps the worst hit's
+    line, stage and position, all lines and stages, and ``detail["hits"]`` the number of
+    hits merged.
+    """
+    out: list[Finding] = []
+    groups: dict[tuple, list[list]] = {}
+    for f in sorted(findings, key=lambda f: (f.stages[0] if f.stages else f.stage)):
+        if "ray_box" in f.detail or not all(math.isfinite(v) for v in f.position[:2]):
+            out.append(f)
+            continue
+        x, y = f.position[0], f.position[1]
+        hit = None
+        for g in groups.setdefault((f.kind, f.detail.get("group")), []):
+            x0, y0, x1, y1 = g[1]
+            if x0 - reach <= x <= x1 + reach and y0 - reach <= y <= y1 + reach:
+                hit = g
+                break
+        if hit is None:
+            groups[(f.kind, f.detail.get("group"))].append([f, (x, y, x, y), f.detail.get("hits", 1)])
+            continue
+        hit[0] = _merge_two(hit[0], f)
+        x0, y0, x1, y1 = hit[1]
+        hit[1] = (min(x0, x), min(y0, y), max(x1, x), max(y1, y))
+        hit[2] += f.detail.get("hits", 1)
+    for gs in groups.values():
+        for f, _, n in gs:
+            out.append(replace(f, detail={**f.detail, "hits": n}) if n > 1 else f)
+    out.sort(key=lambda f: (f.stages[0] if f.stages else f.stage, KINDS.index(f.kind)))
+    return out
+
+
 def findings_json(findings, max_lines: int = 200) -> list[dict]:
     """``[f.to_json() for f in findings]``."""
     return [f.to_json(max_lines) for f in findings]

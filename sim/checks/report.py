@@ -64,14 +64,18 @@ def checker_from_args(args, grid, tool, tools=None):
 def final_findings(checker) -> list:
     """Everything found while cutting plus the whole-model assessment, merged (cutting-time
     gouges are replaced by the whole-model gouge regions when there is a design)."""
-    from sim.checks.findings import KINDS, merge_findings
+    from sim.checks.findings import KINDS
 
-    during = checker.all_findings()
+    from sim.checks.findings import group_passes
+
+    # hits of one kind repeating on consecutive passes over one place are one finding
+    reach = 2.0 * max([checker.tool.diameter] + [t.diameter for t in checker.tools.values()])
+    during = group_passes(checker.all_findings(), reach)
     if checker.design is None:
         return during
     model = checker.assess_model()
     # the model's regions come from one 8-connected labelling: separate regions stay
     # separate even when the same passes made them
-    out = merge_findings([f for f in during if f.kind not in ("gouge", "undercut")]) + model
+    out = [f for f in during if f.kind not in ("gouge", "undercut")] + model
     out.sort(key=lambda f: (f.stages[0] if f.stages else f.stage, KINDS.index(f.kind)))
     return out

@@ -46,7 +46,7 @@ def test_example_json_and_heights(capsys, tmp_path):
 
 
 def test_text_output(capsys):
-    rc, out, err = run(capsys, EXAMPLE, "--stock", STOCK, "--tool", "flat:6", "--resolution", 1)
+    rc, out, err = run(capsys, EXAMPLE, "--stock", STOCK, "--tool", "flat:6:L=20", "--resolution", 1)
     assert rc == 0 and err == ""
     assert "moves" in out and "removed" in out and "mm^3" in out
 
@@ -298,3 +298,81 @@ def test_box_stock_volume_is_exact_and_removal_is_trapezoid_weighted(capsys, tmp
     assert doc["stock_mm3"] == pytest.approx(48000.0)
     assert doc["removed_mm3"] == pytest.approx(4800.0, abs=1e-3)
     assert doc["remaining_mm3"] == pytest.approx(43200.0, abs=1e-3)
+
+
+# --- QA 6: many hits of one kind, the assumed flute length -----------------------------------
+
+def test_flute_length_note_when_not_given(capsys):
+    rc, out, err = run(capsys, EXAMPLE, "--stock", STOCK, "--tool", "ball:3.175", "--resolution", 1)
+    assert err.strip() == "note: flute length not given for --tool ball:3.175: assumed 4xD = 12.7 mm (give it as :L=)"
+    rc, out, err = run(capsys, EXAMPLE, "--stock", STOCK, "--tool", "ball:3.175", "--resolution", 1, "--json")
+    assert json.loads(out)["notes"] == ["flute length not given for --tool ball:3.175: assumed 4xD = 12.7 mm "
+                                        "(give it as :L=)"]
+    rc, out, err = run(capsys, EXAMPLE, "--stock", STOCK, "--tool", "ball:3.175:L=30", "--resolution", 1, "--json")
+    assert json.loads(out)["notes"] == []
+
+
+def test_a_raster_rubbing_one_feature_is_one_finding(capsys, tmp_path):
+    # a 3 mm ball with 5 mm of flute rasters 8 mm deep along X, 1 mm stepover: every pass
+    # rubs the stock above its flutes (without grouping: one finding per pass)
+    prog = tmp_path / "deep.nc"
+    rows = "".join(f"G0 X-5 Y{y}\nG1 Z12\nG1 X65\nG0 Z25\n" for y in np.arange(2, 38, 1.0))
+    prog.write_text("G21 G90\nM3 S10000 F500\nG0 Z25\n" + rows + "M2\n")
+    rc, out, err = run(capsys, prog, "--stock", "box:0,0,0,60,40,20", "--tool", "ball:3:L=5", "--resolution", 0.5,
+                       "--json")
+    doc = json.loads(out)
+    above = [f for f in doc["findings"] if f["kind"] == "above_flute_contact"]
+    assert len(above) == 1, [f["lines"][:3] for f in above]   # 36 passes over one place
+    assert above[0]["detail"]["hits"] >= 30 and above[0]["lines"][0] == 6  # the first pass
+
+
+def test_many_findings_of_a_kind_are_summarised_in_text(capsys, tmp_path):
+    from monitor.commands.simulate import findings_table
+    from sim.checks.findings import Finding
+
+    fs = [Finding("shank_contact", line=10 * k, stage=k, position=(k, 0, 0), volume=float(k)) for k in range(1, 9)]
+    text = findings_table(fs)
+    assert "shank_contact: 8 findings on lines 10-80, worst at line 80" in text
+    body = [ln for ln in text.splitlines() if ln.startswith("shank_contact ")]
+    assert len(body) == 5 and all("8.0 mm^3" in text for _ in body)
+
+
+def test_table_rows_do_not_repeat_their_columns(capsys):
+    rc, out, err = run(capsys, JOB)
+    row = next(ln for ln in out.splitlines() if ln.startswith("gouge"))
+    assert row.count("30.000") == 1 and row.count("22-23") == 1 and "cut into the part" in row
+
+
+# --- QA 7: open design surfaces -----------------------------------------------------------
+
+def _box_missing_faces(path: Path) -> Path:
+    import trimesh
+
+    m = trimesh.creation.box(bounds=[(10, 10, 0), (50, 30, 15)])
+    keep = np.abs(m.face_normals[:, 0]) < 0.5  # drop the two X faces: open, top and bottom both there
+    trimesh.Trimesh(m.vertices, m.faces[keep]).export(str(path))
+    return path
+
+
+def test_open_design_that_is_not_a_height_field_is_refused(capsys, tmp_path):
+    hole = _box_missing_faces(tmp_path / "hole.stl")
+    rc, out, err = run(capsys, EXAMPLE, "--stock", STOCK, "--tool", "flat:6", "--resolution", 1, "--design", hole)
+    assert rc == 2 and "hole.stl" in err and "height field" in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1
+    # as a stock: refused in words a CLI user can act on
+    rc, out, err = run(capsys, EXAMPLE, "--stock", hole, "--tool", "flat:6", "--resolution", 1)
+    assert rc == 2 and "not watertight" in err and "heightfield_grid" not in err
+
+
+def test_open_height_field_design_is_taken_with_a_note(capsys, tmp_path):
+    import trimesh
+
+    sheet = tmp_path / "sheet.stl"
+    trimesh.Trimesh([[-1, -1, 15], [61, -1, 15], [61, 41, 15], [-1, 41, 15]], [[0, 1, 2], [0, 2, 3]]).export(str(sheet))
+    rc, out, err = run(capsys, EXAMPLE, "--stock", STOCK, "--tool", "flat:6:L=20", "--resolution", 1,
+                       "--design", sheet, "--json")
+    doc = json.loads(out)
+    assert any("open surface" in n and "sheet.stl" in n for n in doc["notes"])
+    # the pocket floor at 15 is on the sheet, the bore to 10 goes 5 mm below it
+    g = [f for f in doc["findings"] if f["kind"] == "gouge"]
+    assert g and max(f["depth"] for f in g) == pytest.approx(5.0, abs=0.01)
