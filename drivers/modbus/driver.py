@@ -21,6 +21,7 @@ unit, table, registers, fields and exception code.
 from __future__ import annotations
 
 import logging
+import socket
 import math
 import time
 from dataclasses import replace
@@ -127,13 +128,27 @@ class ModbusController(Controller):
             ok = False
             self.last_error = str(exc)
         if not ok:
-            self.last_error = self.last_error or "no connection"
+            self.last_error = self.last_error or self._tcp_reason() or "no connection"
             self._drop_client()
             return False
         self._up = True
         self._timeouts = 0
         self._backoff = 0.1
         return True
+
+    def _tcp_reason(self) -> str | None:
+        """Why a TCP connect failed, as the operating system says it.
+
+        pymodbus's ``connect()`` only returns False (the reason goes to its log), so one
+        plain socket connect asks again; None for serial links or when it answers now.
+        """
+        if self.host is None:
+            return None
+        try:
+            with socket.create_connection((self.host, self.port), timeout=self.timeout):
+                return None
+        except OSError as err:
+            return err.strerror or str(err)
 
     def _drop_client(self) -> None:
         if self._client is not None:

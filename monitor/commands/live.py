@@ -149,7 +149,7 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
 
 def _connect(controller) -> None:
     """``controller.connect()``; a failure says the operating system's reason when the
-    driver's message lacks it (found in the exception chain, or by one TCP probe)."""
+    driver's message lacks it (found in the exception chain)."""
     from drivers.errors import DriverError
 
     try:
@@ -163,8 +163,8 @@ def _connect(controller) -> None:
 
 def os_reason(exc: BaseException, controller=None) -> str | None:
     """The OS error behind a failed connect: the first ``OSError`` in ``exc``'s chain
-    (``__cause__``/``__context__``), else, for a TCP controller (``host`` and ``port``
-    attributes), what one plain TCP connect to it says; None when nothing is known."""
+    (``__cause__``/``__context__``); None when nothing is known (drivers that cannot
+    chain it put the reason in their own message)."""
     seen = set()
     e = exc
     while e is not None and id(e) not in seen:
@@ -172,15 +172,6 @@ def os_reason(exc: BaseException, controller=None) -> str | None:
         if isinstance(e, OSError) and e is not exc:
             return e.strerror or str(e)
         e = e.__cause__ or e.__context__
-    host, port = getattr(controller, "host", None), getattr(controller, "port", None)
-    if host and isinstance(port, int):
-        import socket
-
-        try:
-            with socket.create_connection((host, port), timeout=2.0):
-                return None  # it answers now: the driver's own message is all there is
-        except OSError as err:
-            return err.strerror or str(err)
     return None
 
 
