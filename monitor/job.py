@@ -12,8 +12,14 @@ needs; paths are relative to the job file's folder)::
     [program]
     path = "part.nc"
     dialect = "grbl"            # or "linuxcnc"
+    var = "part.var"            # LinuxCNC parameter file: G54..G59.3 offsets, G28/G30, G92
+    machine_units = "mm"        # units of the tool table and .var file ("mm" or "inch")
+    subroutine_path = ["subs"]  # folders searched for o<name> call files (then the program's)
+    work_system = "G54"         # the job's work system: stock, fixtures, design and
+                                # work_offset are in it (G54..G59, G59.1..G59.3)
 
-    work_offset = [0, 0, 0]     # work zero in machine coords (mm), or "controller"
+    work_offset = [0, 0, 0]     # where the job's work system has its zero, machine coords
+                                # (mm), or "controller" (from the WCO it reports)
 
     [stock]                     # in work coordinates, mm
     box = [0, 0, 0, 60, 40, 20] # or: cylinder = [cx, cy, radius, z0, z1]; or: stl = "stock.stl"
@@ -71,6 +77,9 @@ ALERT_ACTIONS = ("log", "bell", "feed_hold")
 DEFAULT_MACHINE = {"max_rate": (5000.0, 5000.0, 5000.0), "acceleration": (500.0, 500.0, 500.0),
                    "junction_deviation": 0.02}
 DIALECTS = ("linuxcnc", "grbl")
+MACHINE_UNITS = ("mm", "inch")
+#: the work systems, in the order of the interpreter's offset table (G54 = 0 ... G59.3 = 8)
+WORK_SYSTEMS = ("G54", "G55", "G56", "G57", "G58", "G59", "G59.1", "G59.2", "G59.3")
 AXES = ("x", "y", "z")
 
 
@@ -125,6 +134,10 @@ class Job:
     poll_hz: float = 50.0
     program: Path | None = None
     dialect: str = "linuxcnc"
+    var_file: Path | None = None        # LinuxCNC .var file (work offsets ...), in machine_units
+    machine_units: str = "mm"           # units of the tool table and the .var file
+    subroutine_path: list[Path] = field(default_factory=list)
+    work_system: str = "G54"            # the model frame: stock, fixtures, design are in it
     work_offset: tuple[float, float, float] | None = None  # None: read from the controller (WCO)
     stock: Solid | None = None
     fixtures: list[Solid] = field(default_factory=list)
@@ -249,6 +262,44 @@ def parse_solid_spec(spec: str, where: str, base: Path = Path(".")) -> Solid:
     return _solid(_Ctx(where, base), {kind: rest}, "", allow=(kind,))
 
 
+def _machine_units(ctx: _Ctx, value, where: str) -> str:
+    if value not in MACHINE_UNITS:
+        raise ctx.err(where, '"mm" or "inch"', value)
+    return value
+
+
+def _work_system(ctx: _Ctx, value, where: str) -> str:
+    name = value.strip().upper() if isinstance(value, str) else value
+    if name not in WORK_SYSTEMS:
+        raise ctx.err(where, f"one of {', '.join(WORK_SYSTEMS)}", value)
+    return name
+
+
+def _dirs(ctx: _Ctx, value, where: str) -> list[Path]:
+    """Folders from a list of paths or one string (``os.pathsep``-separated, like
+    LinuxCNC's SUBROUTINE_PATH); each must exist."""
+    import os
+
+    if isinstance(value, str):
+        value = [d for d in value.split(os.pathsep) if d]
+    if not isinstance(value, list) or not all(isinstance(d, str) and d for d in value):
+        raise ctx.err(where, "a list of folder paths", value)
+    out = []
+    for d in value:
+        p = Path(d).expanduser()
+        if not p.is_absolute():
+            p = ctx.base / p
+        if not p.is_dir():
+            raise JobError(f"{where}: folder {str(p)!r} not found", ctx.name)
+        out.append(p)
+    return out
+
+
+def work_system_index(name: str) -> int:
+    """Index of a work system in the interpreter's offset table (G54 = 0 ... G59.3 = 8)."""
+    return WORK_SYSTEMS.index(name.upper())
+
+
 def _tool(ctx: _Ctx, number: int, value, where: str) -> ToolDef:
     if isinstance(value, str):
         return ToolDef(number, _spec(ctx, value, where))
@@ -298,13 +349,22 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
         if isinstance(t, str):
             t = {"path": t}
         t = ctx.table(t, "[program]")
-        ctx.no_unknown(t, {"path", "dialect"}, "[program]")
+        ctx.no_unknown(t, {"path", "dialect", "var", "machine_units", "subroutine_path", "work_system"},
+                       "[program]")
         if "path" in t:
             job.program = ctx.path(t["path"], "[program] path")
         if "dialect" in t:
             if t["dialect"] not in DIALECTS:
                 raise ctx.err("[program] dialect", " or ".join(DIALECTS), t["dialect"])
             job.dialect = t["dialect"]
+        if "var" in t:
+            job.var_file = ctx.path(t["var"], "[program] var")
+        if "machine_units" in t:
+            job.machine_units = _machine_units(ctx, t["machine_units"], "[program] machine_units")
+        if "subroutine_path" in t:
+            job.subroutine_path = _dirs(ctx, t["subroutine_path"], "[program] subroutine_path")
+        if "work_system" in t:
+            job.work_system = _work_system(ctx, t["work_system"], "[program] work_system")
 
     if "work_offset" in doc:
         v = doc["work_offset"]
@@ -415,6 +475,12 @@ def add_job_arguments(parser) -> None:
     g.add_argument("--fixture", action="append", default=None, help="box:... or stl:PATH; repeatable")
     g.add_argument("--tool", help="tool spec used for every tool number, e.g. ball:6:L=20")
     g.add_argument("--tool-table", help="LinuxCNC tool table")
+    g.add_argument("--var", metavar="FILE.var",
+                   help="LinuxCNC parameter (.var) file: work offsets G54..G59.3, G28/G30 (in --machine-units)")
+    g.add_argument("--machine-units", choices=MACHINE_UNITS, help="units of the tool table and .var file")
+    g.add_argument("--subroutine-path", action="append", metavar="DIRS", default=None,
+                   help="folders searched for o<name> call files, os.pathsep-separated; repeatable")
+    g.add_argument("--work-system", help="the job's work system (G54..G59.3) stock and fixtures are in")
     g.add_argument("--design", help="design model STL")
     g.add_argument("--resolution", type=float, help="dexel spacing, mm")
     g.add_argument("--gouge-tol", type=float, help="gouge band, mm")
@@ -445,6 +511,15 @@ def job_from_args(args, job_path: str | Path | None = None) -> Job:
         job.tools = {}
     if g("tool_table"):
         job.tool_table = ctx.path(g("tool_table"), "--tool-table")
+    if g("var"):
+        job.var_file = ctx.path(g("var"), "--var")
+    if g("machine_units"):
+        job.machine_units = _machine_units(ctx, g("machine_units"), "--machine-units")
+    if g("subroutine_path"):
+        job.subroutine_path = [d for arg in g("subroutine_path")
+                               for d in _dirs(ctx, arg, "--subroutine-path")]
+    if g("work_system"):
+        job.work_system = _work_system(ctx, g("work_system"), "--work-system")
     if g("design"):
         spec = g("design")
         job.design = parse_solid_spec(spec if ":" in spec and not spec.lower().endswith(".stl")

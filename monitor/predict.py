@@ -1,9 +1,11 @@
 """Checks for the session, all through :class:`sim.checks.Checker` (one piece of check logic).
 
-Everything here is in the job's *work coordinates* (the coordinates the program, stock,
-fixtures and design are written in): the move table is turned into a work-coordinate
-table whose tip is the work position ``end - wco`` (:func:`work_moves`), and the dexel frame covers the stock
-and fixtures. Travel limits are machine coordinates of the controlled point; they are
+Everything here is in the job's *work coordinates*: those of the job's work system
+(G54 unless ``[program] work_system`` says otherwise), in which stock, fixtures and design
+are written. The move table is turned into a table of tool tips in that frame,
+``tip_machine - reference_wco`` (:func:`work_moves`, :func:`reference_wco`), so the
+stations of a multi-fixture program (G55, G56 ... from a .var file) land where their
+offsets put them relative to the job's system; the dexel frame covers stock and fixtures. Travel limits are machine coordinates of the controlled point; they are
 shifted into work coordinates by the work offset in force (:func:`limits_in_work`) and the
 findings shifted back (:func:`finding_to_machine`).
 
@@ -27,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from monitor.job import Job, JobError, Solid
+from monitor.job import Job, JobError, Solid, work_system_index
 from monitor.sync import ProgramPath
 from sim.checks.findings import Finding
 from sim.errors import InputError
@@ -40,17 +42,23 @@ from sim.tolerance import Tolerance
 MIN_VOLUME = 1e-3
 #: look-ahead work allowed per state, in swept rays (about 2-3 ms on one core)
 BUDGET_RAYS = 60_000
+#: row shifts below this are rounding of summed offsets, mm
+SHIFT_EPS = 1e-9
 #: fixed cost of one look-ahead row, in swept-ray equivalents
 ROW_OVERHEAD_RAYS = 400
 
 
-def work_moves(moves: np.ndarray) -> np.ndarray:
-    """A copy of a move table with ``start/end`` replaced by the work coordinates of the tip.
+def work_moves(moves: np.ndarray, reference_wco=None) -> np.ndarray:
+    """A copy of a move table with ``start/end`` replaced by tip positions in one work frame.
 
-    ``tool_length`` becomes 0 (work coordinates are the tip's) and arc centres are shifted
-    into the work system of their row, so the cutter sweeps the tip where the program put it;
-    ``wco`` becomes 0 (the table is its own work system). Tables written before the ``wco``
-    column (old run files) are converted first.
+    ``reference_wco`` (6,) mm: the offset (machine - work) of the job's work system
+    (:func:`reference_wco`); each row's tip is placed at ``tip_machine - reference_wco``, so
+    a G55 row lands at its G55 offset relative to G54 and G92 shifts stay where they put
+    the tool. None: each row in its *own* work system (``end - wco``, every fixture of a
+    multi-fixture program at work zero) -- what the controller reports as work position.
+    ``tool_length`` becomes 0 (the table is the tip's), arc centres move with their row and
+    ``wco`` becomes 0. Tables written before the ``wco`` column (old run files) are
+    converted first.
     """
     moves = as_move_table(moves)
     out = moves.copy()
@@ -59,8 +67,47 @@ def work_moves(moves: np.ndarray) -> np.ndarray:
     out["start"] = work_start(moves)
     out["end"] = work_end(moves)
     out["center"] = moves["center"] + shift
+    if reference_wco is not None:
+        rs = row_shifts(moves, reference_wco)
+        moved = np.any(rs != 0.0, axis=1)
+        if moved.any():  # a single-system program stays bit for bit what it was
+            out["start"][moved, :3] += rs[moved]
+            out["end"][moved, :3] += rs[moved]
+            out["center"][moved] += rs[moved]
     out["tool_length"] = 0.0
     out["wco"] = 0.0
+    return out
+
+
+def reference_wco(job: Job) -> np.ndarray:
+    """The interpreter's offset (machine - work, (6,) mm) of the job's work system at the
+    program start: its G5x entry from the job's .var file (in the job's machine units);
+    zeros without a var file (the interpreter's offsets all start at 0)."""
+    from sim.gcode import Interpreter
+    from sim.gcode.varfile import read_var_file
+
+    out = np.zeros(6)
+    if job.var_file is None:
+        return out
+    try:
+        params = read_var_file(job.var_file)
+        it = Interpreter(dialect=job.dialect, machine_units=job.machine_units, var_params=params,
+                         filename=str(job.var_file))
+    except InputError as exc:
+        raise JobError(f"[program] var: {exc}", str(job.source or "command line")) from None
+    out[:] = it.g5x[work_system_index(job.work_system)]
+    return out
+
+
+def row_shifts(moves: np.ndarray, reference) -> np.ndarray:
+    """Per row, what moves a tip from the row's *own* work coordinates (what a controller
+    reports as work position) into the job's frame, float64 (n, 3) mm:
+    ``wco - tool length - reference_wco`` (0 for a row in the job's work system, no G92)."""
+    moves = as_move_table(moves)
+    out = np.asarray(moves["wco"][:, :3], np.float64) - np.asarray(reference, np.float64).reshape(-1)[:3]
+    out[:, 2] -= moves["tool_length"]
+    # offsets summed in another order differ in the last bit: that is no shift
+    out[np.abs(out) < SHIFT_EPS] = 0.0
     return out
 
 
@@ -120,7 +167,7 @@ def build_tools(job: Job, tool_numbers) -> tuple[dict[int, object], object]:
     from sim.tools import Body, parse_tool_spec, with_bodies
     from sim.tooltable import read_tool_table, tool_from_entry
 
-    table = read_tool_table(job.tool_table) if job.tool_table else {}
+    table = read_tool_table(job.tool_table, job.machine_units) if job.tool_table else {}
     where = str(job.source or "command line")
 
     def make(td):

@@ -10,9 +10,19 @@ the run file (:mod:`monitor.runfile`).
 Program time (and so lead times) comes from ``Program.cycle_time`` (GRBL-like planner)
 with the job's ``[machine]`` limits, falling back to length / feed only if it fails.
 
-Positions: the live tip in work coordinates is ``mpos - wco`` when the job reads the work
-offset from the controller (GRBL's WCO includes the tool length offset), otherwise
-``mpos - work_offset - tool length`` of the current row.
+Two frames. The *model* frame is the job's work system (G54 unless the job says), in
+which stock, fixtures and design sit and the program's rows are placed by their machine
+tips (``monitor.predict.work_moves`` with the job's reference offset): a G55 station of a
+multi-fixture program lands at its offset relative to G54. The *sync* frame is each row's
+own work coordinates, what the controller reports as work position (``mpos - WCO``): the
+program is found by matching that against the rows (:attr:`Session.sync_path`).
+
+The live tip in the model frame is ``mpos - tool length - zero`` where ``zero`` is the
+machine position of the job system's zero: the job's ``work_offset``, or with
+``work_offset = "controller"`` derived from the WCO the controller reports while the
+program runs in the job's system (WCO - the row's own offset + the reference offset), and
+kept when the program switches to another system -- so a stale .var entry for G55 shows
+where the machine really cut, not where the file says.
 """
 
 from __future__ import annotations
@@ -20,7 +30,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -28,7 +38,7 @@ from drivers.state import MachineState, RunState
 from monitor.alerts import Alerter
 from monitor.job import DEFAULT_MACHINE, Job
 from monitor.predict import (LiveChecks, Lookahead, Workpiece, build_workpiece, finding_record, lead_time,
-                             work_moves)
+                             reference_wco, row_shifts, work_moves)
 from monitor.sync import ProgramPath, ProgramSync, SyncResult, row_seconds
 from sim.gcode.moves import MoveKind
 
@@ -54,13 +64,9 @@ def load_moves(job: Job) -> np.ndarray:
     """The job's program as a move table (MOVE_DTYPE), via the G-code interpreter."""
     from sim.gcode import load_program
 
-    kw = {}
-    if job.tool_table is not None:
-        kw["tool_table"] = job.tool_table
-    try:
-        program = load_program(job.program, dialect=job.dialect, **kw)
-    except TypeError:  # an interpreter without these keywords
-        program = load_program(job.program)
+    program = load_program(job.program, dialect=job.dialect, tool_table=job.tool_table, var_file=job.var_file,
+                           machine_units=job.machine_units,
+                           subroutine_path=[str(d) for d in job.subroutine_path] or None)
     return np.asarray(program.moves), program
 
 
@@ -99,14 +105,26 @@ class Session:
                  workpiece: Workpiece | None = None, program=None):
         self.job = job
         self.moves_machine = moves
-        self.moves = work_moves(moves)
+        #: offset (machine - work) of the job's work system in the interpreter, (6,) mm
+        self.reference_wco = reference_wco(job)
+        self.moves = work_moves(moves, self.reference_wco)
+        #: per row, own work coordinates -> model frame, (n, 3) mm (0: the job's system)
+        self.row_shift = row_shifts(moves, self.reference_wco)
+        #: machine - interpreter machine coordinates, learned from the WCO while the
+        #: program runs in the job's system (None until then)
+        self._machine_shift: np.ndarray | None = None
         secs = (program_seconds(program, moves, job.machine or DEFAULT_MACHINE) if seconds is None
                 else np.asarray(seconds, np.float64))
         # the travelled path between polls follows these chords: on arcs they must stay
         # well inside the gouge band, or the live check would see the chords' sagitta
         tol = job.tolerance
         self.path = ProgramPath.from_moves(self.moves, secs, chord=max(tol.chord, min(0.05, tol.gouge / 4)))
-        self.sync = ProgramSync(self.path)
+        # the same segments in each row's own work coordinates (a translation per row)
+        self.sync_path = self.path
+        if np.any(self.row_shift != 0.0):
+            seg_shift = self.row_shift[self.path.row]
+            self.sync_path = replace(self.path, p0=self.path.p0 - seg_shift, p1=self.path.p1 - seg_shift)
+        self.sync = ProgramSync(self.sync_path)
         self.wp = workpiece or build_workpiece(job, moves)
         self.live = self.wp.stock
         self.lookahead = Lookahead(self.wp, self.moves, self.path, job.horizon_s, job.horizon_mm, job.limits)
@@ -131,7 +149,8 @@ class Session:
             run.put_meta("program_path", str(job.program or ""))
             run.put_meta("frame", {"origin": self.wp.frame.origin.tolist(), "spacing": self.wp.frame.spacing,
                                    "nu": self.wp.frame.nu, "nv": self.wp.frame.nv,
-                                   "coordinates": "work"})
+                                   "coordinates": "work", "work_system": job.work_system,
+                                   "reference_wco": self.reference_wco.tolist()})
             run.put_meta("versions", _versions())
             run.put_array("moves", moves)
             run.put_array("row_seconds", secs)
@@ -197,20 +216,48 @@ class Session:
         self.view.post(rays, tops, tip=tip, tool=tool, progress=s.progress, findings=self.findings, wco=wco)
 
     # -- positions
-    def tip(self, state: MachineState, row: int | None = None) -> np.ndarray:
-        """Live tool tip in work coordinates (3,) mm."""
-        m = state.mpos_array[:3]
-        if self.job.work_offset is None:
-            return m - np.asarray(state.wco[:3])
-        tl = float(self.moves_machine["tool_length"][row]) if row is not None and len(self.moves_machine) else 0.0
-        return m - np.asarray(self.job.work_offset) - np.array([0.0, 0.0, tl])
+    def _row(self, row: int | None) -> int | None:
+        return None if row is None or not len(self.moves_machine) else int(row)
 
-    def _wco(self, state: MachineState, row: int) -> np.ndarray:
+    def tip(self, state: MachineState, row: int | None = None) -> np.ndarray:
+        """Live tool tip in the model frame (the job's work system) (3,) mm."""
+        return np.asarray(state.mpos_array[:3], np.float64) - self._wco(state, row)[:3]
+
+    def sync_point(self, state: MachineState, tip: np.ndarray, row: int | None) -> np.ndarray:
+        """The tip in the sync frame (row ``row``'s own work coordinates) (3,) mm: the
+        controller's work position when it reports the offset, else the model tip moved
+        back by the row's shift."""
         if self.job.work_offset is None:
-            return np.asarray(state.wco, np.float64)
+            return np.asarray(state.mpos_array[:3], np.float64) - np.asarray(state.wco[:3], np.float64)
+        r = self._row(row)
+        return tip if r is None else tip - self.row_shift[r]
+
+    def _wco(self, state: MachineState, row: int | None, learn: bool = False) -> np.ndarray:
+        """Machine position of the controlled point minus the model-frame tip, (6,) mm:
+        the job system's zero + the row's tool length.
+
+        With the offset from the controller, the job system's zero is what its WCO says
+        while the program is in that system (``learn``: the state is synced on ``row``;
+        a WCO that switched before the machine left the row is not learned from)."""
+        r = self._row(row)
+        tl = float(self.moves_machine["tool_length"][r]) if r is not None else 0.0
         w = np.zeros(6)
-        w[:3] = self.job.work_offset
-        w[2] += float(self.moves_machine["tool_length"][row]) if len(self.moves_machine) else 0.0
+        if self.job.work_offset is not None:
+            w[:3] = self.job.work_offset
+            w[2] += tl
+            return w
+        sw = np.asarray(state.wco, np.float64)
+        if r is None:
+            return sw
+        own = np.asarray(self.moves_machine["wco"][r], np.float64)
+        ok = bool(np.all(np.isfinite(sw)))
+        in_job_system = not np.any(self.row_shift[r])
+        if ok and (self._machine_shift is None or (learn and in_job_system)):
+            self._machine_shift = sw - own
+        if in_job_system and ok:
+            return sw.copy()
+        w = own + (self._machine_shift if self._machine_shift is not None else 0.0)
+        w[:3] -= self.row_shift[r]
         return w
 
     # -- the loop body
@@ -223,16 +270,16 @@ class Session:
             return StepInfo(None, seconds=time.perf_counter() - t0)
         row_hint = self.last_sync.row if self.last_sync is not None else None
         tip = self.tip(state, row_hint)
+        point = self.sync_point(state, tip, row_hint)
         prev = self.last_sync
         line = state.line
         if self.line_source is not None:
             # the lines a sender streams (passthrough) say where in the program it is
-            line = self.line_source.line_for(state, tip, self.sync)
-        s = self.sync.update(tip, t=state.t, line=line)
-        if s.how != "line" and self.job.work_offset is not None:
-            tip = self.tip(state, s.row)
+            line = self.line_source.line_for(state, point, self.sync)
+        s = self.sync.update(point, t=state.t, line=line)
         info = StepInfo(s)
-        wco = self._wco(state, s.row)
+        wco = self._wco(state, s.row, learn=s.how in ("track", "line") and s.distance <= self.sync.lost)
+        tip = np.asarray(state.mpos_array[:3], np.float64) - wco[:3]
         if prev is None:
             self._start(s, state)
         elif (s.how in ("search", "line") and abs(s.progress - prev.progress) > JUMP_S) \

@@ -11,7 +11,12 @@ Query keys: ``speed`` (simulated s per wall s, or per poll period with ``clock=s
 ``rate`` (poll rate, Hz), ``clock`` (``wall`` or ``sim``), ``faults`` (see
 :mod:`drivers.virtual.faults`), ``max_rate``/``accel`` (comma lists per axis, mm/min and
 mm/s^2), ``travel`` (the GRBL travel per axis, giving soft limits ``[-travel, 0]``;
-default ``none``: no soft limits, so programs run as written).
+default ``none``: no soft limits, so programs run as written); for the G-code
+interpreter: ``dialect`` (``linuxcnc``/``grbl``), ``var`` (a LinuxCNC .var file: work
+offsets G54..G59.3 ...), ``machine_units`` (``mm``/``inch``: of the .var file and
+``tool_table``) and ``subroutine_path`` (folders, ``os.pathsep``-separated), e.g.
+``virtual:///jobs/mmount.ngc?var=/jobs/mmount.var&machine_units=inch``. The machine
+reports as WCO the offset of the row it executes (a G55 row: its G55 offset).
 """
 
 from __future__ import annotations
@@ -38,8 +43,11 @@ from drivers.virtual.runner import RealTimeRunner
 from sim.gcode.moves import MOVE_DTYPE
 
 
-def load_moves(program) -> tuple[np.ndarray, str]:
-    """Move table (MOVE_DTYPE) and a name from a path, a ``Program`` or a move table."""
+def load_moves(program, **interpreter) -> tuple[np.ndarray, str]:
+    """Move table (MOVE_DTYPE) and a name from a path, a ``Program`` or a move table.
+
+    ``interpreter``: keywords for ``sim.gcode.load_program`` when ``program`` is a path
+    (``dialect``, ``var_file``, ``machine_units``, ``tool_table``, ``subroutine_path``)."""
     if program is None:
         from sim.gcode.moves import empty_moves
 
@@ -53,7 +61,7 @@ def load_moves(program) -> tuple[np.ndarray, str]:
             from sim.gcode import load_program  # the one allowed drivers -> sim.gcode arrow
         except ImportError as exc:
             raise DriverError(f"virtual controller: G-code interpreter not available ({exc})") from exc
-        return np.asarray(load_program(program).moves), str(program)
+        return np.asarray(load_program(program, **interpreter).moves), str(program)
     moves = getattr(program, "moves", None)
     if moves is None:
         raise DriverError(f"virtual controller: cannot run {type(program).__name__}; expected a path, Program or move table")
@@ -106,15 +114,17 @@ class VirtualController(Controller):
         time moves only when polled)
     config : MachineConfig
     faults : FaultPlan, spec string or None
+    interpreter : keywords for ``sim.gcode.load_program`` when ``program`` is a path
+        (``var_file``, ``machine_units``, ``dialect``, ``tool_table``, ``subroutine_path``)
     """
 
     def __init__(self, program=None, speed: float = 1.0, rate: float = 20.0, clock: str = "wall",
-                 config: MachineConfig | None = None, faults=None, url: str = ""):
+                 config: MachineConfig | None = None, faults=None, url: str = "", interpreter: dict | None = None):
         if clock not in ("wall", "sim"):
             raise DriverError(f"virtual controller: clock={clock!r}; expected 'wall' or 'sim'")
         if not speed > 0 or not rate > 0:
             raise DriverError(f"virtual controller: speed and rate must be > 0 (got speed={speed}, rate={rate})")
-        self.moves, self.name = load_moves(program)
+        self.moves, self.name = load_moves(program, **(interpreter or {}))
         self.speed = float(speed)
         self.rate = float(rate)
         self.clock = clock
@@ -246,7 +256,8 @@ def from_url(url: str) -> VirtualController:
     parts = urlsplit(url)
     path = unquote(parts.netloc + parts.path)
     query = {k: v[-1] for k, v in parse_qs(parts.query, keep_blank_values=True).items()}
-    known = {"speed", "rate", "clock", "faults", "max_rate", "accel", "travel"}
+    known = {"speed", "rate", "clock", "faults", "max_rate", "accel", "travel", "dialect", "var", "machine_units",
+             "tool_table", "subroutine_path"}
     unknown = sorted(set(query) - known)
     if unknown:
         raise DriverError(f"virtual URL {url!r}: unknown option {unknown[0]!r}; expected one of {', '.join(sorted(known))}")
@@ -277,5 +288,36 @@ def from_url(url: str) -> VirtualController:
     program = path or None
     if program is not None and not Path(program).is_file():
         raise DriverError(f"virtual URL {url!r}: program file {program!r} not found")
+    interpreter = _interpreter_options(url, query)
+    if interpreter and program is None:
+        raise DriverError(f"virtual URL {url!r}: {', '.join(sorted(interpreter))} given but no program")
     return VirtualController(program, speed=speed, rate=rate, clock=query.get("clock", "wall"),
-                             config=config, faults=query.get("faults"), url=url)
+                             config=config, faults=query.get("faults"), url=url, interpreter=interpreter)
+
+
+def _interpreter_options(url: str, query: dict) -> dict:
+    """``load_program`` keywords from the URL's ``dialect``, ``var``, ``machine_units``,
+    ``tool_table`` and ``subroutine_path``; DriverError naming the option that is wrong."""
+    import os
+
+    kw: dict = {}
+    if "dialect" in query:
+        if query["dialect"] not in ("linuxcnc", "grbl"):
+            raise DriverError(f"virtual URL {url!r}: dialect={query['dialect']!r}; expected linuxcnc or grbl")
+        kw["dialect"] = query["dialect"]
+    if "machine_units" in query:
+        if query["machine_units"] not in ("mm", "inch"):
+            raise DriverError(f"virtual URL {url!r}: machine_units={query['machine_units']!r}; expected mm or inch")
+        kw["machine_units"] = query["machine_units"]
+    for key, name in (("var", "var_file"), ("tool_table", "tool_table")):
+        if key in query:
+            if not Path(query[key]).is_file():
+                raise DriverError(f"virtual URL {url!r}: {key} file {query[key]!r} not found")
+            kw[name] = query[key]
+    if "subroutine_path" in query:
+        dirs = [d for d in query["subroutine_path"].split(os.pathsep) if d]
+        for d in dirs:
+            if not Path(d).is_dir():
+                raise DriverError(f"virtual URL {url!r}: subroutine_path folder {d!r} not found")
+        kw["subroutine_path"] = dirs
+    return kw

@@ -8,9 +8,11 @@
 The whole program is cut with no controller and checked on the way (gouge and undercut
 against ``--design``, rapids into stock, shank / holder contact, fixtures, travel limits,
 depth of cut, a stopped spindle). Exit status: 0 clean, 1 findings, 2 bad input.
-A JOB file (TOML, see ``monitor.job``) gives program, stock, fixtures, tools (with shank
-and holder), design, tolerances, limits and resolution; everything is in its work
-coordinates.
+A JOB file (TOML, see ``monitor.job``) gives program (with its .var file, machine units
+and subroutine path), stock, fixtures, tools (with shank and holder), design, tolerances,
+limits and resolution; everything is in its work system's coordinates (G54 unless
+``[program] work_system`` says otherwise), and program rows in other work systems
+(G55 ... of a multi-fixture program) are placed at their offsets from it.
 
 The first motion row is not cut when it is a rapid: it starts from wherever the machine
 was before the program (the interpreter assumes machine zero), so it is positioning.
@@ -288,7 +290,7 @@ def _run_job(args) -> int:
     import dataclasses
 
     from monitor.job import ToolDef, load_job, parse_solid_spec, require
-    from monitor.predict import MIN_VOLUME, build_workpiece, limits_in_work, work_moves
+    from monitor.predict import MIN_VOLUME, build_workpiece, limits_in_work, reference_wco, work_moves
     from sim.checks.motion import parse_limits
     from sim.checks.report import _positive
     from sim.tooltable import read_tool_table
@@ -309,6 +311,16 @@ def _run_job(args) -> int:
         job.tool_table = Path(args.tool_table)
     if args.dialect:
         job.dialect = args.dialect
+    # the job's [program] var / machine_units / subroutine_path, each replaced by its flag
+    if args.var:
+        if not Path(args.var).is_file():
+            raise InputError("no such parameter (.var) file", where=f"--var {args.var}")
+        job.var_file = Path(args.var)
+    if getattr(args, "machine_units", None) or getattr(args, "tool_table_units", None):
+        job.machine_units = machine_units(args)
+    sub_dirs = subroutine_dirs(args)
+    if sub_dirs:
+        job.subroutine_path = [Path(d) for d in sub_dirs]
     if args.resolution is not None:
         if not (math.isfinite(args.resolution) and args.resolution > 0):
             raise InputError(f"must be a positive length in mm, got {args.resolution:g}", where="--resolution")
@@ -329,9 +341,10 @@ def _run_job(args) -> int:
     require(job, "program", "stock", "tools")
     if not Path(job.program).is_file():
         raise InputError("no such program file", where=f"{path}: [program] path {job.program}")
-    units = machine_units(args)
-    table = read_tool_table(job.tool_table, units) if job.tool_table else None
-    moves = work_moves(load_moves(job.program, job.dialect, table, args.var, units, subroutine_dirs(args)))
+    table = read_tool_table(job.tool_table, job.machine_units) if job.tool_table else None
+    # one frame: the job's work system; rows in other systems land at their offsets from it
+    moves = work_moves(load_moves(job.program, job.dialect, table, job.var_file, job.machine_units,
+                                  [str(d) for d in job.subroutine_path]), reference_wco(job))
     est = DexelGrid_estimate(job)
     if est > args.memory_limit * 2**20:
         raise InputError(f"the job's dexel grid needs about {est / 2**20:.0f} MB, over the "
@@ -341,7 +354,9 @@ def _run_job(args) -> int:
     if not args.no_checks:
         from sim.checks.checker import Checker
 
-        wco = job.work_offset if job.work_offset is not None else (0.0, 0.0, 0.0)
+        # machine = model + the job system's zero (the .var file's when the job takes the
+        # offset from the controller)
+        wco = job.work_offset if job.work_offset is not None else tuple(reference_wco(job)[:3])
         checker = Checker(wp.stock, wp.default_tool, design=wp.design, fixtures=wp.fixtures,
                           limits=limits_in_work(job.limits, wco), tol=job.tolerance, tools=wp.tools,
                           max_depth_of_cut=_positive(args.max_depth_of_cut, "--max-depth-of-cut"),
