@@ -199,3 +199,26 @@ def test_live_offset_from_the_wco_in_the_job_system(tmp_path):
     assert s.last_sync is not None and s.last_sync.row == len(s.moves) - 1
     predicted = s.lookahead.model.top()
     assert _slots(_cut_columns(predicted, s.live.frame))[-1] == (42.0, 58.0)
+
+
+def test_cli_dry_run_two_stations_with_var_flag(tmp_path, capsys):
+    """``dexmon dry-run JOB --var`` runs the program with that .var file on the virtual
+    controller and models it the same: no findings, both slots where that file puts them."""
+    var = tmp_path / "near.var"
+    var.write_text("5221 -200\n5222 -100\n5223 -50\n5241 -180\n5242 -100\n5243 -50\n")  # G55 = G54 + 20
+    run = tmp_path / "run.sqlite"
+    code = main(["dry-run", str(TWO), "--var", str(var), "--speed", "40", "--json", "--run", str(run)])
+    out = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert code == 0, out
+    assert [x for x in out if x["event"] == "finding"] == []
+    from monitor.runfile import RunReader
+
+    r = RunReader(run)
+    frame = r.meta()["frame"]
+    frame = json.loads(frame) if isinstance(frame, str) else frame
+    assert frame["work_system"] == "G54" and frame["reference_wco"][:3] == [-200, -100, -50]
+    # the recorded path (model frame) at slot depth: X 5..15 and, through G55, X 25..35
+    pts = np.concatenate([c["arrays"]["points"] for c in r.cuts()])
+    floor_x = pts[np.abs(pts[:, 2] - DEPTH) < 1e-6, 0]
+    assert floor_x.min() == pytest.approx(5.0, abs=1e-6) and floor_x.max() == pytest.approx(35.0, abs=1e-6)
+    assert not np.any((floor_x > 15 + 1e-6) & (floor_x < 25 - 1e-6))

@@ -126,3 +126,39 @@ def test_faults_in_controller_poll():
     assert c.faults.counts["disconnect"] == 1
     assert last.state == RunState.ALARM and last.alarm == 1
     assert c.done
+
+
+def test_url_passes_var_file_and_units_to_the_interpreter(tmp_path):
+    """``var=`` gives the interpreter its work offsets: a G55 row runs at the G55 offset
+    (machine coords) and the machine reports that offset as WCO while it runs."""
+    nc = tmp_path / "p.ngc"
+    nc.write_text("G21 G90\nG55\nG0 X1 Y2 Z3\nM2\n")
+    var = tmp_path / "p.var"
+    var.write_text("5241 -4\n5242 2\n5243 -1\n")  # G55, in inch below
+    c = open_controller(f"virtual://{nc}?var={var}&machine_units=inch&clock=sim&speed=1&rate=50")
+    assert c.moves["end"][-1][:3] == pytest.approx((1 - 101.6, 2 + 50.8, 3 - 25.4))
+    c.connect()
+    st = c.poll()
+    for _ in range(10000):
+        if c.done:
+            break
+        st = c.poll()
+    c.close()
+    assert st.mpos[:3] == pytest.approx((1 - 101.6, 2 + 50.8, 3 - 25.4))
+    assert st.wco[:3] == pytest.approx((-101.6, 50.8, -25.4))
+    plain = open_controller(f"virtual://{nc}?clock=sim")
+    assert plain.moves["end"][-1][:3] == pytest.approx((1, 2, 3))
+
+
+def test_url_interpreter_options_named_in_errors(tmp_path):
+    nc = tmp_path / "p.ngc"
+    nc.write_text("G0 X1\nM2\n")
+    for query, words in ((f"var={tmp_path / 'nope.var'}", ["var file", "not found"]),
+                         ("machine_units=cm", ["machine_units='cm'", "mm or inch"]),
+                         ("dialect=fanuc", ["dialect='fanuc'"]),
+                         (f"subroutine_path={tmp_path / 'nodir'}", ["subroutine_path", "not found"])):
+        with pytest.raises(DriverError) as e:
+            open_controller(f"virtual://{nc}?{query}")
+        assert all(w in str(e.value) for w in words), str(e.value)
+    with pytest.raises(DriverError, match="no program"):
+        open_controller(f"virtual://?machine_units=mm")
