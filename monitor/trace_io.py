@@ -151,15 +151,17 @@ class RunView:
 
     @cached_property
     def moves(self) -> np.ndarray | None:
-        """The move table in work coordinates (tip), or None when the run did not store it."""
+        """The move table in the run's model frame (tip, the job's work system), or None
+        when the run did not store it. Runs recorded before the frame carried
+        ``reference_wco`` place each row in its own work system, as they were recorded."""
         if "moves" not in self.reader.array_names():
             return None
+        from monitor.predict import work_moves
+
         moves = np.array(self.reader.get_array("moves"))
-        try:
-            from monitor.predict import work_moves
-            return work_moves(moves)
-        except ImportError:
-            return moves
+        frame = self.meta_json("frame", {})
+        ref = frame.get("reference_wco") if isinstance(frame, dict) else None
+        return work_moves(moves, None if ref is None else np.asarray(ref, np.float64))
 
     @cached_property
     def row_seconds(self) -> np.ndarray | None:

@@ -222,3 +222,9 @@ def test_cli_dry_run_two_stations_with_var_flag(tmp_path, capsys):
     floor_x = pts[np.abs(pts[:, 2] - DEPTH) < 1e-6, 0]
     assert floor_x.min() == pytest.approx(5.0, abs=1e-6) and floor_x.max() == pytest.approx(35.0, abs=1e-6)
     assert not np.any((floor_x > 15 + 1e-6) & (floor_x < 25 - 1e-6))
+    # replay reads the moves back in the same frame: the G55 slot's floor at X 25..35
+    from monitor.trace_io import RunView
+
+    moves = RunView(run).moves
+    floor = moves["end"][np.abs(moves["end"][:, 2] - DEPTH) < 1e-6, 0]
+    assert floor.max() == pytest.approx(35.0, abs=1e-6)
