@@ -85,6 +85,8 @@ def test_scanner_is_sound(words):
         return
     found = {}
     for a, b in words:
+        if a == " " and b == "":
+            continue  # a blank word is only white space, which a simple line may hold
         assert a.upper() in "GXYZFN" and a.upper() not in found
         found[a.upper()] = float(b)
     assert set(found) - {"N"}
