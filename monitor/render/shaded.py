@@ -42,6 +42,21 @@ def id_palette(n: int = PALETTE_SIZE, seed: int = 7) -> np.ndarray:
     return out
 
 
+#: viridis at 9 stops, from 0.18 (not its near-black end: shaded walls must stay visible on
+#: the dark background) to 1; perceptually uniform and readable with colour-blindness.
+#: Index 0 is the deepest cut, the last entry the shallowest (deeper reads darker).
+_VIRIDIS = np.array([(253, 231, 37), (181, 222, 43), (110, 206, 88), (53, 183, 121), (31, 158, 137),
+                     (38, 130, 142), (49, 104, 142), (62, 74, 137), (71, 45, 123)], np.float64)
+
+
+def depth_ramp(n: int = 256) -> np.ndarray:
+    """Colours of cut depth, uint8 (n, 3): entry 0 = just below the stock top (yellow), the
+    last = the deepest cut of the range (dark violet)."""
+    x = np.linspace(0, len(_VIRIDIS) - 1, n)
+    out = np.stack([np.interp(x, np.arange(len(_VIRIDIS)), _VIRIDIS[:, c]) for c in range(3)], axis=1)
+    return np.clip(out + 0.5, 0, 255).astype(np.uint8)
+
+
 def _unit(v) -> np.ndarray:
     v = np.asarray(v, np.float64).reshape(3)
     n = np.linalg.norm(v)
@@ -51,10 +66,16 @@ def _unit(v) -> np.ndarray:
 
 
 @nb.njit(cache=True)
-def _shade(h, spacing, zscale, lx, ly, lz, ambient, ids, palette, base, bg, out):
-    """Shade heights ``h`` (nv, nu) into ``out`` (nv, nu, 3) uint8, flipped so +v is up."""
+def _shade(h, spacing, zscale, lx, ly, lz, ambient, ids, palette, base, bg, out,
+           ref, inv_depth, lut, eps):
+    """Shade heights ``h`` (nv, nu) into ``out`` (nv, nu, 3) uint8, flipped so +v is up.
+
+    With ``ref`` (nv, nu) (the stock's top per ray) a ray cut more than ``eps`` below it is
+    coloured ``lut[depth * inv_depth]`` instead of ``base``/``ids``."""
     nv, nu = h.shape
     use_ids = ids.shape[0] == nv
+    use_depth = ref.shape[0] == nv and lut.shape[0] > 0
+    nlut = lut.shape[0]
     npal = palette.shape[0]
     inv2 = 0.5 / spacing
     for j in range(nv):
@@ -85,7 +106,16 @@ def _shade(h, spacing, zscale, lx, ly, lz, ambient, ids, palette, base, bg, out)
             if d < 0.0:
                 d = 0.0
             k = ambient + (1.0 - ambient) * d
-            if use_ids:
+            depth = ref[j, i] - z if use_depth else 0.0
+            if use_depth and depth > eps:
+                t = depth * inv_depth
+                c = int(t * (nlut - 1) + 0.5)
+                if c > nlut - 1:
+                    c = nlut - 1
+                r = lut[c, 0]
+                g = lut[c, 1]
+                b = lut[c, 2]
+            elif use_ids:
                 c = ids[j, i] % npal
                 r = palette[c, 0]
                 g = palette[c, 1]
@@ -102,7 +132,8 @@ def _shade(h, spacing, zscale, lx, ly, lz, ambient, ids, palette, base, bg, out)
 def shade(heights: np.ndarray, spacing: float, light=LIGHT, ambient: float = 0.22,
           ids: np.ndarray | None = None, palette: np.ndarray | None = None,
           color=STOCK_COLOR, background=BACKGROUND, zscale: float = 1.0,
-          out: np.ndarray | None = None) -> np.ndarray:
+          out: np.ndarray | None = None, stock_top: np.ndarray | None = None,
+          max_depth: float = 1.0, ramp: np.ndarray | None = None, min_depth: float = 1e-3) -> np.ndarray:
     """Shaded picture of a height field seen from above.
 
     heights : (nv, nu) float, mm along the ray (NaN = no material: background).
@@ -110,6 +141,11 @@ def shade(heights: np.ndarray, spacing: float, light=LIGHT, ambient: float = 0.2
     ``palette`` (uint8 (k, 3), default :func:`id_palette`); otherwise every face is
     ``color``. ``light`` points towards the light; ``ambient`` in [0, 1]. ``zscale``
     exaggerates relief. Returns RGB uint8 (nv, nu, 3) (``out`` reused when given).
+
+    Colour by depth: with ``stock_top`` (nv, nu) float mm (the uncut stock's top per ray,
+    NaN = none) every ray cut more than ``min_depth`` mm below it takes the colour of
+    ``ramp`` (uint8 (k, 3), default :func:`depth_ramp`) at ``depth / max_depth`` (clipped),
+    shaded like the rest; uncut rays keep ``color``.
     """
     h = np.ascontiguousarray(heights, dtype=np.float32)
     if h.ndim != 2:
@@ -119,8 +155,17 @@ def shade(heights: np.ndarray, spacing: float, light=LIGHT, ambient: float = 0.2
         out = np.empty(h.shape + (3,), np.uint8)
     idarr = np.zeros((0, 0), np.int32) if ids is None else np.ascontiguousarray(ids, dtype=np.int32)
     pal = id_palette() if palette is None else np.ascontiguousarray(palette, dtype=np.uint8)
+    if stock_top is None:
+        ref, lut, inv = np.zeros((0, 0), np.float32), np.zeros((0, 3), np.uint8), 0.0
+    else:
+        ref = np.ascontiguousarray(stock_top, dtype=np.float32)
+        if ref.shape != h.shape:
+            raise ValueError(f"stock_top of shape {ref.shape} does not fit heights {h.shape}")
+        lut = depth_ramp() if ramp is None else np.ascontiguousarray(ramp, dtype=np.uint8)
+        inv = 1.0 / max(float(max_depth), 1e-9)
     _shade(h, float(spacing), float(zscale), L[0], L[1], L[2], float(ambient), idarr, pal,
-           np.asarray(color, np.float64), np.asarray(background, np.uint8), out)
+           np.asarray(color, np.float64), np.asarray(background, np.uint8), out, ref, inv, lut,
+           float(min_depth))
     return out
 
 
@@ -135,13 +180,14 @@ def to_pixels(frame, points: np.ndarray) -> np.ndarray:
 
 
 def draw_tool(image: np.ndarray, frame, heights: np.ndarray, tip, tool, light=LIGHT,
-              ambient: float = 0.22, color=TOOL_COLOR, alpha: float = 0.75) -> np.ndarray:
+              ambient: float = 0.22, color=TOOL_COLOR, alpha: float = 0.75, scale: int = 1) -> np.ndarray:
     """Draw the cutter at tip position ``tip`` (x, y, z mm), inverse-shaded, in place.
 
     ``tool`` has ``cutting_radius`` and ``lowest_height(d)`` (a :class:`sim.tools.Tool`) or is
     a float radius (a flat end mill). Where the tool's lower face is below the material it
     is drawn opaque (it is cutting there); elsewhere blended by ``alpha``; the rim is
-    outlined. Returns ``image``.
+    outlined. ``scale``: ``heights`` has one value per ``scale`` x ``scale`` pixels of
+    ``frame`` (a picture upscaled from the rays, see :func:`upscaled_frame`). Returns ``image``.
     """
     radius = float(getattr(tool, "cutting_radius", tool))
     lowest = getattr(tool, "lowest_height", lambda d: np.zeros_like(d))
@@ -165,15 +211,20 @@ def draw_tool(image: np.ndarray, frame, heights: np.ndarray, tip, tool, light=LI
     # point up and are the normals of the surface the tool leaves -- which is exactly what
     # shading the face's heights from above computes (Van Hook's inverse-shaded tool)
     _shade(face, sp, 1.0, L[0], L[1], L[2], float(ambient), np.zeros((0, 0), np.int32),
-           id_palette(1), np.asarray(color, np.float64), np.zeros(3, np.uint8), patch)
+           id_palette(1), np.asarray(color, np.float64), np.zeros(3, np.uint8), patch,
+           np.zeros((0, 0), np.float32), 0.0, np.zeros((0, 3), np.uint8), 0.0)
     patch = patch[::-1]  # _shade flips; the window rows are ray rows
-    mat = np.asarray(heights, np.float32)[j0:j1, i0:i1]
+    if scale == 1:
+        mat = np.asarray(heights, np.float32)[j0:j1, i0:i1]
+    else:
+        jj, ii = np.arange(j0, j1) // scale, np.arange(i0, i1) // scale
+        mat = np.asarray(heights, np.float32)[jj[:, None], ii[None, :]]
     cutting = inside & (face < np.nan_to_num(mat, nan=-np.inf))
     a = np.where(cutting, 1.0, np.where(inside, alpha, 0.0))[..., None]
     rows = (frame.nv - 1) - np.arange(j0, j1)
     region = image[rows[:, None], np.arange(i0, i1)[None, :]].astype(np.float32)
     blended = region * (1 - a) + patch.astype(np.float32) * a
-    rim = inside & (d > radius - 1.5 * sp)
+    rim = inside & (d > radius - max(1.5 * sp, 2.5 * sp * (scale > 1)))
     blended[rim] = np.asarray(color, np.float32) * 0.45
     image[rows[:, None], np.arange(i0, i1)[None, :]] = np.clip(blended + 0.5, 0, 255).astype(np.uint8)
     return image
@@ -231,3 +282,149 @@ def picture(heights: np.ndarray, frame, ids: np.ndarray | None = None, tool=None
 def save_png(image: np.ndarray, path) -> None:
     import imageio.v3 as iio
     iio.imwrite(path, np.ascontiguousarray(image), extension=".png")
+
+
+def upscaled_frame(frame, scale: int):
+    """The frame of a picture of ``frame`` enlarged ``scale`` times (each ray a ``scale`` x
+    ``scale`` block of pixels): spacing / scale, ray centres at the blocks' centres."""
+    if scale == 1:
+        return frame
+    sp = frame.spacing / scale
+    shift = (scale - 1) / 2 * sp
+    return frame.__class__(frame.origin - shift * (frame.u + frame.v), frame.direction, frame.u, sp,
+                           frame.nu * scale, frame.nv * scale)
+
+
+def upscale(image: np.ndarray, scale: int, out: np.ndarray | None = None) -> np.ndarray:
+    """Nearest-neighbour enlargement of ``image`` (h, w, 3) to (h * scale, w * scale, 3)."""
+    if scale == 1:
+        return image
+    h, w = image.shape[:2]
+    if out is None or out.shape != (h * scale, w * scale, 3):
+        out = np.empty((h * scale, w * scale, 3), np.uint8)
+    view = out.reshape(h, scale, w, scale, 3)
+    view[...] = image[:, None, :, None, :]
+    return out
+
+
+# --- text: a 5 x 7 bitmap font drawn with numpy (no font files, identical everywhere) ---
+
+_GLYPHS = {
+    "0": ".###.#...##..###.#.###..##...#.###.", "1": "..#...##....#....#....#....#...###.",
+    "2": ".###.#...#....#...#...#...#...#####", "3": "#####" "...#." "..#.." "...#." "....#" "#...#" ".###.",
+    "4": "...#...##..#.#.#..#.#####...#....#.", "5": "#####" "#...." "####." "....#" "....#" "#...#" ".###.",
+    "6": "..##..#...#....####.#...##...#.###.", "7": "#####....#...#...#...#....#....#...",
+    "8": ".###.#...##...#.###.#...##...#.###.", "9": ".###.#...##...#.####....#...#..##..",
+    "A": ".###.#...##...#######...##...##...#", "B": "####.#...##...#####.#...##...#####.",
+    "C": ".###.#...##....#....#....#...#.###.", "D": "###..#..#.#...##...##...##..#.###..",
+    "E": "######....#....####.#....#....#####", "F": "######....#....####.#....#....#....",
+    "G": ".###.#...##....#.####...##...#.####", "H": "#...##...##...#######...##...##...#",
+    "I": ".###...#....#....#....#....#...###.", "J": "..###...#....#....#....#.#..#..##..",
+    "K": "#...##..#.#.#..##...#.#..#..#.#...#", "L": "#....#....#....#....#....#....#####",
+    "M": "#...###.###.#.##.#.##...##...##...#", "N": "#...##...###..##.#.##..###...##...#",
+    "O": ".###.#...##...##...##...##...#.###.", "P": "####.#...##...#####.#....#....#....",
+    "Q": ".###.#...##...##...##.#.##..#..##.#", "R": "####.#...##...#####.#.#..#..#.#...#",
+    "S": ".#####....#.....###.....#....#####.", "T": "#####..#....#....#....#....#....#..",
+    "U": "#...##...##...##...##...##...#.###.", "V": "#...##...##...##...##...#.#.#...#..",
+    "W": "#...#" "#...#" "#...#" "#.#.#" "#.#.#" "#.#.#" ".#.#.", "X": "#...##...#.#.#...#...#.#.#...##...#",
+    "Y": "#...##...#.#.#...#....#....#....#..", "Z": "#####....#...#...#...#...#....#####",
+    " ": "." * 35, ".": "." * 25 + ".##...##..", "-": "." * 15 + "#####" + "." * 15,
+    "+": "....." "..#.." "..#.." "#####" "..#.." "..#.." ".....",
+    ":": "......##...##........##...##.......", "/": "....#...#....#...#...#....#...#....",
+    "(": "...#...#...#....#....#.....#.....#.", ")": ".#.....#.....#....#....#...#...#...",
+    "=": "..........#####.....#####..........", ",": "....................##....#...#....",
+    "_": "." * 30 + "#####", "%": "##..#" "##..#" "...#." "..#.." ".#..." "#..##" "#..##",
+    "?": ".###.#...#....#...#...#.........#..", "'": "..#.." "..#.." ".#..." + "." * 20,
+}
+_FONT_CHARS = "".join(_GLYPHS)
+_FONT = np.zeros((len(_GLYPHS), 7, 5), bool)
+for _k, _g in enumerate(_GLYPHS.values()):
+    _FONT[_k] = np.frombuffer(_g.encode(), np.uint8).reshape(7, 5) == ord("#")
+_FONT_INDEX = np.full(128, _FONT_CHARS.index("?"), np.int64)
+for _k, _c in enumerate(_FONT_CHARS):
+    _FONT_INDEX[ord(_c)] = _k
+GLYPH_W, GLYPH_H = 6, 9   # cell of one character (5 x 7 glyph, 1 column and 2 rows apart)
+
+
+def text_mask(text: str, scale: int = 1) -> np.ndarray:
+    """Pixels of ``text`` in the bitmap font, bool (7 * scale, 6 * scale * len(text)).
+    Lower case is drawn as upper case; characters the font lacks as ``?``."""
+    codes = np.frombuffer(text.upper().encode("ascii", "replace"), np.uint8)
+    g = _FONT[_FONT_INDEX[np.minimum(codes, 127)]]                  # (n, 7, 5)
+    cells = np.zeros((len(codes), 7, GLYPH_W), bool)
+    cells[:, :, :5] = g
+    m = cells.transpose(1, 0, 2).reshape(7, -1)
+    if scale > 1:
+        m = np.repeat(np.repeat(m, scale, axis=0), scale, axis=1)
+    return m
+
+
+def text_size(text: str, scale: int = 1) -> tuple[int, int]:
+    """(height, width) in pixels of ``text`` drawn by :func:`draw_text` with ``pad``=0."""
+    return 7 * scale, GLYPH_W * scale * len(text) - scale
+
+
+def draw_text(image: np.ndarray, text: str, row: int, col: int, color=(240, 240, 240), scale: int = 1,
+              background=None, pad: int = 2) -> tuple[int, int, int, int]:
+    """Write ``text`` with its top-left corner at pixel (``row``, ``col``), in place; with
+    ``background`` on a filled box ``pad`` pixels larger. Clipped to the image. Returns
+    the box drawn (r0, r1, c0, c1), end exclusive."""
+    m = text_mask(text, scale)[:, :max(GLYPH_W * scale * len(text) - scale, 0)]
+    H, W = image.shape[:2]
+    r0, c0 = row - pad, col - pad
+    r1, c1 = row + m.shape[0] + pad, col + m.shape[1] + pad
+    if background is not None:
+        image[max(r0, 0):max(min(r1, H), 0), max(c0, 0):max(min(c1, W), 0)] = background
+    a0, b0 = max(row, 0), max(col, 0)
+    a1, b1 = min(row + m.shape[0], H), min(col + m.shape[1], W)
+    if a1 > a0 and b1 > b0:
+        sub = m[a0 - row:a1 - row, b0 - col:b1 - col]
+        image[a0:a1, b0:b1][sub] = color
+    return r0, r1, c0, c1
+
+
+LABEL_BG = (16, 16, 20)
+
+
+def draw_labels(image: np.ndarray, frame, points: np.ndarray, labels, color=FINDING_COLOR,
+                scale: int = 1, size: int | None = None) -> list[tuple[int, int, int, int]]:
+    """Write ``labels`` (k strings) beside the rings of :func:`draw_markers` at world
+    ``points`` (k, 3), on dark boxes, moved down (then up) so that no two overlap.
+    Returns the boxes (r0, r1, c0, c1)."""
+    size = int(size or max(6, max(image.shape[:2]) // 90))
+    px = to_pixels(frame, points)
+    H, W = image.shape[:2]
+    boxes: list[tuple[int, int, int, int]] = []
+    th = 7 * scale + 4
+    for (c, r), text in zip(px, labels):
+        if not (np.isfinite(c) and np.isfinite(r)):
+            continue
+        h, w = text_size(text, scale)
+        col = int(round(c)) + size + 3
+        if col + w + 2 > W:                       # no room on the right: to the left
+            col = int(round(c)) - size - 3 - w
+        col = min(max(col, 2), max(W - w - 2, 2))
+        row0 = min(max(int(round(r)) - size - h, 2), max(H - h - 2, 2))
+        for k in range(2 * len(boxes) + 1):
+            step = (k + 1) // 2 * th * (1 if k % 2 else -1)
+            row = min(max(row0 + step, 2), max(H - h - 2, 2))
+            box = (row - 2, row + h + 2, col - 2, col + w + 2)
+            if not any(b[0] < box[1] and box[0] < b[1] and b[2] < box[3] and box[2] < b[3] for b in boxes):
+                break
+        boxes.append(draw_text(image, text, row, col, color=color, scale=scale, background=LABEL_BG))
+    return boxes
+
+
+def draw_outline(image: np.ndarray, frame, mask: np.ndarray, color, scale: int = 1) -> np.ndarray:
+    """Outline the region ``mask`` (nv, nu) bool (rays of ``frame`` before upscaling by
+    ``scale``) on the picture, in place: the pixels of the region's boundary rays."""
+    m = np.asarray(mask, bool)
+    inner = m.copy()
+    inner[1:-1, 1:-1] = m[1:-1, 1:-1] & m[:-2, 1:-1] & m[2:, 1:-1] & m[1:-1, :-2] & m[1:-1, 2:]
+    inner[[0, -1], :] = False
+    inner[:, [0, -1]] = False
+    edge = (m & ~inner)[::-1]
+    if scale > 1:
+        edge = np.repeat(np.repeat(edge, scale, 0), scale, 1)
+    image[edge[:image.shape[0], :image.shape[1]]] = color
+    return image
