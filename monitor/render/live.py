@@ -33,6 +33,15 @@ PNG_COMPRESS_LEVEL = 1
 #: the window shows at most this many pixels a side (every k-th ray): a redraw of a
 #: million-pixel image in matplotlib takes ~0.1 s, a quarter of that keeps >= 10 frames/s
 WINDOW_MAX_SIZE = 720
+#: frames written to a folder are enlarged (whole pixels per ray) to at least this many
+#: pixels on the long side, so that a small grid is still readable
+MIN_FRAME_SIZE = 640
+#: ... but not beyond this (a big grid is already strided to ``max_size``)
+MAX_UPSCALED_SIZE = 1600
+FIXTURE_COLOR = (255, 150, 40)
+STRIP_BG = (12, 12, 16)
+TEXT_COLOR = (235, 235, 235)
+DIM_TEXT = (160, 164, 172)
 
 
 @nb.njit(cache=True, nogil=True)
@@ -52,21 +61,88 @@ def tops_of(grid, rays: np.ndarray) -> np.ndarray:
     return out
 
 
-def _positions(findings) -> np.ndarray | None:
+def finding_label(f) -> str:
+    """What a ring says about finding ``f`` (a dict or object with ``kind``, ``line``,
+    ``lines``): the kind and its line(s), e.g. ``GOUGE L22`` or ``GOUGE L22-31``."""
+    get = f.get if isinstance(f, dict) else (lambda k, d=None: getattr(f, k, d))
+    kind = str(get("kind", "") or "finding").upper().replace("_", " ")
+    lines = [int(v) for v in (get("lines", None) or ()) if v]
+    line = int(get("line", 0) or 0)
+    if len(lines) > 1:
+        return f"{kind} L{lines[0]}-{lines[-1]}"
+    return f"{kind} L{line}" if line else kind
+
+
+def _marks(findings) -> tuple[np.ndarray | None, list[str]]:
+    """Ring positions (m, 3) and labels of ``findings`` (dicts, objects or an (m, 3) array)."""
     if findings is None:
-        return None
+        return None, []
     if isinstance(findings, np.ndarray):
-        return findings.reshape(-1, 3)
-    pts = []
+        pts = findings.reshape(-1, 3)
+        return pts, [""] * len(pts)
+    pts, labels = [], []
     for f in findings:
         p = f.get("position") if isinstance(f, dict) else getattr(f, "position", f)
         if p is not None and len(p) >= 3:
             pts.append([float(v) for v in p[:3]])
-    return np.asarray(pts, np.float64).reshape(-1, 3)
+            labels.append(finding_label(f) if (isinstance(f, dict) or hasattr(f, "kind")) else "")
+    return np.asarray(pts, np.float64).reshape(-1, 3), labels
+
+
+def _nice_ceil(x: float) -> float:
+    """The smallest of 1, 2, 2.5, 5 x 10^k that is >= ``x`` (> 0)."""
+    e = 10.0 ** np.floor(np.log10(x))
+    for m in (1.0, 2.0, 2.5, 5.0, 10.0):
+        if m * e >= x * (1 - 1e-9):
+            return m * e
+    return 10 * e
+
+
+def _nice_floor(x: float) -> float:
+    """The largest of 1, 2, 5 x 10^k that is <= ``x`` (> 0)."""
+    e = 10.0 ** np.floor(np.log10(x))
+    for m in (5.0, 2.0, 1.0):
+        if m * e <= x * (1 + 1e-9):
+            return m * e
+    return e
+
+
+def _mm(x: float) -> str:
+    return f"{x:g}" if abs(x) >= 0.1 or x == 0 else f"{x:.2f}"
+
+
+def fixture_mask(frame, fixtures) -> np.ndarray:
+    """Rays of ``frame`` (nv, nu) bool over which any of ``fixtures`` has material. A
+    fixture is a ``sim.checks.collisions.Fixture`` (its ``grid`` on its own top frame), a
+    DexelGrid, or an (nv, nu) bool mask already on ``frame``."""
+    out = np.zeros(frame.shape, bool)
+    pts = frame.ray_points()
+    for fx in fixtures or ():
+        if isinstance(fx, np.ndarray):
+            out |= fx.reshape(frame.shape).astype(bool)
+            continue
+        g = getattr(fx, "grid", fx)
+        top = g.top()
+        f = g.frame
+        loc = f.to_local(pts.reshape(-1, 3))
+        i = np.rint(loc[:, 0] / f.spacing).astype(np.int64)
+        j = np.rint(loc[:, 1] / f.spacing).astype(np.int64)
+        ok = (i >= 0) & (i < f.nu) & (j >= 0) & (j < f.nv)
+        hit = np.zeros(i.size, bool)
+        hit[ok] = np.isfinite(top[j[ok], i[ok]])
+        out |= hit.reshape(frame.shape)
+    return out
 
 
 class LiveView:
-    """A redrawing shaded view of a live model.
+    """A redrawing shaded view of a live model, readable at a glance.
+
+    The picture: the model Van Hook-shaded with cut areas coloured by their depth below the
+    uncut stock (viridis, yellow = just below the top, dark violet = ``max_depth`` deep;
+    uncut stock stays grey), the path ahead (cyan), the tool inverse-shaded at its pose,
+    fixtures outlined (orange), findings ringed and labelled (``GOUGE L22``). Below it a
+    text strip: program line, program time, X Y Z, feed, findings count, and a legend with
+    the depth ramp and a scale bar in mm.
 
     Parameters
     ----------
@@ -74,13 +150,21 @@ class LiveView:
     tool : a ``sim.tools.Tool`` (or a radius in mm) drawn at the tool pose, optional.
     out_dir : write frames as ``frame_000001.png`` ... here (made if missing). When None a
         window is opened, which needs a display (InputError otherwise).
-    max_size : pictures at most this many pixels a side (rays are strided to fit).
+    max_size : rays are strided so the model has at most this many rays a side.
     max_fps : updates arriving faster are skipped (0 = draw every update).
     color_by_move : colour faces by the move that made them (needs ``ids`` in update).
+    stock_top : the uncut stock's top heights (nv, nu) mm (NaN = no stock) that depths are
+        measured from; None takes the heights of the first render.
+    max_depth : the depth (mm, > 0) at the end of the colour ramp; None: set from the
+        program (:class:`ViewFeed`) or the model. It grows when a cut goes deeper.
+    fixtures : ``sim.checks.collisions.Fixture`` objects (or DexelGrids, or (nv, nu) bool
+        masks) to outline, with their names when they have one.
+    min_size : frames are enlarged by whole pixels per ray to at least this long side.
     """
 
     def __init__(self, frame, tool=None, out_dir=None, max_size: int | None = 1024, max_fps: float = 0.0,
-                 color_by_move: bool = False, title: str = "dexmon"):
+                 color_by_move: bool = False, title: str = "dexmon", stock_top: np.ndarray | None = None,
+                 max_depth: float | None = None, fixtures=None, min_size: int | None = None):
         self.frame = frame
         self.tool = tool
         if out_dir is None and max_size:
@@ -89,12 +173,28 @@ class LiveView:
         self.sub = frame if self.k == 1 else frame.__class__(
             frame.origin, frame.direction, frame.u, frame.spacing * self.k,
             len(range(0, frame.nu, self.k)), len(range(0, frame.nv, self.k)))
+        longest = max(self.sub.nu, self.sub.nv)
+        if min_size is None:
+            # a window is scaled by matplotlib: enlarging there only costs redraw time
+            min_size = MIN_FRAME_SIZE if out_dir is not None else 0
+        self.scale = max(1, min(int(np.ceil(min_size / longest)), max(MAX_UPSCALED_SIZE // longest, 1)))
+        self.view_frame = shaded.upscaled_frame(self.sub, self.scale)
+        self.text_scale = 2 if self.view_frame.nu >= 560 else 1
+        self.stock_top = None if stock_top is None else self._sub(np.asarray(stock_top, np.float32))
+        self.max_depth = None if max_depth is None else float(max_depth)
+        self.depth_auto = max_depth is None   # the range may be set from the program
+        if self.max_depth is not None and not self.max_depth > 0:
+            raise InputError(f"the depth range must be a positive length in mm, got {max_depth}")
+        self.fixtures = list(fixtures or ())
+        self._fixture_mask = fixture_mask(self.sub, self.fixtures) if self.fixtures else None
+        self._fixture_labels = self._fixture_places() if self.fixtures else []
         self.max_fps = float(max_fps)
         self.color_by_move = color_by_move
         self.frames_drawn = 0
         self.last_image: np.ndarray | None = None
         self._buf: np.ndarray | None = None
-        self._base: np.ndarray | None = None   # the shaded model without overlays
+        self._base: np.ndarray | None = None   # the shaded model without overlays, one pixel a ray
+        self._strip: np.ndarray | None = None  # the text strip's legend (redrawn when the range grows)
         self._last_t = -np.inf
         self.out_dir = Path(out_dir) if out_dir is not None else None
         self._fig = self._im = None
@@ -114,82 +214,213 @@ class LiveView:
             ax.set_axis_off()
             self._ax = ax
 
+    # -- geometry of the picture
+    def _sub(self, a: np.ndarray) -> np.ndarray:
+        if a.shape != self.frame.shape:
+            raise InputError(f"heights of shape {a.shape} do not fit the view's {self.frame.shape}")
+        return np.ascontiguousarray(a[::self.k, ::self.k])
+
+    @property
+    def picture_shape(self) -> tuple[int, int]:
+        """(rows, cols) of the model part of a frame (the text strip is below it)."""
+        return self.view_frame.nv, self.view_frame.nu
+
+    @property
+    def strip_height(self) -> int:
+        return 2 * (7 * self.text_scale) + 3 * 6 * self.text_scale // 2 + 4
+
+    def pixel_of(self, points: np.ndarray) -> np.ndarray:
+        """World points (k, 3) mm -> float (k, 2) (column, row) in the frames."""
+        return shaded.to_pixels(self.view_frame, points)
+
+    def _fixture_places(self) -> list[tuple[np.ndarray, str]]:
+        out = []
+        for k, fx in enumerate(self.fixtures):
+            name = getattr(fx, "name", None)
+            if not name or isinstance(fx, np.ndarray):
+                continue
+            m = fixture_mask(self.sub, [fx])
+            if m.any():
+                j, i = np.nonzero(m)
+                p = self.sub.origin + (i.min() * self.sub.u + j.max() * self.sub.v) * self.sub.spacing
+                out.append((p, str(name)))
+        return out
+
+    # -- colour by depth
+    def _depth_setup(self, h: np.ndarray) -> bool:
+        """Fix the stock top (first heights) and the depth range; True when the range grew
+        (everything must be shaded again)."""
+        if self.stock_top is None:
+            self.stock_top = h.copy()
+        with np.errstate(invalid="ignore"):
+            d = self.stock_top - h
+        deepest = float(np.nanmax(d)) if np.isfinite(d).any() else 0.0
+        if self.max_depth is None:
+            self.max_depth = _nice_ceil(max(deepest, 1.0))
+            return True
+        if deepest > self.max_depth * (1 + 1e-6):
+            self.max_depth = _nice_ceil(deepest * 1.25)
+            return True
+        return False
+
+    def _shade(self, h: np.ndarray, top: np.ndarray, out=None) -> np.ndarray:
+        return shaded.shade(h, self.sub.spacing, stock_top=top, max_depth=self.max_depth, out=out)
+
+    # -- drawing
     def render(self, heights_or_grid, tool_pose=None, path_ahead=None, findings=None,
-               ids: np.ndarray | None = None, changed: tuple[int, int, int, int] | None = None) -> np.ndarray:
+               ids: np.ndarray | None = None, changed: tuple[int, int, int, int] | None = None,
+               status: dict | None = None) -> np.ndarray:
         """The frame as RGB uint8 (rows, cols, 3) without showing or writing it.
 
         ``heights_or_grid``: (nv, nu) heights mm or a DexelGrid; ``tool_pose``: tip (3,)
         mm (or a 6-vector whose first three are the tip); ``path_ahead`` (k, 3);
-        ``findings``: dicts with ``position``, objects with ``.position`` or (m, 3).
+        ``findings``: dicts with ``position`` (and ``kind``, ``line``, ``lines`` for the
+        label), objects with ``.position`` or (m, 3). ``status``: optional ``line``
+        (program line), ``time`` (program time s), ``feed`` (mm/min) for the text strip.
         ``changed``: the ray box ``(j0, j1, i0, i1)`` (end exclusive) holding every ray
         whose height changed since the previous render: only that box (and the pixels
         whose normals it moves) is shaded again (Van Hook: redraw what the tool
         touched); None shades everything.
         """
-        if ids is None and not self.color_by_move:
-            return self._render_incremental(heights_or_grid, tool_pose, path_ahead, findings, changed)
-        if hasattr(heights_or_grid, "top"):
-            heights = heights_or_grid.top()
-        else:
-            heights = np.asarray(heights_or_grid, np.float32)
-        if heights.shape != self.frame.shape:
-            raise InputError(f"heights of shape {heights.shape} do not fit the view's {self.frame.shape}")
-        k = self.k
-        h = heights[::k, ::k]
-        idk = ids[::k, ::k] if (ids is not None and self.color_by_move) else None
-        tip = None
-        if tool_pose is not None:
-            tip = np.asarray(tool_pose, np.float64).reshape(-1)[:3]
-            if not np.all(np.isfinite(tip)):
-                tip = None
-        self._buf = shaded.picture(h, self.sub, ids=idk, tool=self.tool if tip is not None else None,
-                                   tip=tip, path_ahead=path_ahead, findings=_positions(findings),
-                                   out=self._buf)
-        return self._buf
-
-    def _render_incremental(self, heights_or_grid, tool_pose, path_ahead, findings, changed) -> np.ndarray:
         heights = heights_or_grid.top() if hasattr(heights_or_grid, "top") else np.asarray(heights_or_grid,
                                                                                           np.float32)
-        if heights.shape != self.frame.shape:
-            raise InputError(f"heights of shape {heights.shape} do not fit the view's {self.frame.shape}")
-        k = self.k
-        h = heights[::k, ::k]
-        nv, nu = h.shape
-        if changed is None or self._base is None:
-            self._base = shaded.shade(h, self.sub.spacing, out=self._base)
+        h = self._sub(heights)
+        grown = self._depth_setup(h)
+        if grown:
+            self._strip = None
+        if ids is not None and self.color_by_move:
+            self._base = shaded.shade(h, self.sub.spacing, ids=self._sub(ids), out=self._base)
+        elif changed is None or self._base is None or grown:
+            self._base = self._shade(h, self.stock_top, out=self._base)
         else:
-            j0, j1, i0, i1 = changed
-            if j1 > j0 and i1 > i0:
-                # the changed rays in picture rays, grown by one: their neighbours' normals moved
-                a0, a1 = max(j0 // k - 1, 0), min((j1 - 1) // k + 2, nv)
-                b0, b1 = max(i0 // k - 1, 0), min((i1 - 1) // k + 2, nu)
-                # shaded with one more ray around, so the differences are those of the whole
-                w0, w1, v0, v1 = max(a0 - 1, 0), min(a1 + 1, nv), max(b0 - 1, 0), min(b1 + 1, nu)
-                part = shaded.shade(h[w0:w1, v0:v1], self.sub.spacing)
-                # shade() flips rows (+v up): ray row j of the window is picture row w1-1-j
-                self._base[nv - a1:nv - a0, b0:b1] = part[w1 - a1:w1 - a0, b0 - v0:b1 - v0]
-        if self._buf is None or self._buf.shape != self._base.shape:
-            self._buf = np.empty_like(self._base)
+            self._reshade(h, changed)
+        return self._compose(h, tool_pose, path_ahead, findings, status)
+
+    def _reshade(self, h: np.ndarray, changed) -> None:
+        k = self.k
+        nv, nu = h.shape
+        j0, j1, i0, i1 = changed
+        if j1 > j0 and i1 > i0:
+            # the changed rays in picture rays, grown by one: their neighbours' normals moved
+            a0, a1 = max(j0 // k - 1, 0), min((j1 - 1) // k + 2, nv)
+            b0, b1 = max(i0 // k - 1, 0), min((i1 - 1) // k + 2, nu)
+            # shaded with one more ray around, so the differences are those of the whole
+            w0, w1, v0, v1 = max(a0 - 1, 0), min(a1 + 1, nv), max(b0 - 1, 0), min(b1 + 1, nu)
+            part = self._shade(h[w0:w1, v0:v1], self.stock_top[w0:w1, v0:v1])
+            # shade() flips rows (+v up): ray row j of the window is picture row w1-1-j
+            self._base[nv - a1:nv - a0, b0:b1] = part[w1 - a1:w1 - a0, b0 - v0:b1 - v0]
+
+    def _compose(self, h, tool_pose, path_ahead, findings, status) -> np.ndarray:
+        s = self.scale
+        rows, cols = self.picture_shape
+        shape = (rows + self.strip_height, cols, 3)
+        if self._buf is None or self._buf.shape != shape:
+            self._buf = np.empty(shape, np.uint8)
         img = self._buf
-        np.copyto(img, self._base)
+        pic = img[:rows]
+        shaded.upscale(self._base, s, out=pic) if s > 1 else np.copyto(pic, self._base)
+        vf = self.view_frame
+        if self._fixture_mask is not None:
+            shaded.draw_outline(pic, self.sub, self._fixture_mask, FIXTURE_COLOR, scale=s)
+            for p, name in self._fixture_labels:
+                c, r = shaded.to_pixels(vf, p[None])[0]
+                shaded.draw_text(pic, name, int(r) - 7 * self.text_scale - 4, int(c) + 2, FIXTURE_COLOR,
+                                 scale=self.text_scale, background=shaded.LABEL_BG)
         if path_ahead is not None and len(path_ahead) > 1:
-            shaded.draw_polyline(img, self.sub, path_ahead)
+            shaded.draw_polyline(pic, vf, path_ahead)
         tip = None if tool_pose is None else np.asarray(tool_pose, np.float64).reshape(-1)[:3]
-        if tip is not None and self.tool is not None and np.all(np.isfinite(tip)):
-            shaded.draw_tool(img, self.sub, h, tip, self.tool)
-        pts = _positions(findings)
+        if tip is not None and not np.all(np.isfinite(tip)):
+            tip = None
+        if tip is not None and self.tool is not None:
+            shaded.draw_tool(pic, vf, h, tip, self.tool, scale=s)
+        pts, labels = _marks(findings)
         if pts is not None and len(pts):
-            shaded.draw_markers(img, self.sub, pts)
+            shaded.draw_markers(pic, vf, pts)
+            if any(labels):
+                keep = [k for k, t in enumerate(labels) if t]
+                shaded.draw_labels(pic, vf, pts[keep], [labels[k] for k in keep], scale=self.text_scale)
+        self._draw_strip(img[rows:], tip, status or {}, 0 if pts is None else len(pts))
         return img
 
+    def _draw_strip(self, strip: np.ndarray, tip, status: dict, n_findings: int) -> None:
+        ts = self.text_scale
+        if self._strip is None or self._strip.shape != strip.shape:
+            self._strip = self._legend(strip.shape)
+        np.copyto(strip, self._strip)
+        parts = []
+        line = status.get("line")
+        parts.append(f"LINE {int(line)}" if line else "LINE -")
+        t = status.get("time")
+        parts.append(f"T {t:.1f} S" if t is not None and np.isfinite(t) else "T -")
+        if tip is not None:
+            parts.append(f"X {tip[0]:.3f}  Y {tip[1]:.3f}  Z {tip[2]:.3f}")
+        else:
+            parts.append("X -  Y -  Z -")
+        feed = status.get("feed")
+        parts.append(f"F {feed:.0f}" if feed is not None and np.isfinite(feed) else "F -")
+        parts.append(f"FINDINGS {n_findings}")
+        text = "   ".join(parts)
+        sc = ts if shaded.text_size(text, ts)[1] + 12 <= strip.shape[1] else 1
+        shaded.draw_text(strip, text, 4 * ts, 6, TEXT_COLOR if not n_findings else TEXT_COLOR, scale=sc)
+        if n_findings:
+            # the count in the finding colour, so it is seen without reading the line
+            head = "   ".join(parts[:-1]) + "   "
+            col = 6 + shaded.GLYPH_W * sc * len(head)
+            shaded.draw_text(strip, parts[-1], 4 * ts, col, shaded.FINDING_COLOR, scale=sc)
+
+    def _legend(self, shape) -> np.ndarray:
+        """The strip's second row: uncut stock swatch, the depth ramp with its range, a
+        scale bar in mm and the overlay colours."""
+        ts = self.text_scale
+        strip = np.empty(shape, np.uint8)
+        strip[:] = STRIP_BG
+        H, W = shape[:2]
+        th = 7 * ts
+        r = H - th - 5 * ts
+        col = 6
+        sw = 3 * th
+
+        def swatch(color, text, col):
+            strip[r:r + th, col:col + sw] = color
+            return shaded.draw_text(strip, text, r, col + sw + 3 * ts, DIM_TEXT, scale=ts)[3] + 6 * ts
+
+        col = swatch(shaded.STOCK_COLOR, "UNCUT", col)
+        # the ramp: shallow (left) to max_depth (right)
+        ramp = shaded.depth_ramp()
+        rw = 40 * ts
+        idx = np.linspace(0, len(ramp) - 1, rw).round().astype(int)
+        lab0 = "DEPTH 0"
+        col = shaded.draw_text(strip, lab0, r, col, DIM_TEXT, scale=ts)[3] + 2 * ts
+        strip[r:r + th, col:col + rw] = ramp[idx][None, :, :]
+        col += rw + 3 * ts
+        col = shaded.draw_text(strip, f"-{_mm(self.max_depth)} MM", r, col, DIM_TEXT, scale=ts)[3] + 8 * ts
+        # scale bar: a round length about a sixth of the picture
+        px_mm = 1.0 / self.view_frame.spacing
+        length = _nice_floor(max(W / 6 / px_mm, 1e-3))
+        bar = max(int(round(length * px_mm)), 2)
+        if col + bar + 60 * ts < W:
+            strip[r + th // 2 - ts:r + th // 2 + ts, col:col + bar] = TEXT_COLOR
+            strip[r:r + th, col:col + ts] = TEXT_COLOR
+            strip[r:r + th, col + bar - ts:col + bar] = TEXT_COLOR
+            col = shaded.draw_text(strip, f"{_mm(length)} MM", r, col + bar + 3 * ts, DIM_TEXT, scale=ts)[3] + 8 * ts
+        for color, text in ((shaded.PATH_COLOR, "PATH"), (shaded.TOOL_COLOR, "TOOL"),
+                            (shaded.FINDING_COLOR, "FINDING"), (FIXTURE_COLOR, "FIXTURE")):
+            if text == "FIXTURE" and not self.fixtures:
+                continue
+            if col + sw + shaded.text_size(text, ts)[1] + 6 > W:
+                break
+            strip[r + th // 2 - ts:r + th // 2 + ts, col:col + sw] = color
+            col = shaded.draw_text(strip, text, r, col + sw + 3 * ts, DIM_TEXT, scale=ts)[3] + 6 * ts
+        return strip
+
     def update(self, heights_or_grid, tool_pose=None, path_ahead=None, findings=None,
-               ids: np.ndarray | None = None) -> bool:
+               ids: np.ndarray | None = None, status: dict | None = None) -> bool:
         """Redraw with the new state; False when skipped by ``max_fps``."""
         now = time.monotonic()
         if self.max_fps > 0 and now - self._last_t < 1.0 / self.max_fps:
             return False
         self._last_t = now
-        self.present(self.render(heights_or_grid, tool_pose, path_ahead, findings, ids))
+        self.present(self.render(heights_or_grid, tool_pose, path_ahead, findings, ids, status=status))
         return True
 
     def present(self, img: np.ndarray) -> None:
@@ -263,6 +494,39 @@ def finding_positions(findings, wco=None) -> np.ndarray:
     return np.asarray(pts, np.float64).reshape(-1, 3)
 
 
+def finding_marks(findings, wco=None) -> list[dict]:
+    """``findings`` (session records) as ``{"position", "kind", "line", "lines"}`` dicts
+    for :meth:`LiveView.render`, positioned like :func:`finding_positions`."""
+    out = []
+    w = np.zeros(3) if wco is None else np.asarray(wco, np.float64).reshape(-1)[:3]
+    for f in list(findings):
+        get = f.get if isinstance(f, dict) else (lambda k, d=None, f=f: getattr(f, k, d))
+        p = get("position")
+        if p is None or len(p) < 3:
+            continue
+        q = np.asarray([float(v) for v in p[:3]])
+        if get("kind") == "travel_limit":
+            q = q - w
+        if np.all(np.isfinite(q)):
+            out.append({"position": q, "kind": get("kind", ""), "line": get("line", 0),
+                        "lines": get("lines", None)})
+    return out
+
+
+def feed_status(path, progress: float | None) -> dict:
+    """The text strip's program state at program time ``progress`` (s) of ``path`` (a
+    :class:`monitor.sync.ProgramPath`): ``line``, ``time`` s, ``feed`` mm/min (the planned
+    speed of the segment there)."""
+    if path is None or len(path) == 0 or progress is None or not np.isfinite(progress):
+        return {"time": progress}
+    k = path.segment_at(progress)
+    dt = float(path.t1[k] - path.t0[k])
+    feed = 60.0 * float(path.s1[k] - path.s0[k]) / dt if dt > 0 else None
+    row = int(path.row[k])
+    line = int(path.lines[row]) if 0 <= row < len(path.lines) else None
+    return {"line": line, "time": float(progress), "feed": feed}
+
+
 class ViewFeed:
     """Draw a :class:`LiveView` of a live model from its own thread.
 
@@ -290,6 +554,16 @@ class ViewFeed:
         self.horizon = horizon or (lambda progress: progress + 5.0)
         self.period = 1.0 / float(fps)
         self.heights = np.array(heights, np.float32, copy=True).reshape(view.frame.shape)
+        if view.stock_top is None:
+            view.stock_top = view._sub(self.heights)
+        if view.depth_auto and path is not None and len(path):
+            # the colour ramp spans the program's deepest point below the stock
+            top = np.nanmax(self.heights) if np.isfinite(self.heights).any() else np.nan
+            deepest = float(top - min(path.p0[:, 2].min(), path.p1[:, 2].min()))
+            if np.isfinite(deepest) and deepest > 0:
+                view.max_depth = max(_nice_ceil(deepest), view.max_depth or 0.0)
+                view.depth_auto = False
+                view._base = view._strip = None   # shade everything with this range
         self._flat = self.heights.reshape(-1)
         self._cond = threading.Condition()
         self._rays: list[np.ndarray] = []
@@ -368,7 +642,8 @@ class ViewFeed:
             ahead = path_ahead(self.path, progress, self.horizon(progress))
         if tool is not None:
             self.view.tool = tool
-        img = self.view.render(self.heights, tip, ahead, finding_positions(findings or (), wco), changed=changed)
+        img = self.view.render(self.heights, tip, ahead, finding_marks(findings or (), wco), changed=changed,
+                               status=feed_status(self.path, progress))
         if self.view.is_window:
             with self._cond:
                 self._ready = img.copy()
