@@ -327,7 +327,7 @@ class LiveView:
                 shaded.draw_text(pic, name, int(r) - 7 * self.text_scale - 4, int(c) + 2, FIXTURE_COLOR,
                                  scale=self.text_scale, background=shaded.LABEL_BG)
         if path_ahead is not None and len(path_ahead) > 1:
-            shaded.draw_polyline(pic, vf, path_ahead)
+            shaded.draw_polyline(pic, vf, path_ahead, width=min(s, 2))
         tip = None if tool_pose is None else np.asarray(tool_pose, np.float64).reshape(-1)[:3]
         if tip is not None and not np.all(np.isfinite(tip)):
             tip = None
@@ -372,9 +372,11 @@ class LiveView:
         """The strip's second row: uncut stock swatch, the depth ramp with its range, a
         scale bar in mm and the overlay colours."""
         ts = self.text_scale
-        strip = np.empty(shape, np.uint8)
+        # drawn on a strip wide enough for all of it, then cut to the picture's width
+        W = shape[1]
+        strip = np.empty((shape[0], max(W, 1400), 3), np.uint8)
         strip[:] = STRIP_BG
-        H, W = shape[:2]
+        H = shape[0]
         th = 7 * ts
         r = H - th - 5 * ts
         col = 6
@@ -411,7 +413,7 @@ class LiveView:
                 break
             strip[r + th // 2 - ts:r + th // 2 + ts, col:col + sw] = color
             col = shaded.draw_text(strip, text, r, col + sw + 3 * ts, DIM_TEXT, scale=ts)[3] + 6 * ts
-        return strip
+        return np.ascontiguousarray(strip[:, :W])
 
     def update(self, heights_or_grid, tool_pose=None, path_ahead=None, findings=None,
                ids: np.ndarray | None = None, status: dict | None = None) -> bool:

@@ -230,8 +230,9 @@ def draw_tool(image: np.ndarray, frame, heights: np.ndarray, tip, tool, light=LI
     return image
 
 
-def draw_polyline(image: np.ndarray, frame, points: np.ndarray, color=PATH_COLOR) -> np.ndarray:
-    """Draw the path through world ``points`` (k, 3) onto the picture, in place."""
+def draw_polyline(image: np.ndarray, frame, points: np.ndarray, color=PATH_COLOR, width: int = 1) -> np.ndarray:
+    """Draw the path through world ``points`` (k, 3) onto the picture, ``width`` pixels
+    wide, in place."""
     px = to_pixels(frame, points)
     if len(px) < 2:
         return image
@@ -242,8 +243,11 @@ def draw_polyline(image: np.ndarray, frame, points: np.ndarray, color=PATH_COLOR
     p = a[seg] + (b[seg] - a[seg]) * t[:, None]
     col = np.rint(p[:, 0]).astype(np.int64)
     row = np.rint(p[:, 1]).astype(np.int64)
-    ok = (col >= 0) & (col < image.shape[1]) & (row >= 0) & (row < image.shape[0])
-    image[row[ok], col[ok]] = color
+    for dr in range(-(width // 2), width - width // 2):
+        for dc in range(-(width // 2), width - width // 2):
+            r, c = row + dr, col + dc
+            ok = (c >= 0) & (c < image.shape[1]) & (r >= 0) & (r < image.shape[0])
+            image[r[ok], c[ok]] = color
     return image
 
 
