@@ -9,7 +9,7 @@ import pytest
 
 from monitor.cli import main
 from monitor.render import shaded
-from monitor.render.live import LiveView, ViewFeed, finding_positions, path_ahead, tops_of
+from monitor.render.live import LiveView, ViewFeed, feed_status, finding_positions, path_ahead, tops_of
 from monitor.runfile import RunReader
 from monitor.sync import ProgramPath
 from sim.frame import Frame
@@ -23,11 +23,18 @@ def _mask(img, color) -> np.ndarray:
     return (img == np.asarray(color, np.uint8)).all(axis=2)
 
 
-def _pixel(frame_meta, x: float, y: float) -> tuple[int, int]:
-    """(row, col) of work point (x, y) in a picture of the run's frame."""
-    ox, oy = frame_meta["origin"][:2]
-    sp = frame_meta["spacing"]
-    return int(round(frame_meta["nv"] - 1 - (y - oy) / sp)), int(round((x - ox) / sp))
+def _view_of(frame_meta, tmp_path) -> LiveView:
+    """A LiveView laid out like the CLI's for the run's frame (same scale and strip)."""
+    f = Frame.top(frame_meta["origin"][0], frame_meta["origin"][1],
+                  frame_meta["origin"][0] + (frame_meta["nu"] - 1) * frame_meta["spacing"],
+                  frame_meta["origin"][1] + (frame_meta["nv"] - 1) * frame_meta["spacing"], frame_meta["spacing"])
+    return LiveView(f, out_dir=tmp_path / "layout")
+
+
+def _pixel(view, x: float, y: float) -> tuple[int, int]:
+    """(row, col) of work point (x, y) in the frames."""
+    c, r = view.pixel_of(np.array([[x, y, 0.0]]))[0]
+    return int(round(r)), int(round(c))
 
 
 def test_dry_run_frames_show_the_cut_tool_path_and_findings(tmp_path, capsys):
@@ -45,7 +52,10 @@ def test_dry_run_frames_show_the_cut_tool_path_and_findings(tmp_path, capsys):
     meta = RunReader(run).meta()["frame"]
     meta = json.loads(meta) if isinstance(meta, str) else meta
     first, last = iio.imread(files[0]), iio.imread(files[-1])
-    assert first.shape == last.shape == (meta["nv"], meta["nu"], 3)
+    view = _view_of(meta, tmp_path)
+    rows, cols = view.picture_shape
+    assert first.shape == last.shape == (rows + view.strip_height, cols, 3)
+    assert max(first.shape[:2]) >= 600   # the small grid is enlarged
     # every planted finding is ringed where it is, in the last frame: red pixels around
     # the finding's position, none in its middle
     findings = [x for x in out if x["event"] == "finding"]
@@ -53,21 +63,38 @@ def test_dry_run_frames_show_the_cut_tool_path_and_findings(tmp_path, capsys):
     red = _mask(last, shaded.FINDING_COLOR)
     size = max(6, max(last.shape[:2]) // 90)
     for f in findings:
-        r, c = _pixel(meta, *f["position"][:2])
+        r, c = _pixel(view, *f["position"][:2])
         ring = red[max(r - size - 1, 0):r + size + 2, max(c - size - 1, 0):c + size + 2]
         assert ring.sum() >= 2 * size, f
         assert not red[r - 1:r + 2, c - 1:c + 2].any()
     # the tool is drawn (its rim) in frames taken while it is over the stock, and the path
     # ahead is drawn while there is program left
     assert sum(_mask(iio.imread(p), TOOL_RIM).sum() > 10 for p in files) >= len(files) // 2
-    assert _mask(iio.imread(files[len(files) // 2]), shaded.PATH_COLOR).sum() > 20
+    assert _mask(iio.imread(files[len(files) // 2])[:rows], shaded.PATH_COLOR).sum() > 20
     # the model is cut as the machine goes: the faced area changes the picture (the step
     # along each pass's edge and the dip of the gouge)
-    sr, sc = _pixel(meta, 10.0, 12.0)
-    stock = (slice(sr - 40, sr + 40), slice(sc - 30, sc + 30))
+    sr, sc = _pixel(view, 10.0, 12.0)
+    s = view.scale
+    stock = (slice(sr - 40 * s, sr + 40 * s), slice(sc - 30 * s, sc + 30 * s))
     assert not np.array_equal(first[stock], last[stock])
-    gr, gc = _pixel(meta, 30.0, 21.0)  # the gouge dips between X34 and X26 on Y22
-    assert np.ptp(last[gr - 4:gr + 5, gc - 8:gc + 9].astype(int)) > np.ptp(first[gr - 4:gr + 5, gc - 8:gc + 9].astype(int))
+    gr, gc = _pixel(view, 30.0, 21.0)  # the gouge dips between X34 and X26 on Y22
+    win = (slice(gr - 4 * s, gr + 5 * s), slice(gc - 8 * s, gc + 9 * s))
+    # (the labels are drawn over the picture: the shading is compared on the model alone)
+    assert np.ptp(last[win].astype(int)) > np.ptp(first[win].astype(int))
+    # each finding is labelled with its kind and line, in the finding colour
+    for f in findings:
+        label = f["kind"].upper().replace("_", " ") + " L"
+        assert any(_has_text(red[:rows], label, k) for k in (1, 2)), label
+    # the text strip says how many findings there are
+    assert any(_has_text(_mask(last[rows:], shaded.FINDING_COLOR), f"FINDINGS {len(findings)}", k) for k in (1, 2))
+
+
+def _has_text(mask, text, scale) -> bool:
+    from numpy.lib.stride_tricks import sliding_window_view
+
+    pat = shaded.text_mask(text, scale)
+    win = sliding_window_view(mask, pat.shape)
+    return bool(win[..., pat].all(axis=-1).any())
 
 
 def test_view_without_display_is_one_line_suggesting_frames(tmp_path, monkeypatch, capsys):
@@ -144,7 +171,7 @@ def test_feed_keeps_its_heights_in_step_with_the_model_from_changed_rays_only(tm
     assert np.array_equal(feed.heights, g.top(), equal_nan=True)
     # the last frame shows the final state: the same picture as drawn from the model itself
     want = view.render(g.top(), tips[-1], path_ahead(path, path.t1[0], path.t1[0] + 100.0),
-                       [{"position": [30.0, 20.0, 9.0]}])
+                       [{"kind": "gouge", "position": [30.0, 20.0, 9.0]}], status=feed_status(path, path.t1[0]))
     got = iio.imread(sorted(tmp_path.glob("frame_*.png"))[-1])
     assert np.array_equal(got, want)
 
@@ -194,8 +221,9 @@ def test_incremental_shading_equals_shading_everything(tmp_path, max_size):
     """Re-shading only the changed box gives the picture of shading the whole model, also
     at the grid's edges and when the picture strides over rays."""
     g = box(81, 61, 0.5)
-    inc = LiveView(g.frame, tool=3.0, out_dir=tmp_path / "a", max_size=max_size)
-    full = LiveView(g.frame, tool=3.0, out_dir=tmp_path / "b", max_size=max_size)
+    kw = dict(tool=3.0, max_size=max_size, stock_top=g.top(), max_depth=5.0)
+    inc = LiveView(g.frame, out_dir=tmp_path / "a", **kw)
+    full = LiveView(g.frame, out_dir=tmp_path / "b", **kw)
     inc.render(g.top())
     nu = g.frame.nu
     for k, (x, y) in enumerate([(0.0, 0.0), (20.0, 15.0), (40.0, 30.0), (21.0, 16.0), (39.5, 0.0)]):
