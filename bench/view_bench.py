@@ -98,7 +98,8 @@ def main(argv=None) -> int:
     n = g.frame.n_rays
     h = g.top()
     path = np.array([[20.0 + 0.5 * k, 50 + 20 * np.sin(k / 10), 9.0] for k in range(120)])
-    findings = [{"position": [60.0, 60.0, 9.0]}, {"position": [30.0, 70.0, 9.0]}]
+    findings = [{"kind": "gouge", "line": 22, "position": [60.0, 60.0, 9.0]},
+                {"kind": "rapid_into_stock", "line": 5, "position": [30.0, 70.0, 9.0]}]
     out = tempfile.mkdtemp(prefix="dexmon-view-bench-")
     view = LiveView(g.frame, tool=3.0, out_dir=out)
     view.render(h, (50, 50, 9.0), path, findings)  # compile
@@ -131,7 +132,8 @@ def main(argv=None) -> int:
 
     from monitor.render.live import WINDOW_MAX_SIZE
 
-    wview = LiveView(g.frame, tool=3.0, out_dir=out, max_size=WINDOW_MAX_SIZE)  # the window's striding
+    # the window's striding and no enlarging (matplotlib scales the picture to the window)
+    wview = LiveView(g.frame, tool=3.0, out_dir=out, max_size=WINDOW_MAX_SIZE, min_size=0)
     wimg = wview.render(h, (50, 50, 9.0), path, findings)
     fig, ax = plt.subplots(figsize=(8, 8), dpi=100)
     ax.set_axis_off()
