@@ -211,7 +211,8 @@ def _start_view(session, frames, fps: float):
 
     wp = session.wp
     tool = wp.tool(int(session.moves["tool"][0])) if len(session.moves) else wp.default_tool
-    view = LiveView(wp.frame, tool=tool, out_dir=frames, title=f"dexmon {session.job.program or ''}")
+    view = LiveView(wp.frame, tool=tool, out_dir=frames, title=f"dexmon {session.job.program or ''}",
+                    fixtures=wp.fixtures)
     heights = session.live.top()
     view.render(heights, session.path.point_at(0.0) if len(session.path) else None)  # compile the shading
     feed = ViewFeed(view, heights, path=session.path, horizon=session.lookahead.horizon_end, fps=fps)
