@@ -142,11 +142,12 @@ def test_rx_buffer_overflow_drops_bytes_as_hardware_does(wire):
     w.send(b"G1 X" + b"1" * 200 + b" F600\n")
     assert w.line() == "error:11"
     assert peer.rx_dropped == 0
-    # fill the planner so the main loop blocks on the next motion line ...
-    for i in range(16):
+    # fill the planner so the main loop blocks on the next motion line ... (send-response:
+    # sent at once, 16 lines would overflow the RX buffer whenever the peer reads late)
+    for i in range(15):
         w.send(f"G1 X{i + 1} F600\n".encode())
-    for _ in range(15):
         assert w.line() == "ok"
+    w.send(b"G1 X16 F600\n")
     peer.settings[10] = 3  # report Bf: (as "$10=3" would, but the main loop is blocked)
     while "|Bf:0,128|" not in w.status():  # the 16th line waits for planner room
         pass
