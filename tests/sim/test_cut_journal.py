@@ -6,32 +6,11 @@ import numpy as np
 import pytest
 
 from sim.cut import Cutter
-from sim.frame import Frame
-from sim.gcode.moves import MoveKind, Plane, empty_moves
+from sim.gcode.moves import MoveKind
 from sim.grid import DexelGrid
 from sim.tools import Tool, parse_tool_spec
 
-SP = 0.25
-
-
-def stock(x1=40.0, y1=20.0, z0=0.0, z1=10.0, sp=SP) -> DexelGrid:
-    f = Frame.top(0.0, 0.0, x1, y1, sp)
-    return DexelGrid.from_intervals(f, np.full(f.shape, z0), np.full(f.shape, z1))
-
-
-def moves_of(*rows) -> np.ndarray:
-    """Rows of (kind, start xyz, end xyz[, center xyz]) -> a move table."""
-    mv = empty_moves(len(rows))
-    for k, row in enumerate(rows):
-        mv["kind"][k] = row[0]
-        mv["start"][k, :3] = row[1]
-        mv["end"][k, :3] = row[2]
-        if len(row) > 3:
-            mv["center"][k] = row[3]
-            mv["turns"][k] = 1
-            mv["plane"][k] = Plane.XY
-        mv["line"][k] = k + 1
-    return mv
+from tests.sim.test_cut import SP, moves_of, stock  # the same stock and move helpers
 
 
 def all_segments(g: DexelGrid):
