@@ -353,8 +353,13 @@ def _scan(xy, sv, nu, nv, counts, offsets, hit_s, hit_tri, fill):
 
 
 @nb.njit(cache=True)
-def _sort_hits(offsets, counts, hit_s, hit_tri):
-    """Sort each ray's hits by s (insertion sort: rays hold few hits)."""
+def sort_hits(offsets, counts, hit_s, hit_tri):
+    """Sort each ray's hits by ``s`` in place, equal ``s`` kept in their order.
+
+    Ray ``r``'s hits are ``hit_s[offsets[r]:offsets[r]+counts[r]]`` (float64, mm) with
+    their triangles ``hit_tri[...]`` (int32); offsets/counts (n_rays,) int64. Insertion
+    sort: rays hold few hits. Shared with :mod:`sim.checks.error_map`'s design cast.
+    """
     for r in range(counts.size):
         o = offsets[r]
         for a in range(o + 1, o + counts[r]):
@@ -450,7 +455,7 @@ def ray_hits(frame: Frame, mesh):
     hit_tri = np.empty(total, np.int32)
     counts[:] = 0
     _scan(xy, sv, frame.nu, frame.nv, counts, offsets, hit_s, hit_tri, True)
-    _sort_hits(offsets, counts, hit_s, hit_tri)
+    sort_hits(offsets, counts, hit_s, hit_tri)
     return offsets, counts, hit_s, hit_tri
 
 

@@ -101,24 +101,6 @@ def ray_hits(tri, nu, nv, spacing, inclusive, count_only, counts, ptr, hit_s, hi
 
 
 @nb.njit(cache=True)
-def sort_hits(ptr, hit_s, hit_tri):
-    """Sort each ray's hits by ``s`` in place (insertion sort: rays hold few hits)."""
-    for r in range(ptr.size - 1):
-        a = ptr[r]
-        b = ptr[r + 1]
-        for k in range(a + 1, b):
-            s = hit_s[k]
-            t = hit_tri[k]
-            m = k - 1
-            while m >= a and hit_s[m] > s:
-                hit_s[m + 1] = hit_s[m]
-                hit_tri[m + 1] = hit_tri[m]
-                m -= 1
-            hit_s[m + 1] = s
-            hit_tri[m + 1] = t
-
-
-@nb.njit(cache=True)
 def vertical_errors(rays, s_pts, ptr, hit_s, hit_tri, tri_dz, sheet, out_dv, out_nz, out_inside, out_tri):
     """For each point (ray ``rays[q]``, parameter ``s_pts[q]``): the distance along the
     ray to the nearest design crossing (``out_dv``, inf when the ray misses the design),

@@ -30,6 +30,7 @@ import numpy as np
 from sim.checks import design_kernels as K
 from sim.checks.arrays import distinct
 from sim.checks.findings import Finding
+from sim.solids import sort_hits
 from sim.errors import InputError
 from sim.frame import Frame
 from sim.tolerance import DEFAULT, Tolerance
@@ -122,7 +123,7 @@ class DesignModel:
         hit_tri = np.empty(ptr[-1], np.int32)
         counts[:] = 0
         K.ray_hits(self.tri, f.nu, f.nv, f.spacing, inclusive, False, counts, ptr, hit_s, hit_tri)
-        K.sort_hits(ptr, hit_s, hit_tri)
+        sort_hits(ptr[:-1], counts, hit_s, hit_tri)
         if not self.closed:
             # height field: keep the topmost crossing of each ray (duplicates at shared
             # edges of an open sheet collapse into it)
