@@ -8,7 +8,9 @@ each triangle's projected bounding box gives its candidate rays, a point-in-tria
 test with a symbolic tie rule decides hits, the plane of the triangle gives ``s``. The
 tie rule acts as if every ray were shifted by the same infinitesimal amount, so a ray
 through a shared edge or vertex is counted exactly once per sheet of surface and the
-crossings of a closed mesh always pair up (parity).
+crossings of a closed mesh always pair up (parity). The same scanline
+(:func:`cast_triangles`) casts the design in :mod:`sim.checks.error_map`, with an
+inclusive mode for open sheets that keeps the rays on their outer edges.
 """
 
 from __future__ import annotations
@@ -230,124 +232,119 @@ def check_closed(mesh, name: str = "mesh") -> None:
                        "edge joins exactly two triangles", where=name)
 
 
-def _project(frame: Frame, mesh):
-    """Triangle corners in grid units: xy (T, 3, 2) float64 (ray (i, j) at (i, j)), s (T, 3)."""
+def _project(frame: Frame, mesh) -> np.ndarray:
+    """Triangle corners in the frame's local coordinates: (T, 3, 3) float64 (u, v, s) mm."""
     verts = np.asarray(mesh.vertices, np.float64)
     faces = np.asarray(mesh.faces, np.int64)
     if not np.all(np.isfinite(verts)):
         raise InputError("mesh has non-finite vertex coordinates")
-    local = frame.to_local(verts)
-    xy = local[:, :2] / frame.spacing
-    return np.ascontiguousarray(xy[faces]), np.ascontiguousarray(local[:, 2][faces])
-
-
-@nb.njit(cache=True)
-def _edge_setup(ax, ay, bx, by, out, k):
-    """Store edge a->b of a triangle in ``out[k]`` as (x0, y0, dx, dy, sign, tie).
-
-    The edge function is evaluated from the lexicographically smaller endpoint and
-    negated (``sign``) if that is b, so two triangles sharing an edge compute bit-identical
-    values at every ray. ``tie`` is the sign it takes where it is exactly zero: the sign
-    it would have if the ray moved by (-eps, eps^2), the one symbolic perturbation used
-    for every triangle, so a ray through an edge or vertex is claimed exactly once.
-    """
-    if ax < bx or (ax == bx and ay < by):
-        out[k, 0] = ax
-        out[k, 1] = ay
-        out[k, 2] = bx - ax
-        out[k, 3] = by - ay
-        out[k, 4] = 1.0
-    else:
-        out[k, 0] = bx
-        out[k, 1] = by
-        out[k, 2] = ax - bx
-        out[k, 3] = ay - by
-        out[k, 4] = -1.0
-    dx = bx - ax
-    dy = by - ay
-    out[k, 5] = 1.0 if (dy > 0.0 or (dy == 0.0 and dx > 0.0)) else -1.0
+    return np.ascontiguousarray(frame.to_local(verts)[faces])
 
 
 @nb.njit(cache=True, inline="always")
-def _edge_at(E, k, px, py):
-    """(value, sign) of edge ``k`` of :func:`_edge_setup` at ray position (px, py)."""
-    e = E[k, 4] * (E[k, 2] * (py - E[k, 1]) - E[k, 3] * (px - E[k, 0]))
-    if e > 0.0:
-        return e, 1.0
-    if e < 0.0:
-        return e, -1.0
-    return e, E[k, 5]
+def orient2d(ax, ay, bx, by, px, py):
+    """Twice the signed area of (a, b, p): > 0 when p lies left of a->b (float64)."""
+    return (bx - ax) * (py - ay) - (by - ay) * (px - ax)
+
+
+@nb.njit(cache=True, inline="always")
+def _orient2d_shared(ax, ay, bx, by, px, py):
+    # evaluated from the lexicographically smaller end, so the two triangles sharing an
+    # edge get bit-identical values of opposite sign: a ray on the edge is then claimed
+    # exactly once (rounding alone would otherwise drop or double it)
+    if ax < bx or (ax == bx and ay < by):
+        return orient2d(ax, ay, bx, by, px, py)
+    return -orient2d(bx, by, ax, ay, px, py)
+
+
+@nb.njit(cache=True, inline="always")
+def _owns_ties(ax, ay, bx, by, nudge_u):
+    # Edge a->b of a counter-clockwise triangle (interior on its left). A ray exactly on
+    # it belongs to this triangle if moving the ray by (nudge_u*eps, -nudge_u*eps^2)
+    # takes it inside: for nudge_u = +1 the edges going down or (level) going left, the
+    # "top-left" rule; for -1 the mirror image.
+    if nudge_u > 0.0:
+        return (by < ay) or (ay == by and bx < ax)
+    return (by > ay) or (ay == by and bx > ax)
 
 
 @nb.njit(cache=True)
-def _scan(xy, sv, nu, nv, counts, offsets, hit_s, hit_tri, fill):
-    """Count (``fill`` False) or record (True) every ray/triangle crossing.
+def _scan(tri, nu, nv, spacing, inclusive, nudge_u, count_only, counts, offsets, hit_s, hit_tri):
+    """Count (``count_only``) or record every ray/triangle crossing.
 
-    xy (T, 3, 2), sv (T, 3); counts (n_rays,) int64 is incremented; when filling,
-    ``offsets`` (n_rays,) is each ray's first slot and ``counts`` must start at zero.
+    ``tri`` (T, 3, 3) float64 local (u, v, s) mm; ray (i, j) is at (i*spacing, j*spacing).
+    ``counts`` (n_rays,) int64 is incremented; when recording, ``offsets`` (n_rays,) is
+    each ray's first slot and ``counts`` must start at zero. See :func:`cast_triangles`.
     """
-    E = np.empty((3, 6), np.float64)
-    for t in range(xy.shape[0]):
-        x0 = xy[t, 0, 0]
-        y0 = xy[t, 0, 1]
-        x1 = xy[t, 1, 0]
-        y1 = xy[t, 1, 1]
-        x2 = xy[t, 2, 0]
-        y2 = xy[t, 2, 1]
-        area = (x1 - x0) * (y2 - y0) - (y1 - y0) * (x2 - x0)
+    for t in range(tri.shape[0]):
+        ax = tri[t, 0, 0]
+        ay = tri[t, 0, 1]
+        bx = tri[t, 1, 0]
+        by = tri[t, 1, 1]
+        cx = tri[t, 2, 0]
+        cy = tri[t, 2, 1]
+        az = tri[t, 0, 2]
+        bz = tri[t, 1, 2]
+        cz = tri[t, 2, 2]
+        area = orient2d(ax, ay, bx, by, cx, cy)
         if area == 0.0:
             continue  # edge-on to the rays: the neighbouring faces carry the crossing
-        i_lo = max(int(np.ceil(min(x0, x1, x2))), 0)
-        i_hi = min(int(np.floor(max(x0, x1, x2))), nu - 1)
-        j_lo = max(int(np.ceil(min(y0, y1, y2))), 0)
-        j_hi = min(int(np.floor(max(y0, y1, y2))), nv - 1)
-        if i_lo > i_hi or j_lo > j_hi:
+        if area < 0.0:  # make it counter-clockwise
+            bx, cx = cx, bx
+            by, cy = cy, by
+            bz, cz = cz, bz
+            area = -area
+        i0 = max(int(np.ceil(min(ax, bx, cx) / spacing - 1e-9)), 0)
+        i1 = min(int(np.floor(max(ax, bx, cx) / spacing + 1e-9)), nu - 1)
+        j0 = max(int(np.ceil(min(ay, by, cy) / spacing - 1e-9)), 0)
+        j1 = min(int(np.floor(max(ay, by, cy) / spacing + 1e-9)), nv - 1)
+        if i0 > i1 or j0 > j1:
             continue
-        _edge_setup(x1, y1, x2, y2, E, 0)  # edge opposite corner 0
-        _edge_setup(x2, y2, x0, y0, E, 1)
-        _edge_setup(x0, y0, x1, y1, E, 2)
-        s0 = sv[t, 0]
-        s1 = sv[t, 1]
-        s2 = sv[t, 2]
-        for j in range(j_lo, j_hi + 1):
-            py = np.float64(j)
-            # candidate rays on this row: the triangle's span at y = j, widened by one
+        own0 = _owns_ties(bx, by, cx, cy, nudge_u)
+        own1 = _owns_ties(cx, cy, ax, ay, nudge_u)
+        own2 = _owns_ties(ax, ay, bx, by, nudge_u)
+        eps = 1e-9 * area if inclusive else 0.0
+        for j in range(j0, j1 + 1):
+            py = j * spacing
+            # candidate rays on this row: the triangle's span at v = py, widened by one
             # ray each side so rounding never hides a hit (the exact test decides)
-            xa = np.inf
-            xb = -np.inf
+            ua = np.inf
+            ub = -np.inf
             for k in range(3):
-                ax = xy[t, k, 0]
-                ay = xy[t, k, 1]
-                bx = xy[t, (k + 1) % 3, 0]
-                by = xy[t, (k + 1) % 3, 1]
-                if min(ay, by) <= py <= max(ay, by):
-                    if ay == by:
-                        xa = min(xa, ax, bx)
-                        xb = max(xb, ax, bx)
+                pu = tri[t, k, 0]
+                pv = tri[t, k, 1]
+                qu = tri[t, (k + 1) % 3, 0]
+                qv = tri[t, (k + 1) % 3, 1]
+                if min(pv, qv) <= py <= max(pv, qv):
+                    if pv == qv:
+                        ua = min(ua, pu, qu)
+                        ub = max(ub, pu, qu)
                     else:
-                        x = ax + (py - ay) * (bx - ax) / (by - ay)
-                        xa = min(xa, x)
-                        xb = max(xb, x)
-            if xa > xb:
-                continue
-            for i in range(max(i_lo, int(np.ceil(xa)) - 1), min(i_hi, int(np.floor(xb)) + 1) + 1):
-                px = np.float64(i)
-                e0, g0 = _edge_at(E, 0, px, py)
-                e1, g1 = _edge_at(E, 1, px, py)
-                if g1 != g0:
-                    continue
-                e2, g2 = _edge_at(E, 2, px, py)
-                if g2 != g0:
-                    continue
+                        u = pu + (py - pv) * (qu - pu) / (qv - pv)
+                        ua = min(ua, u)
+                        ub = max(ub, u)
+            if ua > ub:
+                ia, ib = i0, i1  # a row within the slack of a corner: test the whole box
+            else:
+                ia = max(i0, int(np.ceil(ua / spacing)) - 1)
+                ib = min(i1, int(np.floor(ub / spacing)) + 1)
+            for i in range(ia, ib + 1):
+                px = i * spacing
+                w0 = _orient2d_shared(bx, by, cx, cy, px, py)
+                w1 = _orient2d_shared(cx, cy, ax, ay, px, py)
+                w2 = _orient2d_shared(ax, ay, bx, by, px, py)
+                if inclusive:
+                    if w0 < -eps or w1 < -eps or w2 < -eps:
+                        continue
+                else:
+                    if w0 < 0.0 or w1 < 0.0 or w2 < 0.0:
+                        continue
+                    if (w0 == 0.0 and not own0) or (w1 == 0.0 and not own1) or (w2 == 0.0 and not own2):
+                        continue
                 r = j * nu + i
-                if fill:
-                    tot = e0 + e1 + e2
-                    if tot != 0.0:
-                        s = (e0 * s0 + e1 * s1 + e2 * s2) / tot
-                    else:
-                        s = (s0 + s1 + s2) / 3.0
+                if not count_only:
                     k = offsets[r] + counts[r]
-                    hit_s[k] = s
+                    hit_s[k] = (w0 * az + w1 * bz + w2 * cz) / area
                     hit_tri[k] = t
                 counts[r] += 1
 
@@ -436,27 +433,52 @@ def pack_segments(offsets: np.ndarray, counts: np.ndarray, near: np.ndarray, far
     return out
 
 
-def ray_hits(frame: Frame, mesh):
-    """Every crossing of the frame's rays with the mesh triangles, sorted along each ray.
+def cast_triangles(tri: np.ndarray, nu: int, nv: int, spacing: float, inclusive: bool = False,
+                   nudge_u: float = -1.0):
+    """Every crossing of the rays ``(i, j)`` with triangles given in local coordinates.
 
-    Returns ``(offsets, counts, s, tri)``: ray ``r``'s crossings are
-    ``s[offsets[r]:offsets[r]+counts[r]]`` (float64, mm, ascending) made by triangles
-    ``tri[...]`` (int32 indices into ``mesh.faces``). offsets/counts are (n_rays,) int64.
+    ``tri`` (T, 3, 3) float64: corners as (u, v, s) mm in a frame's local coordinates; ray
+    ``(i, j)``, ``0 <= i < nu``, ``0 <= j < nv``, is the line ``u = i*spacing``,
+    ``v = j*spacing``. Triangles seen edge-on are skipped.
+
+    ``inclusive`` False: a ray exactly on an edge or corner is claimed by exactly one
+    triangle, as if it were moved by ``(nudge_u*eps, -nudge_u*eps^2)`` (``nudge_u`` +1 or
+    -1, the same for every triangle), so the crossings of a closed mesh pair up. True: a
+    ray on an edge, or within ``1e-9`` x the triangle's doubled area of it, counts for
+    every triangle it touches. For open sheets: rays on the sheet's outer edges are kept
+    and those on its inner edges are counted twice (collapse them after).
+
+    Returns ``(offsets, counts, s, tri_index)``: ray ``r = j*nu + i`` has crossings
+    ``s[offsets[r]:offsets[r]+counts[r]]`` (float64 mm, ascending) made by triangles
+    ``tri_index[...]`` (int32); offsets/counts are (nu*nv,) int64.
     """
-    xy, sv = _project(frame, mesh)
-    counts = np.zeros(frame.n_rays, np.int64)
-    dummy_s = np.empty(0, np.float64)
-    dummy_t = np.empty(0, np.int32)
-    _scan(xy, sv, frame.nu, frame.nv, counts, counts, dummy_s, dummy_t, False)
-    offsets = np.zeros(frame.n_rays, np.int64)
+    tri = np.ascontiguousarray(tri, np.float64)
+    nudge_u = 1.0 if nudge_u > 0 else -1.0
+    n_rays = nu * nv
+    counts = np.zeros(n_rays, np.int64)
+    _scan(tri, nu, nv, spacing, inclusive, nudge_u, True, counts, counts,
+          np.empty(0, np.float64), np.empty(0, np.int32))
+    offsets = np.zeros(n_rays, np.int64)
     np.cumsum(counts[:-1], out=offsets[1:])
     total = int(counts.sum())
     hit_s = np.empty(total, np.float64)
     hit_tri = np.empty(total, np.int32)
     counts[:] = 0
-    _scan(xy, sv, frame.nu, frame.nv, counts, offsets, hit_s, hit_tri, True)
+    _scan(tri, nu, nv, spacing, inclusive, nudge_u, False, counts, offsets, hit_s, hit_tri)
     sort_hits(offsets, counts, hit_s, hit_tri)
     return offsets, counts, hit_s, hit_tri
+
+
+def ray_hits(frame: Frame, mesh, inclusive: bool = False):
+    """Every crossing of the frame's rays with the mesh triangles, sorted along each ray.
+
+    Returns ``(offsets, counts, s, tri)``: ray ``r``'s crossings are
+    ``s[offsets[r]:offsets[r]+counts[r]]`` (float64, mm, ascending) made by triangles
+    ``tri[...]`` (int32 indices into ``mesh.faces``). offsets/counts are (n_rays,) int64.
+    ``inclusive``: see :func:`cast_triangles` (ties otherwise go as if the ray moved by
+    ``(-eps, eps^2)``).
+    """
+    return cast_triangles(_project(frame, mesh), frame.nu, frame.nv, frame.spacing, inclusive, -1.0)
 
 
 def _outward(mesh, frame: Frame, tri: np.ndarray, sign: float) -> np.ndarray:

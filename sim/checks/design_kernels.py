@@ -1,5 +1,6 @@
-"""Numba kernels behind the error map: ray crossings of a triangle mesh and exact
+"""Numba kernels behind the error map: nearest crossings along the rays and exact
 point-to-triangle distances (Huang & Oliver 3.2.1, the surface near-point calculation).
+The crossings themselves come from :func:`sim.solids.cast_triangles`.
 
 All geometry here is in a frame's local coordinates (u, v, s) in mm (see
 :class:`sim.frame.Frame`): rays sit at ``u = i*spacing``, ``v = j*spacing``.
@@ -10,94 +11,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-
-@nb.njit(cache=True, inline="always")
-def _edge(ax, ay, bx, by, px, py):
-    return (bx - ax) * (py - ay) - (by - ay) * (px - ax)
-
-
-@nb.njit(cache=True, inline="always")
-def _edge_c(ax, ay, bx, by, px, py):
-    # Evaluated from the lexicographically smaller end so that the two triangles sharing
-    # an edge get bit-identical values of opposite sign: a ray on the edge is then
-    # counted exactly once (rounding alone would otherwise drop or double it).
-    if ax < bx or (ax == bx and ay < by):
-        return _edge(ax, ay, bx, by, px, py)
-    return -_edge(bx, by, ax, ay, px, py)
-
-
-@nb.njit(cache=True, inline="always")
-def _top_left(ax, ay, bx, by):
-    # For a counter-clockwise triangle: edges that go left (top edges) or go down (left
-    # edges) own the points lying exactly on them, so a ray through a shared edge or
-    # vertex is counted once.
-    return (ay == by and bx < ax) or (by < ay)
-
-
-@nb.njit(cache=True)
-def ray_hits(tri, nu, nv, spacing, inclusive, count_only, counts, ptr, hit_s, hit_tri):
-    """Crossings of the rays ``(i, j)`` with the triangles ``tri`` (n, 3, 3) local coords.
-
-    ``count_only``: fill ``counts`` (n_rays,) int64 only. Otherwise write each hit's ``s``
-    and triangle index at ``ptr[r] + k`` (``counts`` is reset to zero and used as the
-    per-ray cursor). ``inclusive`` counts points on any edge (for open sheets whose
-    duplicate hits are collapsed later); otherwise the top-left rule decides ties.
-    """
-    n = tri.shape[0]
-    for t in range(n):
-        ax = tri[t, 0, 0]
-        ay = tri[t, 0, 1]
-        bx = tri[t, 1, 0]
-        by = tri[t, 1, 1]
-        cx = tri[t, 2, 0]
-        cy = tri[t, 2, 1]
-        az = tri[t, 0, 2]
-        bz = tri[t, 1, 2]
-        cz = tri[t, 2, 2]
-        area = _edge(ax, ay, bx, by, cx, cy)
-        if area == 0.0:
-            continue  # seen edge-on: no ray crosses it transversally
-        if area < 0.0:  # make it counter-clockwise
-            bx, cx = cx, bx
-            by, cy = cy, by
-            bz, cz = cz, bz
-            area = -area
-        umin = min(ax, bx, cx)
-        umax = max(ax, bx, cx)
-        vmin = min(ay, by, cy)
-        vmax = max(ay, by, cy)
-        i0 = max(int(np.ceil(umin / spacing - 1e-9)), 0)
-        i1 = min(int(np.floor(umax / spacing + 1e-9)), nu - 1)
-        j0 = max(int(np.ceil(vmin / spacing - 1e-9)), 0)
-        j1 = min(int(np.floor(vmax / spacing + 1e-9)), nv - 1)
-        tl0 = _top_left(bx, by, cx, cy)
-        tl1 = _top_left(cx, cy, ax, ay)
-        tl2 = _top_left(ax, ay, bx, by)
-        eps = 1e-9 * area if inclusive else 0.0
-        for j in range(j0, j1 + 1):
-            py = j * spacing
-            for i in range(i0, i1 + 1):
-                px = i * spacing
-                w0 = _edge_c(bx, by, cx, cy, px, py)
-                w1 = _edge_c(cx, cy, ax, ay, px, py)
-                w2 = _edge_c(ax, ay, bx, by, px, py)
-                if inclusive:
-                    if w0 < -eps or w1 < -eps or w2 < -eps:
-                        continue
-                else:
-                    if w0 < 0.0 or w1 < 0.0 or w2 < 0.0:
-                        continue
-                    if (w0 == 0.0 and not tl0) or (w1 == 0.0 and not tl1) or (w2 == 0.0 and not tl2):
-                        continue
-                r = j * nu + i
-                if count_only:
-                    counts[r] += 1
-                else:
-                    s = (w0 * az + w1 * bz + w2 * cz) / area
-                    k = ptr[r] + counts[r]
-                    hit_s[k] = s
-                    hit_tri[k] = t
-                    counts[r] += 1
+from sim.solids import orient2d
 
 
 @nb.njit(cache=True)
@@ -193,10 +107,10 @@ def point_triangle_dist2(px, py, pz, tri, t):
 def _outside_edge(ax, ay, bx, by, sign, x0, y0, x1, y1, margin):
     # all four corners of the rectangle strictly on the outer side of edge a->b (the
     # triangle's interior has edge function sign ``sign``), by more than ``margin``
-    e0 = _edge(ax, ay, bx, by, x0, y0) * sign
-    e1 = _edge(ax, ay, bx, by, x1, y0) * sign
-    e2 = _edge(ax, ay, bx, by, x0, y1) * sign
-    e3 = _edge(ax, ay, bx, by, x1, y1) * sign
+    e0 = orient2d(ax, ay, bx, by, x0, y0) * sign
+    e1 = orient2d(ax, ay, bx, by, x1, y0) * sign
+    e2 = orient2d(ax, ay, bx, by, x0, y1) * sign
+    e3 = orient2d(ax, ay, bx, by, x1, y1) * sign
     return max(e0, e1, e2, e3) < -margin
 
 
@@ -208,7 +122,7 @@ def bin_triangles(tri, bin_size, nbu, nbv, count_only, counts, ptr, items):
     infinity, so triangles beyond the frame land in the edge bins. A bin gets a triangle
     only when the projected triangle really meets it (separating-axis test), so a large
     triangle lying across the frame fills the bins along it, not its whole bounding box.
-    Two passes like :func:`ray_hits`: ``count_only`` fills ``counts``, otherwise
+    Two passes like :func:`sim.solids.cast_triangles`: ``count_only`` fills ``counts``, otherwise
     ``items[ptr[k] + cursor]`` (``counts`` reset to zero is the cursor).
     """
     big = 1e30
@@ -227,7 +141,7 @@ def bin_triangles(tri, bin_size, nbu, nbv, count_only, counts, ptr, items):
         b1 = min(max(int(np.floor(umax / bin_size)), 0), nbu - 1)
         c0 = min(max(int(np.floor(vmin / bin_size)), 0), nbv - 1)
         c1 = min(max(int(np.floor(vmax / bin_size)), 0), nbv - 1)
-        area = _edge(ax, ay, bx, by, cx, cy)
+        area = orient2d(ax, ay, bx, by, cx, cy)
         ext = max(umax - umin, vmax - vmin, bin_size)
         # edge-on triangles (walls along the rays) project to a segment: keep their box
         flat = abs(area) <= 1e-12 * ext * ext

@@ -30,7 +30,7 @@ import numpy as np
 from sim.checks import design_kernels as K
 from sim.checks.arrays import distinct
 from sim.checks.findings import Finding
-from sim.solids import sort_hits
+from sim.solids import cast_triangles
 from sim.errors import InputError
 from sim.frame import Frame
 from sim.tolerance import DEFAULT, Tolerance
@@ -111,19 +111,13 @@ class DesignModel:
     # --- ray casting --------------------------------------------------------------
     def _cast(self):
         f = self.frame
-        counts = np.zeros(f.n_rays, np.int64)
-        dummy_f = np.zeros(0)
-        dummy_i = np.zeros(0, np.int32)
-        inclusive = not self.closed
-        K.ray_hits(self.tri, f.nu, f.nv, f.spacing, inclusive, True, counts,
-                   counts, dummy_f, dummy_i)
-        ptr = np.zeros(f.n_rays + 1, np.int64)
-        np.cumsum(counts, out=ptr[1:])
-        hit_s = np.empty(ptr[-1], np.float64)
-        hit_tri = np.empty(ptr[-1], np.int32)
-        counts[:] = 0
-        K.ray_hits(self.tri, f.nu, f.nv, f.spacing, inclusive, False, counts, ptr, hit_s, hit_tri)
-        sort_hits(ptr[:-1], counts, hit_s, hit_tri)
+        # an open sheet keeps the rays on its outer edges (inclusive); ties on a closed
+        # mesh go to the triangle on the +u side (the ray nudged by (+eps, -eps^2)), so a
+        # part whose wall stands on the first ray column, like the corpus parts at X0,
+        # keeps that column
+        offsets, counts, hit_s, hit_tri = cast_triangles(self.tri, f.nu, f.nv, f.spacing,
+                                                         inclusive=not self.closed, nudge_u=1.0)
+        ptr = np.append(offsets, hit_s.size)
         if not self.closed:
             # height field: keep the topmost crossing of each ray (duplicates at shared
             # edges of an open sheet collapse into it)

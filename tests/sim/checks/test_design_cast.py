@@ -4,9 +4,9 @@ outer edges, the default (tie rule) mode claims each ray once and drops half of 
 import numpy as np
 import trimesh
 
-from sim.checks import design_kernels as K
 from sim.checks.error_map import DesignModel
 from sim.frame import Frame
+from sim.solids import cast_triangles
 
 SPACING = 0.5
 
@@ -24,12 +24,10 @@ def frame():
     return Frame.top(-0.5, -0.5, 3.0, 3.0, SPACING)
 
 
-def cast_counts(mesh, f, inclusive):
-    """Crossings per ray (nv, nu) of the design kernel's count pass."""
-    tri = np.ascontiguousarray(f.to_local(np.asarray(mesh.triangles, np.float64)))
-    counts = np.zeros(f.n_rays, np.int64)
-    K.ray_hits(tri, f.nu, f.nv, f.spacing, inclusive, True, counts, counts,
-               np.zeros(0), np.zeros(0, np.int32))
+def cast_counts(mesh, f, inclusive, nudge_u=1.0):
+    """Crossings per ray (nv, nu) as the design cast counts them."""
+    tri = f.to_local(np.asarray(mesh.triangles, np.float64))
+    _, counts, _, _ = cast_triangles(tri, f.nu, f.nv, f.spacing, inclusive, nudge_u)
     return counts.reshape(f.shape)
 
 
@@ -82,3 +80,25 @@ def test_open_design_model_has_the_plane_on_every_ray_of_the_closed_square():
     assert np.all(np.isnan(top[~on]))
     # one crossing per ray after the duplicates on the diagonal collapsed
     assert np.array_equal(np.diff(d.ptr).reshape(f.shape), on.astype(np.int64))
+
+
+def test_both_tie_directions_claim_each_ray_once_and_the_design_keeps_its_first_column():
+    f = frame()
+    inner, edge = footprint(f)
+    block = trimesh.creation.box(bounds=[(0, 0, 0), (2, 2, 1)])  # walls exactly on rays
+    x = -0.5 + SPACING * np.arange(f.nu)
+    for nudge_u in (1.0, -1.0):
+        counts = cast_counts(block, f, inclusive=False, nudge_u=nudge_u)
+        assert set(np.unique(counts)) == {0, 2}  # top and bottom once each: parity holds
+        assert (counts == 2).sum() == (2.0 / SPACING) ** 2
+        assert np.all(counts[inner] == 2)
+        # the ray is taken as nudged along +u (or -u): the wall column on that side stays
+        kept, dropped = (0.0, 2.0) if nudge_u > 0 else (2.0, 0.0)
+        j_in = (np.arange(f.nv) >= 2) & (np.arange(f.nv) <= 4)  # Y 0.5..1.5: off the Y walls
+        assert np.all(counts[j_in][:, x == kept] == 2)
+        assert np.all(counts[j_in][:, x == dropped] == 0)
+    d = DesignModel(f, block)
+    assert d.closed
+    top = d.top()
+    assert np.all(top[2:5, x == 0.0] == 1.0)  # the design keeps the X0 column of the block
+    assert np.all(np.isnan(top[:, x == 2.0]))
