@@ -236,15 +236,7 @@ class RunView:
         t = self.trace.t
         if t is None:
             return np.zeros(0, np.int64), np.zeros(0)
-        ptr = t._ptr.a
-        drop = np.nan_to_num(t._prev.a, nan=0.0).astype(np.float64) - np.nan_to_num(t._val.a, nan=0.0)
-        empty_now = np.isnan(t._val.a)
-        if empty_now.any():  # the ray became empty: everything down to its bottom went
-            lo = self._bottoms()[t._ray.a[empty_now]]
-            drop[empty_now] = np.nan_to_num(t._prev.a[empty_now], nan=0.0) - lo
-        cs = np.concatenate([[0.0], np.cumsum(drop)])
-        per_block = cs[ptr[1:]] - cs[ptr[:-1]]
-        return t._stage.a.copy(), per_block * t.frame.spacing ** 2
+        return t.removal_per_block(self._bottoms)
 
     def _bottoms(self) -> np.ndarray:
         if self.trace.z is None:

@@ -176,6 +176,12 @@ class _Log:
 _NO_LOG = (np.zeros(1, np.int64), np.zeros(1, np.float32), np.zeros(1, np.int64), np.zeros(1, np.int64),
            np.zeros(1, np.float32), np.zeros(1, np.float32), np.zeros(1, np.int32), np.zeros(1, np.int32),
            np.zeros(1), np.zeros(1))
+#: trace buffers of a kernel call that traces nothing (never written)
+_NO_TRACE = (np.zeros(1, np.int32), np.zeros(1, np.float32), np.zeros(1, np.int32), np.zeros(1, np.int32),
+             np.zeros(1, np.int16), np.zeros(1, np.float32), np.zeros(1, np.float32), np.zeros(1, np.int32),
+             np.zeros(1, np.int32), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int64),
+             np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int64))
+_NO_TS = np.zeros(K.TRACE_STATE_SIZE, np.int64)
 
 
 class _Work:
@@ -243,26 +249,36 @@ class Cutter:
 
     # --- public API ---------------------------------------------------------------------
     def cut_moves(self, moves: np.ndarray, move_ids=None, record_changes: bool = True,
-                  journal: bool = False) -> CutResult:
+                  journal: bool = False, trace=None, stages=None) -> CutResult:
         """Cut every row of ``moves`` (MOVE_DTYPE) in order.
 
         move_ids: int (n,) face ids to write (default row index + 1; 0 is the stock).
         record_changes: False skips the changed-ray lists (saves memory on long programs).
         journal: also return every changed ray's segments after each move (see
         :class:`CutResult`); implies ``record_changes``.
+        trace: a :class:`sim.trace.Trace` (or ``ZTrace``) of this grid, up to date: every
+        row is recorded into it as its own stage while it is cut (the kernels write the
+        trace's events directly; no journal, no second pass). stages: int (n,) the rows'
+        stages (non-decreasing, not below the trace's last; default last + 1, + 2, ...).
         """
         t0 = time.perf_counter()
         n = len(moves)
         ids = self._ids(n, move_ids)
         removed = np.zeros(n, np.float64)
         record = bool(record_changes or journal)
+        if trace is not None and journal:
+            raise InputError("cut_moves: a trace and a journal are two ways to record the same "
+                             "changes; ask for one")
+        sink = trace.sink(self.grid, n, stages) if trace is not None else None
         log = _Log(n, journal, n <= 8) if record else None
         multi = np.zeros(n, bool)
         for lo, hi, tool in self._tool_runs(moves):
             sub = moves[lo:hi]
             rows = np.arange(lo, hi)
             work = self._plan(sub, rows, ids[lo:hi], self._body(tool), multi)
-            self._execute(work, self._body(tool), removed, probe=False, log=log)
+            self._execute(work, self._body(tool), removed, probe=False, log=log, sink=sink)
+        if sink is not None:
+            sink.end()
         res = self._result(n, log)
         res.removed = removed * self.grid.frame.spacing**2
         res.seconds = time.perf_counter() - t0
@@ -449,8 +465,9 @@ class Cutter:
 
     # --- execution ----------------------------------------------------------------------
     def _execute(self, work: _Work, body, removed, probe: bool, log: _Log | None,
-                 force_instances=False) -> None:
-        """Run the kernels over the planned work, appending the changes to ``log`` (if any)."""
+                 force_instances=False, sink=None) -> None:
+        """Run the kernels over the planned work, appending the changes to ``log`` (if any)
+        and the trace events to ``sink`` (if any)."""
         grid = self.grid
         f = grid.frame
         eps = self.tol.length
@@ -462,13 +479,17 @@ class Cutter:
             if tp is None or tp[0] is not body:
                 tp = self._params[id(body)] = (body, sweep.body_params(body))
             tp = tp[1]
+            if sink is not None:  # the rays within reach of each segment bound its changes
+                reach = tp[6] / f.spacing + 1.0
+                run = np.hypot(*(p1[:, :2] - p0[:, :2]).T) / f.spacing
+                sink.reserve(min(int(np.sum((run + 2 * reach) * 2 * reach)), 32 * f.n_rays + len(p0) * 64))
             top_bound = np.inf
             if len(p0) >= 64 and not probe:  # lets chained moves skip rays already cut
                 tops = grid.top()
                 top_bound = float(np.nanmax(tops)) if np.isfinite(tops).any() else -np.inf
-            self._loop(lambda S, st, B: K.cut_linear_batch(
+            self._loop(lambda S, st, B, T, ts: K.cut_linear_batch(
                 S, f.origin[0], f.origin[1], f.spacing, f.nu, f.nv, p0, p1, sm, sid, tp, eps,
-                probe, record, journal, removed, B, st, top_bound), log)
+                probe, record, journal, removed, B, st, sink is not None, T, ts, top_bound), log, sink)
         tips, axes, pm, pid = work.pose_arrays()
         if len(tips):
             prof = sweep.body_profile(body)
@@ -476,22 +497,31 @@ class Cutter:
             axes_l = np.ascontiguousarray(np.stack([axes @ f.u, axes @ f.v, axes @ f.direction], axis=1))
             axes_l /= np.linalg.norm(axes_l, axis=1, keepdims=True)
             rmax = float(prof[:, 1].max())
-            self._loop(lambda S, st, B: K.cut_poses(
+            if sink is not None:
+                sink.reserve(min(int(len(tips) * (2 * rmax / f.spacing + 2) ** 2), 4 * f.n_rays))
+            self._loop(lambda S, st, B, T, ts: K.cut_poses(
                 S, f.spacing, f.nu, f.nv, tips_l, axes_l, pm, pid, prof, rmax, eps, probe, record,
-                journal, removed, B, st), log)
+                journal, removed, B, st, sink is not None, T, ts), log, sink)
 
-    def _loop(self, call, log: _Log | None) -> None:
-        """Call a batch kernel until it is done, growing the pool and the log's buffers."""
+    def _loop(self, call, log: _Log | None, sink=None) -> None:
+        """Call a batch kernel until it is done, growing the pool, the log's buffers and
+        the trace's columns, and letting the trace take its keyframes."""
         state = np.zeros(K.STATE_SIZE, np.int64)
         state[1] = state[2] = -1
         if log is not None:
             state[3] = log.n
             state[5] = log.nj
         while True:
-            status = call(self.grid.S, state, _NO_LOG if log is None else log.buffers())
+            status = call(self.grid.S, state, _NO_LOG if log is None else log.buffers(),
+                          _NO_TRACE if sink is None else sink.buffers(),
+                          _NO_TS if sink is None else sink.ts)
             if status == K.DONE:
                 break
-            if status == K.STOP_POOL:
+            if status == K.STOP_TRACE:
+                sink.grow()
+            elif status == K.TRACE_KEYFRAME:
+                sink.keyframe()
+            elif status == K.STOP_POOL:
                 ds.grow_pool(self.grid.store, max(1024, self.grid.store["pool_near"].size))
             elif status == K.STOP_CHANGES:
                 log.grow_entries(state)

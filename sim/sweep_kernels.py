@@ -46,10 +46,21 @@ DONE = 0
 STOP_POOL = 1
 STOP_CHANGES = 2
 STOP_JOURNAL = 3
+STOP_TRACE = 4
+TRACE_KEYFRAME = 5
 
 #: int64 ``state`` of a batch kernel: [k, j, i, entries closed, entries of the current move,
 #: journal segments used, journal segments needed (after STOP_JOURNAL)]
 STATE_SIZE = 7
+
+#: int64 ``ts`` of a traced batch (see :func:`finish_trace_move`): far events written,
+#: general events written, their segments written, general rays of the open move, the open
+#: move (-1: none), its first far event, its far events voided, the batch's first block,
+#: the event count at which a keyframe falls due, the move after which it fell due, and
+#: what a STOP_TRACE needs (far events, general events, segments)
+(TS_NF, TS_NG, TS_NS, TS_NGL, TS_OPEN, TS_FSTART, TS_DEAD, TS_BLK0, TS_NEXT_DUE, TS_KEY_MOVE,
+ TS_NEED_F, TS_NEED_G, TS_NEED_S) = range(13)
+TRACE_STATE_SIZE = 13
 
 
 
@@ -650,9 +661,142 @@ def _depth_after(S, r, top_before, got):
     return drop if drop > 0.0 else got
 
 
+# --- trace sink: z-trace events written as the batch cuts (see sim.trace.ZTrace) --------
+#
+# T: (f_ray int32, f_val float32, f_id int32, g_ray int32, g_count int16, g_near float32,
+# g_far float32, g_nid int32, g_fid int32, blk_f int64 (n_moves,), blk_g, blk_s, mark int64
+# (n_rays,), slot int64 (n_rays,), gen int64 scratch). A far-only change (rule 5: only the
+# top segment's FarZ moved down) is one far event (ray, new FarZ, face id), rewritten in
+# place when the same move changes the ray again (arc chords, instances); any other change
+# makes the ray *general* for the move: its far event (if any) is voided, and when the move
+# closes its whole segment list becomes one general event. ``mark[r]`` is ``2 * block`` when
+# ray ``r`` holds a far event of that block at ``slot[r]``, ``2 * block + 1`` when it is
+# general in it. Blocks are moves: ``blk_*[mv]`` are the columns' ends after move ``mv``.
+
+
+# The hot helpers take the arrays, not T: indexing a tuple of arrays inside the ray loop
+# costs reference-count traffic on every access (several times the cut itself).
+
+# The kernels keep the far-event and general-ray counts (nf, ngl) in locals, written back
+# to ``ts`` before every return: a count kept in an array is a store and a reload per
+# change, several times the cost of the event itself.
+
+@nb.njit(cache=True, inline="always")
+def _trace_far(f_ray, f_val, f_id, mark, slot, key, multi, r, val, fid, nf):
+    """Far event of ray ``r`` in the block whose mark is ``key``; returns the new count.
+    ``multi``: the move may change the ray more than once (several chords or poses), so
+    an event of this block is rewritten in place instead of added."""
+    if multi:
+        m = mark[r]
+        if m == key:
+            s = slot[r]
+            f_val[s] = val
+            f_id[s] = fid
+            return nf
+        if m == key + 1:
+            return nf
+        mark[r] = key
+        slot[r] = nf
+    f_ray[nf] = r
+    f_val[nf] = val
+    f_id[nf] = fid
+    return nf + 1
+
+
+@nb.njit(cache=True, inline="always")
+def _trace_general(f_ray, mark, slot, gen, ts, key, r, ngl):
+    """Ray ``r`` is general in the block (its far event, if any, is voided); returns the new
+    general-ray count."""
+    m = mark[r]
+    if m == key + 1:
+        return ngl
+    if m == key:
+        f_ray[slot[r]] = -1
+        ts[TS_DEAD] += 1
+    gen[ngl] = r
+    mark[r] = key + 1
+    return ngl + 1
+
+
+@nb.njit(cache=True, inline="always")
+def _tsync(ts, nf, ngl):
+    ts[TS_NF] = nf
+    ts[TS_NGL] = ngl
+
+
+@nb.njit(cache=True)
+def finish_trace_move(S, T, ts):
+    """Close the open move's block: drop its voided far events, write each general ray's
+    segment list after the move, and set ``blk_*[mv]``. Returns False, changing nothing,
+    when the general columns lack room (``ts[TS_NEED_G]`` / ``ts[TS_NEED_S]`` say how much)."""
+    mv = ts[TS_OPEN]
+    if mv < 0:
+        return True
+    cnt = S[0]
+    gen = T[14]
+    ngl = ts[TS_NGL]
+    if ngl > 0:
+        need_s = 0
+        for q in range(ngl):
+            need_s += cnt[gen[q]]
+        if ts[TS_NG] + ngl > T[3].size or ts[TS_NS] + need_s > T[5].size:
+            ts[TS_NEED_G] = ts[TS_NG] + ngl
+            ts[TS_NEED_S] = ts[TS_NS] + need_s
+            return False
+    if ts[TS_DEAD] > 0:
+        w = ts[TS_FSTART]
+        for q in range(ts[TS_FSTART], ts[TS_NF]):
+            if T[0][q] >= 0:
+                T[0][w] = T[0][q]
+                T[1][w] = T[1][q]
+                T[2][w] = T[2][q]
+                w += 1
+        ts[TS_NF] = w
+        ts[TS_DEAD] = 0
+    ng = ts[TS_NG]
+    s = ts[TS_NS]
+    for q in range(ngl):
+        r = gen[q]
+        c = cnt[r]
+        T[3][ng] = r
+        T[4][ng] = c
+        ng += 1
+        if c > 0:
+            T[5][s] = S[1][r]
+            T[6][s] = S[2][r]
+            T[7][s] = S[3][r]
+            T[8][s] = S[4][r]
+            s += 1
+            p0 = S[5][r]
+            for p in range(p0, p0 + c - 1):
+                T[5][s] = S[7][p]
+                T[6][s] = S[8][p]
+                T[7][s] = S[9][p]
+                T[8][s] = S[10][p]
+                s += 1
+    ts[TS_NG] = ng
+    ts[TS_NS] = s
+    ts[TS_NGL] = 0
+    T[9][mv] = ts[TS_NF]
+    T[10][mv] = ng
+    T[11][mv] = s
+    ts[TS_FSTART] = ts[TS_NF]
+    ts[TS_OPEN] = -1
+    return True
+
+
+@nb.njit(cache=True, inline="always")
+def _trace_due(ts, mv):
+    """After closing move ``mv``: has the event count reached the next keyframe?"""
+    if ts[TS_NF] + ts[TS_NG] >= ts[TS_NEXT_DUE]:
+        ts[TS_KEY_MOVE] = mv
+        return True
+    return False
+
+
 @nb.njit(cache=True)
 def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps, probe,
-                     record, journal, removed, B, state, top_bound=np.inf):
+                     record, journal, removed, B, state, trace, T, ts, top_bound=np.inf):
     """Sweep the body ``tp`` along each straight tip move ``P0[k] -> P1[k]`` and cut it.
 
     S: store tuple; grid rays at ``(gx0 + i*sp, gy0 + j*sp)``, ``nu x nv`` of them.
@@ -669,6 +813,10 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     where it stopped.
     A move's entries are closed when the next move starts (segments of one move are
     consecutive), so the journal holds each ray as it was after the whole move.
+    trace: write z-trace events into ``T`` as the rays change (state ``ts``; see
+    :func:`finish_trace_move`); also returns STOP_TRACE (grow ``T`` as ``ts`` says, call
+    again) and TRACE_KEYFRAME (a keyframe fell due after move ``ts[TS_KEY_MOVE]``: take it
+    from the model as it is now, call again).
     top_bound: no material anywhere lies above this (mm; ``inf`` when unknown).
 
     A move that starts exactly where the batch's previous move ended skips the rays
@@ -702,6 +850,14 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     mc = state[4]
     out_ray = B[0]
     s_top = B[8]
+    t_ray = T[0]
+    t_val = T[1]
+    t_id = T[2]
+    t_mark = T[12]
+    t_slot = T[13]
+    t_gen = T[14]
+    nf = ts[TS_NF]
+    ngl = ts[TS_NGL]
     cap = 4096
     buf_lo = np.empty(cap, np.float32)
     buf_hi = np.empty(cap, np.float32)
@@ -709,14 +865,38 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     row_ilo = np.empty(nv + 1, np.int64)
     row_off = np.empty(nv + 2, np.int64)
     for k in range(k0, n):
+        if trace and ts[TS_OPEN] >= 0 and ts[TS_OPEN] != seg_move[k]:
+            done = ts[TS_OPEN]
+            ts[TS_NF] = nf
+            ts[TS_NGL] = ngl
+            ok = finish_trace_move(S, T, ts)
+            nf = ts[TS_NF]
+            ngl = ts[TS_NGL]
+            if not ok:
+                _tsync(ts, nf, ngl)
+                _save(state, k, -1, -1, nout, mc)
+                return STOP_TRACE
+            if record and mc > 0:
+                nout = finish_move(S, B, done, nout, mc, False, state)
+                mc = 0
+            if _trace_due(ts, done):
+                _tsync(ts, nf, ngl)
+                _save(state, k, -1, -1, nout, mc)
+                return TRACE_KEYFRAME
         if (record and k > 0 and seg_move[k] != seg_move[k - 1]
                 and not (k == k0 and j_resume >= 0) and mc > 0):
             w = finish_move(S, B, seg_move[k - 1], nout, mc, journal, state)
             if w < 0:
+                _tsync(ts, nf, ngl)
                 _save(state, k, -1, -1, nout, mc)
                 return STOP_JOURNAL
             nout = w
             mc = 0
+        if trace:
+            ts[TS_OPEN] = seg_move[k]
+        # a move of several segments (arc chords) may change a ray more than once
+        multi = (k > 0 and seg_move[k - 1] == seg_move[k]) or (k + 1 < n and seg_move[k + 1] == seg_move[k])
+        key = 2 * (ts[TS_BLK0] + seg_move[k])
         x0 = P0[k, 0]
         y0 = P0[k, 1]
         z0 = P0[k, 2]
@@ -823,10 +1003,16 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                     removed[mv] += overlap_length(S, r, lo, hi)
                     continue
                 if record and (nout + mc >= out_ray.size or mc >= s_top.size):
+                    _tsync(ts, nf, ngl)
                     _save(state, k, j, i, nout, mc)
                     return STOP_CHANGES
+                if trace and (nf >= t_ray.size or ngl >= t_gen.size):
+                    _tsync(ts, nf, ngl)
+                    _save(state, k, j, i, nout, mc)
+                    return STOP_TRACE
                 top_before = f_
                 got = -2.0
+                far_only = False
                 if c == 1:
                     keep_low = lo - n_ > eps
                     keep_high = f_ - hi > eps
@@ -835,6 +1021,7 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                             far[r] = np.float32(lo)
                             far_id[r] = fid
                             got = f_ - lo
+                            far_only = True
                         else:
                             cnt[r] = 0
                             got = f_ - n_
@@ -847,10 +1034,22 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                         top_before = ds.ray_top(S, r)
                     got = ds.subtract_interval(S, r, lo, hi, fid, eps)
                     if got == ds.POOL_FULL:
+                        _tsync(ts, nf, ngl)
                         _save(state, k, j, i, nout, mc)
                         return STOP_POOL
                 if got > 0.0:
                     removed[mv] += got
+                    if trace:
+                        if far_only and not multi:  # the common case: each ray once
+                            t_ray[nf] = r
+                            t_val[nf] = far[r]
+                            t_id[nf] = fid
+                            nf += 1
+                        elif far_only:
+                            nf = _trace_far(t_ray, t_val, t_id, t_mark, t_slot, key, True, r, far[r],
+                                            fid, nf)
+                        else:
+                            ngl = _trace_general(t_ray, t_mark, t_slot, t_gen, ts, key, r, ngl)
                     if record:
                         # the one-segment cases leave the top at ``f_ - got`` or keep it
                         dep = got
@@ -861,13 +1060,20 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                                 dep = top_before - np.float64(t2)
                         _log_change(B, nout, mc, r, top_before, got, dep)
                         mc += 1
+    _tsync(ts, nf, ngl)
+    if trace and not finish_trace_move(S, T, ts):
+        _tsync(ts, nf, ngl)
+        _save(state, n, -1, -1, nout, mc)
+        return STOP_TRACE
     if record and mc > 0:
         w = finish_move(S, B, seg_move[n - 1], nout, mc, journal, state)
         if w < 0:
+            _tsync(ts, nf, ngl)
             _save(state, n, -1, -1, nout, mc)
             return STOP_JOURNAL
         nout = w
         mc = 0
+    _tsync(ts, nf, ngl)
     _save(state, n, -1, -1, nout, mc)
     return DONE
 
@@ -1007,7 +1213,7 @@ def pose_intervals(prof, tip, axis, px, py, out, buf):
 
 @nb.njit(cache=True)
 def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, probe, record,
-              journal, removed, B, state):
+              journal, removed, B, state, trace, T, ts):
     """Cut (or probe) one tool instance per row of ``tips``/``axes`` (frame-local, mm).
 
     Rays are at local ``(i*sp, j*sp)``. Other arguments and the return value as for
@@ -1026,15 +1232,45 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
     mc = state[4]
     out_ray = B[0]
     s_top = B[8]
+    t_ray = T[0]
+    t_val = T[1]
+    t_id = T[2]
+    t_mark = T[12]
+    t_slot = T[13]
+    t_gen = T[14]
+    nf = ts[TS_NF]
+    ngl = ts[TS_NGL]
     for k in range(k0, n):
+        if trace and ts[TS_OPEN] >= 0 and ts[TS_OPEN] != pose_move[k]:
+            done = ts[TS_OPEN]
+            ts[TS_NF] = nf
+            ts[TS_NGL] = ngl
+            ok = finish_trace_move(S, T, ts)
+            nf = ts[TS_NF]
+            ngl = ts[TS_NGL]
+            if not ok:
+                _tsync(ts, nf, ngl)
+                _save(state, k, -1, -1, nout, mc)
+                return STOP_TRACE
+            if record and mc > 0:
+                nout = finish_move(S, B, done, nout, mc, False, state)
+                mc = 0
+            if _trace_due(ts, done):
+                _tsync(ts, nf, ngl)
+                _save(state, k, -1, -1, nout, mc)
+                return TRACE_KEYFRAME
         if (record and k > 0 and pose_move[k] != pose_move[k - 1]
                 and not (k == k0 and j_resume >= 0) and mc > 0):
             w = finish_move(S, B, pose_move[k - 1], nout, mc, journal, state)
             if w < 0:
+                _tsync(ts, nf, ngl)
                 _save(state, k, -1, -1, nout, mc)
                 return STOP_JOURNAL
             nout = w
             mc = 0
+        if trace:
+            ts[TS_OPEN] = pose_move[k]
+        key = 2 * (ts[TS_BLK0] + pose_move[k])
         tip = tips[k]
         ax = axes[k]
         ua = tip[0] + bot_h * ax[0]
@@ -1062,9 +1298,17 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
                 if m == 0:
                     continue
                 if record and (nout + mc >= out_ray.size or mc >= s_top.size):
+                    _tsync(ts, nf, ngl)
                     _save(state, k, j, i, nout, mc)
                     return STOP_CHANGES
+                if trace and (nf >= t_ray.size or ngl >= t_gen.size):
+                    _tsync(ts, nf, ngl)
+                    _save(state, k, j, i, nout, mc)
+                    return STOP_TRACE
                 changed = False
+                c_before = S[0][r]
+                near_before = S[1][r]
+                nid_before = S[3][r]
                 top_before = ds.ray_top(S, r) if record else 0.0
                 got_sum = 0.0
                 for q in range(m):
@@ -1075,26 +1319,44 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
                         continue
                     got = ds.subtract_interval(S, r, lo, hi, fid, eps)
                     if got == ds.POOL_FULL:
+                        if changed and trace:
+                            ngl = _trace_general(t_ray, t_mark, t_slot, t_gen, ts, key, r, ngl)
+                        _tsync(ts, nf, ngl)
                         if changed and record:
                             _log_change(B, nout, mc, r, top_before, got_sum,
                                         _depth_after(S, r, top_before, got_sum))
                             mc += 1
+                        _tsync(ts, nf, ngl)
                         _save(state, k, j, i, nout, mc)
                         return STOP_POOL
                     if got > 0.0:
                         removed[mv] += got
                         got_sum += got
                         changed = True
+                if changed and trace:
+                    if (c_before == 1 and S[0][r] == 1 and S[1][r] == near_before
+                            and S[3][r] == nid_before):
+                        nf = _trace_far(t_ray, t_val, t_id, t_mark, t_slot, key, True, r, S[2][r],
+                                        S[4][r], nf)
+                    else:
+                        ngl = _trace_general(t_ray, t_mark, t_slot, t_gen, ts, key, r, ngl)
                 if changed and record:
                     _log_change(B, nout, mc, r, top_before, got_sum,
                                         _depth_after(S, r, top_before, got_sum))
                     mc += 1
+    _tsync(ts, nf, ngl)
+    if trace and not finish_trace_move(S, T, ts):
+        _tsync(ts, nf, ngl)
+        _save(state, n, -1, -1, nout, mc)
+        return STOP_TRACE
     if record and mc > 0:
         w = finish_move(S, B, pose_move[n - 1], nout, mc, journal, state)
         if w < 0:
+            _tsync(ts, nf, ngl)
             _save(state, n, -1, -1, nout, mc)
             return STOP_JOURNAL
         nout = w
         mc = 0
+    _tsync(ts, nf, ngl)
     _save(state, n, -1, -1, nout, mc)
     return DONE

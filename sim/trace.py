@@ -43,13 +43,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim import dexel_store as ds
+from sim import sweep_kernels as K
 from sim import trace_kernels as tk
 from sim.errors import InputError
 from sim.frame import Frame
 from sim.grid import DexelGrid
 from sim.tolerance import DEFAULT, Tolerance
 
-__all__ = ["ZTrace", "TimeTrace", "Trace", "same_model", "model_difference",
+__all__ = ["ZTrace", "TimeTrace", "SharedTimeTrace", "Trace", "same_model", "model_difference",
            "changed_rays_of", "frame_to_array", "frame_from_array"]
 
 
@@ -78,6 +79,15 @@ class _Column:
         advance ``n``)."""
         if self.n + m > self.buf.size:
             new = np.empty(max(2 * self.buf.size, self.n + m), self.buf.dtype)
+            new[:self.n] = self.buf[:self.n]
+            self.buf = new
+        return self.buf
+
+    def grow_to(self, m: int) -> np.ndarray:
+        """Capacity at least ``m`` (the new room is ``np.empty``: untouched pages cost no
+        memory until written, so a generous reserve is cheap). Returns the buffer."""
+        if m > self.buf.size:
+            new = np.empty(max(m, self.buf.size + self.buf.size // 2, 1024), self.buf.dtype)
             new[:self.n] = self.buf[:self.n]
             self.buf = new
         return self.buf
@@ -380,14 +390,16 @@ class ZTrace:
     Parameters
     ----------
     grid : DexelGrid
-        The model at ``stage``; the trace keeps its own copy (the state it last saw) so
-        :meth:`record` knows what each ray was before.
+        The model at ``stage``; the trace keeps a copy of it, and (from the first
+        :meth:`record` on) of the state it last saw, so :meth:`record` knows what each ray
+        was before.
     stage : int
         The stage of ``grid`` (normally 0: the stock).
     keyframe_every : int, optional
         A keyframe (a copy of the model) falls due after this many recorded ray changes;
-        default ``n_rays`` (far-only events replay at ~5 ns each, so a rebuild from the
-        nearest keyframe costs a few milliseconds). Keyframes are an in-memory index, not serialised. They are
+        default ``2 * n_rays`` (far-only events replay at ~3-5 ns each, so a rebuild from
+        the nearest keyframe costs under 10 ms; the shared time-trace starts from the same
+        keyframes). Keyframes are an in-memory index, not serialised. They are
         built a slice at a time by later record calls (:meth:`maintain`), never all at
         once on the recording path; keyframes between which only far-only edits happened
         share every array but the FarZ values and ids.
@@ -401,14 +413,12 @@ class ZTrace:
         self.frame = grid.frame
         self.tol = grid.tol
         self.n_rays = grid.frame.n_rays
-        self._mirror = grid.copy()
-        # one-segment rays live in this cache (the mirror is stale for them): one 16-byte
-        # read per journal entry decides the common far-only edit
-        self._rec = np.empty((self.n_rays, 4), np.int32)
-        self._recf = self._rec.view(np.float32)
-        tk.simple_rec_from_store(self._mirror.S, self._rec, self._recf)
+        # the model at the last stage, kept for diffing later records: made when first
+        # needed (a trace fed only by batch cuts never needs it; see _ensure_mirror)
+        self._mirror: DexelGrid | None = None
+        self._rec = self._recf = None
         self.first_stage = int(stage)
-        self.keyframe_every = int(keyframe_every or max(self.n_rays, 1))
+        self.keyframe_every = int(keyframe_every or max(2 * self.n_rays, 1))
         self.max_keyframes = int(max_keyframes)
         self._init = _store_snapshot(grid.store)
         self._keyframes = [_Keyframe(0, self.first_stage, self._init)]
@@ -438,6 +448,10 @@ class ZTrace:
         self._g_far = _Column(np.float32)
         self._g_nid = _Column(np.int32)
         self._g_fid = _Column(np.int32)
+        # per ray: the block and slot of its latest event while a batch cuts straight into
+        # the trace (see sink); made on first use
+        self._mark: np.ndarray | None = None
+        self._slot: np.ndarray | None = None
 
     # --- recording ------------------------------------------------------------------
     @property
@@ -523,7 +537,25 @@ class ZTrace:
             raise InputError("cut journal ray index beyond the frame")
         return self._ingest(ptr, rays, seg_ptr, cols, stages, budget=None)
 
+    def _ensure_mirror(self) -> None:
+        """Make the mirror (the model at the last stage, rebuilt from the nearest keyframe)
+        and its cache of one-segment rays (one 16-byte read per journal entry decides the
+        common far-only edit; the mirror is stale for the rays it holds)."""
+        if self._mirror is not None:
+            return
+        self._mirror = self.grid_at(self.last_stage)
+        self._rec = np.empty((self.n_rays, 4), np.int32)
+        self._recf = self._rec.view(np.float32)
+        tk.simple_rec_from_store(self._mirror.S, self._rec, self._recf)
+
+    def sink(self, grid: DexelGrid, n_moves: int, stages=None) -> "_Sink":
+        """Where a batch cut writes this trace's events as it cuts (``Cutter.cut_moves(...,
+        trace=...)``): one block per move, equal to cutting and recording each move alone.
+        ``grid`` is the model being cut, equal to the trace's last stage."""
+        return _Sink(self, grid, n_moves, stages)
+
     def _ingest(self, ptr, rays, seg_ptr, segs, stages, budget) -> int:
+        self._ensure_mirror()
         n_moves = ptr.size - 1
         n_entries, n_segs = rays.size, int(seg_ptr[-1])
         before = self.n_changes
@@ -611,6 +643,7 @@ class ZTrace:
 
     def _append_blocks(self, stage, f_n, g_n, f_ray, f_val, f_id, g_ray, g_count, gsegs) -> None:
         """Append decoded blocks in bulk, then bring the mirror (and keyframes) up to date."""
+        self._ensure_mirror()
         b0 = self.n_blocks
         self._stage.append(stage)
         self._f_ptr.append(self._f_ptr.a[-1] + np.cumsum(f_n))
@@ -761,6 +794,7 @@ class ZTrace:
 
     def current(self) -> DexelGrid:
         """A copy of the model at the last recorded stage."""
+        self._ensure_mirror()
         tk.sync_mirror(self._rec, self._recf, self._mirror.S)
         return self._mirror.copy()
 
@@ -975,6 +1009,106 @@ class ZTrace:
         used_f = int(f_end[good - 1]) if good else 0
         used_g = int(g_end[good - 1]) if good else 0
         return good == nb and used_f == f_have and used_g == g_have
+
+
+class _Sink:
+    """A batch cut writing straight into a :class:`ZTrace` (see :meth:`ZTrace.sink`).
+
+    The kernels (``sim.sweep_kernels``, trace sink) append far events and general
+    rewrites to the trace's own columns as rays change and close one block per move; this
+    object grows the columns when they fill, takes keyframes from the model being cut
+    when they fall due (a copy of the arrays that changed: no replay), and at the end
+    appends the block rows and brings the trace's mirror up to date.
+    """
+
+    def __init__(self, z: ZTrace, grid: DexelGrid, n_moves: int, stages):
+        if not grid.frame.same_rays(z.frame):
+            raise InputError("the traced grid is not on the trace's dexel frame")
+        self.z, self.grid, self.n = z, grid, int(n_moves)
+        self.stages = _batch_stages(z.last_stage, stages, self.n)
+        self.b0 = z.n_blocks
+        if z._mark is None:
+            z._mark = np.full(z.n_rays, -1, np.int64)
+            z._slot = np.zeros(z.n_rays, np.int64)
+        self.blk = [np.full(max(self.n, 1), -1, np.int64) for _ in range(3)]
+        self.gen = np.empty(4096, np.int64)
+        ts = self.ts = np.zeros(K.TRACE_STATE_SIZE, np.int64)
+        ts[K.TS_NF], ts[K.TS_NG], ts[K.TS_NS] = z._f_ray.n, z._g_ray.n, z._g_near.n
+        self.start = ts[:3].copy()
+        ts[K.TS_OPEN] = -1
+        ts[K.TS_FSTART] = ts[K.TS_NF]
+        ts[K.TS_BLK0] = self.b0
+        # keyframes are taken inline unless keyframe work from earlier records is pending
+        self.inline = z.auto_maintain and not z._due and z._builder is None
+        ts[K.TS_NEXT_DUE] = z._next_due if self.inline else np.iinfo(np.int64).max
+        self.g_at_key = int(z._g_ptr.a[z._keyframes[-1].block]) if z._keyframes[-1].block <= self.b0 else 0
+        self.cols = (z._f_ray, z._f_val, z._f_id, z._g_ray, z._g_count,
+                     z._g_near, z._g_far, z._g_nid, z._g_fid)
+        self.reserve(64 * self.n)
+        for c in self.cols[3:]:
+            c.grow_to(c.n + 1024)
+
+    def reserve(self, n_changes: int) -> None:
+        """Room for about ``n_changes`` more far events (the cutter's bound from the rays
+        the moves can reach), so the columns rarely grow while the kernels run."""
+        self._sync_counts()
+        for c in self.cols[:3]:
+            c.grow_to(c.n + int(n_changes) + 4096)
+
+    def _sync_counts(self) -> None:
+        """The columns' fill counts from the kernels' state (growing keeps what is filled)."""
+        ts = self.ts
+        for c, k in zip(self.cols, (K.TS_NF,) * 3 + (K.TS_NG,) * 2 + (K.TS_NS,) * 4):
+            c.n = int(ts[k])
+
+    def buffers(self) -> tuple:
+        return (*(c.buf for c in self.cols), *self.blk, self.z._mark, self.z._slot, self.gen)
+
+    def grow(self) -> None:
+        ts = self.ts
+        self._sync_counts()
+        f_ray = self.cols[0]
+        if ts[K.TS_NF] >= f_ray.buf.size:
+            for c in self.cols[:3]:
+                c.grow_to(2 * c.buf.size)
+        if ts[K.TS_NGL] >= self.gen.size:
+            self.gen = np.concatenate([self.gen, np.empty(self.gen.size, np.int64)])
+        if ts[K.TS_NEED_G] > self.cols[3].buf.size:
+            for c in self.cols[3:5]:
+                c.grow_to(int(ts[K.TS_NEED_G]) * 2)
+        if ts[K.TS_NEED_S] > self.cols[5].buf.size:
+            for c in self.cols[5:]:
+                c.grow_to(int(ts[K.TS_NEED_S]) * 2)
+
+    def keyframe(self) -> None:
+        """A keyframe fell due after move ``ts[TS_KEY_MOVE]``: snapshot the model now."""
+        self._snapshot(int(self.ts[K.TS_KEY_MOVE]))
+
+    def _snapshot(self, mv: int) -> None:
+        z, ts = self.z, self.ts
+        prev = z._keyframes[-1]
+        ng = int(ts[K.TS_NG])
+        general = ng > self.g_at_key
+        z._add_keyframe(_Keyframe(self.b0 + mv + 1, int(self.stages[mv]),
+                                  _snapshot_sharing(self.grid.store, prev.data, general)))
+        self.g_at_key = ng
+        z._next_due = int(ts[K.TS_NF] + ts[K.TS_NG]) + z.keyframe_every
+        ts[K.TS_NEXT_DUE] = z._next_due
+
+    def end(self) -> None:
+        """Append the block rows, sync the mirror, trim the columns."""
+        z, ts = self.z, self.ts
+        ends = []
+        for blk, start in zip(self.blk, self.start):
+            e = np.where(blk[:self.n] < 0, start, blk[:self.n])
+            ends.append(np.maximum.accumulate(e) if e.size else e)
+        self._sync_counts()
+        if self.n and self.inline and int(ts[K.TS_NF] + ts[K.TS_NG]) >= z._next_due:
+            self._snapshot(self.n - 1)
+        # the mirror is stale: rebuilt from the keyframes if a later record needs it
+        z._mirror = None
+        z._rec = z._recf = None
+        z._close_blocks(self.stages, *ends, budget=0)
 
 
 # --- the time-trace -----------------------------------------------------------------------
@@ -1210,6 +1344,24 @@ class TimeTrace:
         """The visible surface at ``stage``: heights (nv, nu) float32 mm, NaN where empty."""
         return self.state_at(stage, out)[0]
 
+    def removal_per_block(self, bottoms) -> tuple[np.ndarray, np.ndarray]:
+        """(stages (B,) int64, volume taken from the top in each block (B,) mm^3).
+
+        bottoms: a callable returning each ray's lowest material (n_rays,) mm at the first
+        stage (where a ray emptied in a block falls to); called only when needed. Exact
+        for material taken from the top of each ray (3-axis milling); material removed
+        under an overhang is not seen from above.
+        """
+        ptr = self._ptr.a
+        drop = np.nan_to_num(self._prev.a, nan=0.0).astype(np.float64) - np.nan_to_num(self._val.a, nan=0.0)
+        empty_now = np.isnan(self._val.a)
+        if empty_now.any():
+            lo = np.asarray(bottoms(), np.float64)[self._ray.a[empty_now]]
+            drop[empty_now] = np.nan_to_num(self._prev.a[empty_now], nan=0.0) - lo
+        cs = np.concatenate([[0.0], np.cumsum(drop)])
+        per_block = cs[ptr[1:]] - cs[ptr[:-1]]
+        return self._stage.a.copy(), per_block * self.frame.spacing ** 2
+
     def keyframe_nbytes(self) -> int:
         return int(sum(k.data[0].nbytes + k.data[1].nbytes for k in self._keyframes[1:]))
 
@@ -1351,6 +1503,159 @@ class TimeTrace:
                     self.keyframe_every *= 2
 
 
+class SharedTimeTrace(TimeTrace):
+    """The time-trace of a :class:`ZTrace`, sharing its events (one log, two indexes).
+
+    A z-trace's far-only events (rule 5) *are* time elements: the new last FarZ of a ray
+    and its face id. Its general rewrites carry their new top too (the last FarZ of the
+    segment list, NaN when emptied). So the pictures of rule 6 need no log of their own:
+    this class reads the z-trace's columns, starts from its keyframes (the tops of a
+    keyframe's store, computed when first used and the last few kept), and applies the
+    events in between in one compiled loop. Recording goes through the z-trace; nothing
+    of this trace is serialised but a marker (``shared``).
+    """
+
+    #: tops of this many z keyframes are kept (8 bytes per ray each)
+    CACHED_KEYS = 3
+
+    def __init__(self, z: ZTrace):  # noqa: D107 - no TimeTrace state of its own
+        self._z = z
+        self.frame = z.frame
+        self.n_rays = z.n_rays
+        self.first_stage = z.first_stage
+        self.auto_maintain = True
+        self.truncated = False
+        self._cursors: dict[int, tuple] = {}
+        self._tops: dict[int, tuple] = {}  # id of a keyframe's data -> (data, top, tid)
+
+    # the log is the z-trace's
+    @property
+    def n_blocks(self) -> int:
+        return self._z.n_blocks
+
+    @property
+    def stages(self) -> np.ndarray:
+        return self._z.stages
+
+    @property
+    def last_stage(self) -> int:
+        return self._z.last_stage
+
+    @property
+    def n_changes(self) -> int:
+        return self._z.n_changes
+
+    @property
+    def _keyframes(self) -> list:
+        return self._z._keyframes
+
+    @property
+    def _init(self) -> tuple:
+        return self._key_tops(self._z._keyframes[0])
+
+    def _blocks_upto(self, stage: int) -> int:
+        return self._z._blocks_upto(stage)
+
+    def record(self, grid, rays=None, stage=None) -> int:
+        raise InputError("a shared time-trace is recorded through its z-trace")
+
+    record_journal = record_heights = record
+
+    def maintain(self, budget: int | None = None) -> bool:
+        return True
+
+    def nbytes(self) -> int:
+        return 0
+
+    def keyframe_nbytes(self) -> int:
+        return int(sum(t.nbytes + i.nbytes for _, t, i in self._tops.values()))
+
+    def _key_tops(self, key: _Keyframe) -> tuple[np.ndarray, np.ndarray]:
+        hit = self._tops.get(id(key.data))
+        if hit is not None and hit[0] is key.data:
+            return hit[1], hit[2]
+        d = key.data
+        top = np.empty(self.n_rays, np.float32)
+        tid = np.empty(self.n_rays, np.int32)
+        tk.tops_of_store(d["count"], d["far"], d["far_id"], d["xstart"], d["pool_far"],
+                         d["pool_far_id"], top, tid)
+        if len(self._tops) >= self.CACHED_KEYS:
+            self._tops.pop(next(iter(self._tops)))
+        self._tops[id(d)] = (d, top, tid)
+        return top, tid
+
+    def _apply(self, top: np.ndarray, tid: np.ndarray, b0: int, b1: int) -> None:
+        z = self._z
+        if b1 > b0:
+            tk.apply_tops(top, tid, b0, b1, z._f_ptr.a, z._f_ray.a, z._f_val.a, z._f_id.a,
+                          z._g_ptr.a, z._gs_ptr.a, z._g_ray.a, z._g_count.a, z._g_far.a, z._g_fid.a)
+
+    def state_at(self, stage: int, out: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """As :meth:`TimeTrace.state_at`. With ``out`` last filled by this trace, going
+        forwards applies only the events in between when that is cheaper than starting
+        from the nearest keyframe; going backwards starts from the keyframe."""
+        import weakref
+        z = self._z
+        b = z._blocks_upto(stage)
+        key = z._key_for(b)
+        if out is None:
+            top, tid = (x.copy() for x in self._key_tops(key))
+            self._apply(top, tid, key.block, b)
+            return top.reshape(self.frame.shape), tid.reshape(self.frame.shape)
+        top, tid = (np.asarray(x).reshape(-1) for x in out)
+        if top.size != self.n_rays or tid.size != self.n_rays or top.dtype != np.float32 \
+                or tid.dtype != np.int32 or not (np.shares_memory(top, out[0]) and np.shares_memory(tid, out[1])):
+            raise InputError(f"state_at: out must be float32 and int32 arrays of {self.n_rays} values")
+        cur = self._cursors.get(id(out[0]))
+        cur_b = cur[2] if cur is not None and cur[0]() is out[0] and cur[1]() is out[1] else None
+        if cur_b is not None and key.block <= cur_b <= b \
+                and z._events(cur_b, b) <= z._events(key.block, b) + self.n_rays // 4:
+            start = cur_b
+        else:
+            kt, ki = self._key_tops(key)
+            np.copyto(top, kt)
+            np.copyto(tid, ki)
+            start = key.block
+        self._apply(top, tid, start, b)
+        if len(self._cursors) > 64:
+            self._cursors = {k: v for k, v in self._cursors.items() if v[0]() is not None}
+        self._cursors[id(out[0])] = (weakref.ref(out[0]), weakref.ref(out[1]), b)
+        return out
+
+    def frames(self, first: int, last: int, step: int = 1):
+        """As :meth:`TimeTrace.frames`; backwards each frame starts from a keyframe."""
+        step = max(1, int(step))
+        shape = self.frame.shape
+        buf = (np.empty(shape, np.float32), np.empty(shape, np.int32))
+        cur = int(first)
+        self.state_at(cur, buf)
+        yield cur, buf[0], buf[1]
+        direction = 1 if last >= first else -1
+        while cur != last:
+            nxt = cur + direction * step
+            cur = min(nxt, last) if direction > 0 else max(nxt, last)
+            self.state_at(cur, buf)
+            yield cur, buf[0], buf[1]
+
+    def removal_per_block(self, bottoms) -> tuple[np.ndarray, np.ndarray]:
+        """As :meth:`TimeTrace.removal_per_block`: one pass over the z-trace's events."""
+        z = self._z
+        top = self._init[0].copy()
+        out = np.zeros(z.n_blocks)
+        tk.surface_drops(top, np.asarray(bottoms(), np.float64), z._f_ptr.a, z._f_ray.a, z._f_val.a,
+                         z._g_ptr.a, z._gs_ptr.a, z._g_ray.a, z._g_count.a, z._g_far.a, out)
+        return z.stages, out * self.frame.spacing ** 2
+
+    def header_arrays(self) -> dict[str, np.ndarray]:
+        return {"shared": np.array([1], np.int8)}
+
+    def chunk_since(self, stage: int | None = None) -> dict[str, np.ndarray]:
+        return {}
+
+    def _blocks_arrays(self, b0: int, b1: int) -> dict[str, np.ndarray]:
+        return {}
+
+
 # --- both traces together -----------------------------------------------------------------
 
 class Trace:
@@ -1362,10 +1667,15 @@ class Trace:
     """
 
     def __init__(self, grid: DexelGrid, stage: int = 0, z: bool = True, time: bool = True,
-                 keyframe_every: int | None = None, auto_maintain: bool = True):
+                 keyframe_every: int | None = None, auto_maintain: bool = True,
+                 shared_time: bool = True):
         self.frame = grid.frame
         self.z = ZTrace(grid, stage, keyframe_every) if z else None
-        self.t = TimeTrace(grid, stage, keyframe_every=keyframe_every) if time else None
+        if time and self.z is not None and shared_time:
+            # the time elements are the z-trace's events: one log, read two ways
+            self.t = SharedTimeTrace(self.z)
+        else:
+            self.t = TimeTrace(grid, stage, keyframe_every=keyframe_every) if time else None
         # auto_maintain False: record calls never build keyframes; call maintain() when idle
         for tr in (self.z, self.t):
             if tr is not None:
@@ -1382,13 +1692,24 @@ class Trace:
     def truncated(self) -> bool:
         return bool((self.z and self.z.truncated) or (self.t and self.t.truncated))
 
+    @property
+    def _own_t(self) -> bool:
+        """Whether the time-trace keeps a log of its own (not shared with the z-trace)."""
+        return self.t is not None and not isinstance(self.t, SharedTimeTrace)
+
     def record(self, grid: DexelGrid, rays=None, stage: int | None = None) -> None:
         if stage is None:
             stage = self.last_stage + 1
         if self.z is not None:
             self.z.record(grid, rays, stage)
-        if self.t is not None:
+        if self._own_t:
             self.t.record(grid, rays, stage)
+
+    def sink(self, grid: DexelGrid, n_moves: int, stages=None):
+        """Where ``Cutter.cut_moves(..., trace=self)`` writes (see :meth:`ZTrace.sink`)."""
+        if self.z is None or self._own_t:
+            raise InputError("cutting straight into a trace needs a z-trace with a shared time-trace")
+        return self.z.sink(grid, n_moves, stages)
 
     def record_cut(self, grid: DexelGrid, cut_result, stage: int | None = None) -> None:
         """Record a ``sim.cut.CutResult`` (all its moves) as one stage."""
@@ -1418,7 +1739,7 @@ class Trace:
         if self.z is not None:
             self.z.record_journal(j.changed_ptr, j.changed_rays, j.journal_seg_ptr, j.journal_near,
                                   j.journal_far, j.journal_near_id, j.journal_far_id, stages)
-        if self.t is not None:
+        if self._own_t:
             self.t.record_journal(j.changed_ptr, j.changed_rays, j.journal_seg_ptr, j.journal_far,
                                   j.journal_far_id, stages)
 
@@ -1428,7 +1749,7 @@ class Trace:
         done = True
         if self.z is not None:
             done &= self.z.maintain(budget)
-        if self.t is not None:
+        if self._own_t:
             done &= self.t.maintain(budget)
         return done
 
@@ -1489,10 +1810,17 @@ class Trace:
         tc = [c for c in tc if c]
         self = cls.__new__(cls)
         self.z = ZTrace.from_chunks(zc, where + " (z)") if zc else None
-        self.t = TimeTrace.from_chunks(tc, where + " (time)") if tc else None
+        shared = bool(tc) and "shared" in tc[0]
+        if shared and self.z is None:
+            raise InputError("the time-trace shares the z-trace's events, but there is no z-trace", where)
+        if shared:
+            self.t = SharedTimeTrace(self.z)
+            self.t.truncated = self.z.truncated
+        else:
+            self.t = TimeTrace.from_chunks(tc, where + " (time)") if tc else None
         if self.z is None and self.t is None:
             raise InputError("no trace recorded", where)
-        if self.z is not None and self.t is not None:
+        if self.z is not None and self._own_t:
             # a stage is complete only when both traces hold it
             last = min(self.z.last_stage, self.t.last_stage)
             self.z, self.t = _cut_to(self.z, last), _cut_to(self.t, last)

@@ -520,3 +520,91 @@ def top_changes_journal_packed(ptr, rays, seg_ptr, jfb, jfi, cur, out_ray, out_t
             m += 1
         blk[k] = m
     return m
+
+
+@nb.njit(cache=True)
+def tops_of_store(count, far, far_id, xstart, pool_far, pool_far_id, top, top_id):
+    """Every ray's top (last FarZ; NaN where empty) and its face id (0 where empty), from a
+    store's fields (a keyframe's or a grid's)."""
+    for r in range(count.size):
+        k = count[r] - 1
+        if k == 0:
+            top[r] = far[r]
+            top_id[r] = far_id[r]
+        elif k > 0:
+            p = xstart[r] + k - 1
+            top[r] = pool_far[p]
+            top_id[r] = pool_far_id[p]
+        else:
+            top[r] = np.nan
+            top_id[r] = 0
+
+
+@nb.njit(cache=True)
+def apply_tops(top, top_id, b0, b1, f_ptr, f_ray, f_val, f_id, g_ptr, gs_ptr, g_ray, g_count,
+               g_far, g_fid):
+    """The visible surface (rule 6) carried from block ``b0`` to ``b1`` by a z-trace's events:
+    per block, each general rewrite's new top (its last FarZ, NaN if it emptied the ray),
+    then the far-only edits (disjoint rays within a block, as :func:`replay_blocks`). Runs
+    of blocks without general rewrites are one loop over their far events."""
+    b = b0
+    while b < b1:
+        e = b
+        while e < b1 and g_ptr[e + 1] == g_ptr[e]:
+            e += 1
+        # blocks b .. e-1 are far-only
+        for q in range(f_ptr[b], f_ptr[e]):
+            r = f_ray[q]
+            top[r] = f_val[q]
+            top_id[r] = f_id[q]
+        if e >= b1:
+            break
+        s = gs_ptr[e]
+        for q in range(g_ptr[e], g_ptr[e + 1]):
+            c = g_count[q]
+            r = g_ray[q]
+            if c == 0:
+                top[r] = np.nan
+                top_id[r] = 0
+            else:
+                top[r] = g_far[s + c - 1]
+                top_id[r] = g_fid[s + c - 1]
+            s += c
+        for q in range(f_ptr[e], f_ptr[e + 1]):
+            r = f_ray[q]
+            top[r] = f_val[q]
+            top_id[r] = f_id[q]
+        b = e + 1
+
+
+@nb.njit(cache=True, inline="always")
+def _drop(old, new, bottom):
+    """How far a ray's visible surface went down (mm): from ``old`` (NaN: nothing there)
+    to ``new`` (NaN: emptied, so down to ``bottom``)."""
+    a = 0.0 if np.isnan(old) else np.float64(old)
+    b = bottom if np.isnan(new) else np.float64(new)
+    return a - b
+
+
+@nb.njit(cache=True)
+def surface_drops(top, bottom, f_ptr, f_ray, f_val, g_ptr, gs_ptr, g_ray, g_count, g_far, out):
+    """Per block of a z-trace, the summed drop of the visible surface over its rays (mm;
+    times the cell area, the volume taken from the top). ``top`` (n_rays,) float32 holds
+    the tops before block 0 and is carried to the end; ``bottom`` (n_rays,) float64 is
+    each ray's lowest material (where an emptied ray's surface falls to); ``out`` float64
+    (n_blocks,). General rewrites apply before far events, as in :func:`apply_tops`."""
+    for b in range(out.size):
+        acc = 0.0
+        s = gs_ptr[b]
+        for q in range(g_ptr[b], g_ptr[b + 1]):
+            r = g_ray[q]
+            c = g_count[q]
+            new = np.float32(np.nan) if c == 0 else g_far[s + c - 1]
+            s += c
+            acc += _drop(top[r], new, bottom[r])
+            top[r] = new
+        for q in range(f_ptr[b], f_ptr[b + 1]):
+            r = f_ray[q]
+            acc += _drop(top[r], f_val[q], bottom[r])
+            top[r] = f_val[q]
+        out[b] = acc
