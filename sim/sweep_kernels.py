@@ -57,10 +57,10 @@ STATE_SIZE = 7
 #: general events written, their segments written, general rays of the open move, the open
 #: move (-1: none), its first far event, its far events voided, the batch's first block,
 #: the event count at which a keyframe falls due, the move after which it fell due, and
-#: what a STOP_TRACE needs (far events, general events, segments)
+#: what a STOP_TRACE needs (far events, general events, segments, general-ray scratch)
 (TS_NF, TS_NG, TS_NS, TS_NGL, TS_OPEN, TS_FSTART, TS_DEAD, TS_BLK0, TS_NEXT_DUE, TS_KEY_MOVE,
- TS_NEED_F, TS_NEED_G, TS_NEED_S) = range(13)
-TRACE_STATE_SIZE = 13
+ TS_NEED_F, TS_NEED_G, TS_NEED_S, TS_NEED_GEN) = range(14)
+TRACE_STATE_SIZE = 14
 
 
 
@@ -786,6 +786,23 @@ def finish_trace_move(S, T, ts):
 
 
 @nb.njit(cache=True, inline="always")
+def _close_block(S, T, ts, blk_f, blk_g, blk_s):
+    """:func:`finish_trace_move`, with the usual move (far events only, none voided) closed
+    here: passing the store and column tuples to a call costs more than the work."""
+    mv = ts[TS_OPEN]
+    if mv < 0:
+        return True
+    if ts[TS_NGL] == 0 and ts[TS_DEAD] == 0:
+        blk_f[mv] = ts[TS_NF]
+        blk_g[mv] = ts[TS_NG]
+        blk_s[mv] = ts[TS_NS]
+        ts[TS_FSTART] = ts[TS_NF]
+        ts[TS_OPEN] = -1
+        return True
+    return finish_trace_move(S, T, ts)
+
+
+@nb.njit(cache=True, inline="always")
 def _trace_due(ts, mv):
     """After closing move ``mv``: has the event count reached the next keyframe?"""
     if ts[TS_NF] + ts[TS_NG] >= ts[TS_NEXT_DUE]:
@@ -856,6 +873,9 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     t_mark = T[12]
     t_slot = T[13]
     t_gen = T[14]
+    t_bf = T[9]
+    t_bg = T[10]
+    t_bs = T[11]
     nf = ts[TS_NF]
     ngl = ts[TS_NGL]
     cap = 4096
@@ -869,7 +889,7 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
             done = ts[TS_OPEN]
             ts[TS_NF] = nf
             ts[TS_NGL] = ngl
-            ok = finish_trace_move(S, T, ts)
+            ok = _close_block(S, T, ts, t_bf, t_bg, t_bs)
             nf = ts[TS_NF]
             ngl = ts[TS_NGL]
             if not ok:
@@ -956,6 +976,16 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
             row_ilo[jj] = ilo
             row_off[jj + 1] = row_off[jj] + max(ihi - ilo + 1, 0)
         total = row_off[nrows]
+        # room for every ray within reach to change, checked once per segment (not per ray)
+        if trace and (nf + total > t_ray.size or ngl + total > t_gen.size):
+            ts[TS_NEED_F] = nf + total
+            ts[TS_NEED_GEN] = ngl + total
+            _tsync(ts, nf, ngl)
+            if k == k0 and j_resume >= 0:
+                _save(state, k, j_resume, i_resume, nout, mc)
+            else:
+                _save(state, k, -1, -1, nout, mc)
+            return STOP_TRACE
         if total > buf_lo.size:
             cap = max(total, 2 * buf_lo.size)
             buf_lo = np.empty(cap, np.float32)
@@ -1006,10 +1036,6 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                     _tsync(ts, nf, ngl)
                     _save(state, k, j, i, nout, mc)
                     return STOP_CHANGES
-                if trace and (nf >= t_ray.size or ngl >= t_gen.size):
-                    _tsync(ts, nf, ngl)
-                    _save(state, k, j, i, nout, mc)
-                    return STOP_TRACE
                 top_before = f_
                 got = -2.0
                 far_only = False
@@ -1061,7 +1087,7 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                         _log_change(B, nout, mc, r, top_before, got, dep)
                         mc += 1
     _tsync(ts, nf, ngl)
-    if trace and not finish_trace_move(S, T, ts):
+    if trace and not _close_block(S, T, ts, t_bf, t_bg, t_bs):
         _tsync(ts, nf, ngl)
         _save(state, n, -1, -1, nout, mc)
         return STOP_TRACE
@@ -1238,6 +1264,9 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
     t_mark = T[12]
     t_slot = T[13]
     t_gen = T[14]
+    t_bf = T[9]
+    t_bg = T[10]
+    t_bs = T[11]
     nf = ts[TS_NF]
     ngl = ts[TS_NGL]
     for k in range(k0, n):
@@ -1245,7 +1274,7 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
             done = ts[TS_OPEN]
             ts[TS_NF] = nf
             ts[TS_NGL] = ngl
-            ok = finish_trace_move(S, T, ts)
+            ok = _close_block(S, T, ts, t_bf, t_bg, t_bs)
             nf = ts[TS_NF]
             ngl = ts[TS_NGL]
             if not ok:
@@ -1345,7 +1374,7 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
                                         _depth_after(S, r, top_before, got_sum))
                     mc += 1
     _tsync(ts, nf, ngl)
-    if trace and not finish_trace_move(S, T, ts):
+    if trace and not _close_block(S, T, ts, t_bf, t_bg, t_bs):
         _tsync(ts, nf, ngl)
         _save(state, n, -1, -1, nout, mc)
         return STOP_TRACE

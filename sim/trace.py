@@ -8,6 +8,10 @@
 * :class:`TimeTrace` (the *fast* trace, rule 6): the history of the visible surface (the
   last FarZ and the id of the move that made it) of each ray; the heights picture at any
   stage, and animation forwards and backwards in time proportional to the changes shown.
+  Beside a z-trace it is a :class:`SharedTimeTrace`: the z-trace's far-only events *are*
+  time elements and its general rewrites carry their new top, so the two traces are one
+  log read two ways (half the memory, half the recording work). A stand-alone
+  :class:`TimeTrace` (own log, with rewind links) remains for heights without a model.
 * Beyond the paper: periodic keyframes, so a rebuild costs the changes since the nearest
   keyframe rather than the length of the run. They are built a slice at a time by later
   record calls (or :meth:`Trace.maintain`), so no record call spikes, and share the
@@ -17,11 +21,17 @@
   for (or restore the nearest keyframe when that is cheaper): a viewer scrubbing a run
   pays a few milliseconds per stage.
 
-Recording. :meth:`Trace.record` diffs the given rays of a model against the trace's own
-copy (the *mirror*) in one compiled pass; :meth:`Trace.record_batch` does the same from a
-batch cut's journal (``Cutter.cut_moves(..., journal=True)``: every changed ray's
-segments after each move), giving each move its own stage exactly as if it had been cut
-and recorded alone, at the cost of one pass over the journal.
+Recording, three ways, each giving the same log:
+
+* ``Cutter.cut_moves(moves, trace=tr)``: the cut kernels write the events as the rays
+  change (one block per move, as if each move were cut and recorded alone) and the
+  keyframes are copies of the model being cut as they fall due. The cheapest way: the
+  batch pays for storing its events, not for finding them again.
+* :meth:`Trace.record` diffs the given rays of a model against the trace's own copy (the
+  *mirror*, made on first use) in one compiled pass: the live monitor's pattern, where
+  the model is cut a poll at a time by other code.
+* :meth:`Trace.record_batch` does the same from a batch cut's journal
+  (``Cutter.cut_moves(..., journal=True)``).
 
 Stages are integers chosen by the caller (a move number, a sync step ...) that never
 decrease from one :meth:`record` to the next; stage ``n`` means "after every record with
@@ -1068,11 +1078,15 @@ class _Sink:
         ts = self.ts
         self._sync_counts()
         f_ray = self.cols[0]
-        if ts[K.TS_NF] >= f_ray.buf.size:
+        need_f = max(int(ts[K.TS_NF]) + 1, int(ts[K.TS_NEED_F]))
+        if need_f > f_ray.buf.size:
             for c in self.cols[:3]:
-                c.grow_to(2 * c.buf.size)
-        if ts[K.TS_NGL] >= self.gen.size:
-            self.gen = np.concatenate([self.gen, np.empty(self.gen.size, np.int64)])
+                c.grow_to(max(2 * c.buf.size, need_f))
+        need_gen = max(int(ts[K.TS_NGL]) + 1, int(ts[K.TS_NEED_GEN]))
+        if need_gen > self.gen.size:
+            gen = np.empty(max(2 * self.gen.size, need_gen), np.int64)
+            gen[:self.gen.size] = self.gen
+            self.gen = gen
         if ts[K.TS_NEED_G] > self.cols[3].buf.size:
             for c in self.cols[3:5]:
                 c.grow_to(int(ts[K.TS_NEED_G]) * 2)
