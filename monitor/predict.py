@@ -494,13 +494,22 @@ class LiveChecks:
             self.wco = w
             self.checker.limits = limits_in_work(self.limits, w)
 
-    def cut(self, points: np.ndarray, rows: np.ndarray, spindle_rpm: float | None = None):
+    def cut(self, points: np.ndarray, rows: np.ndarray, spindle_rpm: float | None = None,
+            arrived_row: int | None = None):
         """Cut the polyline ``points`` (k+1, 3) mm (work tip), piece ``q`` belonging to
         program row ``rows[q]`` (int, (k,)); return ``(removed mm^3, changed rays int64,
         findings)``.
 
         ``spindle_rpm``: the speed the controller reports (None: take the program's).
+        ``arrived_row``: the row of the piece that ended at ``points[0]`` (the last one
+        cut before), if known.
+
+        Where the row changes (between two pieces, or from ``arrived_row`` to the first),
+        the tool's pose at that point is cut first as the arriving row's own
+        (:func:`arrival_poses`): that row brought the tool there, so whatever its pose
+        touches is that row's doing, not the next one's.
         """
+        points, rows = arrival_poses(points, rows, arrived_row)
         removed = 0.0
         changed = []
         found: list[Finding] = []
@@ -543,6 +552,35 @@ class LiveChecks:
                 m["spindle_dir"] = np.where(d != 0, d, 1 if spindle_rpm > 0 else -1)
         self._ids[:k] = rows + 1
         return m
+
+
+def arrival_poses(points: np.ndarray, rows: np.ndarray, arrived_row: int | None = None):
+    """The travelled polyline with a zero-length piece at every change of program row,
+    owned by the row that arrived there: ``(points (k'+1, 3), rows (k',) int64)``.
+
+    ``points`` (k+1, 3) mm, piece ``q`` = ``points[q] -> points[q+1]`` of row ``rows[q]``
+    (k,); ``arrived_row``: the row whose piece ended at ``points[0]`` (None: unknown).
+
+    Why: the swept volume of a move includes the tool at its end, but the kernel decides
+    a ray at exactly the tool radius from that end with arithmetic relative to the move's
+    *start*, while the next move (a straight retract from that point) decides it relative
+    to the point itself. The two can disagree in the last bit, and on a grid the tool's
+    radius is a multiple of (slot walls, slot ends at round coordinates) that hands the
+    next row a whole column of material its predecessor left: a retract after a feed then
+    reads as a rapid into stock. Cutting the arrival pose with the next piece's own
+    arithmetic (a zero-length move from the same point) makes the two agree.
+    """
+    points = np.asarray(points, np.float64)
+    rows = np.asarray(rows, np.int64)
+    if rows.size == 0:
+        return points, rows
+    before = np.empty_like(rows)
+    before[0] = rows[0] if arrived_row is None else int(arrived_row)
+    before[1:] = rows[:-1]
+    turn = np.nonzero(before != rows)[0]
+    if turn.size == 0:
+        return points, rows
+    return np.insert(points, turn, points[turn], axis=0), np.insert(rows, turn, before[turn])
 
 
 # --- findings as JSON records ---------------------------------------------------------------

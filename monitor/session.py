@@ -137,6 +137,7 @@ class Session:
         self.last: MachineState | None = None
         self.last_sync: SyncResult | None = None
         self._prev_tip: np.ndarray | None = None
+        self._prev_row: int | None = None   # program row of the last piece cut live
         self._trace = None
         self._trace_from = 0
         self._fill_horizon = False
@@ -326,7 +327,8 @@ class Session:
         rpm = _spindle_rpm(state)
         if rpm == 0.0 and self.last is not None and _spindle_rpm(self.last) != 0.0:
             rpm = None
-        removed, rays, found = self.live_checks.cut(pts, rows, rpm)
+        removed, rays, found = self.live_checks.cut(pts, rows, rpm, arrived_row=self._prev_row)
+        self._prev_row = int(rows[-1])
         if self.view is not None and rays.size:
             self._changed = rays if self._changed is None else np.union1d(self._changed, rays)
         if self.run is not None:
@@ -342,8 +344,10 @@ class Session:
         When both ends sit on the program, between two polls the machine followed the
         program, not the chord: the program's corners passed in between are inserted,
         moved by the live deviation from the program (interpolated between the two ends,
-        so a machine running with a shifted work offset is followed where it really is).
-        Otherwise the straight chord, on the current row.
+        so a machine running with a shifted work offset is followed where it really is),
+        except along an axis the program does not move between a corner and a polled end:
+        there the corner has that end's coordinate (:func:`hold_still_axes`). Otherwise the
+        straight chord, on the current row.
         """
         last = self.last_sync
         if (last is None or s.how not in ("track", "line") or last.how == "lost"
@@ -355,12 +359,28 @@ class Session:
         keep = np.nonzero((t1 > last.progress) & (t1 < s.progress))[0]
         if keep.size == 0:
             return np.stack([prev, tip]), np.array([path.row[k1]], np.int64)
-        d0 = prev - path.point_at(last.progress)
-        d1 = tip - path.point_at(s.progress)
+        d0 = self._deviation(prev, last.progress)
+        d1 = self._deviation(tip, s.progress)
         f = (t1[keep] - last.progress) / (s.progress - last.progress)
         corners = path.p1[k0 + keep] + d0 + f[:, None] * (d1 - d0)
-        rows = np.concatenate([path.row[k0 + keep], [path.row[k1]]]).astype(np.int64)
-        return np.concatenate([prev[None], corners, tip[None]]), rows
+        # the segments are consecutive: piece q runs along segment segs[q]
+        segs = np.concatenate([k0 + keep, [k1]])
+        pts = hold_still_axes(np.concatenate([prev[None], corners, tip[None]]),
+                              path.p0[segs] != path.p1[segs])
+        return pts, path.row[segs].astype(np.int64)
+
+    def _deviation(self, tip: np.ndarray, progress: float) -> np.ndarray:
+        """The live tip minus the program's tip at ``progress``, (3,) mm.
+
+        Components within the tolerance's ``length`` are 0: they are the rounding of
+        ``point_at``'s interpolation, not a machine off the program. Kept, they would put
+        every inserted corner an ulp beside the program's corner: the piece arriving there
+        would stop just short of the rays at exactly the tool radius from it, and the next
+        row (a retract at the same XY, from the exactly polled tip) would be the first to
+        cut them -- a false rapid into stock."""
+        d = np.asarray(tip, np.float64) - self.path.point_at(progress)
+        d[np.abs(d) <= self.wp.tol.length] = 0.0
+        return d
 
     def _predict(self, s: SyncResult, state: MachineState) -> list[dict]:
         if self._fill_horizon:
@@ -419,6 +439,40 @@ class Session:
             self.run.put_meta("summary", summary)
             self.run.flush()
         return summary
+
+
+def hold_still_axes(points: np.ndarray, moving: np.ndarray) -> np.ndarray:
+    """The travelled polyline with every axis held where the program holds it.
+
+    ``points`` (k+1, 3) mm: the last polled tip, the program corners passed since (placed
+    by an interpolated deviation), the polled tip now. ``moving`` bool (k, 3): whether the
+    program moves along each axis on piece ``q`` (``points[q] -> points[q+1]``).
+
+    Points joined by pieces that do not move along an axis share one coordinate there:
+    the polled one when the run of such points reaches a polled end (both ends: only if
+    they agree, else the interpolation stays), else the run's first corner's. The machine
+    does not move along an axis the program holds, so that is where it was; an
+    interpolated deviation would put the corner beside it -- by an ulp, enough to hand a
+    retract the rays at exactly the tool radius that the feed into the corner missed, or
+    by millimetres where the deviation changes between the polls (a work offset switched
+    in between: the retract before the move to the next fixture drawn slanted).
+    Returns a new (k+1, 3) array; the polled ends are unchanged.
+    """
+    out = np.array(points, np.float64)
+    last = out.shape[0] - 1
+    if last < 2:
+        return out
+    for i in range(out.shape[1]):
+        run = np.concatenate([[0], np.cumsum(moving[:, i])])   # run of each point, nondecreasing
+        value = out[np.searchsorted(run, run), i]              # its run's first point
+        tail = run == run[-1]
+        if run[-1] != 0:
+            value[tail] = out[last, i]
+        elif out[0, i] != out[last, i]:                         # one run from end to end
+            continue
+        value[0], value[last] = out[0, i], out[last, i]
+        out[:, i] = value
+    return out
 
 
 def _spindle_rpm(state: MachineState) -> float | None:
