@@ -269,7 +269,7 @@ class Cutter:
         if trace is not None and journal:
             raise InputError("cut_moves: a trace and a journal are two ways to record the same "
                              "changes; ask for one")
-        sink = trace.sink(self.grid, n, stages) if trace is not None else None
+        sink = trace.sink(self.grid, n, stages, ids) if trace is not None else None
         log = _Log(n, journal, n <= 8) if record else None
         multi = np.zeros(n, bool)
         for lo, hi, tool in self._tool_runs(moves):

@@ -663,10 +663,11 @@ def _depth_after(S, r, top_before, got):
 
 # --- trace sink: z-trace events written as the batch cuts (see sim.trace.ZTrace) --------
 #
-# T: (f_ray int32, f_val float32, f_id int32, g_ray int32, g_count int16, g_near float32,
+# T: (f_ray int32, f_val float32, f_id int32 (unused: a traced block's far events all carry
+# the move's id, kept once per block by the trace), g_ray int32, g_count int16, g_near float32,
 # g_far float32, g_nid int32, g_fid int32, blk_f int64 (n_moves,), blk_g, blk_s, mark int64
 # (n_rays,), slot int64 (n_rays,), gen int64 scratch). A far-only change (rule 5: only the
-# top segment's FarZ moved down) is one far event (ray, new FarZ, face id), rewritten in
+# top segment's FarZ moved down) is one far event (ray, new FarZ), rewritten in
 # place when the same move changes the ray again (arc chords, instances); any other change
 # makes the ray *general* for the move: its far event (if any) is voided, and when the move
 # closes its whole segment list becomes one general event. ``mark[r]`` is ``2 * block`` when
@@ -682,16 +683,14 @@ def _depth_after(S, r, top_before, got):
 # change, several times the cost of the event itself.
 
 @nb.njit(cache=True, inline="always")
-def _trace_far(f_ray, f_val, f_id, mark, slot, key, multi, r, val, fid, nf):
+def _trace_far(f_ray, f_val, mark, slot, key, multi, r, val, nf):
     """Far event of ray ``r`` in the block whose mark is ``key``; returns the new count.
     ``multi``: the move may change the ray more than once (several chords or poses), so
     an event of this block is rewritten in place instead of added."""
     if multi:
         m = mark[r]
         if m == key:
-            s = slot[r]
-            f_val[s] = val
-            f_id[s] = fid
+            f_val[slot[r]] = val
             return nf
         if m == key + 1:
             return nf
@@ -699,7 +698,6 @@ def _trace_far(f_ray, f_val, f_id, mark, slot, key, multi, r, val, fid, nf):
         slot[r] = nf
     f_ray[nf] = r
     f_val[nf] = val
-    f_id[nf] = fid
     return nf + 1
 
 
@@ -749,7 +747,6 @@ def finish_trace_move(S, T, ts):
             if T[0][q] >= 0:
                 T[0][w] = T[0][q]
                 T[1][w] = T[1][q]
-                T[2][w] = T[2][q]
                 w += 1
         ts[TS_NF] = w
         ts[TS_DEAD] = 0
@@ -869,7 +866,6 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     s_top = B[8]
     t_ray = T[0]
     t_val = T[1]
-    t_id = T[2]
     t_mark = T[12]
     t_slot = T[13]
     t_gen = T[14]
@@ -1069,11 +1065,9 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                         if far_only and not multi:  # the common case: each ray once
                             t_ray[nf] = r
                             t_val[nf] = far[r]
-                            t_id[nf] = fid
                             nf += 1
                         elif far_only:
-                            nf = _trace_far(t_ray, t_val, t_id, t_mark, t_slot, key, True, r, far[r],
-                                            fid, nf)
+                            nf = _trace_far(t_ray, t_val, t_mark, t_slot, key, True, r, far[r], nf)
                         else:
                             ngl = _trace_general(t_ray, t_mark, t_slot, t_gen, ts, key, r, ngl)
                     if record:
@@ -1260,7 +1254,6 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
     s_top = B[8]
     t_ray = T[0]
     t_val = T[1]
-    t_id = T[2]
     t_mark = T[12]
     t_slot = T[13]
     t_gen = T[14]
@@ -1365,8 +1358,7 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
                 if changed and trace:
                     if (c_before == 1 and S[0][r] == 1 and S[1][r] == near_before
                             and S[3][r] == nid_before):
-                        nf = _trace_far(t_ray, t_val, t_id, t_mark, t_slot, key, True, r, S[2][r],
-                                        S[4][r], nf)
+                        nf = _trace_far(t_ray, t_val, t_mark, t_slot, key, True, r, S[2][r], nf)
                     else:
                         ngl = _trace_general(t_ray, t_mark, t_slot, t_gen, ts, key, r, ngl)
                 if changed and record:

@@ -452,6 +452,10 @@ class ZTrace:
         self._f_ray = _Column(np.int32, 1 << 16)
         self._f_val = _Column(np.float32, 1 << 16)
         self._f_id = _Column(np.int32, 1 << 16)
+        # per block: the face id of all its far events (a traced batch's move), or -1 when
+        # they carry their own in _f_id (index for index with _f_ray; a block with one id
+        # leaves its stretch of _f_id unwritten: untouched pages cost no memory)
+        self._b_id = _Column(np.int32)
         self._g_ray = _Column(np.int32)
         self._g_count = _Column(np.int16)
         self._g_near = _Column(np.float32)
@@ -558,11 +562,12 @@ class ZTrace:
         self._recf = self._rec.view(np.float32)
         tk.simple_rec_from_store(self._mirror.S, self._rec, self._recf)
 
-    def sink(self, grid: DexelGrid, n_moves: int, stages=None) -> "_Sink":
+    def sink(self, grid: DexelGrid, n_moves: int, stages=None, move_ids=None) -> "_Sink":
         """Where a batch cut writes this trace's events as it cuts (``Cutter.cut_moves(...,
         trace=...)``): one block per move, equal to cutting and recording each move alone.
-        ``grid`` is the model being cut, equal to the trace's last stage."""
-        return _Sink(self, grid, n_moves, stages)
+        ``grid`` is the model being cut, equal to the trace's last stage; ``move_ids`` int
+        (n_moves,) the face ids the moves write (default 1, 2, ...)."""
+        return _Sink(self, grid, n_moves, stages, move_ids)
 
     def _ingest(self, ptr, rays, seg_ptr, segs, stages, budget) -> int:
         self._ensure_mirror()
@@ -608,9 +613,12 @@ class ZTrace:
                                      _snapshot_sharing(self._mirror.store, prev.data, general)))
         self._next_due = int(self._cnt[0] + self._cnt[1]) + self.keyframe_every
 
-    def _close_blocks(self, stages, f_end, g_end, s_end, budget: int = 0) -> None:
-        """Append block rows (stage, column ends) and schedule the keyframes that fall due."""
+    def _close_blocks(self, stages, f_end, g_end, s_end, budget: int = 0, block_ids=None) -> None:
+        """Append block rows (stage, column ends, the blocks' one face id or -1) and schedule
+        the keyframes that fall due."""
         b0 = self.n_blocks
+        self._b_id.append(np.full(len(stages), -1, np.int32) if block_ids is None
+                          else np.asarray(block_ids, np.int32))
         self._stage.append(stages)
         self._f_ptr.append(f_end)
         self._g_ptr.append(g_end)
@@ -656,6 +664,7 @@ class ZTrace:
         self._ensure_mirror()
         b0 = self.n_blocks
         self._stage.append(stage)
+        self._b_id.append(np.full(len(stage), -1, np.int32))
         self._f_ptr.append(self._f_ptr.a[-1] + np.cumsum(f_n))
         self._g_ptr.append(self._g_ptr.a[-1] + np.cumsum(g_n))
         seg_n = np.zeros(g_n.size, np.int64)
@@ -780,18 +789,16 @@ class ZTrace:
             b = g + 1
 
     def _replay_far(self, store: dict, b0: int, b1: int) -> None:
-        fp = self._f_ptr.a
-        lo, hi = int(fp[b0]), int(fp[b1])
         st = tk.replay_far_only(store["count"], store["far"], store["far_id"], store["xstart"],
-                                store["pool_far"], store["pool_far_id"], self._f_ray.a, self._f_val.a,
-                                self._f_id.a, lo, hi)
+                                store["pool_far"], store["pool_far_id"], self._f_ptr.a, self._f_ray.a,
+                                self._f_val.a, self._f_id.buf, self._b_id.a, b0, b1)
         if st < 0:
-            b = int(np.searchsorted(fp, -1 - st, side="right")) - 1
+            b = -1 - st
             raise InputError(f"corrupt trace: block {b} (stage {self._stage.a[b]}) "
                              "edits the top of a ray that holds no material")
 
     def _replay_general(self, store: dict, b0: int, b1: int) -> None:
-        cols = (self._f_ptr.a, self._f_ray.a, self._f_val.a, self._f_id.a, self._g_ptr.a,
+        cols = (self._f_ptr.a, self._f_ray.a, self._f_val.a, self._f_id.buf, self._b_id.a, self._g_ptr.a,
                 self._gs_ptr.a, self._g_ray.a, self._g_count.a, self._g_near.a, self._g_far.a,
                 self._g_nid.a, self._g_fid.a)
         while b0 < b1:
@@ -825,7 +832,7 @@ class ZTrace:
             segs, ids = out[-1][1].copy(), out[-1][2].copy()
             if kind == "f":
                 segs[-1, 1] = self._f_val.a[q]
-                ids[-1, 1] = self._f_id.a[q]
+                ids[-1, 1] = self._b_id.a[b] if self._b_id.a[b] >= 0 else self._f_id.buf[q]
             else:
                 s0 = int(self._gs_ptr.a[b] + self._g_count.a[self._g_ptr.a[b]:q].astype(np.int64).sum())
                 c = int(self._g_count.a[q])
@@ -871,8 +878,10 @@ class ZTrace:
     def nbytes(self) -> int:
         """Bytes of the recorded log in memory (keyframes and the mirror not counted)."""
         cols = (self._stage, self._f_ptr, self._g_ptr, self._gs_ptr, self._f_ray, self._f_val,
-                self._f_id, self._g_ray, self._g_count, self._g_near, self._g_far, self._g_nid, self._g_fid)
-        return int(sum(c.nbytes for c in cols))
+                self._b_id, self._g_ray, self._g_count, self._g_near, self._g_far, self._g_nid, self._g_fid)
+        fp = self._f_ptr.a
+        own_ids = int(np.sum(np.diff(fp)[self._b_id.a < 0])) if self.n_blocks else 0
+        return int(sum(c.nbytes for c in cols)) + 4 * own_ids
 
     def keyframe_nbytes(self) -> int:
         """Bytes of the keyframes (arrays shared between keyframes counted once; the stock's
@@ -920,13 +929,25 @@ class ZTrace:
                "g_n": np.diff(gp[b0:b1 + 1]).astype(np.int64)}
         out["f_ray_start"], out["f_ray_len"] = _runs_of_consecutive(self._f_ray.a[f0:f1])
         out["f_val"] = self._f_val.a[f0:f1].copy()
-        out["f_id.rv"], out["f_id.rl"] = _runs_of_equal(self._f_id.a[f0:f1])
+        out["f_id.rv"], out["f_id.rl"] = _runs_of_equal(self._event_ids(b0, b1))
         out["g_ray"] = self._g_ray.a[g0:g1].copy()
         out["g_count"] = self._g_count.a[g0:g1].copy()
         for name, col in (("g_near", self._g_near), ("g_far", self._g_far),
                           ("g_nid", self._g_nid), ("g_fid", self._g_fid)):
             out[name] = col.a[s0:s1].copy()
         return out
+
+    def _event_ids(self, b0: int, b1: int) -> np.ndarray:
+        """Face id of every far event of blocks ``b0 <= b < b1`` (int32)."""
+        fp = self._f_ptr.a
+        f0, f1 = int(fp[b0]), int(fp[b1])
+        bid = self._b_id.a[b0:b1]
+        if np.all(bid < 0):
+            return self._f_id.buf[f0:f1].copy()
+        per_event = np.repeat(bid, np.diff(fp[b0:b1 + 1]))
+        own = per_event < 0
+        per_event[own] = self._f_id.buf[f0:f1][own]
+        return per_event
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         """Header and every block in one dict of arrays (see :meth:`from_arrays`)."""
@@ -1031,11 +1052,15 @@ class _Sink:
     appends the block rows and brings the trace's mirror up to date.
     """
 
-    def __init__(self, z: ZTrace, grid: DexelGrid, n_moves: int, stages):
+    def __init__(self, z: ZTrace, grid: DexelGrid, n_moves: int, stages, move_ids=None):
         if not grid.frame.same_rays(z.frame):
             raise InputError("the traced grid is not on the trace's dexel frame")
         self.z, self.grid, self.n = z, grid, int(n_moves)
         self.stages = _batch_stages(z.last_stage, stages, self.n)
+        self.ids = (np.arange(1, self.n + 1, dtype=np.int32) if move_ids is None
+                    else np.asarray(move_ids, np.int32).reshape(-1))
+        if self.ids.size != self.n:
+            raise InputError(f"{self.ids.size} move ids given for {self.n} moves")
         self.b0 = z.n_blocks
         if z._mark is None:
             z._mark = np.full(z.n_rays, -1, np.int64)
@@ -1122,7 +1147,8 @@ class _Sink:
         # the mirror is stale: rebuilt from the keyframes if a later record needs it
         z._mirror = None
         z._rec = z._recf = None
-        z._close_blocks(self.stages, *ends, budget=0)
+        # every far event of a move carries the move's id: kept once per block
+        z._close_blocks(self.stages, *ends, budget=0, block_ids=self.ids)
 
 
 # --- the time-trace -----------------------------------------------------------------------
@@ -1601,7 +1627,7 @@ class SharedTimeTrace(TimeTrace):
     def _apply(self, top: np.ndarray, tid: np.ndarray, b0: int, b1: int) -> None:
         z = self._z
         if b1 > b0:
-            tk.apply_tops(top, tid, b0, b1, z._f_ptr.a, z._f_ray.a, z._f_val.a, z._f_id.a,
+            tk.apply_tops(top, tid, b0, b1, z._f_ptr.a, z._f_ray.a, z._f_val.a, z._f_id.buf, z._b_id.a,
                           z._g_ptr.a, z._gs_ptr.a, z._g_ray.a, z._g_count.a, z._g_far.a, z._g_fid.a)
 
     def state_at(self, stage: int, out: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -1719,11 +1745,11 @@ class Trace:
         if self._own_t:
             self.t.record(grid, rays, stage)
 
-    def sink(self, grid: DexelGrid, n_moves: int, stages=None):
+    def sink(self, grid: DexelGrid, n_moves: int, stages=None, move_ids=None):
         """Where ``Cutter.cut_moves(..., trace=self)`` writes (see :meth:`ZTrace.sink`)."""
         if self.z is None or self._own_t:
             raise InputError("cutting straight into a trace needs a z-trace with a shared time-trace")
-        return self.z.sink(grid, n_moves, stages)
+        return self.z.sink(grid, n_moves, stages, move_ids)
 
     def record_cut(self, grid: DexelGrid, cut_result, stage: int | None = None) -> None:
         """Record a ``sim.cut.CutResult`` (all its moves) as one stage."""

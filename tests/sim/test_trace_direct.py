@@ -245,3 +245,34 @@ def test_run_file_chunks_of_a_shared_trace_round_trip_and_truncate():
     assert isinstance(part.t, SharedTimeTrace) and part.t.last_stage == part.last_stage
     for s in range(part.last_stage + 1):
         assert same_model(part.grid_at(s), tr.grid_at(s)), s
+
+
+def test_direct_log_equals_the_diffed_log_block_for_block():
+    """On one-segment stock the kernels' events are the ones a diff of each move finds:
+    the same far events (ray, FarZ, face id) and general rewrites per block."""
+    tool = parse_tool_spec("ball:4")
+    moves = _moves(BALL_ROWS, {3: (11, 12, 7.0)})
+    ids = np.arange(1, len(moves) + 1) * 10
+    g1 = box(50, 34, 0.5, 0.0, 10.0)
+    diffed = Trace(g1)
+    cut = Cutter(g1, tool)
+    for k in range(len(moves)):
+        res = cut.cut_moves(moves[k:k + 1], move_ids=ids[k:k + 1])
+        diffed.record_cut(g1, res, k + 1)
+    g2 = box(50, 34, 0.5, 0.0, 10.0)
+    direct = Trace(g2)
+    Cutter(g2, tool).cut_moves(moves, move_ids=ids, record_changes=False, trace=direct)
+    a, b = diffed.z.to_arrays(), direct.z.to_arrays()
+    for k in ("stage", "f_n", "g_n", "g_count"):
+        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
+    assert np.all(direct.z._b_id.a == ids) and np.all(diffed.z._b_id.a == -1)
+    za, zb = diffed.z, direct.z
+    for blk in range(len(moves)):
+        def far_events(z):
+            f0, f1 = z._f_ptr.a[blk], z._f_ptr.a[blk + 1]
+            ev = np.stack([z._f_ray.a[f0:f1], z._f_val.a[f0:f1].view(np.int32),
+                           z._event_ids(blk, blk + 1)], axis=1)
+            return ev[np.lexsort(ev.T[::-1])]
+        np.testing.assert_array_equal(far_events(za), far_events(zb), err_msg=f"block {blk}")
+        g0, g1_ = za._g_ptr.a[blk], za._g_ptr.a[blk + 1]
+        assert set(za._g_ray.a[g0:g1_]) == set(zb._g_ray.a[g0:g1_]), blk
