@@ -564,11 +564,11 @@ def arrival_poses(points: np.ndarray, rows: np.ndarray, arrived_row: int | None 
     Why: the swept volume of a move includes the tool at its end, but the kernel decides
     a ray at exactly the tool radius from that end with arithmetic relative to the move's
     *start*, while the next move (a straight retract from that point) decides it relative
-    to the point itself. The two can disagree in the last bit, and on a grid the tool's
-    radius is a multiple of (slot walls, slot ends at round coordinates) that hands the
-    next row a whole column of material its predecessor left: a retract after a feed then
-    reads as a rapid into stock. Cutting the arrival pose with the next piece's own
-    arithmetic (a zero-length move from the same point) makes the two agree.
+    to the point itself. The two can disagree in the last bit. Rays at exactly the radius
+    are common (round program coordinates on a 0.5 mm grid: the rays at a slot's end and
+    walls), and each is a whole column of material handed to the next row: a retract
+    after a feed then reads as a rapid into stock. Cutting the arrival pose with the next
+    piece's own arithmetic (a zero-length move from the same point) makes the two agree.
     """
     points = np.asarray(points, np.float64)
     rows = np.asarray(rows, np.int64)
