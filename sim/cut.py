@@ -480,6 +480,8 @@ class Cutter:
                 tp = self._params[id(body)] = (body, sweep.body_params(body))
             tp = tp[1]
             if sink is not None:  # the rays within reach of each segment bound its changes
+                if len(sm) > 1 and np.any(sm[1:] == sm[:-1]):
+                    sink.need_marks()
                 reach = tp[6] / f.spacing + 1.0
                 run = np.hypot(*(p1[:, :2] - p0[:, :2]).T) / f.spacing
                 sink.reserve(min(int(np.sum((run + 2 * reach) * 2 * reach)), 32 * f.n_rays + len(p0) * 64))
@@ -498,6 +500,7 @@ class Cutter:
             axes_l /= np.linalg.norm(axes_l, axis=1, keepdims=True)
             rmax = float(prof[:, 1].max())
             if sink is not None:
+                sink.need_marks()
                 sink.reserve(min(int(len(tips) * (2 * rmax / f.spacing + 2) ** 2), 4 * f.n_rays))
             self._loop(lambda S, st, B, T, ts: K.cut_poses(
                 S, f.spacing, f.nu, f.nv, tips_l, axes_l, pm, pid, prof, rmax, eps, probe, record,

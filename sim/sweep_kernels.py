@@ -1068,6 +1068,9 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                             nf += 1
                         elif far_only:
                             nf = _trace_far(t_ray, t_val, t_mark, t_slot, key, True, r, far[r], nf)
+                        elif not multi:  # changed once by this move: nothing to void or merge
+                            t_gen[ngl] = r
+                            ngl += 1
                         else:
                             ngl = _trace_general(t_ray, t_mark, t_slot, t_gen, ts, key, r, ngl)
                     if record:

@@ -1042,6 +1042,10 @@ class ZTrace:
         return good == nb and used_f == f_have and used_g == g_have
 
 
+#: stands in for the per-ray marks of a batch whose moves change each ray once at most
+_NO_MARK = np.zeros(1, np.int64)
+
+
 class _Sink:
     """A batch cut writing straight into a :class:`ZTrace` (see :meth:`ZTrace.sink`).
 
@@ -1062,9 +1066,6 @@ class _Sink:
         if self.ids.size != self.n:
             raise InputError(f"{self.ids.size} move ids given for {self.n} moves")
         self.b0 = z.n_blocks
-        if z._mark is None:
-            z._mark = np.full(z.n_rays, -1, np.int64)
-            z._slot = np.zeros(z.n_rays, np.int64)
         self.blk = [np.full(max(self.n, 1), -1, np.int64) for _ in range(3)]
         self.gen = np.empty(4096, np.int64)
         ts = self.ts = np.zeros(K.TRACE_STATE_SIZE, np.int64)
@@ -1097,7 +1098,17 @@ class _Sink:
             c.n = int(ts[k])
 
     def buffers(self) -> tuple:
-        return (*(c.buf for c in self.cols), *self.blk, self.z._mark, self.z._slot, self.gen)
+        z = self.z
+        mark, slot = (z._mark, z._slot) if z._mark is not None else (_NO_MARK, _NO_MARK)
+        return (*(c.buf for c in self.cols), *self.blk, mark, slot, self.gen)
+
+    def need_marks(self) -> None:
+        """The moves to come may change a ray more than once (arc chords, instances of
+        motion): the per-ray marks that merge such changes into one event per block."""
+        z = self.z
+        if z._mark is None:
+            z._mark = np.full(z.n_rays, -1, np.int64)
+            z._slot = np.zeros(z.n_rays, np.int64)
 
     def grow(self) -> None:
         ts = self.ts
