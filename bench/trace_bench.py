@@ -162,7 +162,7 @@ def main(argv=None) -> int:
         g = stock_grid.copy()
         cut = Cutter(g, tool)
         # as monitor.session does: keyframes never built in a poll, a slice per chunk written
-        live = Trace(g, keyframe_every=g.frame.n_rays // 8, auto_maintain=False)
+        live = Trace(g, keyframe_every=g.frame.n_rays // 8, auto_maintain=False).ready_for_records()
         rec = np.empty(m)
         upkeep = []
         for k in range(m):

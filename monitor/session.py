@@ -406,7 +406,7 @@ class Session:
             return
         try:
             # keyframes are built at the run file writer's cadence (flush_trace), not in polls
-            self._trace = Trace(self.live, stage=0, auto_maintain=False)
+            self._trace = Trace(self.live, stage=0, auto_maintain=False).ready_for_records()
             self.run.append_trace_chunk(0, 0, self._trace.take_chunk())
         except Exception:  # the trace is a replay aid; the monitor runs without it
             self._trace = None

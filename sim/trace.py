@@ -1756,6 +1756,13 @@ class Trace:
         if self._own_t:
             self.t.record(grid, rays, stage)
 
+    def ready_for_records(self) -> "Trace":
+        """Make now the copy :meth:`record` diffs against (made on the first record
+        otherwise): a live loop calls this before its first poll, so no poll pays for it."""
+        if self.z is not None:
+            self.z._ensure_mirror()
+        return self
+
     def sink(self, grid: DexelGrid, n_moves: int, stages=None, move_ids=None):
         """Where ``Cutter.cut_moves(..., trace=self)`` writes (see :meth:`ZTrace.sink`)."""
         if self.z is None or self._own_t:
