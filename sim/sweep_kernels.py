@@ -800,6 +800,28 @@ def _close_block(S, T, ts, blk_f, blk_g, blk_s):
 
 
 @nb.njit(cache=True, inline="always")
+def _close_traced_move(S, T, B, ts, state, blk_f, blk_g, blk_s, record, k, nout, mc, nf, ngl):
+    """At the first segment (or pose) ``k`` of another move: close the open move's trace
+    block, then its change-log entries. Returns ``(status, nout, mc, nf, ngl)``: status DONE
+    to carry on, or STOP_TRACE / TRACE_KEYFRAME for the kernel to return (state saved)."""
+    done = ts[TS_OPEN]
+    _tsync(ts, nf, ngl)
+    ok = _close_block(S, T, ts, blk_f, blk_g, blk_s)
+    nf = ts[TS_NF]
+    ngl = ts[TS_NGL]
+    if not ok:
+        _save(state, k, -1, -1, nout, mc)
+        return STOP_TRACE, nout, mc, nf, ngl
+    if record and mc > 0:
+        nout = finish_move(S, B, done, nout, mc, False, state)
+        mc = 0
+    if _trace_due(ts, done):
+        _save(state, k, -1, -1, nout, mc)
+        return TRACE_KEYFRAME, nout, mc, nf, ngl
+    return DONE, nout, mc, nf, ngl
+
+
+@nb.njit(cache=True, inline="always")
 def _trace_due(ts, mv):
     """After closing move ``mv``: has the event count reached the next keyframe?"""
     if ts[TS_NF] + ts[TS_NG] >= ts[TS_NEXT_DUE]:
@@ -882,23 +904,10 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     row_off = np.empty(nv + 2, np.int64)
     for k in range(k0, n):
         if trace and ts[TS_OPEN] >= 0 and ts[TS_OPEN] != seg_move[k]:
-            done = ts[TS_OPEN]
-            ts[TS_NF] = nf
-            ts[TS_NGL] = ngl
-            ok = _close_block(S, T, ts, t_bf, t_bg, t_bs)
-            nf = ts[TS_NF]
-            ngl = ts[TS_NGL]
-            if not ok:
-                _tsync(ts, nf, ngl)
-                _save(state, k, -1, -1, nout, mc)
-                return STOP_TRACE
-            if record and mc > 0:
-                nout = finish_move(S, B, done, nout, mc, False, state)
-                mc = 0
-            if _trace_due(ts, done):
-                _tsync(ts, nf, ngl)
-                _save(state, k, -1, -1, nout, mc)
-                return TRACE_KEYFRAME
+            st, nout, mc, nf, ngl = _close_traced_move(S, T, B, ts, state, t_bf, t_bg, t_bs, record, k,
+                                                       nout, mc, nf, ngl)
+            if st != DONE:
+                return st
         if (record and k > 0 and seg_move[k] != seg_move[k - 1]
                 and not (k == k0 and j_resume >= 0) and mc > 0):
             w = finish_move(S, B, seg_move[k - 1], nout, mc, journal, state)
@@ -1267,23 +1276,10 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
     ngl = ts[TS_NGL]
     for k in range(k0, n):
         if trace and ts[TS_OPEN] >= 0 and ts[TS_OPEN] != pose_move[k]:
-            done = ts[TS_OPEN]
-            ts[TS_NF] = nf
-            ts[TS_NGL] = ngl
-            ok = _close_block(S, T, ts, t_bf, t_bg, t_bs)
-            nf = ts[TS_NF]
-            ngl = ts[TS_NGL]
-            if not ok:
-                _tsync(ts, nf, ngl)
-                _save(state, k, -1, -1, nout, mc)
-                return STOP_TRACE
-            if record and mc > 0:
-                nout = finish_move(S, B, done, nout, mc, False, state)
-                mc = 0
-            if _trace_due(ts, done):
-                _tsync(ts, nf, ngl)
-                _save(state, k, -1, -1, nout, mc)
-                return TRACE_KEYFRAME
+            st, nout, mc, nf, ngl = _close_traced_move(S, T, B, ts, state, t_bf, t_bg, t_bs, record, k,
+                                                       nout, mc, nf, ngl)
+            if st != DONE:
+                return st
         if (record and k > 0 and pose_move[k] != pose_move[k - 1]
                 and not (k == k0 and j_resume >= 0) and mc > 0):
             w = finish_move(S, B, pose_move[k - 1], nout, mc, journal, state)
