@@ -108,7 +108,7 @@ def main(argv=None) -> int:
          plain_runs_s=[round(x, 3) for x in plain], traced_runs_s=[round(x, 3) for x in traced],
          extra_pct=round(100 * (t_traced - t_plain) / t_plain, 1),
          extra_pct_pairs_median=round(100 * (float(np.median(np.array(traced) / np.array(plain))) - 1), 1),
-         z_changes=tr.z.n_changes, z_far_events=tr.z._f_ray.n, z_general_events=tr.z._g_ray.n,
+         z_changes=tr.z.n_changes, z_far_events=tr.z._f_val.n, z_general_events=tr.z._g_ray.n,
          keyframes=len(tr.z._keyframes), target_extra_pct=20)
 
     z, t = tr.z, tr.t

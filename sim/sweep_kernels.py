@@ -55,12 +55,13 @@ STATE_SIZE = 7
 
 #: int64 ``ts`` of a traced batch (see :func:`finish_trace_move`): far events written,
 #: general events written, their segments written, general rays of the open move, the open
-#: move (-1: none), its first far event, its far events voided, the batch's first block,
-#: the event count at which a keyframe falls due, the move after which it fell due, and
-#: what a STOP_TRACE needs (far events, general events, segments, general-ray scratch)
-(TS_NF, TS_NG, TS_NS, TS_NGL, TS_OPEN, TS_FSTART, TS_DEAD, TS_BLK0, TS_NEXT_DUE, TS_KEY_MOVE,
- TS_NEED_F, TS_NEED_G, TS_NEED_S, TS_NEED_GEN) = range(14)
-TRACE_STATE_SIZE = 14
+#: move (-1: none), its first far event, runs of far rays written, the batch's first block,
+#: the event count at which a keyframe falls due, the move after which it fell due, what a
+#: STOP_TRACE needs (far events and runs, general events, segments, general-ray scratch),
+#: and the open move's first run
+(TS_NF, TS_NG, TS_NS, TS_NGL, TS_OPEN, TS_FSTART, TS_NR, TS_BLK0, TS_NEXT_DUE, TS_KEY_MOVE,
+ TS_NEED_F, TS_NEED_G, TS_NEED_S, TS_NEED_GEN, TS_RFIRST) = range(15)
+TRACE_STATE_SIZE = 15
 
 
 
@@ -663,70 +664,89 @@ def _depth_after(S, r, top_before, got):
 
 # --- trace sink: z-trace events written as the batch cuts (see sim.trace.ZTrace) --------
 #
-# T: (f_ray int32, f_val float32, f_id int32 (unused: a traced block's far events all carry
-# the move's id, kept once per block by the trace), g_ray int32, g_count int16, g_near float32,
+# T: (rs int32, f_val float32, rl int32, g_ray int32, g_count int16, g_near float32,
 # g_far float32, g_nid int32, g_fid int32, blk_f int64 (n_moves,), blk_g, blk_s, mark int64
-# (n_rays,), slot int64 (n_rays,), gen int64 scratch). A far-only change (rule 5: only the
-# top segment's FarZ moved down) is one far event (ray, new FarZ), rewritten in
-# place when the same move changes the ray again (arc chords, instances); any other change
-# makes the ray *general* for the move: its far event (if any) is voided, and when the move
-# closes its whole segment list becomes one general event. ``mark[r]`` is ``2 * block`` when
-# ray ``r`` holds a far event of that block at ``slot[r]``, ``2 * block + 1`` when it is
-# general in it. Blocks are moves: ``blk_*[mv]`` are the columns' ends after move ``mv``.
+# (n_rays,), slot int64 (n_rays,), gen int64 scratch, blk_r int64 (n_moves,)). A far-only
+# change (rule 5: only the top segment's FarZ moved down) is one far event: its new FarZ
+# in ``f_val``, its ray in the runs of consecutive rays ``rs``/``rl`` (a move's rays come
+# row by row: about 16 to a run, so 4.5 bytes an event instead of 8). The face id is the
+# move's, kept once per block by the trace. When a move changes a ray more than once
+# (arc chords, instances) the event is rewritten in place. Any other change makes the
+# ray *general* for the move: when the move closes, its whole segment list becomes one
+# general event, applied after the block's far events (so an earlier far event of that
+# ray in the block is harmless). ``mark[r]`` is ``2 * block`` when ray ``r`` holds a far
+# event of that block at ``slot[r]``, ``2 * block + 1`` when it is general in it. Blocks
+# are moves: ``blk_*[mv]`` are the columns' ends after move ``mv``.
 
-
-# The hot helpers take the arrays, not T: indexing a tuple of arrays inside the ray loop
-# costs reference-count traffic on every access (several times the cut itself).
-
-# The kernels keep the far-event and general-ray counts (nf, ngl) in locals, written back
-# to ``ts`` before every return: a count kept in an array is a store and a reload per
-# change, several times the cost of the event itself.
+# The kernels keep the counts (nf far events, nr runs, ngl general rays) in locals,
+# written back to ``ts`` before every return: a count kept in an array is a store and a
+# reload per change, several times the cost of the event itself.
 
 @nb.njit(cache=True, inline="always")
-def _trace_far(f_ray, f_val, mark, slot, key, multi, r, val, nf):
-    """Far event of ray ``r`` in the block whose mark is ``key``; returns the new count.
-    ``multi``: the move may change the ray more than once (several chords or poses), so
-    an event of this block is rewritten in place instead of added."""
+def _run_add(rs, rl, nr, run0, runl, r):
+    """Ray ``r`` onto the open run of far rays ``run0 .. run0 + runl - 1`` (held in the
+    kernel's locals: a run kept in the arrays is a store and a reload per event); a ray
+    that does not continue it writes it out and opens a new one. Returns (nr, run0, runl)."""
+    if runl > 0 and r == run0 + runl:
+        return nr, run0, runl + 1
+    if runl > 0:
+        rs[nr] = run0
+        rl[nr] = runl
+        nr += 1
+    return nr, r, 1
+
+
+@nb.njit(cache=True, inline="always")
+def _trace_far(rs, rl, f_val, mark, slot, key, multi, r, val, nf, nr, run0, runl):
+    """Far event of ray ``r`` in the block whose mark is ``key``; returns the new
+    (nf, nr, run0, runl). ``multi``: the move may change the ray more than once (several
+    chords or poses), so an event of this block is rewritten in place."""
     if multi:
         m = mark[r]
         if m == key:
             f_val[slot[r]] = val
-            return nf
+            return nf, nr, run0, runl
         if m == key + 1:
-            return nf
+            return nf, nr, run0, runl
         mark[r] = key
         slot[r] = nf
-    f_ray[nf] = r
+    nr, run0, runl = _run_add(rs, rl, nr, run0, runl, r)
     f_val[nf] = val
-    return nf + 1
+    return nf + 1, nr, run0, runl
 
 
 @nb.njit(cache=True, inline="always")
-def _trace_general(f_ray, mark, slot, gen, ts, key, r, ngl):
-    """Ray ``r`` is general in the block (its far event, if any, is voided); returns the new
-    general-ray count."""
-    m = mark[r]
-    if m == key + 1:
+def _trace_general(mark, gen, key, r, ngl):
+    """Ray ``r`` is general in the block; returns the new general-ray count."""
+    if mark[r] == key + 1:
         return ngl
-    if m == key:
-        f_ray[slot[r]] = -1
-        ts[TS_DEAD] += 1
     gen[ngl] = r
     mark[r] = key + 1
     return ngl + 1
 
 
 @nb.njit(cache=True, inline="always")
-def _tsync(ts, nf, ngl):
+def _tflush(ts, rs, rl, nf, ngl, nr, run0, runl):
+    """Before a kernel returns: write out the open run, and the counts to ``ts``."""
+    if runl > 0:
+        rs[nr] = run0
+        rl[nr] = runl
+        nr += 1
+    _tsync(ts, nf, ngl, nr)
+
+
+@nb.njit(cache=True, inline="always")
+def _tsync(ts, nf, ngl, nr):
     ts[TS_NF] = nf
     ts[TS_NGL] = ngl
+    ts[TS_NR] = nr
 
 
 @nb.njit(cache=True)
 def finish_trace_move(S, T, ts):
-    """Close the open move's block: drop its voided far events, write each general ray's
-    segment list after the move, and set ``blk_*[mv]``. Returns False, changing nothing,
-    when the general columns lack room (``ts[TS_NEED_G]`` / ``ts[TS_NEED_S]`` say how much)."""
+    """Close the open move's block: write each general ray's segment list after the move,
+    and set ``blk_*[mv]``. Returns False, changing nothing, when the general columns lack
+    room (``ts[TS_NEED_G]`` / ``ts[TS_NEED_S]`` say how much)."""
     mv = ts[TS_OPEN]
     if mv < 0:
         return True
@@ -741,15 +761,6 @@ def finish_trace_move(S, T, ts):
             ts[TS_NEED_G] = ts[TS_NG] + ngl
             ts[TS_NEED_S] = ts[TS_NS] + need_s
             return False
-    if ts[TS_DEAD] > 0:
-        w = ts[TS_FSTART]
-        for q in range(ts[TS_FSTART], ts[TS_NF]):
-            if T[0][q] >= 0:
-                T[0][w] = T[0][q]
-                T[1][w] = T[1][q]
-                w += 1
-        ts[TS_NF] = w
-        ts[TS_DEAD] = 0
     ng = ts[TS_NG]
     s = ts[TS_NS]
     for q in range(ngl):
@@ -777,48 +788,73 @@ def finish_trace_move(S, T, ts):
     T[9][mv] = ts[TS_NF]
     T[10][mv] = ng
     T[11][mv] = s
+    T[15][mv] = ts[TS_NR]
     ts[TS_FSTART] = ts[TS_NF]
+    ts[TS_RFIRST] = ts[TS_NR]
     ts[TS_OPEN] = -1
     return True
 
 
 @nb.njit(cache=True, inline="always")
-def _close_block(S, T, ts, blk_f, blk_g, blk_s):
-    """:func:`finish_trace_move`, with the usual move (far events only, none voided) closed
-    here: passing the store and column tuples to a call costs more than the work."""
+def _close_block(S, T, ts, blk_f, blk_g, blk_s, blk_r):
+    """:func:`finish_trace_move`, with the usual move (far events only) closed here:
+    passing the store and column tuples to a call costs more than the work."""
     mv = ts[TS_OPEN]
     if mv < 0:
         return True
-    if ts[TS_NGL] == 0 and ts[TS_DEAD] == 0:
+    if ts[TS_NGL] == 0:
         blk_f[mv] = ts[TS_NF]
         blk_g[mv] = ts[TS_NG]
         blk_s[mv] = ts[TS_NS]
+        blk_r[mv] = ts[TS_NR]
         ts[TS_FSTART] = ts[TS_NF]
+        ts[TS_RFIRST] = ts[TS_NR]
         ts[TS_OPEN] = -1
         return True
     return finish_trace_move(S, T, ts)
 
 
 @nb.njit(cache=True, inline="always")
-def _close_traced_move(S, T, B, ts, state, blk_f, blk_g, blk_s, record, k, nout, mc, nf, ngl):
+def _close_far_only(ts, blk_f, blk_g, blk_s, blk_r, nf, nr):
+    """Close the usual move (far events only, no change log to close, no keyframe due)
+    from the kernel's locals. Kept apart from :func:`_close_traced_move` on purpose: that
+    one hands the store and column tuples on, which costs ~2 us a move in reference
+    counting even when inlined, more than the cut of a short move."""
+    mv = ts[TS_OPEN]
+    blk_f[mv] = nf
+    blk_g[mv] = ts[TS_NG]
+    blk_s[mv] = ts[TS_NS]
+    blk_r[mv] = nr
+    ts[TS_NF] = nf
+    ts[TS_NR] = nr
+    ts[TS_FSTART] = nf
+    ts[TS_RFIRST] = nr
+    ts[TS_OPEN] = -1
+
+
+@nb.njit(cache=True, inline="always")
+def _close_traced_move(S, T, B, ts, state, blk_f, blk_g, blk_s, blk_r, record, k, nout, mc, nf, ngl,
+                       nr):
     """At the first segment (or pose) ``k`` of another move: close the open move's trace
-    block, then its change-log entries. Returns ``(status, nout, mc, nf, ngl)``: status DONE
-    to carry on, or STOP_TRACE / TRACE_KEYFRAME for the kernel to return (state saved)."""
+    block, then its change-log entries. Returns ``(status, nout, mc, nf, ngl, nr)``:
+    status DONE to carry on, or STOP_TRACE / TRACE_KEYFRAME for the kernel to return
+    (state saved)."""
     done = ts[TS_OPEN]
-    _tsync(ts, nf, ngl)
-    ok = _close_block(S, T, ts, blk_f, blk_g, blk_s)
+    _tsync(ts, nf, ngl, nr)
+    ok = _close_block(S, T, ts, blk_f, blk_g, blk_s, blk_r)
     nf = ts[TS_NF]
     ngl = ts[TS_NGL]
+    nr = ts[TS_NR]
     if not ok:
         _save(state, k, -1, -1, nout, mc)
-        return STOP_TRACE, nout, mc, nf, ngl
+        return STOP_TRACE, nout, mc, nf, ngl, nr
     if record and mc > 0:
         nout = finish_move(S, B, done, nout, mc, False, state)
         mc = 0
     if _trace_due(ts, done):
         _save(state, k, -1, -1, nout, mc)
-        return TRACE_KEYFRAME, nout, mc, nf, ngl
-    return DONE, nout, mc, nf, ngl
+        return TRACE_KEYFRAME, nout, mc, nf, ngl, nr
+    return DONE, nout, mc, nf, ngl, nr
 
 
 @nb.njit(cache=True, inline="always")
@@ -886,16 +922,21 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     mc = state[4]
     out_ray = B[0]
     s_top = B[8]
-    t_ray = T[0]
+    t_rs = T[0]
     t_val = T[1]
+    t_rl = T[2]
     t_mark = T[12]
     t_slot = T[13]
     t_gen = T[14]
     t_bf = T[9]
     t_bg = T[10]
     t_bs = T[11]
+    t_br = T[15]
     nf = ts[TS_NF]
     ngl = ts[TS_NGL]
+    nr = ts[TS_NR]
+    run0 = 0
+    runl = 0
     cap = 4096
     buf_lo = np.empty(cap, np.float32)
     buf_hi = np.empty(cap, np.float32)
@@ -904,15 +945,23 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     row_off = np.empty(nv + 2, np.int64)
     for k in range(k0, n):
         if trace and ts[TS_OPEN] >= 0 and ts[TS_OPEN] != seg_move[k]:
-            st, nout, mc, nf, ngl = _close_traced_move(S, T, B, ts, state, t_bf, t_bg, t_bs, record, k,
-                                                       nout, mc, nf, ngl)
-            if st != DONE:
-                return st
+            if runl > 0:  # the open run of far rays ends with its move
+                t_rs[nr] = run0
+                t_rl[nr] = runl
+                nr += 1
+                runl = 0
+            if ngl == 0 and not (record and mc > 0) and nf + ts[TS_NG] < ts[TS_NEXT_DUE]:
+                _close_far_only(ts, t_bf, t_bg, t_bs, t_br, nf, nr)
+            else:
+                st, nout, mc, nf, ngl, nr = _close_traced_move(S, T, B, ts, state, t_bf, t_bg, t_bs, t_br,
+                                                               record, k, nout, mc, nf, ngl, nr)
+                if st != DONE:
+                    return st
         if (record and k > 0 and seg_move[k] != seg_move[k - 1]
                 and not (k == k0 and j_resume >= 0) and mc > 0):
             w = finish_move(S, B, seg_move[k - 1], nout, mc, journal, state)
             if w < 0:
-                _tsync(ts, nf, ngl)
+                _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
                 _save(state, k, -1, -1, nout, mc)
                 return STOP_JOURNAL
             nout = w
@@ -982,10 +1031,10 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
             row_off[jj + 1] = row_off[jj] + max(ihi - ilo + 1, 0)
         total = row_off[nrows]
         # room for every ray within reach to change, checked once per segment (not per ray)
-        if trace and (nf + total > t_ray.size or ngl + total > t_gen.size):
+        if trace and (nf + total > t_val.size or nr + total + 1 > t_rs.size or ngl + total > t_gen.size):
             ts[TS_NEED_F] = nf + total
             ts[TS_NEED_GEN] = ngl + total
-            _tsync(ts, nf, ngl)
+            _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
             if k == k0 and j_resume >= 0:
                 _save(state, k, j_resume, i_resume, nout, mc)
             else:
@@ -1038,7 +1087,7 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                     removed[mv] += overlap_length(S, r, lo, hi)
                     continue
                 if record and (nout + mc >= out_ray.size or mc >= s_top.size):
-                    _tsync(ts, nf, ngl)
+                    _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
                     _save(state, k, j, i, nout, mc)
                     return STOP_CHANGES
                 top_before = f_
@@ -1065,23 +1114,32 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                         top_before = ds.ray_top(S, r)
                     got = ds.subtract_interval(S, r, lo, hi, fid, eps)
                     if got == ds.POOL_FULL:
-                        _tsync(ts, nf, ngl)
+                        _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
                         _save(state, k, j, i, nout, mc)
                         return STOP_POOL
                 if got > 0.0:
                     removed[mv] += got
                     if trace:
                         if far_only and not multi:  # the common case: each ray once
-                            t_ray[nf] = r
+                            if runl > 0 and r == run0 + runl:
+                                runl += 1
+                            else:
+                                if runl > 0:
+                                    t_rs[nr] = run0
+                                    t_rl[nr] = runl
+                                    nr += 1
+                                run0 = r
+                                runl = 1
                             t_val[nf] = far[r]
                             nf += 1
                         elif far_only:
-                            nf = _trace_far(t_ray, t_val, t_mark, t_slot, key, True, r, far[r], nf)
-                        elif not multi:  # changed once by this move: nothing to void or merge
+                            nf, nr, run0, runl = _trace_far(t_rs, t_rl, t_val, t_mark, t_slot, key, True, r,
+                                                            far[r], nf, nr, run0, runl)
+                        elif not multi:  # changed once by this move: nothing to merge
                             t_gen[ngl] = r
                             ngl += 1
                         else:
-                            ngl = _trace_general(t_ray, t_mark, t_slot, t_gen, ts, key, r, ngl)
+                            ngl = _trace_general(t_mark, t_gen, key, r, ngl)
                     if record:
                         # the one-segment cases leave the top at ``f_ - got`` or keep it
                         dep = got
@@ -1092,20 +1150,20 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                                 dep = top_before - np.float64(t2)
                         _log_change(B, nout, mc, r, top_before, got, dep)
                         mc += 1
-    _tsync(ts, nf, ngl)
-    if trace and not _close_block(S, T, ts, t_bf, t_bg, t_bs):
-        _tsync(ts, nf, ngl)
+    _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
+    if trace and not _close_block(S, T, ts, t_bf, t_bg, t_bs, t_br):
+        _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
         _save(state, n, -1, -1, nout, mc)
         return STOP_TRACE
     if record and mc > 0:
         w = finish_move(S, B, seg_move[n - 1], nout, mc, journal, state)
         if w < 0:
-            _tsync(ts, nf, ngl)
+            _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
             _save(state, n, -1, -1, nout, mc)
             return STOP_JOURNAL
         nout = w
         mc = 0
-    _tsync(ts, nf, ngl)
+    _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
     _save(state, n, -1, -1, nout, mc)
     return DONE
 
@@ -1264,27 +1322,40 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
     mc = state[4]
     out_ray = B[0]
     s_top = B[8]
-    t_ray = T[0]
+    t_rs = T[0]
     t_val = T[1]
+    t_rl = T[2]
     t_mark = T[12]
     t_slot = T[13]
     t_gen = T[14]
     t_bf = T[9]
     t_bg = T[10]
     t_bs = T[11]
+    t_br = T[15]
     nf = ts[TS_NF]
     ngl = ts[TS_NGL]
+    nr = ts[TS_NR]
+    run0 = 0
+    runl = 0
     for k in range(k0, n):
         if trace and ts[TS_OPEN] >= 0 and ts[TS_OPEN] != pose_move[k]:
-            st, nout, mc, nf, ngl = _close_traced_move(S, T, B, ts, state, t_bf, t_bg, t_bs, record, k,
-                                                       nout, mc, nf, ngl)
-            if st != DONE:
-                return st
+            if runl > 0:  # the open run of far rays ends with its move
+                t_rs[nr] = run0
+                t_rl[nr] = runl
+                nr += 1
+                runl = 0
+            if ngl == 0 and not (record and mc > 0) and nf + ts[TS_NG] < ts[TS_NEXT_DUE]:
+                _close_far_only(ts, t_bf, t_bg, t_bs, t_br, nf, nr)
+            else:
+                st, nout, mc, nf, ngl, nr = _close_traced_move(S, T, B, ts, state, t_bf, t_bg, t_bs, t_br,
+                                                               record, k, nout, mc, nf, ngl, nr)
+                if st != DONE:
+                    return st
         if (record and k > 0 and pose_move[k] != pose_move[k - 1]
                 and not (k == k0 and j_resume >= 0) and mc > 0):
             w = finish_move(S, B, pose_move[k - 1], nout, mc, journal, state)
             if w < 0:
-                _tsync(ts, nf, ngl)
+                _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
                 _save(state, k, -1, -1, nout, mc)
                 return STOP_JOURNAL
             nout = w
@@ -1319,11 +1390,11 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
                 if m == 0:
                     continue
                 if record and (nout + mc >= out_ray.size or mc >= s_top.size):
-                    _tsync(ts, nf, ngl)
+                    _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
                     _save(state, k, j, i, nout, mc)
                     return STOP_CHANGES
-                if trace and (nf >= t_ray.size or ngl >= t_gen.size):
-                    _tsync(ts, nf, ngl)
+                if trace and (nf >= t_val.size or nr + 1 >= t_rs.size or ngl >= t_gen.size):
+                    _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
                     _save(state, k, j, i, nout, mc)
                     return STOP_TRACE
                 changed = False
@@ -1341,13 +1412,13 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
                     got = ds.subtract_interval(S, r, lo, hi, fid, eps)
                     if got == ds.POOL_FULL:
                         if changed and trace:
-                            ngl = _trace_general(t_ray, t_mark, t_slot, t_gen, ts, key, r, ngl)
-                        _tsync(ts, nf, ngl)
+                            ngl = _trace_general(t_mark, t_gen, key, r, ngl)
+                        _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
                         if changed and record:
                             _log_change(B, nout, mc, r, top_before, got_sum,
                                         _depth_after(S, r, top_before, got_sum))
                             mc += 1
-                        _tsync(ts, nf, ngl)
+                        _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
                         _save(state, k, j, i, nout, mc)
                         return STOP_POOL
                     if got > 0.0:
@@ -1357,26 +1428,27 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
                 if changed and trace:
                     if (c_before == 1 and S[0][r] == 1 and S[1][r] == near_before
                             and S[3][r] == nid_before):
-                        nf = _trace_far(t_ray, t_val, t_mark, t_slot, key, True, r, S[2][r], nf)
+                        nf, nr, run0, runl = _trace_far(t_rs, t_rl, t_val, t_mark, t_slot, key, True, r,
+                                                        S[2][r], nf, nr, run0, runl)
                     else:
-                        ngl = _trace_general(t_ray, t_mark, t_slot, t_gen, ts, key, r, ngl)
+                        ngl = _trace_general(t_mark, t_gen, key, r, ngl)
                 if changed and record:
                     _log_change(B, nout, mc, r, top_before, got_sum,
                                         _depth_after(S, r, top_before, got_sum))
                     mc += 1
-    _tsync(ts, nf, ngl)
-    if trace and not _close_block(S, T, ts, t_bf, t_bg, t_bs):
-        _tsync(ts, nf, ngl)
+    _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
+    if trace and not _close_block(S, T, ts, t_bf, t_bg, t_bs, t_br):
+        _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
         _save(state, n, -1, -1, nout, mc)
         return STOP_TRACE
     if record and mc > 0:
         w = finish_move(S, B, pose_move[n - 1], nout, mc, journal, state)
         if w < 0:
-            _tsync(ts, nf, ngl)
+            _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
             _save(state, n, -1, -1, nout, mc)
             return STOP_JOURNAL
         nout = w
         mc = 0
-    _tsync(ts, nf, ngl)
+    _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
     _save(state, n, -1, -1, nout, mc)
     return DONE

@@ -446,14 +446,18 @@ class ZTrace:
         self._f_ptr = _Column(np.int64)
         self._g_ptr = _Column(np.int64)
         self._gs_ptr = _Column(np.int64)
-        for c in (self._f_ptr, self._g_ptr, self._gs_ptr):
+        self._r_ptr = _Column(np.int64)
+        for c in (self._f_ptr, self._g_ptr, self._gs_ptr, self._r_ptr):
             c.push(0)
         # event columns
-        self._f_ray = _Column(np.int32, 1 << 16)
+        # far events: their rays as runs of consecutive rays (start, length; block b's runs
+        # end at _r_ptr[b + 1]), one value each in _f_val
+        self._f_rs = _Column(np.int32, 1 << 14)
+        self._f_rl = _Column(np.int32, 1 << 14)
         self._f_val = _Column(np.float32, 1 << 16)
         self._f_id = _Column(np.int32, 1 << 16)
         # per block: the face id of all its far events (a traced batch's move), or -1 when
-        # they carry their own in _f_id (index for index with _f_ray; a block with one id
+        # they carry their own in _f_id (index for index with _f_val; a block with one id
         # leaves its stretch of _f_id unwritten: untouched pages cost no memory)
         self._b_id = _Column(np.int32)
         self._g_ray = _Column(np.int32)
@@ -484,17 +488,18 @@ class ZTrace:
     @property
     def n_changes(self) -> int:
         """Ray changes recorded (far-only edits plus general rewrites)."""
-        return self._f_ray.n + self._g_ray.n
+        return self._f_val.n + self._g_ray.n
 
-    def _event_columns(self, n_events: int, n_segs: int) -> tuple:
-        """The event column buffers with room for ``n_events`` events / ``n_segs`` segments."""
-        return (self._f_ray.reserve(n_events), self._f_val.reserve(n_events), self._f_id.reserve(n_events),
+    def _event_columns(self, rays_scratch: np.ndarray, n_events: int, n_segs: int) -> tuple:
+        """The event column buffers with room for ``n_events`` events / ``n_segs`` segments
+        (far events' rays go to ``rays_scratch``, made into runs afterwards)."""
+        return (rays_scratch, self._f_val.reserve(n_events), self._f_id.reserve(n_events),
                 self._g_ray.reserve(n_events), self._g_count.reserve(n_events),
                 self._g_near.reserve(n_segs), self._g_far.reserve(n_segs),
                 self._g_nid.reserve(n_segs), self._g_fid.reserve(n_segs))
 
     def _set_counts(self) -> None:
-        self._f_ray.n = self._f_val.n = self._f_id.n = int(self._cnt[0])
+        self._f_val.n = self._f_id.n = int(self._cnt[0])
         self._g_ray.n = self._g_count.n = int(self._cnt[1])
         self._g_near.n = self._g_far.n = self._g_nid.n = self._g_fid.n = int(self._cnt[2])
 
@@ -576,7 +581,9 @@ class ZTrace:
         before = self.n_changes
         blk = [np.empty(n_moves, np.int64) for _ in range(3)]
         cnt, state = self._cnt, self._state
-        cnt[:] = (self._f_ray.n, self._g_ray.n, self._g_near.n)
+        cnt[:] = (self._f_val.n, self._g_ray.n, self._g_near.n)
+        f0 = int(cnt[0])
+        scratch = np.empty(n_entries, np.int32)
         state[:] = 0
         segs = [np.ascontiguousarray(x, dt) for x, dt in
                 zip(segs, (np.float32, np.float32, np.int32, np.int32))]
@@ -587,10 +594,10 @@ class ZTrace:
         inline = budget is None and self.auto_maintain and not self._due and self._builder is None
         b0 = self.n_blocks
         while True:
-            out = self._event_columns(n_entries, n_segs)
+            out = self._event_columns(scratch, n_entries, n_segs)
             stop_at = self._next_due if inline else np.iinfo(np.int64).max
             status = tk.ingest_journal_fast(self._rec, self._recf, self._mirror.S, ptr, rays, seg_ptr,
-                                            *segs, jnb, jfb, state, cnt, *blk, *out, stop_at)
+                                            *segs, jnb, jfb, state, cnt, *blk, *out, stop_at, f0)
             if status == tk.DONE:
                 break
             if status == tk.KEYFRAME:
@@ -598,9 +605,29 @@ class ZTrace:
                 continue
             ds.grow_pool(self._mirror.store, 2 * n_segs + 64)
         self._set_counts()
+        r_end = self._append_runs(scratch[:int(cnt[0]) - f0], np.diff(blk[0], prepend=f0))
         new = self.n_changes - before
-        self._close_blocks(stages, *blk, budget=4 * new if budget is None else budget)
+        self._close_blocks(stages, *blk, r_end, budget=4 * new if budget is None else budget)
         return new
+
+    def _append_runs(self, rays: np.ndarray, per_block: np.ndarray) -> np.ndarray:
+        """Append far events' ``rays`` (``per_block`` of them to each new block, in order) as
+        runs of consecutive rays that stop at block ends; returns each block's run end."""
+        per_block = np.asarray(per_block, np.int64)
+        r0 = self._f_rs.n
+        if rays.size == 0:
+            return np.full(per_block.size, r0, np.int64)
+        rays = rays.astype(np.int64)
+        ends = np.cumsum(per_block)
+        cut = np.diff(rays) != 1
+        inner = ends[:-1][(ends[:-1] > 0) & (ends[:-1] < rays.size)]
+        cut[inner - 1] = True
+        first = np.concatenate([[0], np.flatnonzero(cut) + 1])
+        lens = np.diff(np.concatenate([first, [rays.size]]))
+        self._f_rs.append(rays[first].astype(np.int32))
+        self._f_rl.append(lens.astype(np.int32))
+        # runs starting before each block's end
+        return r0 + np.searchsorted(first, ends, side="left")
 
     def _snapshot_inline(self, b0: int, k: int, stages, g_end) -> None:
         """A keyframe of the mirror after the batch's first ``k`` moves (block ``b0 + k``,
@@ -613,10 +640,11 @@ class ZTrace:
                                      _snapshot_sharing(self._mirror.store, prev.data, general)))
         self._next_due = int(self._cnt[0] + self._cnt[1]) + self.keyframe_every
 
-    def _close_blocks(self, stages, f_end, g_end, s_end, budget: int = 0, block_ids=None) -> None:
+    def _close_blocks(self, stages, f_end, g_end, s_end, r_end, budget: int = 0, block_ids=None) -> None:
         """Append block rows (stage, column ends, the blocks' one face id or -1) and schedule
         the keyframes that fall due."""
         b0 = self.n_blocks
+        self._r_ptr.append(r_end)
         self._b_id.append(np.full(len(stages), -1, np.int32) if block_ids is None
                           else np.asarray(block_ids, np.int32))
         self._stage.append(stages)
@@ -665,6 +693,7 @@ class ZTrace:
         b0 = self.n_blocks
         self._stage.append(stage)
         self._b_id.append(np.full(len(stage), -1, np.int32))
+        self._r_ptr.append(self._append_runs(np.asarray(f_ray), f_n))
         self._f_ptr.append(self._f_ptr.a[-1] + np.cumsum(f_n))
         self._g_ptr.append(self._g_ptr.a[-1] + np.cumsum(g_n))
         seg_n = np.zeros(g_n.size, np.int64)
@@ -673,7 +702,6 @@ class ZTrace:
             ends = np.cumsum(g_n)
             seg_n = np.diff(np.concatenate([[0], seg_cum[ends]]))
         self._gs_ptr.append(self._gs_ptr.a[-1] + np.cumsum(seg_n))
-        self._f_ray.append(f_ray.astype(np.int32))
         self._f_val.append(f_val)
         self._f_id.append(f_id.astype(np.int32))
         self._g_ray.append(g_ray.astype(np.int32))
@@ -790,24 +818,28 @@ class ZTrace:
 
     def _replay_far(self, store: dict, b0: int, b1: int) -> None:
         st = tk.replay_far_only(store["count"], store["far"], store["far_id"], store["xstart"],
-                                store["pool_far"], store["pool_far_id"], self._f_ptr.a, self._f_ray.a,
-                                self._f_val.a, self._f_id.buf, self._b_id.a, b0, b1)
+                                store["pool_far"], store["pool_far_id"], self._f_ptr.a, self._r_ptr.a,
+                                self._f_rs.a, self._f_rl.a, self._f_val.a, self._f_id.buf, self._b_id.a,
+                                b0, b1)
         if st < 0:
             b = -1 - st
             raise InputError(f"corrupt trace: block {b} (stage {self._stage.a[b]}) "
                              "edits the top of a ray that holds no material")
 
     def _replay_general(self, store: dict, b0: int, b1: int) -> None:
-        cols = (self._f_ptr.a, self._f_ray.a, self._f_val.a, self._f_id.buf, self._b_id.a, self._g_ptr.a,
+        cols = (self._f_ptr.a, self._r_ptr.a, self._f_rs.a, self._f_rl.a, self._f_val.a, self._f_id.buf,
+                self._b_id.a, self._g_ptr.a,
                 self._gs_ptr.a, self._g_ray.a, self._g_count.a, self._g_near.a, self._g_far.a,
                 self._g_nid.a, self._g_fid.a)
+        redo = False  # a block stopped by a full pool is redone without its far edits
         while b0 < b1:
-            b0 = tk.replay_blocks(ds.store_tuple(store), b0, b1, *cols)
+            b0 = tk.replay_blocks(ds.store_tuple(store), b0, b1, *cols, redo)
             if b0 < 0:
                 raise InputError(f"corrupt trace: block {-1 - b0} (stage {self._stage.a[-1 - b0]}) "
                                  "edits the top of a ray that holds no material")
             if b0 < b1:
                 ds.grow_pool(store, 2 * int(self._gs_ptr.a[b0 + 1] - self._gs_ptr.a[b0]) + 64)
+                redo = True
 
     def current(self) -> DexelGrid:
         """A copy of the model at the last recorded stage."""
@@ -822,7 +854,7 @@ class ZTrace:
         r = int(j) * self.frame.nu + int(i)
         cur = self._init_ray(r)
         out = [(self.first_stage, cur[0].copy(), cur[1].copy())]
-        f_hits = np.nonzero(self._f_ray.a == r)[0]
+        f_hits = self._far_events_of(r)
         g_hits = np.nonzero(self._g_ray.a == r)[0]
         fb = np.searchsorted(self._f_ptr.a, f_hits, side="right") - 1
         gb = np.searchsorted(self._g_ptr.a, g_hits, side="right") - 1
@@ -840,6 +872,18 @@ class ZTrace:
                 ids = np.stack([self._g_nid.a[s0:s0 + c], self._g_fid.a[s0:s0 + c]], axis=1)
             out.append((int(self._stage.a[b]), segs, ids))
         return out
+
+    def _far_events_of(self, r: int) -> np.ndarray:
+        """Indices of the far events of ray ``r``, in order (from the runs that hold it)."""
+        rs, rl = self._f_rs.a.astype(np.int64), self._f_rl.a.astype(np.int64)
+        k = np.flatnonzero((rs <= r) & (r < rs + rl))
+        first_event = np.cumsum(rl) - rl
+        return first_event[k] + (r - rs[k])
+
+    def far_rays(self, b0: int, b1: int) -> np.ndarray:
+        """The ray of every far event of blocks ``b0 <= b < b1`` (int64, in event order)."""
+        r0, r1 = int(self._r_ptr.a[b0]), int(self._r_ptr.a[b1])
+        return _expand_consecutive(self._f_rs.a[r0:r1], self._f_rl.a[r0:r1])
 
     def _init_ray(self, r: int):
         g = DexelGrid(self.frame, self.tol, self._init)
@@ -877,7 +921,8 @@ class ZTrace:
     # --- size -----------------------------------------------------------------------
     def nbytes(self) -> int:
         """Bytes of the recorded log in memory (keyframes and the mirror not counted)."""
-        cols = (self._stage, self._f_ptr, self._g_ptr, self._gs_ptr, self._f_ray, self._f_val,
+        cols = (self._stage, self._f_ptr, self._g_ptr, self._gs_ptr, self._r_ptr, self._f_rs, self._f_rl,
+                self._f_val,
                 self._b_id, self._g_ray, self._g_count, self._g_near, self._g_far, self._g_nid, self._g_fid)
         fp = self._f_ptr.a
         own_ids = int(np.sum(np.diff(fp)[self._b_id.a < 0])) if self.n_blocks else 0
@@ -927,7 +972,8 @@ class ZTrace:
         out = {"stage": self._stage.a[b0:b1].copy(),
                "f_n": np.diff(fp[b0:b1 + 1]).astype(np.int64),
                "g_n": np.diff(gp[b0:b1 + 1]).astype(np.int64)}
-        out["f_ray_start"], out["f_ray_len"] = _runs_of_consecutive(self._f_ray.a[f0:f1])
+        r0, r1 = int(self._r_ptr.a[b0]), int(self._r_ptr.a[b1])
+        out["f_ray_start"], out["f_ray_len"] = self._f_rs.a[r0:r1].copy(), self._f_rl.a[r0:r1].copy()
         out["f_val"] = self._f_val.a[f0:f1].copy()
         out["f_id.rv"], out["f_id.rl"] = _runs_of_equal(self._event_ids(b0, b1))
         out["g_ray"] = self._g_ray.a[g0:g1].copy()
@@ -1066,11 +1112,13 @@ class _Sink:
         if self.ids.size != self.n:
             raise InputError(f"{self.ids.size} move ids given for {self.n} moves")
         self.b0 = z.n_blocks
-        self.blk = [np.full(max(self.n, 1), -1, np.int64) for _ in range(3)]
+        # block ends per move: far events, general events, their segments, far-ray runs
+        self.blk = [np.full(max(self.n, 1), -1, np.int64) for _ in range(4)]
         self.gen = np.empty(4096, np.int64)
         ts = self.ts = np.zeros(K.TRACE_STATE_SIZE, np.int64)
-        ts[K.TS_NF], ts[K.TS_NG], ts[K.TS_NS] = z._f_ray.n, z._g_ray.n, z._g_near.n
-        self.start = ts[:3].copy()
+        ts[K.TS_NF], ts[K.TS_NG], ts[K.TS_NS] = z._f_val.n, z._g_ray.n, z._g_near.n
+        ts[K.TS_NR] = ts[K.TS_RFIRST] = z._f_rs.n
+        self.start = np.array([ts[K.TS_NF], ts[K.TS_NG], ts[K.TS_NS], ts[K.TS_NR]])
         ts[K.TS_OPEN] = -1
         ts[K.TS_FSTART] = ts[K.TS_NF]
         ts[K.TS_BLK0] = self.b0
@@ -1078,7 +1126,8 @@ class _Sink:
         self.inline = z.auto_maintain and not z._due and z._builder is None
         ts[K.TS_NEXT_DUE] = z._next_due if self.inline else np.iinfo(np.int64).max
         self.g_at_key = int(z._g_ptr.a[z._keyframes[-1].block]) if z._keyframes[-1].block <= self.b0 else 0
-        self.cols = (z._f_ray, z._f_val, z._f_id, z._g_ray, z._g_count,
+        # in the kernels' order (T); _f_id grows with _f_val (index for index), unwritten
+        self.cols = (z._f_rs, z._f_val, z._f_rl, z._g_ray, z._g_count,
                      z._g_near, z._g_far, z._g_nid, z._g_fid)
         self.reserve(64 * self.n)
         for c in self.cols[3:]:
@@ -1088,19 +1137,20 @@ class _Sink:
         """Room for about ``n_changes`` more far events (the cutter's bound from the rays
         the moves can reach), so the columns rarely grow while the kernels run."""
         self._sync_counts()
-        for c in self.cols[:3]:
+        for c in (*self.cols[:3], self.z._f_id):
             c.grow_to(c.n + int(n_changes) + 4096)
 
     def _sync_counts(self) -> None:
         """The columns' fill counts from the kernels' state (growing keeps what is filled)."""
         ts = self.ts
-        for c, k in zip(self.cols, (K.TS_NF,) * 3 + (K.TS_NG,) * 2 + (K.TS_NS,) * 4):
+        for c, k in zip(self.cols, (K.TS_NR, K.TS_NF, K.TS_NR) + (K.TS_NG,) * 2 + (K.TS_NS,) * 4):
             c.n = int(ts[k])
+        self.z._f_id.n = int(ts[K.TS_NF])
 
     def buffers(self) -> tuple:
         z = self.z
         mark, slot = (z._mark, z._slot) if z._mark is not None else (_NO_MARK, _NO_MARK)
-        return (*(c.buf for c in self.cols), *self.blk, mark, slot, self.gen)
+        return (*(c.buf for c in self.cols), *self.blk[:3], mark, slot, self.gen, self.blk[3])
 
     def need_marks(self) -> None:
         """The moves to come may change a ray more than once (arc chords, instances of
@@ -1113,11 +1163,12 @@ class _Sink:
     def grow(self) -> None:
         ts = self.ts
         self._sync_counts()
-        f_ray = self.cols[0]
         need_f = max(int(ts[K.TS_NF]) + 1, int(ts[K.TS_NEED_F]))
-        if need_f > f_ray.buf.size:
-            for c in self.cols[:3]:
-                c.grow_to(max(2 * c.buf.size, need_f))
+        need_r = int(ts[K.TS_NR]) + max(need_f - int(ts[K.TS_NF]), 1)   # a run per event at most
+        for c, need in ((self.cols[1], need_f), (self.z._f_id, need_f), (self.cols[0], need_r),
+                        (self.cols[2], need_r)):
+            if need > c.buf.size:
+                c.grow_to(max(2 * c.buf.size, need))
         need_gen = max(int(ts[K.TS_NGL]) + 1, int(ts[K.TS_NEED_GEN]))
         if need_gen > self.gen.size:
             gen = np.empty(max(2 * self.gen.size, need_gen), np.int64)
@@ -1638,7 +1689,8 @@ class SharedTimeTrace(TimeTrace):
     def _apply(self, top: np.ndarray, tid: np.ndarray, b0: int, b1: int) -> None:
         z = self._z
         if b1 > b0:
-            tk.apply_tops(top, tid, b0, b1, z._f_ptr.a, z._f_ray.a, z._f_val.a, z._f_id.buf, z._b_id.a,
+            tk.apply_tops(top, tid, b0, b1, z._f_ptr.a, z._r_ptr.a, z._f_rs.a, z._f_rl.a, z._f_val.a,
+                          z._f_id.buf, z._b_id.a,
                           z._g_ptr.a, z._gs_ptr.a, z._g_ray.a, z._g_count.a, z._g_far.a, z._g_fid.a)
 
     def state_at(self, stage: int, out: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -1693,7 +1745,8 @@ class SharedTimeTrace(TimeTrace):
         z = self._z
         top = self._init[0].copy()
         out = np.zeros(z.n_blocks)
-        tk.surface_drops(top, np.asarray(bottoms(), np.float64), z._f_ptr.a, z._f_ray.a, z._f_val.a,
+        tk.surface_drops(top, np.asarray(bottoms(), np.float64), z._f_ptr.a, z._r_ptr.a, z._f_rs.a,
+                         z._f_rl.a, z._f_val.a,
                          z._g_ptr.a, z._gs_ptr.a, z._g_ray.a, z._g_count.a, z._g_far.a, out)
         return z.stages, out * self.frame.spacing ** 2
 

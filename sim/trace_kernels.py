@@ -78,17 +78,39 @@ def set_last_far(S, rays, vals, ids):
 
 
 @nb.njit(cache=True)
-def replay_blocks(S, b0, b1, f_ptr, f_ray, f_val, f_id, b_id, g_ptr, gs_ptr, g_ray, g_count,
-                  g_near, g_far, g_nid, g_fid):
+def replay_blocks(S, b0, b1, f_ptr, rn_ptr, rs, rl, f_val, f_id, b_id, g_ptr, gs_ptr, g_ray,
+                  g_count, g_near, g_far, g_nid, g_fid, skip_far_first):
     """Apply the trace blocks ``b0 <= b < b1`` to store ``S`` in order.
 
-    Within one block the FAR_ONLY and GENERAL rays are disjoint, so each block applies its
-    general rewrites and then its far-only edits. Returns ``b1`` when done, or the index of
-    the block whose rewrite found the pool full (blocks before it are applied; redoing that
-    block after growing the pool is safe because every write sets a whole value), or
-    ``-1 - b`` when block ``b`` edits the FarZ of an empty ray (a corrupt trace).
+    Each block applies its far-only edits, then its general rewrites: a general rewrite
+    is the ray's whole state after the block, so it stands whatever far edit of the same
+    ray came before it in the block. Far events are stored as runs of consecutive rays
+    (``rs``/``rl``, block ``b``'s runs ``rn_ptr[b]:rn_ptr[b+1]``) with one value each.
+    Returns ``b1`` when done, or the index of the block whose rewrite found the pool full
+    (blocks before it are applied; call again from it with ``skip_far_first`` after growing
+    the pool: its far edits are done, and its rewrites set whole values), or ``-1 - b``
+    when block ``b`` edits the FarZ of an empty ray (a corrupt trace).
     """
     for b in range(b0, b1):
+        if not (skip_far_first and b == b0):
+            u = b_id[b]
+            q = f_ptr[b]
+            for k in range(rn_ptr[b], rn_ptr[b + 1]):
+                r = rs[k]
+                for _ in range(rl[k]):
+                    c = S[0][r] - 1
+                    if c < 0:
+                        return -1 - b
+                    i = u if u >= 0 else f_id[q]
+                    if c == 0:
+                        S[2][r] = f_val[q]
+                        S[4][r] = i
+                    else:
+                        p = S[5][r] + c - 1
+                        S[8][p] = f_val[q]
+                        S[10][p] = i
+                    q += 1
+                    r += 1
         s = gs_ptr[b]
         for q in range(g_ptr[b], g_ptr[b + 1]):
             c = g_count[q]
@@ -96,20 +118,6 @@ def replay_blocks(S, b0, b1, f_ptr, f_ray, f_val, f_id, b_id, g_ptr, gs_ptr, g_r
                                 g_fid[s:s + c], c):
                 return b
             s += c
-        u = b_id[b]
-        for q in range(f_ptr[b], f_ptr[b + 1]):
-            r = f_ray[q]
-            k = S[0][r] - 1
-            if k < 0:
-                return -1 - b
-            i = u if u >= 0 else f_id[q]
-            if k == 0:
-                S[2][r] = f_val[q]
-                S[4][r] = i
-            else:
-                p = S[5][r] + k - 1
-                S[8][p] = f_val[q]
-                S[10][p] = i
     return b1
 
 
@@ -190,83 +198,6 @@ KEYFRAME = 2
 
 
 @nb.njit(cache=True)
-def ingest_journal(M, ptr, rays, seg_ptr, jn, jf, jni, jfi, state, cnt, blk_f, blk_g, blk_s,
-                   f_ray, f_val, f_id, g_ray, g_count, g_near, g_far, g_nid, g_fid):
-    """Record a cut journal move by move into the z-trace columns (one block per move).
-
-    ptr (n_moves+1,) int64, rays (n_entries,) int64: the CSR of changed rays; entry e's
-    segments after its move are ``j*[seg_ptr[e]:seg_ptr[e+1]]``. Each entry is compared
-    with the mirror ``M`` (the model before it), which is brought up to date; changes go
-    to the output columns: far-only (rule 5: value and id of the last FarZ) or general
-    (the ray's new segment list). ``state`` (2,) int64 = (move, entry) to resume from;
-    ``cnt`` (3,) int64 = far-only events, general events, general segments written so
-    far. ``blk_*[k]`` get the column ends after move k. Returns DONE, or POOL_FULL with
-    ``state`` set to redo (grow the mirror's pool and call again).
-
-    The body is written out in one loop on purpose: a helper per entry cost ~1 us of
-    argument passing per call.
-    """
-    n_moves = ptr.size - 1
-    for k in range(state[0], n_moves):
-        e0 = ptr[k] if state[1] < ptr[k] else state[1]
-        for e in range(e0, ptr[k + 1]):
-            r = rays[e]
-            a = seg_ptr[e]
-            c = seg_ptr[e + 1] - a
-            general = c != M[0][r]
-            if not general:
-                if c == 0:
-                    continue
-                for i in range(c):
-                    n0, f0, ni0, fi0 = ds.get_seg(M, r, i)
-                    if jn[a + i] != n0 or jni[a + i] != ni0:
-                        general = True
-                        break
-                    if i < c - 1 and (jf[a + i] != f0 or jfi[a + i] != fi0):
-                        general = True
-                        break
-            if not general:
-                last = a + c - 1
-                if c == 1:
-                    if jf[last] == M[2][r] and jfi[last] == M[4][r]:
-                        continue
-                    M[2][r] = jf[last]
-                    M[4][r] = jfi[last]
-                else:
-                    p = M[5][r] + c - 2
-                    if jf[last] == M[8][p] and jfi[last] == M[10][p]:
-                        continue
-                    M[8][p] = jf[last]
-                    M[10][p] = jfi[last]
-                q = cnt[0]
-                f_ray[q] = r
-                f_val[q] = jf[last]
-                f_id[q] = jfi[last]
-                cnt[0] = q + 1
-                continue
-            if not ds.write_ray(M, r, jn[a:a + c], jf[a:a + c], jni[a:a + c], jfi[a:a + c], c):
-                state[0] = k
-                state[1] = e
-                return POOL_FULL
-            q = cnt[1]
-            g_ray[q] = r
-            g_count[q] = c
-            s = cnt[2]
-            for i in range(c):
-                g_near[s + i] = jn[a + i]
-                g_far[s + i] = jf[a + i]
-                g_nid[s + i] = jni[a + i]
-                g_fid[s + i] = jfi[a + i]
-            cnt[1] = q + 1
-            cnt[2] = s + c
-        blk_f[k] = cnt[0]
-        blk_g[k] = cnt[1]
-        blk_s[k] = cnt[2]
-    state[0] = n_moves
-    return DONE
-
-
-@nb.njit(cache=True)
 def top_changes_journal(ptr, rays, seg_ptr, jf, jfi, cur_top, cur_id, out_ray, out_top,
                         out_id, out_prev, out_prev_id, blk):
     """Rule 6 from a cut journal: per move, the rays whose visible surface changed.
@@ -333,8 +264,20 @@ def simple_rec_from_store(S, rec, recf):
 @nb.njit(cache=True)
 def ingest_journal_fast(rec, recf, M, ptr, rays, seg_ptr, jn, jf, jni, jfi, jnb, jfb, state, cnt,
                         blk_f, blk_g, blk_s, f_ray, f_val, f_id, g_ray, g_count, g_near,
-                        g_far, g_nid, g_fid, stop_at):
-    """:func:`ingest_journal` with a one-segment cache ``rec`` in front of the mirror.
+                        g_far, g_nid, g_fid, stop_at, f_base):
+    """Record a cut journal move by move into the z-trace columns (one block per move),
+    with a one-segment cache ``rec`` in front of the mirror.
+
+    ptr (n_moves+1,) int64, rays (n_entries,) int64: the CSR of changed rays; entry e's
+    segments after its move are ``j*[seg_ptr[e]:seg_ptr[e+1]]``. Each entry is compared
+    with the mirror ``M`` (the model before it), which is brought up to date; changes go
+    to the output columns: far-only (rule 5: value and id of the last FarZ) or general
+    (the ray's new segment list). ``state`` (2,) int64 = (move, entry) to resume from;
+    ``cnt`` (3,) int64 = far-only events, general events, general segments written so
+    far. ``blk_*[k]`` get the column ends after move k. Returns DONE, KEYFRAME (see
+    ``stop_at``), or POOL_FULL with ``state`` set to redo (grow the mirror's pool and call
+    again). The body is one loop on purpose: a helper per entry cost ~1 us of argument
+    passing per call.
 
     rec : (n_rays, 4) int32: (near bits, far bits, near_id, far_id) of each ray that holds
         exactly one segment, ``rec[r, 0] = NOT_SIMPLE`` otherwise; for those rays ``rec``
@@ -343,11 +286,13 @@ def ingest_journal_fast(rec, recf, M, ptr, rays, seg_ptr, jn, jf, jni, jfi, jnb,
         instead of five scattered ones.
     recf : the same memory as ``rec`` viewed as float32 (values are copied through it,
         compared as bits through ``rec``). jnb, jfb : int32 views of ``jn`` / ``jf``.
-        Everything else as :func:`ingest_journal`.
     stop_at : int
         Return KEYFRAME (``state`` set to resume) after the first move at whose end the
         events recorded so far (far-only + general) reach this count: the caller snapshots
         the mirror there, which costs a copy instead of a replay.
+    f_base : int
+        Far event ``nf`` writes its ray at ``f_ray[nf - f_base]`` (a scratch the caller
+        turns into runs), its value and id at ``f_val[nf]`` / ``f_id[nf]``.
     """
     n_moves = ptr.size - 1
     nf = cnt[0]
@@ -364,7 +309,7 @@ def ingest_journal_fast(rec, recf, M, ptr, rays, seg_ptr, jn, jf, jni, jfi, jnb,
                 if rec[r, 1] != jfb[a] or rec[r, 3] != jfi[a]:
                     rec[r, 1] = jfb[a]
                     rec[r, 3] = jfi[a]
-                    f_ray[nf] = r
+                    f_ray[nf - f_base] = r
                     f_val[nf] = jf[a]
                     f_id[nf] = jfi[a]
                     nf += 1
@@ -402,7 +347,7 @@ def ingest_journal_fast(rec, recf, M, ptr, rays, seg_ptr, jn, jf, jni, jfi, jnb,
                         continue
                     M[8][p] = jf[last]
                     M[10][p] = jfi[last]
-                f_ray[nf] = r
+                f_ray[nf - f_base] = r
                 f_val[nf] = jf[last]
                 f_id[nf] = jfi[last]
                 nf += 1
@@ -460,8 +405,8 @@ def sync_mirror(rec, recf, S):
 
 
 @nb.njit(cache=True)
-def replay_far_only(count, far, far_id, xstart, pool_far, pool_far_id, f_ptr, f_ray, f_val, f_id,
-                    b_id, b0, b1):
+def replay_far_only(count, far, far_id, xstart, pool_far, pool_far_id, f_ptr, rn_ptr, rs, rl, f_val,
+                    f_id, b_id, b0, b1):
     """Apply the far-only events of blocks ``b0 <= b < b1`` (rule 5: set the last FarZ and
     its id: the block's ``b_id`` when it is one for all its events, else ``f_id``).
 
@@ -471,19 +416,23 @@ def replay_far_only(count, far, far_id, xstart, pool_far, pool_far_id, f_ptr, f_
     """
     for b in range(b0, b1):
         u = b_id[b]
-        for q in range(f_ptr[b], f_ptr[b + 1]):
-            r = f_ray[q]
-            k = count[r] - 1
-            i = u if u >= 0 else f_id[q]
-            if k == 0:
-                far[r] = f_val[q]
-                far_id[r] = i
-            elif k > 0:
-                p = xstart[r] + k - 1
-                pool_far[p] = f_val[q]
-                pool_far_id[p] = i
-            else:
-                return -1 - b
+        q = f_ptr[b]
+        for j in range(rn_ptr[b], rn_ptr[b + 1]):
+            r = rs[j]
+            for _ in range(rl[j]):
+                k = count[r] - 1
+                i = u if u >= 0 else f_id[q]
+                if k == 0:
+                    far[r] = f_val[q]
+                    far_id[r] = i
+                elif k > 0:
+                    p = xstart[r] + k - 1
+                    pool_far[p] = f_val[q]
+                    pool_far_id[p] = i
+                else:
+                    return -1 - b
+                q += 1
+                r += 1
     return b1
 
 
@@ -547,29 +496,30 @@ def tops_of_store(count, far, far_id, xstart, pool_far, pool_far_id, top, top_id
             top_id[r] = 0
 
 
+@nb.njit(cache=True, inline="always")
+def _far_tops(top, top_id, b, f_ptr, rn_ptr, rs, rl, f_val, f_id, b_id):
+    """Block ``b``'s far events onto the visible surface."""
+    u = b_id[b]
+    q = f_ptr[b]
+    for j in range(rn_ptr[b], rn_ptr[b + 1]):
+        r = rs[j]
+        for _ in range(rl[j]):
+            top[r] = f_val[q]
+            top_id[r] = u if u >= 0 else f_id[q]
+            q += 1
+            r += 1
+
+
 @nb.njit(cache=True)
-def apply_tops(top, top_id, b0, b1, f_ptr, f_ray, f_val, f_id, b_id, g_ptr, gs_ptr, g_ray, g_count,
-               g_far, g_fid):
+def apply_tops(top, top_id, b0, b1, f_ptr, rn_ptr, rs, rl, f_val, f_id, b_id, g_ptr, gs_ptr, g_ray,
+               g_count, g_far, g_fid):
     """The visible surface (rule 6) carried from block ``b0`` to ``b1`` by a z-trace's events:
-    per block, each general rewrite's new top (its last FarZ, NaN if it emptied the ray),
-    then the far-only edits (disjoint rays within a block, as :func:`replay_blocks`). Runs
-    of blocks without general rewrites are one loop over their far events."""
-    b = b0
-    while b < b1:
-        e = b
-        while e < b1 and g_ptr[e + 1] == g_ptr[e]:
-            e += 1
-        # blocks b .. e-1 are far-only
-        for a in range(b, e):
-            u = b_id[a]
-            for q in range(f_ptr[a], f_ptr[a + 1]):
-                r = f_ray[q]
-                top[r] = f_val[q]
-                top_id[r] = u if u >= 0 else f_id[q]
-        if e >= b1:
-            break
-        s = gs_ptr[e]
-        for q in range(g_ptr[e], g_ptr[e + 1]):
+    per block, the far-only edits, then each general rewrite's new top (its last FarZ, NaN
+    if it emptied the ray), in the order of :func:`replay_blocks`."""
+    for b in range(b0, b1):
+        _far_tops(top, top_id, b, f_ptr, rn_ptr, rs, rl, f_val, f_id, b_id)
+        s = gs_ptr[b]
+        for q in range(g_ptr[b], g_ptr[b + 1]):
             c = g_count[q]
             r = g_ray[q]
             if c == 0:
@@ -579,12 +529,6 @@ def apply_tops(top, top_id, b0, b1, f_ptr, f_ray, f_val, f_id, b_id, g_ptr, gs_p
                 top[r] = g_far[s + c - 1]
                 top_id[r] = g_fid[s + c - 1]
             s += c
-        u = b_id[e]
-        for q in range(f_ptr[e], f_ptr[e + 1]):
-            r = f_ray[q]
-            top[r] = f_val[q]
-            top_id[r] = u if u >= 0 else f_id[q]
-        b = e + 1
 
 
 @nb.njit(cache=True, inline="always")
@@ -597,14 +541,22 @@ def _drop(old, new, bottom):
 
 
 @nb.njit(cache=True)
-def surface_drops(top, bottom, f_ptr, f_ray, f_val, g_ptr, gs_ptr, g_ray, g_count, g_far, out):
+def surface_drops(top, bottom, f_ptr, rn_ptr, rs, rl, f_val, g_ptr, gs_ptr, g_ray, g_count, g_far, out):
     """Per block of a z-trace, the summed drop of the visible surface over its rays (mm;
     times the cell area, the volume taken from the top). ``top`` (n_rays,) float32 holds
     the tops before block 0 and is carried to the end; ``bottom`` (n_rays,) float64 is
     each ray's lowest material (where an emptied ray's surface falls to); ``out`` float64
-    (n_blocks,). General rewrites apply before far events, as in :func:`apply_tops`."""
+    (n_blocks,). Far events apply before general rewrites, as in :func:`apply_tops`."""
     for b in range(out.size):
         acc = 0.0
+        q = f_ptr[b]
+        for j in range(rn_ptr[b], rn_ptr[b + 1]):
+            r = rs[j]
+            for _ in range(rl[j]):
+                acc += _drop(top[r], f_val[q], bottom[r])
+                top[r] = f_val[q]
+                q += 1
+                r += 1
         s = gs_ptr[b]
         for q in range(g_ptr[b], g_ptr[b + 1]):
             r = g_ray[q]
@@ -613,8 +565,4 @@ def surface_drops(top, bottom, f_ptr, f_ray, f_val, g_ptr, gs_ptr, g_ray, g_coun
             s += c
             acc += _drop(top[r], new, bottom[r])
             top[r] = new
-        for q in range(f_ptr[b], f_ptr[b + 1]):
-            r = f_ray[q]
-            acc += _drop(top[r], f_val[q], bottom[r])
-            top[r] = f_val[q]
         out[b] = acc

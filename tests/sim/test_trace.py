@@ -57,7 +57,7 @@ def test_fresh_simulation_stopped_at_stage_equals_rebuild():
 def test_rules_classify_changes(run):
     tr, snaps = run
     z = tr.z
-    assert z._f_ray.n > 0 and z._g_ray.n > 0  # far-only (rule 5) and general (rules 2-4)
+    assert z._f_val.n > 0 and z._g_ray.n > 0  # far-only (rule 5) and general (rules 2-4)
 
 
 def test_z_elements_follow_the_rules():

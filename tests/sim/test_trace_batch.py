@@ -38,7 +38,7 @@ def test_batch_journal_equals_recording_each_stage():
     assert a.keys() == b.keys()
     for k in a:  # the same log, event for event
         np.testing.assert_array_equal(a[k], b[k], err_msg=k)
-    assert batch.z._g_ray.n > 0 and batch.z._f_ray.n > 0   # rules 2-4 and rule 5 both seen
+    assert batch.z._g_ray.n > 0 and batch.z._f_val.n > 0   # rules 2-4 and rule 5 both seen
     batch.maintain(None)
     # a batch spanning many keyframe spacings gets a keyframe at each (both traces)
     assert len(batch.z._keyframes) >= batch.z.n_changes // 300 // 2

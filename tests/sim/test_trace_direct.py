@@ -93,13 +93,12 @@ def test_ball_batch_into_the_trace_equals_cutting_move_by_move():
     moves = _moves(BALL_ROWS, {3: (11, 12, 7.0)})
     tr, snaps = _cut_both(tool, moves, lambda: box(50, 34, 0.5, 0.0, 10.0), keyframe_every=300)
     assert isinstance(tr.t, SharedTimeTrace)
-    assert tr.z._f_ray.n > 0 and tr.z._g_ray.n > 0   # rule 5 and rules 2-4 (emptied rays)
+    assert tr.z._f_val.n > 0 and tr.z._g_ray.n > 0   # rule 5 and rules 2-4 (emptied rays)
     assert len(tr.z._keyframes) > 2                  # taken inline as the batch cut
     _assert_every_stage(tr, snaps)
     # one event per ray and block: the arc's chords rewrite their rays' events in place
-    f = tr.z._f_ptr.a
     for b in range(tr.z.n_blocks):
-        rays = tr.z._f_ray.a[f[b]:f[b + 1]]
+        rays = tr.z.far_rays(b, b + 1)
         assert np.unique(rays).size == rays.size, b
     assert tr.z._f_ptr.a[-1] - tr.z._f_ptr.a[-2] == 0    # the last move changed nothing
 
@@ -115,7 +114,7 @@ def test_two_segment_stock_gives_general_events():
             ((15, 12, 7.0), (15, 12, 4.0)),       # into the hidden pocket: a general rewrite
             ((15, 12, 4.0), (5, 3, 1.0))]
     tr, snaps = _cut_both(tool, _moves(rows), stock)
-    assert tr.z._g_ray.n > 0 and tr.z._f_ray.n > 0
+    assert tr.z._g_ray.n > 0 and tr.z._f_val.n > 0
     _assert_every_stage(tr, snaps)
 
 
@@ -127,7 +126,7 @@ def test_custom_tslot_poses_into_the_trace():
             ((8, 7, 5.0), (8, 7, 9.0)),           # up through the top
             ((8, 7, 9.0), (14, 10, 9.0))]
     tr, snaps = _cut_both(tool, _moves(rows), lambda: box(30, 24, 0.5, 0.0, 10.0), keyframe_every=200)
-    assert tr.z._g_ray.n > 0 and tr.z._f_ray.n > 0
+    assert tr.z._g_ray.n > 0 and tr.z._f_val.n > 0
     _assert_every_stage(tr, snaps)
 
 
@@ -143,7 +142,7 @@ def test_columns_grow_and_keyframes_fall_due_while_the_kernel_runs(monkeypatch):
 
     g = stock()
     tr = Trace(g, keyframe_every=60)
-    for c in (tr.z._f_ray, tr.z._f_val, tr.z._f_id):   # start tiny: the kernel must stop
+    for c in (tr.z._f_rs, tr.z._f_rl, tr.z._f_val, tr.z._f_id):   # start tiny: the kernel must stop
         c.buf = c.buf[:8].copy()
     grown = []
     real_grow = trace_mod._Sink.grow
@@ -270,7 +269,7 @@ def test_direct_log_equals_the_diffed_log_block_for_block():
     for blk in range(len(moves)):
         def far_events(z):
             f0, f1 = z._f_ptr.a[blk], z._f_ptr.a[blk + 1]
-            ev = np.stack([z._f_ray.a[f0:f1], z._f_val.a[f0:f1].view(np.int32),
+            ev = np.stack([z.far_rays(blk, blk + 1), z._f_val.a[f0:f1].view(np.int32),
                            z._event_ids(blk, blk + 1)], axis=1)
             return ev[np.lexsort(ev.T[::-1])]
         np.testing.assert_array_equal(far_events(za), far_events(zb), err_msg=f"block {blk}")

@@ -46,7 +46,7 @@ def test_cache_transitions_give_the_same_log_and_models_as_recording_each_stage(
     a, b = one.to_arrays(), batch.to_arrays()
     for k in a:
         np.testing.assert_array_equal(a[k], b[k], err_msg=k)
-    assert batch._g_ray.n >= 6 * 2 and batch._f_ray.n > 6 * 4
+    assert batch._g_ray.n >= 6 * 2 and batch._f_val.n > 6 * 4
     batch.maintain(None)
     out = box(12, 8, 1.0)
     for s in list(snaps) + list(snaps)[::-1]:
