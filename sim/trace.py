@@ -308,16 +308,72 @@ _POOL_FIELDS = ("pool_near", "pool_far", "pool_near_id", "pool_far_id")
 KEYFRAME_BUDGET = 1 << 18
 
 
-def _snapshot_sharing(store: dict, prev: dict | None, general: bool) -> dict:
+class _Chunked:
+    """A keyframe's per-ray array kept as fixed-size chunks, so that a keyframe copies only
+    the chunks its far-only edits touched and shares the others with the keyframe before
+    it (a finishing pass touches a band of the part between two keyframes, not all of it).
+    Restoring copies the chunks into the caller's array; code that needs one array gets
+    it from ``np.asarray``."""
+
+    CHUNK = 1 << 14
+    __slots__ = ("chunks", "size", "dtype")
+
+    def __init__(self, chunks: list, size: int, dtype):
+        self.chunks, self.size, self.dtype = chunks, int(size), np.dtype(dtype)
+
+    @classmethod
+    def of(cls, a: np.ndarray) -> "_Chunked":
+        """Views of ``a`` (no copy)."""
+        if isinstance(a, _Chunked):
+            return a
+        return cls([a[i:i + cls.CHUNK] for i in range(0, a.size, cls.CHUNK)], a.size, a.dtype)
+
+    def updated(self, src: np.ndarray, dirty: np.ndarray) -> "_Chunked":
+        """These chunks with the ``dirty`` ones (bool per chunk) copied anew from ``src``."""
+        ch = self.CHUNK
+        chunks = [src[i * ch:(i + 1) * ch].copy() if d else c
+                  for i, (c, d) in enumerate(zip(self.chunks, dirty))]
+        return _Chunked(chunks, self.size, self.dtype)
+
+    def copy_into(self, dst: np.ndarray) -> None:
+        for i, c in enumerate(self.chunks):
+            dst[i * self.CHUNK:i * self.CHUNK + c.size] = c
+
+    def copy(self) -> np.ndarray:
+        out = np.empty(self.size, self.dtype)
+        self.copy_into(out)
+        return out
+
+    def __array__(self, dtype=None, copy=None):
+        out = self.copy()
+        return out if dtype is None else out.astype(dtype)
+
+    @property
+    def nbytes(self) -> int:
+        return int(sum(c.nbytes for c in self.chunks))
+
+
+def _plain(a) -> np.ndarray:
+    return a.copy() if isinstance(a, _Chunked) else a
+
+
+def _snapshot_sharing(store: dict, prev: dict | None, general: bool, dirty=None) -> dict:
     """A snapshot of ``store``; when only far-only edits happened since keyframe ``prev``
-    (``general`` False), the fields they cannot touch are ``prev``'s arrays, shared."""
+    (``general`` False), the fields they cannot touch are ``prev``'s arrays, shared, and
+    with ``dirty`` (bool per :class:`_Chunked` chunk of rays: where those edits fell) the
+    FarZ values and ids share their untouched chunks too."""
     if prev is None or general:
         return _store_snapshot(store)
     out = dict(prev)
     top = int(store["pool_top"][0])
     for k in _FAR_FIELDS:
         v = store[k]
-        out[k] = v[:max(top, 16)].copy() if k.startswith("pool_") else v.copy()
+        if k.startswith("pool_"):
+            out[k] = v[:max(top, 16)].copy()
+        elif dirty is not None:
+            out[k] = _Chunked.of(prev[k]).updated(v, dirty)
+        else:
+            out[k] = v.copy()
     return out
 
 
@@ -344,7 +400,7 @@ class _KeyBuilder:
         top = int(base.data["pool_top"][0])
         spare = 2 * int(tr._gs_ptr.a[self.block] - tr._gs_ptr.a[base.block]) + 64 if self.general else 0
         for k in fields:
-            src = base.data[k]
+            src = _plain(base.data[k])
             size = max(top + spare, src.size) if k in _POOL_FIELDS else src.size
             dst = np.zeros(size, src.dtype) if size != src.size else np.empty_like(src)
             self.work[k] = dst
@@ -791,6 +847,8 @@ class ZTrace:
                 st[k][:top] = src[:top]
             elif k == "pool_top":
                 st[k][0] = top
+            elif isinstance(src, _Chunked):
+                src.copy_into(st[k])
             else:
                 np.copyto(st[k], src)
 
@@ -931,13 +989,20 @@ class ZTrace:
     def keyframe_nbytes(self) -> int:
         """Bytes of the keyframes (arrays shared between keyframes counted once; the stock's
         arrays not counted)."""
-        seen = {id(v) for v in self._keyframes[0].data.values()}
+        def parts(v):
+            return v.chunks if isinstance(v, _Chunked) else [v]
+        seen = {id(p) for v in self._keyframes[0].data.values() for p in parts(v)}
+        # chunks that are views of the stock's arrays are the stock's bytes
+        seen |= {id(p) for k in self._keyframes for v in k.data.values() for p in parts(v)
+                 if isinstance(p, np.ndarray) and p.base is not None
+                 and any(p.base is b for b in self._keyframes[0].data.values())}
         total = 0
         for k in self._keyframes[1:]:
             for v in k.data.values():
-                if id(v) not in seen:
-                    seen.add(id(v))
-                    total += v.nbytes
+                for p in parts(v):
+                    if id(p) not in seen:
+                        seen.add(id(p))
+                        total += p.nbytes
         return int(total)
 
     # --- serialisation -------------------------------------------------------------
@@ -1125,7 +1190,9 @@ class _Sink:
         # keyframes are taken inline unless keyframe work from earlier records is pending
         self.inline = z.auto_maintain and not z._due and z._builder is None
         ts[K.TS_NEXT_DUE] = z._next_due if self.inline else np.iinfo(np.int64).max
-        self.g_at_key = int(z._g_ptr.a[z._keyframes[-1].block]) if z._keyframes[-1].block <= self.b0 else 0
+        # events at the latest keyframe: what changed since decides what a new one copies
+        self.g_at_key = int(z._g_ptr.a[z._keyframes[-1].block])
+        self.r_at_key = int(z._r_ptr.a[z._keyframes[-1].block])
         # in the kernels' order (T); _f_id grows with _f_val (index for index), unwritten
         self.cols = (z._f_rs, z._f_val, z._f_rl, z._g_ray, z._g_count,
                      z._g_near, z._g_far, z._g_nid, z._g_fid)
@@ -1188,13 +1255,28 @@ class _Sink:
     def _snapshot(self, mv: int) -> None:
         z, ts = self.z, self.ts
         prev = z._keyframes[-1]
-        ng = int(ts[K.TS_NG])
+        ng, nr = int(ts[K.TS_NG]), int(ts[K.TS_NR])
         general = ng > self.g_at_key
+        dirty = None if general else self._dirty_chunks(self.r_at_key, nr)
         z._add_keyframe(_Keyframe(self.b0 + mv + 1, int(self.stages[mv]),
-                                  _snapshot_sharing(self.grid.store, prev.data, general)))
+                                  _snapshot_sharing(self.grid.store, prev.data, general, dirty)))
         self.g_at_key = ng
+        self.r_at_key = nr
         z._next_due = int(ts[K.TS_NF] + ts[K.TS_NG]) + z.keyframe_every
         ts[K.TS_NEXT_DUE] = z._next_due
+
+    def _dirty_chunks(self, r0: int, r1: int) -> np.ndarray:
+        """Which :class:`_Chunked` chunks of rays the far-event runs ``r0:r1`` touch."""
+        ch = _Chunked.CHUNK
+        dirty = np.zeros(-(-self.z.n_rays // ch), bool)
+        rs = self.z._f_rs.buf[r0:r1].astype(np.int64)
+        last = rs + self.z._f_rl.buf[r0:r1] - 1
+        c0, c1 = rs // ch, last // ch
+        dirty[c0] = True
+        dirty[c1] = True
+        for k in np.flatnonzero(c1 - c0 > 1):   # runs longer than a chunk (very wide grids)
+            dirty[c0[k]:c1[k] + 1] = True
+        return dirty
 
     def end(self) -> None:
         """Append the block rows, sync the mirror, trim the columns."""
@@ -1679,8 +1761,12 @@ class SharedTimeTrace(TimeTrace):
         d = key.data
         top = np.empty(self.n_rays, np.float32)
         tid = np.empty(self.n_rays, np.int32)
-        tk.tops_of_store(d["count"], d["far"], d["far_id"], d["xstart"], d["pool_far"],
-                         d["pool_far_id"], top, tid)
+        far, fid = _Chunked.of(d["far"]), _Chunked.of(d["far_id"])
+        ch = _Chunked.CHUNK
+        for i, (f, fi) in enumerate(zip(far.chunks, fid.chunks)):   # chunk by chunk: no copy
+            sl = slice(i * ch, i * ch + f.size)
+            tk.tops_of_store(d["count"][sl], f, fi, d["xstart"][sl], d["pool_far"], d["pool_far_id"],
+                             top[sl], tid[sl])
         if len(self._tops) >= self.CACHED_KEYS:
             self._tops.pop(next(iter(self._tops)))
         self._tops[id(d)] = (d, top, tid)

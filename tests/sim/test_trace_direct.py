@@ -275,3 +275,24 @@ def test_direct_log_equals_the_diffed_log_block_for_block():
         np.testing.assert_array_equal(far_events(za), far_events(zb), err_msg=f"block {blk}")
         g0, g1_ = za._g_ptr.a[blk], za._g_ptr.a[blk + 1]
         assert set(za._g_ray.a[g0:g1_]) == set(zb._g_ray.a[g0:g1_]), blk
+
+
+def test_keyframes_copy_only_the_chunks_of_rays_the_moves_touched():
+    """A far-only keyframe shares the FarZ chunks nothing touched since the keyframe before."""
+    tool = parse_tool_spec("ball:3")
+    # 240 x 240 rays (57,600: four chunks of 16,384); passes along the first rows only,
+    # then one at the far end
+    rows = [((2, 2, 12), (2, 2, 9.0)), ((2, 2, 9.0), (100, 2, 9.0)), ((100, 2, 9.0), (100, 6, 9.0)),
+            ((100, 6, 9.0), (2, 6, 9.0)), ((2, 6, 9.0), (2, 12, 12)),
+            ((2, 112, 12), (2, 112, 9.0)), ((2, 112, 9.0), (100, 112, 9.0))]
+    moves = _moves(rows)
+    tr, snaps = _cut_both(tool, moves, lambda: box(240, 240, 0.5, 0.0, 10.0), keyframe_every=400)
+    keys = tr.z._keyframes
+    assert len(keys) >= 3
+    shared = 0
+    for a, b in zip(keys[1:], keys[2:]):
+        ca, cb = trace_mod._Chunked.of(a.data["far"]).chunks, trace_mod._Chunked.of(b.data["far"]).chunks
+        shared += sum(x is y for x, y in zip(ca, cb))
+    assert shared > 0
+    assert tr.z.keyframe_nbytes() < (len(keys) - 1) * 240 * 240 * 8
+    _assert_every_stage(tr, snaps)
