@@ -14,8 +14,10 @@
   :class:`TimeTrace` (own log, with rewind links) remains for heights without a model.
 * Beyond the paper: periodic keyframes, so a rebuild costs the changes since the nearest
   keyframe rather than the length of the run. They are built a slice at a time by later
-  record calls (or :meth:`Trace.maintain`), so no record call spikes, and share the
-  arrays far-only edits cannot touch (a 3-axis keyframe costs the FarZ values and ids).
+  record calls (or :meth:`Trace.maintain`), or copied from the model while a batch cuts
+  into the trace, and share the arrays far-only edits cannot touch: a 3-axis keyframe
+  costs the FarZ values and ids, and only of the chunks of rays touched since the one
+  before when the batch path takes it.
   ``grid_at(stage, out=grid)`` / ``state_at(stage, out=(heights, ids))`` reuse a
   caller's model and apply only the changes between its stage and the next one asked
   for (or restore the nearest keyframe when that is cheaper): a viewer scrubbing a run
@@ -37,10 +39,12 @@ Stages are integers chosen by the caller (a move number, a sync step ...) that n
 decrease from one :meth:`record` to the next; stage ``n`` means "after every record with
 stage <= n". The trace at construction holds the model at ``stage`` (normally 0).
 
-Storage. A trace is a log of *blocks*, one per :meth:`record`. Within a block, rays whose
-only change is the last FarZ (the usual 3-axis cut, rule 5) store just the new value and
-face id; any other change (rules 2-4: segments created, deleted or shortened from the
-near side) stores the ray's new segment list. Serialised (:meth:`to_arrays`,
+Storage. A trace is a log of *blocks*, one per :meth:`record` or per move of a batch.
+Within a block, rays whose only change is the last FarZ (the usual 3-axis cut, rule 5)
+store just the new value: their rays as runs of consecutive rays, their face id once for
+the block when it is one (a batch's move) or per event; any other change (rules 2-4:
+segments created, deleted or shortened from the near side) stores the ray's new segment
+list, applied after the block's far edits. Serialised (:meth:`to_arrays`,
 :meth:`chunk_since`) ray indices and face ids are run-length coded; everything is plain
 numpy arrays (no pickle) so a run file stores them as raw bytes + dtype + shape, and a
 sequence of chunks cut short anywhere rebuilds up to its last complete stage.
