@@ -57,11 +57,10 @@ STATE_SIZE = 7
 #: general events written, their segments written, general rays of the open move, the open
 #: move (-1: none), its first far event, runs of far rays written, the batch's first block,
 #: the event count at which a keyframe falls due, the move after which it fell due, what a
-#: STOP_TRACE needs (far events and runs, general events, segments, general-ray scratch),
-#: and the open move's first run
+#: STOP_TRACE needs (far events and runs, general events, segments, general-ray scratch)
 (TS_NF, TS_NG, TS_NS, TS_NGL, TS_OPEN, TS_FSTART, TS_NR, TS_BLK0, TS_NEXT_DUE, TS_KEY_MOVE,
- TS_NEED_F, TS_NEED_G, TS_NEED_S, TS_NEED_GEN, TS_RFIRST) = range(15)
-TRACE_STATE_SIZE = 15
+ TS_NEED_F, TS_NEED_G, TS_NEED_S, TS_NEED_GEN) = range(14)
+TRACE_STATE_SIZE = 14
 
 
 
@@ -790,7 +789,6 @@ def finish_trace_move(S, T, ts):
     T[11][mv] = s
     T[15][mv] = ts[TS_NR]
     ts[TS_FSTART] = ts[TS_NF]
-    ts[TS_RFIRST] = ts[TS_NR]
     ts[TS_OPEN] = -1
     return True
 
@@ -808,7 +806,6 @@ def _close_block(S, T, ts, blk_f, blk_g, blk_s, blk_r):
         blk_s[mv] = ts[TS_NS]
         blk_r[mv] = ts[TS_NR]
         ts[TS_FSTART] = ts[TS_NF]
-        ts[TS_RFIRST] = ts[TS_NR]
         ts[TS_OPEN] = -1
         return True
     return finish_trace_move(S, T, ts)
@@ -828,7 +825,6 @@ def _close_far_only(ts, blk_f, blk_g, blk_s, blk_r, nf, nr):
     ts[TS_NF] = nf
     ts[TS_NR] = nr
     ts[TS_FSTART] = nf
-    ts[TS_RFIRST] = nr
     ts[TS_OPEN] = -1
 
 

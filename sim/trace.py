@@ -1186,7 +1186,7 @@ class _Sink:
         self.gen = np.empty(4096, np.int64)
         ts = self.ts = np.zeros(K.TRACE_STATE_SIZE, np.int64)
         ts[K.TS_NF], ts[K.TS_NG], ts[K.TS_NS] = z._f_val.n, z._g_ray.n, z._g_near.n
-        ts[K.TS_NR] = ts[K.TS_RFIRST] = z._f_rs.n
+        ts[K.TS_NR] = z._f_rs.n
         self.start = np.array([ts[K.TS_NF], ts[K.TS_NG], ts[K.TS_NS], ts[K.TS_NR]])
         ts[K.TS_OPEN] = -1
         ts[K.TS_FSTART] = ts[K.TS_NF]
