@@ -1698,13 +1698,10 @@ class SharedTimeTrace(TimeTrace):
     and its face id. Its general rewrites carry their new top too (the last FarZ of the
     segment list, NaN when emptied). So the pictures of rule 6 need no log of their own:
     this class reads the z-trace's columns, starts from its keyframes (the tops of a
-    keyframe's store, computed when first used and the last few kept), and applies the
-    events in between in one compiled loop. Recording goes through the z-trace; nothing
+    keyframe's store, read straight into the caller's arrays: as cheap as a copy), and
+    applies the events in between in one compiled loop. Recording goes through the z-trace; nothing
     of this trace is serialised but a marker (``shared``).
     """
-
-    #: tops of this many z keyframes are kept (8 bytes per ray each)
-    CACHED_KEYS = 3
 
     def __init__(self, z: ZTrace):  # noqa: D107 - no TimeTrace state of its own
         self._z = z
@@ -1714,7 +1711,6 @@ class SharedTimeTrace(TimeTrace):
         self.auto_maintain = True
         self.truncated = False
         self._cursors: dict[int, tuple] = {}
-        self._tops: dict[int, tuple] = {}  # id of a keyframe's data -> (data, top, tid)
 
     # the log is the z-trace's
     @property
@@ -1739,7 +1735,8 @@ class SharedTimeTrace(TimeTrace):
 
     @property
     def _init(self) -> tuple:
-        return self._key_tops(self._z._keyframes[0])
+        n = self.n_rays
+        return self._key_tops(self._z._keyframes[0], np.empty(n, np.float32), np.empty(n, np.int32))
 
     def _blocks_upto(self, stage: int) -> int:
         return self._z._blocks_upto(stage)
@@ -1756,24 +1753,17 @@ class SharedTimeTrace(TimeTrace):
         return 0
 
     def keyframe_nbytes(self) -> int:
-        return int(sum(t.nbytes + i.nbytes for _, t, i in self._tops.values()))
+        return 0
 
-    def _key_tops(self, key: _Keyframe) -> tuple[np.ndarray, np.ndarray]:
-        hit = self._tops.get(id(key.data))
-        if hit is not None and hit[0] is key.data:
-            return hit[1], hit[2]
+    def _key_tops(self, key: _Keyframe, top: np.ndarray, tid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The visible surface of keyframe ``key`` into ``top`` / ``tid`` (n_rays,)."""
         d = key.data
-        top = np.empty(self.n_rays, np.float32)
-        tid = np.empty(self.n_rays, np.int32)
         far, fid = _Chunked.of(d["far"]), _Chunked.of(d["far_id"])
         ch = _Chunked.CHUNK
         for i, (f, fi) in enumerate(zip(far.chunks, fid.chunks)):   # chunk by chunk: no copy
             sl = slice(i * ch, i * ch + f.size)
             tk.tops_of_store(d["count"][sl], f, fi, d["xstart"][sl], d["pool_far"], d["pool_far_id"],
                              top[sl], tid[sl])
-        if len(self._tops) >= self.CACHED_KEYS:
-            self._tops.pop(next(iter(self._tops)))
-        self._tops[id(d)] = (d, top, tid)
         return top, tid
 
     def _apply(self, top: np.ndarray, tid: np.ndarray, b0: int, b1: int) -> None:
@@ -1792,7 +1782,7 @@ class SharedTimeTrace(TimeTrace):
         b = z._blocks_upto(stage)
         key = z._key_for(b)
         if out is None:
-            top, tid = (x.copy() for x in self._key_tops(key))
+            top, tid = self._key_tops(key, np.empty(self.n_rays, np.float32), np.empty(self.n_rays, np.int32))
             self._apply(top, tid, key.block, b)
             return top.reshape(self.frame.shape), tid.reshape(self.frame.shape)
         top, tid = (np.asarray(x).reshape(-1) for x in out)
@@ -1805,9 +1795,7 @@ class SharedTimeTrace(TimeTrace):
                 and z._events(cur_b, b) <= z._events(key.block, b) + self.n_rays // 4:
             start = cur_b
         else:
-            kt, ki = self._key_tops(key)
-            np.copyto(top, kt)
-            np.copyto(tid, ki)
+            self._key_tops(key, top, tid)
             start = key.block
         self._apply(top, tid, start, b)
         if len(self._cursors) > 64:
@@ -1833,7 +1821,7 @@ class SharedTimeTrace(TimeTrace):
     def removal_per_block(self, bottoms) -> tuple[np.ndarray, np.ndarray]:
         """As :meth:`TimeTrace.removal_per_block`: one pass over the z-trace's events."""
         z = self._z
-        top = self._init[0].copy()
+        top = self._init[0]
         out = np.zeros(z.n_blocks)
         tk.surface_drops(top, np.asarray(bottoms(), np.float64), z._f_ptr.a, z._r_ptr.a, z._f_rs.a,
                          z._f_rl.a, z._f_val.a,
