@@ -454,7 +454,45 @@ class _Cursor:
         self.clean = clean
 
 
-class ZTrace:
+class _BlockLog:
+    """What both traces share: a log of blocks, each with its stage (``_stage``, a
+    :class:`_Column`), read back as blocks and serialised through ``_blocks_arrays``."""
+
+    first_stage: int
+    _stage: _Column
+
+    @property
+    def n_blocks(self) -> int:
+        return self._stage.n
+
+    @property
+    def stages(self) -> np.ndarray:
+        """Stage of every recorded block, int64 (n_blocks,), non-decreasing."""
+        return self._stage.a.copy()
+
+    @property
+    def last_stage(self) -> int:
+        return int(self._stage.a[-1]) if self._stage.n else self.first_stage
+
+    def _blocks_upto(self, stage: int) -> int:
+        return int(np.searchsorted(self._stage.a, int(stage), side="right"))
+
+    def chunk_since(self, stage: int | None = None) -> dict[str, np.ndarray]:
+        """The blocks with stage > ``stage`` (all when None) as plain arrays (the keys are
+        each trace's ``_blocks_arrays``)."""
+        b0 = 0 if stage is None else self._blocks_upto(stage)
+        return self._blocks_arrays(b0, self.n_blocks)
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Header and every block in one dict of arrays (see :meth:`from_arrays`)."""
+        return {**self.header_arrays(), **self.chunk_since(None)}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict, **kw):
+        return cls.from_chunks([arrays], **kw)
+
+
+class ZTrace(_BlockLog):
     """Complete trace of a dexel model (Blasquez & Poiraudeau rules 1-5) with keyframes.
 
     Parameters
@@ -532,19 +570,6 @@ class ZTrace:
         self._slot: np.ndarray | None = None
 
     # --- recording ------------------------------------------------------------------
-    @property
-    def n_blocks(self) -> int:
-        return self._stage.n
-
-    @property
-    def stages(self) -> np.ndarray:
-        """Stage of every recorded block, int64 (n_blocks,), non-decreasing."""
-        return self._stage.a.copy()
-
-    @property
-    def last_stage(self) -> int:
-        return int(self._stage.a[-1]) if self._stage.n else self.first_stage
-
     @property
     def n_changes(self) -> int:
         """Ray changes recorded (far-only edits plus general rewrites)."""
@@ -786,8 +811,6 @@ class ZTrace:
         tk.simple_rec_from_store(self._mirror.S, self._rec, self._recf)
 
     # --- rebuilding -----------------------------------------------------------------
-    def _blocks_upto(self, stage: int) -> int:
-        return int(np.searchsorted(self._stage.a, int(stage), side="right"))
 
     def _events(self, b0: int, b1: int) -> int:
         return int(self._f_ptr.a[b1] - self._f_ptr.a[b0] + self._g_ptr.a[b1] - self._g_ptr.a[b0])
@@ -1024,18 +1047,11 @@ class ZTrace:
         _pack_column(out, "init_fid", fi)
         return out
 
-    def chunk_since(self, stage: int | None = None) -> dict[str, np.ndarray]:
-        """The blocks with stage > ``stage`` (all when None) as plain arrays.
-
-        Keys: ``stage`` (B,) int64, ``f_n``/``g_n`` (B,) events per block,
-        ``f_ray_start``/``f_ray_len`` runs of consecutive far-only rays, ``f_val`` float32,
-        ``f_id.rv``/``f_id.rl`` run-length coded face ids, ``g_ray`` int32, ``g_count``
-        int16, ``g_near``/``g_far`` float32, ``g_nid``/``g_fid`` int32.
-        """
-        b0 = 0 if stage is None else self._blocks_upto(stage)
-        return self._blocks_arrays(b0, self.n_blocks)
-
     def _blocks_arrays(self, b0: int, b1: int) -> dict[str, np.ndarray]:
+        """Blocks ``b0 <= b < b1``: ``stage`` (B,) int64, ``f_n``/``g_n`` (B,) events per
+        block, ``f_ray_start``/``f_ray_len`` runs of consecutive far-only rays, ``f_val``
+        float32, ``f_id.rv``/``f_id.rl`` run-length coded face ids, ``g_ray`` int32,
+        ``g_count`` int16, ``g_near``/``g_far`` float32, ``g_nid``/``g_fid`` int32."""
         fp, gp, sp = self._f_ptr.a, self._g_ptr.a, self._gs_ptr.a
         f0, f1, g0, g1, s0, s1 = fp[b0], fp[b1], gp[b0], gp[b1], sp[b0], sp[b1]
         out = {"stage": self._stage.a[b0:b1].copy(),
@@ -1063,14 +1079,6 @@ class ZTrace:
         own = per_event < 0
         per_event[own] = self._f_id.buf[f0:f1][own]
         return per_event
-
-    def to_arrays(self) -> dict[str, np.ndarray]:
-        """Header and every block in one dict of arrays (see :meth:`from_arrays`)."""
-        return {**self.header_arrays(), **self.chunk_since(None)}
-
-    @classmethod
-    def from_arrays(cls, arrays: dict, **kw) -> "ZTrace":
-        return cls.from_chunks([arrays], **kw)
 
     @classmethod
     def from_chunks(cls, chunks, where: str = "z-trace", **kw) -> "ZTrace":
@@ -1301,7 +1309,7 @@ class _Sink:
 
 # --- the time-trace -----------------------------------------------------------------------
 
-class TimeTrace:
+class TimeTrace(_BlockLog):
     """Fast trace (rule 6): the visible surface of every ray through time.
 
     A time element is (ray, stage, top value, top face id): the last FarZ of the ray from
@@ -1354,18 +1362,6 @@ class TimeTrace:
         self._id = _Column(np.int32, 1 << 16)
         self._prev = _Column(np.float32, 1 << 16)   # previous element: rewinding (doubly linked)
         self._prev_id = _Column(np.int32, 1 << 16)
-
-    @property
-    def n_blocks(self) -> int:
-        return self._stage.n
-
-    @property
-    def stages(self) -> np.ndarray:
-        return self._stage.a.copy()
-
-    @property
-    def last_stage(self) -> int:
-        return int(self._stage.a[-1]) if self._stage.n else self.first_stage
 
     @property
     def n_changes(self) -> int:
@@ -1476,9 +1472,6 @@ class TimeTrace:
                     self._keyframes = [self._keyframes[0]] + self._keyframes[2::2]
                     self.keyframe_every *= 2
         return self._builder is None and not self._due
-
-    def _blocks_upto(self, stage: int) -> int:
-        return int(np.searchsorted(self._stage.a, int(stage), side="right"))
 
     def state_at(self, stage: int, out: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Heights (nv, nu) float32 mm (NaN = no material) and top face ids (nv, nu) int32.
@@ -1592,13 +1585,9 @@ class TimeTrace:
         _pack_column(out, "init_id", self._init[1])
         return out
 
-    def chunk_since(self, stage: int | None = None) -> dict[str, np.ndarray]:
-        """Blocks with stage > ``stage`` (all when None): ``stage``, ``t_n`` (B,) int64,
-        ``t_ray_start``/``t_ray_len`` int32 runs, ``t_val`` float32, ``t_id.rv``/``t_id.rl``."""
-        b0 = 0 if stage is None else self._blocks_upto(stage)
-        return self._blocks_arrays(b0, self.n_blocks)
-
     def _blocks_arrays(self, b0: int, b1: int) -> dict[str, np.ndarray]:
+        """Blocks ``b0 <= b < b1``: ``stage``, ``t_n`` (B,) int64, ``t_ray_start``/
+        ``t_ray_len`` int32 runs, ``t_val`` float32, ``t_id.rv``/``t_id.rl``."""
         p = self._ptr.a
         p0, p1 = int(p[b0]), int(p[b1])
         out = {"stage": self._stage.a[b0:b1].copy(), "t_n": np.diff(p[b0:b1 + 1]).astype(np.int64)}
@@ -1606,13 +1595,6 @@ class TimeTrace:
         out["t_val"] = self._val.a[p0:p1].copy()
         out["t_id.rv"], out["t_id.rl"] = _runs_of_equal(self._id.a[p0:p1])
         return out
-
-    def to_arrays(self) -> dict[str, np.ndarray]:
-        return {**self.header_arrays(), **self.chunk_since(None)}
-
-    @classmethod
-    def from_arrays(cls, arrays: dict, **kw) -> "TimeTrace":
-        return cls.from_chunks([arrays], **kw)
 
     @classmethod
     def from_chunks(cls, chunks, where: str = "time-trace", **kw) -> "TimeTrace":
@@ -1705,6 +1687,7 @@ class SharedTimeTrace(TimeTrace):
 
     def __init__(self, z: ZTrace):  # noqa: D107 - no TimeTrace state of its own
         self._z = z
+        self._stage = z._stage  # the same blocks: stages, last stage, lookups come with it
         self.frame = z.frame
         self.n_rays = z.n_rays
         self.first_stage = z.first_stage
@@ -1713,18 +1696,6 @@ class SharedTimeTrace(TimeTrace):
         self._cursors: dict[int, tuple] = {}
 
     # the log is the z-trace's
-    @property
-    def n_blocks(self) -> int:
-        return self._z.n_blocks
-
-    @property
-    def stages(self) -> np.ndarray:
-        return self._z.stages
-
-    @property
-    def last_stage(self) -> int:
-        return self._z.last_stage
-
     @property
     def n_changes(self) -> int:
         return self._z.n_changes
@@ -1737,9 +1708,6 @@ class SharedTimeTrace(TimeTrace):
     def _init(self) -> tuple:
         n = self.n_rays
         return self._key_tops(self._z._keyframes[0], np.empty(n, np.float32), np.empty(n, np.int32))
-
-    def _blocks_upto(self, stage: int) -> int:
-        return self._z._blocks_upto(stage)
 
     def record(self, grid, rays=None, stage=None) -> int:
         raise InputError("a shared time-trace is recorded through its z-trace")
@@ -1830,9 +1798,6 @@ class SharedTimeTrace(TimeTrace):
 
     def header_arrays(self) -> dict[str, np.ndarray]:
         return {"shared": np.array([1], np.int8)}
-
-    def chunk_since(self, stage: int | None = None) -> dict[str, np.ndarray]:
-        return {}
 
     def _blocks_arrays(self, b0: int, b1: int) -> dict[str, np.ndarray]:
         return {}
