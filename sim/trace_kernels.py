@@ -11,71 +11,6 @@ import numpy as np
 
 from sim import dexel_store as ds
 
-#: event kinds found by :func:`diff_rays`
-UNCHANGED = 0
-FAR_ONLY = 1   # Blasquez rule 5: only the last FarZ of the ray changed (value and/or face id)
-GENERAL = 2    # anything else (rules 2-4: segments created, deleted, NearZ moved ...)
-
-
-@nb.njit(cache=True)
-def diff_rays(S_new, S_old, rays, kind, far_val, far_id):
-    """Classify how each ray changed between ``S_old`` (the mirror) and ``S_new``.
-
-    rays : (m,) int64 flat ray indices. Fills ``kind`` (m,) int8 with UNCHANGED / FAR_ONLY /
-    GENERAL and, for FAR_ONLY rays, ``far_val`` (m,) float32 / ``far_id`` (m,) int32 with
-    the new last FarZ. Returns ``(n_far_only, n_general)``.
-    """
-    n_far = 0
-    n_gen = 0
-    for q in range(rays.size):
-        r = rays[q]
-        c_new = S_new[0][r]
-        c_old = S_old[0][r]
-        kind[q] = UNCHANGED
-        if c_new != c_old:
-            kind[q] = GENERAL
-            n_gen += 1
-            continue
-        if c_new == 0:
-            continue
-        differs_below = False
-        for k in range(c_new):
-            n1, f1, ni1, fi1 = ds.get_seg(S_new, r, k)
-            n0, f0, ni0, fi0 = ds.get_seg(S_old, r, k)
-            if n1 != n0 or ni1 != ni0:
-                differs_below = True
-                break
-            if k < c_new - 1 and (f1 != f0 or fi1 != fi0):
-                differs_below = True
-                break
-        if differs_below:
-            kind[q] = GENERAL
-            n_gen += 1
-            continue
-        n1, f1, ni1, fi1 = ds.get_seg(S_new, r, c_new - 1)
-        n0, f0, ni0, fi0 = ds.get_seg(S_old, r, c_new - 1)
-        if f1 != f0 or fi1 != fi0:
-            kind[q] = FAR_ONLY
-            far_val[q] = f1
-            far_id[q] = fi1
-            n_far += 1
-    return n_far, n_gen
-
-
-@nb.njit(cache=True)
-def set_last_far(S, rays, vals, ids):
-    """Set the last FarZ (value, face id) of each ray; rays must hold material."""
-    for q in range(rays.size):
-        r = rays[q]
-        k = S[0][r] - 1
-        if k == 0:
-            S[2][r] = vals[q]
-            S[4][r] = ids[q]
-        else:
-            p = S[5][r] + k - 1
-            S[8][p] = vals[q]
-            S[10][p] = ids[q]
-
 
 @nb.njit(cache=True)
 def replay_blocks(S, b0, b1, f_ptr, rn_ptr, rs, rl, f_val, f_id, b_id, g_ptr, gs_ptr, g_ray,
@@ -195,42 +130,6 @@ def chain_prev(top, top_id, rays, vals, ids, prev, prev_id):
 DONE = 0
 POOL_FULL = 1
 KEYFRAME = 2
-
-
-@nb.njit(cache=True)
-def top_changes_journal(ptr, rays, seg_ptr, jf, jfi, cur_top, cur_id, out_ray, out_top,
-                        out_id, out_prev, out_prev_id, blk):
-    """Rule 6 from a cut journal: per move, the rays whose visible surface changed.
-
-    Like :func:`top_changes` with each entry's top read from the journal (the last FarZ
-    of its segments, NaN and id 0 when emptied). ``blk[k]`` gets the output count after
-    move k. Returns the number of changes.
-    """
-    m = 0
-    for k in range(ptr.size - 1):
-        for e in range(ptr[k], ptr[k + 1]):
-            r = rays[e]
-            b = seg_ptr[e + 1]
-            if b == seg_ptr[e]:
-                t = np.float32(np.nan)
-                tid = np.int32(0)
-            else:
-                t = jf[b - 1]
-                tid = jfi[b - 1]
-            old = cur_top[r]
-            same = (t == old) or (np.isnan(t) and np.isnan(old))
-            if same and tid == cur_id[r]:
-                continue
-            out_ray[m] = r
-            out_top[m] = t
-            out_id[m] = tid
-            out_prev[m] = old
-            out_prev_id[m] = cur_id[r]
-            cur_top[r] = t
-            cur_id[r] = tid
-            m += 1
-        blk[k] = m
-    return m
 
 
 @nb.njit(cache=True)
@@ -442,10 +341,13 @@ _NAN_BITS = np.int32(0x7FC00000)
 @nb.njit(cache=True)
 def top_changes_journal_packed(ptr, rays, seg_ptr, jfb, jfi, cur, out_ray, out_topb, out_id,
                                out_prevb, out_prev_id, blk):
-    """:func:`top_changes_journal` on a packed current surface: ``cur`` (n_rays, 2) int32 =
+    """Rule 6 from a cut journal: for each entry of each move (CSR ``ptr``/``rays``, the
+    ray's segments after its move ending at ``seg_ptr[e + 1]``), whether the visible
+    surface changed, against the current surface packed in ``cur`` (n_rays, 2) int32 =
     (top float bits, top face id), one 8-byte read per entry; ``jfb`` / ``out_topb`` /
     ``out_prevb`` are int32 views of float32 columns. Tops compare as bits (any two NaNs
-    are the same empty ray)."""
+    are the same empty ray). Changes go to the ``out_*`` columns (ray, new top, id, the top
+    and id they replace), ``blk[k]`` their end after move ``k``; returns their count."""
     m = 0
     for k in range(ptr.size - 1):
         for e in range(ptr[k], ptr[k + 1]):
