@@ -194,6 +194,27 @@ def _unpack_column(arrays: dict, name: str, dtype, size: int, where: str) -> np.
     return x.astype(dtype, copy=False)
 
 
+def _get_runs(arrays: dict, start: str, length: str, where: str) -> np.ndarray:
+    """Rays run-length coded as (``start``, ``length``) arrays, expanded (int64); a chunk cut
+    short keeps the runs both arrays hold."""
+    starts = _get(arrays, start, np.int64, where)
+    lens = _get(arrays, length, np.int64, where)
+    m = min(starts.size, lens.size)
+    if np.any(lens[:m] < 0):
+        raise InputError(f"negative run length in {length}", where)
+    return _expand_consecutive(starts[:m], lens[:m])
+
+
+def _get_rle(arrays: dict, name: str, where: str) -> np.ndarray:
+    """Ids run-length coded as ``name.rv`` (values) / ``name.rl`` (lengths), expanded (int32)."""
+    idv = _get(arrays, name + ".rv", np.int32, where)
+    idl = _get(arrays, name + ".rl", np.int64, where)
+    m = min(idv.size, idl.size)
+    if np.any(idl[:m] < 0):
+        raise InputError(f"negative run length in {name}.rl", where)
+    return _expand_equal(idv[:m], idl[:m]).astype(np.int32)
+
+
 def _get(arrays: dict, name: str, dtype, where: str, required: bool = True) -> np.ndarray:
     if name not in arrays:
         if not required:
@@ -490,6 +511,17 @@ class _BlockLog:
     @classmethod
     def from_arrays(cls, arrays: dict, **kw):
         return cls.from_chunks([arrays], **kw)
+
+    def _append_chunks(self, chunks: list, where: str):
+        """Decode the chunks' blocks in order (``_append_chunk`` each); the first one cut
+        short ends the log there and marks it truncated. Returns self."""
+        for k, ch in enumerate(chunks):
+            if "stage" not in ch:
+                continue
+            if not self._append_chunk(ch, f"{where} chunk {k}"):
+                self.truncated = True
+                break
+        return self
 
 
 class ZTrace(_BlockLog):
@@ -1105,34 +1137,16 @@ class ZTrace(_BlockLog):
         grid = DexelGrid(frame, tol)
         grid._write_rays(np.arange(n), counts, *segs)
         first = _get(head, "first_stage", np.int64, where, required=False)
-        trace = cls(grid, int(first[0]) if first.size else 0, **kw)
-        for k, ch in enumerate(chunks):
-            if "stage" not in ch:
-                continue
-            complete = trace._append_chunk(ch, f"{where} chunk {k}")
-            if not complete:
-                trace.truncated = True
-                break
-        return trace
+        return cls(grid, int(first[0]) if first.size else 0, **kw)._append_chunks(chunks, where)
 
     def _append_chunk(self, ch: dict, where: str) -> bool:
         """Decode one chunk's complete blocks into the log; False if some were cut off."""
         stage = _get(ch, "stage", np.int64, where)
         f_n = _get(ch, "f_n", np.int64, where)
         g_n = _get(ch, "g_n", np.int64, where)
-        starts = _get(ch, "f_ray_start", np.int64, where)
-        lens = _get(ch, "f_ray_len", np.int64, where)
-        m = min(starts.size, lens.size)
-        if np.any(lens[:m] < 0):
-            raise InputError("negative run length in f_ray_len", where)
-        f_ray = _expand_consecutive(starts[:m], lens[:m])
+        f_ray = _get_runs(ch, "f_ray_start", "f_ray_len", where)
         f_val = _get(ch, "f_val", np.float32, where)
-        idv = _get(ch, "f_id.rv", np.int32, where)
-        idl = _get(ch, "f_id.rl", np.int64, where)
-        m = min(idv.size, idl.size)
-        if np.any(idl[:m] < 0):
-            raise InputError("negative run length in f_id.rl", where)
-        f_id = _expand_equal(idv[:m], idl[:m])
+        f_id = _get_rle(ch, "f_id", where)
         g_ray = _get(ch, "g_ray", np.int64, where)
         g_count = _get(ch, "g_count", np.int16, where)
         gsegs = [_get(ch, k, dt, where) for k, dt in (("g_near", np.float32), ("g_far", np.float32),
@@ -1607,28 +1621,16 @@ class TimeTrace(_BlockLog):
         tid = _unpack_column(head, "init_id", np.int32, frame.n_rays, where)
         first = _get(head, "first_stage", np.int64, where, required=False)
         trace = cls(top, int(first[0]) if first.size else 0, ids=tid, frame=frame, **kw)
-        for k, ch in enumerate(chunks):
-            if "stage" not in ch:
-                continue
-            if not trace._append_chunk(ch, f"{where} chunk {k}"):
-                trace.truncated = True
-                break
-        return trace
+        return trace._append_chunks(chunks, where)
 
     def _append_chunk(self, ch: dict, where: str) -> bool:
         stage = _get(ch, "stage", np.int64, where)
         t_n = _get(ch, "t_n", np.int64, where)
-        starts = _get(ch, "t_ray_start", np.int64, where)
-        lens = _get(ch, "t_ray_len", np.int64, where)
-        m = min(starts.size, lens.size)
-        idv = _get(ch, "t_id.rv", np.int32, where)
-        idl = _get(ch, "t_id.rl", np.int64, where)
-        k = min(idv.size, idl.size)
-        if np.any(lens[:m] < 0) or np.any(idl[:k] < 0) or np.any(t_n < 0):
-            raise InputError("negative count or run length", where)
-        ray = _expand_consecutive(starts[:m], lens[:m])
+        if np.any(t_n < 0):
+            raise InputError("negative count in t_n", where)
+        ray = _get_runs(ch, "t_ray_start", "t_ray_len", where)
         val = _get(ch, "t_val", np.float32, where)
-        tid = _expand_equal(idv[:k], idl[:k]).astype(np.int32)
+        tid = _get_rle(ch, "t_id", where)
         nb = min(stage.size, t_n.size)
         end = np.cumsum(t_n[:nb])
         have = min(ray.size, val.size, tid.size)
