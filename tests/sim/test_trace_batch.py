@@ -8,10 +8,9 @@ import pytest
 import sim.trace as trace_mod
 from sim.cut import Cutter
 from sim.errors import InputError
-from sim.gcode.moves import MoveKind, Plane, empty_moves
 from sim.tools import parse_tool_spec
 from sim.trace import Trace, TimeTrace, ZTrace, model_difference, same_model
-from tests.sim.trace_helpers import box, journal_of, program
+from tests.sim.trace_helpers import box, feed_moves, journal_of, program
 
 
 def _per_stage_and_batch(n_moves=30, seed=2, keyframe_every=300):
@@ -68,25 +67,14 @@ def test_batch_journal_default_stages_and_errors():
 
 
 def _moves():
-    mv = empty_moves(7)
-    rows = [((1, 1, 12), (1, 1, 8.5)),           # plunge into the 10 mm stock
-            ((1, 1, 8.5), (18, 3, 8.0)),
-            ((18, 3, 8.0), (18, 12, 7.0)),
-            ((18, 12, 7.0), (4, 12, 7.0)),          # an arc below
-            ((4, 12, 7.0), (4, 4, 6.5)),
-            ((4, 4, 6.5), (40, 40, 6.5)),           # leaves the stock: changes few rays
-            ((40, 40, 6.5), (40, 40, 30))]          # changes nothing
-    for k, (a, b) in enumerate(rows):
-        mv["kind"][k] = MoveKind.FEED
-        mv["start"][k, :3] = a
-        mv["end"][k, :3] = b
-        mv["feed"][k] = 600
-        mv["line"][k] = k + 1
-    mv["kind"][3] = MoveKind.ARC_CCW
-    mv["center"][3] = (11, 12, 7.0)
-    mv["plane"][3] = Plane.XY
-    mv["turns"][3] = 1
-    return mv
+    return feed_moves([((1, 1, 12), (1, 1, 8.5)),           # plunge into the 10 mm stock
+                       ((1, 1, 8.5), (18, 3, 8.0)),
+                       ((18, 3, 8.0), (18, 12, 7.0)),
+                       ((18, 12, 7.0), (4, 12, 7.0)),          # an arc below
+                       ((4, 12, 7.0), (4, 4, 6.5)),
+                       ((4, 4, 6.5), (40, 40, 6.5)),           # leaves the stock: changes few rays
+                       ((40, 40, 6.5), (40, 40, 30))],         # changes nothing
+                      {3: (11, 12, 7.0)})
 
 
 def test_real_batch_cut_with_journal_equals_cutting_move_by_move():

@@ -10,27 +10,9 @@ import sim.trace as trace_mod
 from sim import trace_kernels as tk
 from sim.cut import Cutter
 from sim.errors import InputError
-from sim.gcode.moves import MoveKind, Plane, empty_moves
 from sim.tools import Tool, parse_tool_spec
 from sim.trace import SharedTimeTrace, TimeTrace, Trace, same_model
-from tests.sim.trace_helpers import box, slab_cut
-
-
-def _moves(rows, arcs=()):
-    """Feed moves through ``rows`` ((start, end) tip points); ``arcs``: {row: centre} CCW."""
-    mv = empty_moves(len(rows))
-    for k, (a, b) in enumerate(rows):
-        mv["kind"][k] = MoveKind.FEED
-        mv["start"][k, :3] = a
-        mv["end"][k, :3] = b
-        mv["feed"][k] = 600
-        mv["line"][k] = k + 1
-    for k, c in dict(arcs).items():
-        mv["kind"][k] = MoveKind.ARC_CCW
-        mv["center"][k] = c
-        mv["plane"][k] = Plane.XY
-        mv["turns"][k] = 1
-    return mv
+from tests.sim.trace_helpers import box, feed_moves as _moves, slab_cut
 
 
 BALL_ROWS = [((1, 1, 12), (1, 1, 8.5)),            # plunge into the 10 mm stock

@@ -1,10 +1,12 @@
-"""Small cutters the trace tests drive through ``DexelGrid.subtract`` (no cut kernel needed)."""
+"""Small cutters the trace tests drive through ``DexelGrid.subtract`` (no cut kernel needed),
+and a move table of feeds and arcs for the tests that do use it."""
 
 from __future__ import annotations
 
 import numpy as np
 
 from sim.frame import Frame
+from sim.gcode.moves import MoveKind, Plane, empty_moves
 from sim.grid import DexelGrid
 
 
@@ -85,3 +87,20 @@ def journal_of(steps, grid: DexelGrid):
         journal_near=cat(segs[0], np.float32), journal_far=cat(segs[1], np.float32),
         journal_near_id=cat(segs[2], np.int32), journal_far_id=cat(segs[3], np.int32))
     return journal, np.array(stages, np.int64), snaps
+
+
+def feed_moves(rows, arcs=()):
+    """Feed moves through ``rows`` ((start, end) tip points); ``arcs``: {row: centre} CCW."""
+    mv = empty_moves(len(rows))
+    for k, (a, b) in enumerate(rows):
+        mv["kind"][k] = MoveKind.FEED
+        mv["start"][k, :3] = a
+        mv["end"][k, :3] = b
+        mv["feed"][k] = 600
+        mv["line"][k] = k + 1
+    for k, c in dict(arcs).items():
+        mv["kind"][k] = MoveKind.ARC_CCW
+        mv["center"][k] = c
+        mv["plane"][k] = Plane.XY
+        mv["turns"][k] = 1
+    return mv
