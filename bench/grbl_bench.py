@@ -32,11 +32,7 @@ def main(argv=None) -> dict:
     vm = VirtualMachine(MachineConfig(travel_min=None, travel_max=None))
     peer = GrblPeer(vm, speed=1.0)
     try:
-        if args.transport == "pty":
-            url = f"grbl://{peer.serve_pty()}?rate={args.rate:g}"
-        else:
-            url = f"grbl+socket://127.0.0.1:{peer.serve_tcp()}?rate={args.rate:g}"
-        c = from_url(url)
+        c = from_url(peer.serve_url(args.transport, f"rate={args.rate:g}"))
         c.connect()
         with XStepper(vm) as stepper:
             seen = watch_x(c, args.seconds, time.monotonic())

@@ -166,6 +166,18 @@ class GrblPeer:
         self._transports.append(t)
         return t.port
 
+    def serve_url(self, transport: str = "pty", query: str = "") -> str:
+        """Serve the peer over a new pty or TCP port (127.0.0.1, any free port) and return
+        the controller URL that reaches it (``grbl://PTY`` / ``grbl+socket://HOST:PORT``),
+        with ``query`` (e.g. ``"rate=50"``) appended."""
+        if transport == "pty":
+            url = f"grbl://{self.serve_pty()}"
+        elif transport == "tcp":
+            url = f"grbl+socket://127.0.0.1:{self.serve_tcp()}"
+        else:
+            raise ValueError(f"transport must be 'pty' or 'tcp', got {transport!r}")
+        return f"{url}?{query}" if query else url
+
     def close_transports(self) -> None:
         """Drop every pty and socket (the cable is pulled); the machine keeps running."""
         transports, self._transports = self._transports, []

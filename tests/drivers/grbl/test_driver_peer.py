@@ -43,11 +43,7 @@ def link(request, peer):
 
     def make(vm=None, speed=1.0, url_extra="", **kw):
         pr = peer(vm, speed, **kw)
-        if request.param == "pty":
-            url = f"grbl://{pr.serve_pty()}?rate=50{url_extra}"
-        else:
-            url = f"grbl+socket://127.0.0.1:{pr.serve_tcp()}?rate=50{url_extra}"
-        c = open_controller(url)
+        c = open_controller(pr.serve_url(request.param, f"rate=50{url_extra}"))
         c.connect()
         controllers.append(c)
         return pr, c
