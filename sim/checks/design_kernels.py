@@ -14,6 +14,23 @@ import numpy as np
 from sim.solids import orient2d
 
 
+@nb.njit(cache=True, inline="always")
+def _nearest_crossing(hit_s, hit_tri, a, b, s):
+    """Along one ray's crossings ``a <= k < b``: the distance from ``s`` to the nearest,
+    its triangle (-1 if none) and how many lie above ``s``."""
+    best = np.inf
+    bt = -1
+    above = 0
+    for k in range(a, b):
+        d = abs(hit_s[k] - s)
+        if d < best:
+            best = d
+            bt = hit_tri[k]
+        if hit_s[k] > s:
+            above += 1
+    return best, bt, above
+
+
 @nb.njit(cache=True)
 def vertical_errors(rays, s_pts, ptr, hit_s, hit_tri, tri_dz, sheet, out_dv, out_nz, out_inside, out_tri):
     """For each point (ray ``rays[q]``, parameter ``s_pts[q]``): the distance along the
@@ -24,18 +41,7 @@ def vertical_errors(rays, s_pts, ptr, hit_s, hit_tri, tri_dz, sheet, out_dv, out
     for q in range(rays.size):
         r = rays[q]
         s = s_pts[q]
-        a = ptr[r]
-        b = ptr[r + 1]
-        best = np.inf
-        bt = -1
-        above = 0
-        for k in range(a, b):
-            d = abs(hit_s[k] - s)
-            if d < best:
-                best = d
-                bt = hit_tri[k]
-            if hit_s[k] > s:
-                above += 1
+        best, bt, above = _nearest_crossing(hit_s, hit_tri, ptr[r], ptr[r + 1], s)
         if sheet:
             out_inside[q] = above > 0
         else:
@@ -227,18 +233,7 @@ def point_errors(rays, s_pts, nu, spacing, ptr, hit_s, hit_tri, tri_dz, sheet, l
     for q in range(rays.size):
         r = rays[q]
         s = s_pts[q]
-        a = ptr[r]
-        b = ptr[r + 1]
-        best = np.inf
-        bt = -1
-        above = 0
-        for k in range(a, b):
-            d = abs(hit_s[k] - s)
-            if d < best:
-                best = d
-                bt = hit_tri[k]
-            if hit_s[k] > s:
-                above += 1
+        best, bt, above = _nearest_crossing(hit_s, hit_tri, ptr[r], ptr[r + 1], s)
         out_dv[q] = best
         if bt < 0:
             out_err[q] = np.inf
