@@ -55,12 +55,12 @@ STATE_SIZE = 7
 
 #: int64 ``ts`` of a traced batch (see :func:`finish_trace_move`): far events written,
 #: general events written, their segments written, general rays of the open move, the open
-#: move (-1: none), its first far event, runs of far rays written, the batch's first block,
+#: move (-1: none), runs of far rays written, the batch's first block,
 #: the event count at which a keyframe falls due, the move after which it fell due, what a
 #: STOP_TRACE needs (far events and runs, general events, segments, general-ray scratch)
-(TS_NF, TS_NG, TS_NS, TS_NGL, TS_OPEN, TS_FSTART, TS_NR, TS_BLK0, TS_NEXT_DUE, TS_KEY_MOVE,
- TS_NEED_F, TS_NEED_G, TS_NEED_S, TS_NEED_GEN) = range(14)
-TRACE_STATE_SIZE = 14
+(TS_NF, TS_NG, TS_NS, TS_NGL, TS_OPEN, TS_NR, TS_BLK0, TS_NEXT_DUE, TS_KEY_MOVE,
+ TS_NEED_F, TS_NEED_G, TS_NEED_S, TS_NEED_GEN) = range(13)
+TRACE_STATE_SIZE = 13
 
 
 
@@ -788,7 +788,6 @@ def finish_trace_move(S, T, ts):
     T[10][mv] = ng
     T[11][mv] = s
     T[15][mv] = ts[TS_NR]
-    ts[TS_FSTART] = ts[TS_NF]
     ts[TS_OPEN] = -1
     return True
 
@@ -797,16 +796,10 @@ def finish_trace_move(S, T, ts):
 def _close_block(S, T, ts, blk_f, blk_g, blk_s, blk_r):
     """:func:`finish_trace_move`, with the usual move (far events only) closed here:
     passing the store and column tuples to a call costs more than the work."""
-    mv = ts[TS_OPEN]
-    if mv < 0:
+    if ts[TS_OPEN] < 0:
         return True
     if ts[TS_NGL] == 0:
-        blk_f[mv] = ts[TS_NF]
-        blk_g[mv] = ts[TS_NG]
-        blk_s[mv] = ts[TS_NS]
-        blk_r[mv] = ts[TS_NR]
-        ts[TS_FSTART] = ts[TS_NF]
-        ts[TS_OPEN] = -1
+        _close_far_only(ts, blk_f, blk_g, blk_s, blk_r, ts[TS_NF], ts[TS_NR])
         return True
     return finish_trace_move(S, T, ts)
 
@@ -824,7 +817,6 @@ def _close_far_only(ts, blk_f, blk_g, blk_s, blk_r, nf, nr):
     blk_r[mv] = nr
     ts[TS_NF] = nf
     ts[TS_NR] = nr
-    ts[TS_FSTART] = nf
     ts[TS_OPEN] = -1
 
 

@@ -79,39 +79,28 @@ class _Column:
         self.buf = np.empty(capacity, dtype)
         self.n = 0
 
-    def append(self, values: np.ndarray) -> None:
-        m = values.size
-        if self.n + m > self.buf.size:
-            new = np.empty(max(2 * self.buf.size, self.n + m), self.buf.dtype)
+    def grow_to(self, m: int) -> np.ndarray:
+        """Capacity at least ``m``, keeping the filled part (the new room is ``np.empty``:
+        untouched pages cost no memory until written, so a generous reserve is cheap).
+        Returns the buffer."""
+        if m > self.buf.size:
+            new = np.empty(max(m, 2 * self.buf.size, 1024), self.buf.dtype)
             new[:self.n] = self.buf[:self.n]
             self.buf = new
-        self.buf[self.n:self.n + m] = values
-        self.n += m
+        return self.buf
 
     def reserve(self, m: int) -> np.ndarray:
         """Make room for ``m`` more values; returns the buffer (fill ``buf[n:n+m]``, then
         advance ``n``)."""
-        if self.n + m > self.buf.size:
-            new = np.empty(max(2 * self.buf.size, self.n + m), self.buf.dtype)
-            new[:self.n] = self.buf[:self.n]
-            self.buf = new
-        return self.buf
+        return self.grow_to(self.n + m)
 
-    def grow_to(self, m: int) -> np.ndarray:
-        """Capacity at least ``m`` (the new room is ``np.empty``: untouched pages cost no
-        memory until written, so a generous reserve is cheap). Returns the buffer."""
-        if m > self.buf.size:
-            new = np.empty(max(m, self.buf.size + self.buf.size // 2, 1024), self.buf.dtype)
-            new[:self.n] = self.buf[:self.n]
-            self.buf = new
-        return self.buf
+    def append(self, values: np.ndarray) -> None:
+        m = values.size
+        self.reserve(m)[self.n:self.n + m] = values
+        self.n += m
 
     def push(self, value) -> None:
-        if self.n == self.buf.size:
-            new = np.empty(2 * self.buf.size, self.buf.dtype)
-            new[:self.n] = self.buf
-            self.buf = new
-        self.buf[self.n] = value
+        self.reserve(1)[self.n] = value
         self.n += 1
 
     @property
@@ -1211,7 +1200,6 @@ class _Sink:
         ts[K.TS_NR] = z._f_rs.n
         self.start = np.array([ts[K.TS_NF], ts[K.TS_NG], ts[K.TS_NS], ts[K.TS_NR]])
         ts[K.TS_OPEN] = -1
-        ts[K.TS_FSTART] = ts[K.TS_NF]
         ts[K.TS_BLK0] = self.b0
         # keyframes are taken inline unless keyframe work from earlier records is pending
         self.inline = z.auto_maintain and not z._due and z._builder is None
@@ -1222,7 +1210,6 @@ class _Sink:
         # in the kernels' order (T); _f_id grows with _f_val (index for index), unwritten
         self.cols = (z._f_rs, z._f_val, z._f_rl, z._g_ray, z._g_count,
                      z._g_near, z._g_far, z._g_nid, z._g_fid)
-        self.reserve(64 * self.n)
         for c in self.cols[3:]:
             c.grow_to(c.n + 1024)
 
