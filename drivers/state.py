@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import abc
+import collections
 import enum
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Iterator
@@ -24,7 +26,27 @@ class RunState(str, enum.Enum):
     HOME = "Home"
     SLEEP = "Sleep"
     UNKNOWN = "Unknown"
+    #: the link is down (port gone, socket closed): the position is the last one known
     DISCONNECTED = "Disconnected"
+    #: the link is up but this poll brought no fresh answer (late, garbled, refused, busy):
+    #: the position is the last one known
+    MISSED = "Missed"
+    #: the controller answered with numbers that cannot be right (non-finite, beyond any
+    #: machine): the position is the last one known, ``raw`` holds what was received
+    BAD = "Bad"
+
+
+#: run states that carry no fresh position: the monitor records them, marks them, and
+#: neither syncs nor cuts on them
+NOT_FRESH = frozenset({RunState.DISCONNECTED, RunState.MISSED, RunState.BAD})
+
+#: a position coordinate beyond this (mm, or deg for A/B/C) is no machine's: BAD
+MAX_POSITION = 1.0e5
+#: feed (mm/min) and spindle speed (rpm) beyond these are no machine's: BAD
+MAX_FEED = 1.0e6
+MAX_SPINDLE = 1.0e6
+#: integers a controller reports (line, alarm, overrides, buffer) beyond this are garbage
+MAX_REPORTED_INT = 2**31 - 1
 
 
 def _vec6(values) -> tuple[float, ...]:
@@ -100,6 +122,93 @@ class MachineState:
         """Machine position as a float64 array of shape (6,)."""
         return np.asarray(self.mpos, dtype=np.float64)
 
+    @property
+    def fresh(self) -> bool:
+        """True when this state carries a position the controller just reported."""
+        return self.state not in NOT_FRESH
+
+
+def implausible(state: MachineState) -> str | None:
+    """Why ``state``'s numbers cannot be right (one line), or None when they can.
+
+    Non-finite or beyond-any-machine positions, offsets, feed or spindle speed, and
+    integers (line, alarm, overrides, buffer) out of a 32-bit range. A driver turns such
+    a reading into a :data:`RunState.BAD` state (see :func:`stale_state`) instead of
+    handing it on: nothing non-finite or huge may reach the model.
+    """
+    for name, vec in (("position", state.mpos), ("work offset", state.wco)):
+        for axis, v in zip("XYZABC", vec):
+            if not math.isfinite(v) or abs(v) > MAX_POSITION:
+                return f"{name} {axis}={v!r} is not a machine coordinate (|v| <= {MAX_POSITION:g})"
+    for name, v, top in (("feed", state.feed, MAX_FEED), ("spindle speed", state.spindle, MAX_SPINDLE)):
+        if not math.isfinite(v) or abs(v) > top:
+            return f"{name} {v!r} is not a machine's (|v| <= {top:g})"
+    ints = [("line", state.line), ("alarm", state.alarm), ("substate", state.substate)]
+    ints += [("override", v) for v in state.overrides] + [("buffer", v) for v in (state.buffer or ())]
+    for name, v in ints:
+        if v is not None and not -MAX_REPORTED_INT <= v <= MAX_REPORTED_INT:
+            return f"{name} {v!r} is out of range"
+    return None
+
+
+def stale_state(last: MachineState | None, state: RunState, t: float, raw: str) -> MachineState:
+    """A not-fresh state (:data:`NOT_FRESH`) at time ``t``: the last known position,
+    offsets, overrides and line (zeros before any), run state ``state``, and ``raw``
+    saying why (the reason and, for BAD, the text received)."""
+    if last is None:
+        return MachineState(t=t, mpos=(0.0,) * 6, state=state, raw=raw)
+    return MachineState(t=t, mpos=last.mpos, wco=last.wco, state=state, line=last.line,
+                        overrides=last.overrides, raw=raw)
+
+
+@dataclass(frozen=True)
+class Gap:
+    """A time the link was away: ``t_lost``/``t_back`` monotonic s, and why.
+
+    ``polls_missed``: polls answered with DISCONNECTED meanwhile; ``lines_lost``: lines
+    in flight whose answers went with the link; ``came_back``: how the controller came
+    back when that is worth saying ("reset: Grbl 1.1h banner", "alarm 1"), else "".
+    """
+
+    t_lost: float
+    t_back: float
+    reason: str
+    polls_missed: int = 0
+    lines_lost: int = 0
+    came_back: str = ""
+
+    @property
+    def seconds(self) -> float:
+        return self.t_back - self.t_lost
+
+    def __iter__(self):  # unpacks as (t_lost, t_back)
+        return iter((self.t_lost, self.t_back))
+
+
+class LinkKind(str, enum.Enum):
+    """What a :class:`LinkEvent` reports."""
+
+    LOST = "lost"      # the link went away
+    BACK = "back"      # the link is back (``gap`` says for how long and what was missed)
+    RESET = "reset"    # the controller reset (banner) or came back reset / in alarm
+    BAD = "bad"        # a reply that cannot be right was recorded as BAD and skipped
+    NOTE = "note"      # anything else worth a line (retries of busy answers, a dropped sender output ...)
+
+
+@dataclass(frozen=True)
+class LinkEvent:
+    """Something that happened to the link, for the monitor to say and record.
+
+    ``t`` monotonic s; ``message`` one line for a person (names the port); ``raw`` the
+    bytes or registers involved, if any; ``gap`` the finished :class:`Gap` on BACK.
+    """
+
+    t: float
+    kind: LinkKind
+    message: str
+    raw: str = ""
+    gap: Gap | None = None
+
 
 class Controller(abc.ABC):
     """Interface of every controller driver (GRBL, Modbus, virtual).
@@ -108,9 +217,44 @@ class Controller(abc.ABC):
     then ``connect()``-ed. ``poll()`` returns the newest state; ``states(period)`` yields
     states at a rate. The monitor only ever calls ``feed_hold()`` among the commands,
     and only when the user enabled it.
+
+    The contract the monitor relies on, once ``connect()`` succeeded:
+
+    * ``poll()`` does not raise for anything the link or the controller does: a link
+      that is down gives a DISCONNECTED state, a late, garbled, refused or busy answer a
+      MISSED one, an answer whose numbers cannot be right (:func:`implausible`) a BAD
+      one (:func:`stale_state` makes all three). The driver reconnects by itself,
+      retrying at least as often as it is polled, and redoes its handshake.
+    * A fresh state (``state.fresh``) comes from an answer that arrived after the poll
+      asked for it; ``t`` never goes backwards from one returned state to the next.
+    * Link trouble is also told once as :class:`LinkEvent` s, drained with
+      :meth:`link_events`; every finished outage is in ``gaps``.
+    * No driver thread dies quietly: a failure inside becomes a state, an event or a
+      reconnect.
     """
 
     url: str = ""
+    #: finished outages, oldest first
+    gaps: list[Gap]
+
+    def link_events(self) -> list[LinkEvent]:
+        """The link events since the last call, oldest first (and forgets them)."""
+        q = self.__dict__.get("_link_q")
+        out = []
+        while q:
+            try:
+                out.append(q.popleft())
+            except IndexError:
+                break
+        return out
+
+    def _link_event(self, kind: LinkKind, message: str, raw: str = "", gap: Gap | None = None,
+                    t: float | None = None) -> LinkEvent:
+        """Queue a :class:`LinkEvent` for :meth:`link_events` (thread-safe; the oldest are
+        dropped past 1000 undrained)."""
+        ev = LinkEvent(time.monotonic() if t is None else t, LinkKind(kind), message, raw, gap)
+        self.__dict__.setdefault("_link_q", collections.deque(maxlen=1000)).append(ev)
+        return ev
 
     @abc.abstractmethod
     def connect(self) -> None:

@@ -33,7 +33,7 @@ import serial
 
 from drivers.errors import ConnectionLost, DriverError, ProtocolError
 from drivers.grbl import protocol as p
-from drivers.state import Controller, MachineState, RunState
+from drivers.state import Controller, Gap, MachineState, RunState
 
 MAX_RATE_HZ = 50.0
 DEFAULT_RATE_HZ = 20.0
@@ -117,20 +117,6 @@ class StreamResult:
     @property
     def completed(self) -> bool:
         return self.stopped is None
-
-
-@dataclass(frozen=True)
-class Gap:
-    """A time the port was away: ``t_lost``/``t_back`` monotonic seconds, and why."""
-
-    t_lost: float
-    t_back: float
-    reason: str
-    polls_missed: int = 0
-    lines_lost: int = 0
-
-    def __iter__(self):  # unpacks as (t_lost, t_back)
-        return iter((self.t_lost, self.t_back))
 
 
 class GrblController(Controller):
