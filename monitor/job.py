@@ -17,6 +17,7 @@ needs; paths are relative to the job file's folder)::
     subroutine_path = ["subs"]  # folders searched for o<name> call files (then the program's)
     work_system = "G54"         # the job's work system: stock, fixtures, design and
                                 # work_offset are in it (G54..G59, G59.1..G59.3)
+    max_loop = 100000           # passes of one o-word loop before it is called endless
 
     work_offset = [0, 0, 0]     # where the job's work system has its zero, machine coords
                                 # (mm), or "controller" (from the WCO it reports)
@@ -137,6 +138,7 @@ class Job:
     var_file: Path | None = None        # LinuxCNC .var file (work offsets ...), in machine_units
     machine_units: str = "mm"           # units of the tool table and the .var file
     subroutine_path: list[Path] = field(default_factory=list)
+    max_loop: int = 100_000             # passes of one o-word loop (sim.gcode.limits.Limits.max_loop)
     work_system: str = "G54"            # the model frame: stock, fixtures, design are in it
     work_offset: tuple[float, float, float] | None = None  # None: read from the controller (WCO)
     stock: Solid | None = None
@@ -262,6 +264,17 @@ def parse_solid_spec(spec: str, where: str, base: Path = Path(".")) -> Solid:
     return _solid(_Ctx(where, base), {kind: rest}, "", allow=(kind,))
 
 
+#: help text of ``--max-loop`` (job, moves and simulate commands)
+MAX_LOOP_HELP = "passes of one o-word loop (and the largest repeat count) before the program is refused " \
+                "as endless (default 100000)"
+
+
+def _count(ctx: _Ctx, value, where: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ctx.err(where, "a positive whole number", value)
+    return value
+
+
 def _machine_units(ctx: _Ctx, value, where: str) -> str:
     if value not in MACHINE_UNITS:
         raise ctx.err(where, '"mm" or "inch"', value)
@@ -349,8 +362,8 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
         if isinstance(t, str):
             t = {"path": t}
         t = ctx.table(t, "[program]")
-        ctx.no_unknown(t, {"path", "dialect", "var", "machine_units", "subroutine_path", "work_system"},
-                       "[program]")
+        ctx.no_unknown(t, {"path", "dialect", "var", "machine_units", "subroutine_path", "work_system",
+                           "max_loop"}, "[program]")
         if "path" in t:
             job.program = ctx.path(t["path"], "[program] path")
         if "dialect" in t:
@@ -365,6 +378,8 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
             job.subroutine_path = _dirs(ctx, t["subroutine_path"], "[program] subroutine_path")
         if "work_system" in t:
             job.work_system = _work_system(ctx, t["work_system"], "[program] work_system")
+        if "max_loop" in t:
+            job.max_loop = _count(ctx, t["max_loop"], "[program] max_loop")
 
     if "work_offset" in doc:
         v = doc["work_offset"]
@@ -481,6 +496,7 @@ def add_job_arguments(parser) -> None:
     g.add_argument("--subroutine-path", action="append", metavar="DIRS", default=None,
                    help="folders searched for o<name> call files, os.pathsep-separated; repeatable")
     g.add_argument("--work-system", help="the job's work system (G54..G59.3) stock and fixtures are in")
+    g.add_argument("--max-loop", type=int, metavar="N", help=MAX_LOOP_HELP)
     g.add_argument("--design", help="design model STL")
     g.add_argument("--resolution", type=float, help="dexel spacing, mm")
     g.add_argument("--gouge-tol", type=float, help="gouge band, mm")
@@ -520,6 +536,8 @@ def job_from_args(args, job_path: str | Path | None = None) -> Job:
                                for d in _dirs(ctx, arg, "--subroutine-path")]
     if g("work_system"):
         job.work_system = _work_system(ctx, g("work_system"), "--work-system")
+    if g("max_loop") is not None:
+        job.max_loop = _count(ctx, g("max_loop"), "--max-loop")
     if g("design"):
         spec = g("design")
         job.design = parse_solid_spec(spec if ":" in spec and not spec.lower().endswith(".stl")

@@ -62,10 +62,10 @@ class StepInfo:
 
 def load_moves(job: Job) -> np.ndarray:
     """The job's program as a move table (MOVE_DTYPE), via the G-code interpreter."""
-    from sim.gcode import load_program
+    from sim.gcode import Limits, load_program
 
     program = load_program(job.program, dialect=job.dialect, tool_table=job.tool_table, var_file=job.var_file,
-                           machine_units=job.machine_units,
+                           machine_units=job.machine_units, limits=Limits(max_loop=job.max_loop),
                            subroutine_path=[str(d) for d in job.subroutine_path] or None)
     return np.asarray(program.moves), program
 

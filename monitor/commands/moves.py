@@ -8,6 +8,8 @@ import math
 import os
 import sys
 
+from monitor.job import MAX_LOOP_HELP
+
 HELP = "print a program's move table (jsonl or csv)"
 
 KIND_NAMES = {0: "rapid", 1: "feed", 2: "arc_cw", 3: "arc_ccw", 4: "dwell", 5: "tool_change", 6: "probe",
@@ -28,6 +30,7 @@ def add_arguments(parser) -> None:
                              f"'{os.pathsep}'-separated like LinuxCNC's SUBROUTINE_PATH; repeatable; "
                              "the program's own directory is searched last")
     parser.add_argument("--format", choices=("jsonl", "csv"), default="jsonl", help="output format (default jsonl)")
+    parser.add_argument("--max-loop", type=int, default=None, metavar="N", help=MAX_LOOP_HELP)
     parser.add_argument("--keep-going", action="store_true",
                         help="list every error (on stderr) instead of stopping at the first")
     parser.add_argument("--linearize", type=float, metavar="MM",
@@ -76,15 +79,20 @@ def rows_as_dicts(prog, moves, times=None):
 
 
 def run(args) -> int:
-    from sim.gcode import load_program
+    from sim.gcode import Limits, load_program
 
+    if args.max_loop is not None and args.max_loop < 1:
+        print("dexmon moves: error: --max-loop needs a positive whole number", file=sys.stderr)
+        return 2
+    limits = Limits() if args.max_loop is None else Limits(max_loop=args.max_loop)
     sub_path = [d for arg in args.subroutine_path for d in arg.split(os.pathsep) if d]
     for d in sub_path:
         if not os.path.isdir(d):
             print(f"dexmon moves: error: --subroutine-path {d!r} is not a directory", file=sys.stderr)
             return 2
     prog = load_program(args.program, dialect=args.dialect, tool_table=args.tool_table, var_file=args.var,
-                        machine_units=args.machine_units, keep_going=args.keep_going, subroutine_path=sub_path)
+                        machine_units=args.machine_units, keep_going=args.keep_going, subroutine_path=sub_path,
+                        limits=limits)
     moves = prog.moves
     if args.linearize is not None:
         if not (args.linearize > 0 and math.isfinite(args.linearize)):

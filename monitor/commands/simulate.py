@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from monitor.job import MAX_LOOP_HELP
 from sim.errors import InputError
 
 HELP = "cut and check a whole program (or a JOB.toml) without a machine; findings table or --json"
@@ -69,6 +70,7 @@ def add_arguments(parser) -> None:
                         help="directories searched for o<name> call subroutine files (<name>.ngc), "
                              f"'{os.pathsep}'-separated like LinuxCNC's SUBROUTINE_PATH; repeatable; "
                              "the program's own directory is searched last")
+    parser.add_argument("--max-loop", type=int, default=None, metavar="N", help=MAX_LOOP_HELP)
     parser.add_argument("--memory-limit", type=float, default=4096.0, metavar="MB",
                         help="refuse grids needing more than this (default 4096 MB)")
     parser.add_argument("--heights", default=None, metavar="OUT.npy", help="write top-surface heights (float32 ny x nx)")
@@ -195,17 +197,21 @@ def design_note(checker, name) -> str | None:
 
 
 def load_moves(path: str, dialect: str = "linuxcnc", tool_table=None, var_file=None, units: str = "mm",
-               subroutine_path=None) -> np.ndarray:
+               subroutine_path=None, max_loop: int | None = None) -> np.ndarray:
     """The move table of a program, through the project's G-code interpreter.
 
     ``var_file``: LinuxCNC .var path (work offsets, G28/G30), in ``units`` like the tool table.
+    ``max_loop``: passes of one o-word loop before it is refused (None: the default).
     """
-    from sim.gcode import load_program
+    from sim.gcode import Limits, load_program
 
     if var_file is not None and not Path(var_file).is_file():
         raise InputError("no such parameter (.var) file", where=f"--var {var_file}")
+    if max_loop is not None and max_loop < 1:
+        raise InputError(f"must be a positive whole number, got {max_loop}", where="--max-loop")
+    limits = Limits() if max_loop is None else Limits(max_loop=max_loop)
     return load_program(path, dialect=dialect, tool_table=tool_table, var_file=var_file,
-                        machine_units=units, subroutine_path=subroutine_path or None).moves
+                        machine_units=units, subroutine_path=subroutine_path or None, limits=limits).moves
 
 
 def _cutting_rows(moves: np.ndarray) -> np.ndarray:
@@ -267,7 +273,7 @@ def run(args) -> int:
         grid = build_stock(args.stock, resolution, args.memory_limit)
     else:
         raise InputError("give the stock as --stock box:X0,Y0,Z0,X1,Y1,Z1 (or a mesh), or --resume RUN:STAGE")
-    moves = load_moves(args.program, args.dialect or "linuxcnc", table, args.var, units, sub_dirs)
+    moves = load_moves(args.program, args.dialect or "linuxcnc", table, args.var, units, sub_dirs, args.max_loop)
     checker = None
     if not args.no_checks:
         from sim.checks.report import checker_from_args
@@ -344,7 +350,8 @@ def _run_job(args) -> int:
     table = read_tool_table(job.tool_table, job.machine_units) if job.tool_table else None
     # one frame: the job's work system; rows in other systems land at their offsets from it
     moves = work_moves(load_moves(job.program, job.dialect, table, job.var_file, job.machine_units,
-                                  [str(d) for d in job.subroutine_path]), reference_wco(job))
+                                  [str(d) for d in job.subroutine_path], args.max_loop or job.max_loop),
+                       reference_wco(job))
     est = DexelGrid_estimate(job)
     if est > args.memory_limit * 2**20:
         raise InputError(f"the job's dexel grid needs about {est / 2**20:.0f} MB, over the "

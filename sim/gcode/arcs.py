@@ -98,6 +98,8 @@ def arc_motion(it, cw: bool, explicit: bool, words, cols, used, has_axes: bool) 
         p = words["P"]
         if p != int(p) or p < 1:
             raise LineError(f"arc P (turns) must be a positive integer, got {p:g}", cols["P"])
+        if p > it.limits.max_arc_turns:
+            raise LineError(f"arc P{p:.0f}: at most {it.limits.max_arc_turns} turns in one arc", cols["P"])
         turns = int(p)
         used.add("P")
     tol = ARC_TOL_INCH * INCH if it.units == 200 else ARC_TOL_MM

@@ -52,6 +52,8 @@ def canned_cycle(it, motion: int, words, cols, used) -> None:
         used.add("L")
         if Lv != int(Lv) or Lv < 1:
             raise LineError(f"canned cycle L (repeats) must be a positive integer, got {Lv:g}", cols["L"])
+        if Lv > it.limits.max_cycle_repeats:
+            raise LineError(f"canned cycle L{Lv:.0f}: at most {it.limits.max_cycle_repeats} repeats", cols["L"])
         L = int(Lv)
     if motion in (730, 830):
         if it.cycle_q is None or it.cycle_q <= 0:
@@ -80,6 +82,11 @@ def canned_cycle(it, motion: int, words, cols, used) -> None:
         raise LineError(f"R plane ({r / f:g}) is below the bottom of the hole ({bottom / f:g})",
                         cols.get("R", gcol))
     delta = (it.cycle_q or 0.0) * f
+    if motion in (730, 830):
+        pecks = L * math.ceil((r - bottom) / delta)
+        if pecks > it.limits.max_pecks:
+            raise LineError(f"G{motion // 10} Q{it.cycle_q:g} makes {pecks} pecks; at most {it.limits.max_pecks} "
+                            "in one block (a larger Q)", cols.get("Q", gcol))
     rapid_delta = G83_RAPID_DELTA_INCH * INCH
     dwell = it.cycle_p or 0.0
     gfeed, ginv = it._feed_rate(gcol, words, abs(r - bottom))

@@ -102,9 +102,18 @@ def evaluate(tree, params) -> float:
         return tree
     tag = tree[0]
     if tag == "b":
-        a = evaluate(tree[2], params)
-        b = evaluate(tree[3], params)
-        v = _binary(tree[1], a, b)
+        # a flat chain (``1+1+...+1``) is a left spine as long as the chain: walk it
+        # without recursing, so its length is bounded by the line, not by the stack
+        spine = []
+        while type(tree) is not float and tree[0] == "b":
+            spine.append(tree)
+            tree = tree[2]
+        v = evaluate(tree, params)
+        for node in reversed(spine):
+            v = _binary(node[1], v, evaluate(node[3], params))
+            if not math.isfinite(v):
+                raise LineError("expression result is not a finite number")
+        return v
     elif tag == "p":
         idx = evaluate(tree[1], params)
         v = params.get_numbered(idx)

@@ -22,6 +22,7 @@ import re
 
 import numpy as np
 
+from sim.gcode.limits import MAX_LINEAR_MM
 from sim.gcode.moves import MoveKind
 
 #: lines scanned and executed per chunk (bounds the temporaries: a few MB at most)
@@ -244,12 +245,15 @@ def scan(lines: SourceLines, a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 class ChunkScanner:
-    """Scan results for the chunk of :data:`CHUNK` lines holding a given line (the last one kept)."""
+    """Scan results for the chunk of :data:`CHUNK` lines holding a given line.
+
+    The last two chunks are kept: a loop whose body straddles a chunk boundary goes back
+    and forth between two chunks on every pass, and must not rescan them each time.
+    """
 
     def __init__(self, lines: SourceLines):
         self.lines = lines
-        self.a = self.b = -1
-        self.simple = self.values = self.run_end = None
+        self.kept: list[tuple] = []  # (a, simple, values, run_end), newest last
 
     def at(self, i: int):
         """``(a, simple, values, run_end)`` of the chunk starting at line ``a`` that holds line ``i``.
@@ -257,15 +261,17 @@ class ChunkScanner:
         ``run_end[k]``: chunk index of the first non-simple line at or after ``k`` (or the
         chunk length).
         """
-        if not self.a <= i < self.b:
-            a = i - i % CHUNK
-            b = min(a + CHUNK, len(self.lines))
-            simple, values = scan(self.lines, a, b)
-            not_simple = np.flatnonzero(~simple)
-            ends = np.append(not_simple, b - a)
-            self.run_end = ends[np.searchsorted(not_simple, np.arange(b - a), side="left")]
-            self.a, self.b, self.simple, self.values = a, b, simple, values
-        return self.a, self.simple, self.values, self.run_end
+        a = i - i % CHUNK
+        for got in self.kept:
+            if got[0] == a:
+                return got
+        b = min(a + CHUNK, len(self.lines))
+        simple, values = scan(self.lines, a, b)
+        not_simple = np.flatnonzero(~simple)
+        ends = np.append(not_simple, b - a)
+        run_end = ends[np.searchsorted(not_simple, np.arange(b - a), side="left")]
+        self.kept = self.kept[-1:] + [(a, simple, values, run_end)]
+        return self.kept[-1]
 
 
 def _carry(off: float, p: np.ndarray) -> np.ndarray:
@@ -326,6 +332,8 @@ def run_simple(it, vals: np.ndarray, first: int, snapshot) -> bool:
             if not np.array_equal(_carry(off[i], col[missing]), col[missing]):
                 return False
             end[:, i] = col
+        if not (np.abs(end[:, :3]) <= MAX_LINEAR_MM).all():
+            return False  # the per-line path refuses the coordinate at its line
     meta = it.meta()
     it._seal()
     if n:

@@ -19,13 +19,13 @@ import numpy as np
 from sim.gcode import arcs
 from sim.gcode.errors import GCodeError, LineError
 from sim.gcode.expr import evaluate
+from sim.gcode.limits import DEFAULT_LIMITS, MAX_LINEAR_MM, MAX_ROTARY_DEG, Limits
 from sim.gcode.moves import COOLANT_FLOOD, COOLANT_MIST, MOVE_DTYPE, MoveKind
 from sim.gcode.parser import AXES, Block, parse_line
 from sim.gcode.state import ModalState
 
 INCH = 25.4
 NAN3 = (math.nan, math.nan, math.nan)
-MAX_STEPS = 20_000_000  # executed blocks before a program is called runaway (o-word loops)
 
 # modal group of each G code (in tenths); 0 = non-modal
 G_GROUP = {
@@ -59,6 +59,7 @@ COORD_INDEX = {540: 0, 550: 1, 560: 2, 570: 3, 580: 4, 590: 5, 591: 6, 592: 7, 5
 ARC_TOL_INCH = 0.0005  # LinuxCNC TOLERANCE_INCH (program inch)
 ARC_TOL_MM = 0.005     # LinuxCNC TOLERANCE_MM
 G83_RAPID_DELTA_INCH = 0.010
+_AXIS_BOUND = (MAX_LINEAR_MM,) * 3 + (MAX_ROTARY_DEG,) * 3
 SPLINE_CHORD = 0.001  # mm: G5/G5.1 chords stay this close to the curve
 
 
@@ -196,7 +197,8 @@ class Interpreter:
     """
 
     def __init__(self, dialect: str = "linuxcnc", machine_units: str = "mm", tool_table=None,
-                 var_params: dict | None = None, filename: str = "<string>", block_delete: bool = True):
+                 var_params: dict | None = None, filename: str = "<string>", block_delete: bool = True,
+                 limits: Limits | None = None):
         if dialect not in ("linuxcnc", "grbl"):
             raise GCodeError(f"unknown dialect {dialect!r}: expected 'linuxcnc' or 'grbl'", filename, 0)
         if machine_units not in ("mm", "inch"):
@@ -209,6 +211,7 @@ class Interpreter:
         self.filename = filename
         self.files: list[str] = [filename]
         self.block_delete = block_delete
+        self.limits = limits or DEFAULT_LIMITS
         # positions and offsets, mm / degrees
         self.pos = [0.0] * 6
         self.g5x = [[0.0] * 6 for _ in range(9)]
@@ -481,7 +484,13 @@ class Interpreter:
 
     def emit(self, kind: int, start, end, center=NAN3, turns: int = 0, feed: float = 0.0,
              inverse: float = 0.0, dwell: float = 0.0, meta: tuple | None = None) -> None:
-        """Append one move row; ``start``/``end`` machine coordinates (6), mm/deg."""
+        """Append one move row; ``start``/``end`` machine coordinates (6), mm/deg.
+
+        Raises LineError for a coordinate beyond any machine (or not finite): nothing the
+        dexel kernels cannot handle gets into the table."""
+        for axis, v, top in zip(AXES, end, _AXIS_BOUND):
+            if not abs(v) <= top:  # also catches NaN
+                raise LineError(coordinate_message(axis, v))
         m = meta or self.meta()
         self._rows.append((
             m[0], m[1], kind, tuple(start), tuple(end), tuple(self.offsets()), center,
@@ -605,6 +614,9 @@ class Interpreter:
             used.add("T")
             if t < 0 or t != int(t):
                 raise LineError(f"T must be a non-negative integer, got {t:g}", cols["T"], 4 if t < 0 else 23)
+            if t > self.limits.max_tool:
+                raise LineError(f"tool number T{t:.0f} is beyond any tool table (at most {self.limits.max_tool})",
+                                cols["T"], 38 if grbl else None)
             t = int(t)
             if grbl and t > 255:
                 raise LineError("tool number greater than 255", cols["T"], 38)
@@ -623,8 +635,8 @@ class Interpreter:
                     raise LineError("M61 needs a Q word (tool number)", m6[1])
                 q = words["Q"]
                 used.add("Q")
-                if q < 0 or q != int(q):
-                    raise LineError("M61 Q must be a non-negative integer", cols["Q"])
+                if q < 0 or q != int(q) or q > self.limits.max_tool:
+                    raise LineError(f"M61 Q must be a tool number from 0 to {self.limits.max_tool}", cols["Q"])
                 if self.has_tool_table and int(q) != 0 and int(q) not in self.tool_table:
                     raise LineError(f"unknown tool T{int(q)}: it is not in the tool table", cols["Q"])
                 self.tool = self.selected_tool = int(q)
@@ -1094,3 +1106,12 @@ class Interpreter:
     def work_of(self, machine) -> list:
         off = self.offsets()
         return [machine[i] - off[i] for i in range(6)]
+
+
+def coordinate_message(axis: str, value: float) -> str:
+    """Why coordinate ``value`` (mm, or deg for A/B/C) of ``axis`` is refused."""
+    top = MAX_LINEAR_MM if axis in "XYZ" else MAX_ROTARY_DEG
+    unit = "mm" if axis in "XYZ" else "deg"
+    if not math.isfinite(value):
+        return f"{axis} is not a finite number (the value overflows)"
+    return f"{axis}{value:.6g} {unit} is beyond any machine's travel (at most {top:g} {unit})"

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 from sim.gcode.errors import LineError
 
-_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)")
+_NUMBER = re.compile(r"[+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+)")  # ASCII digits only: "１２" is no number
 _UNARY = ("ABS", "ACOS", "ASIN", "ATAN", "COS", "EXP", "FIX", "FUP", "LN", "ROUND", "SIN", "SQRT", "TAN", "EXISTS")
 # binary operators by precedence (lowest first), as RS274NGC groups them
 _BINARY_LEVELS = (
@@ -35,6 +35,8 @@ _OWORD_KEYWORDS = (
     "ENDREPEAT", "REPEAT", "BREAK", "CONTINUE",
 )
 AXES = "XYZABC"
+#: bracket nesting of one expression (:class:`sim.gcode.limits.Limits` ``max_nesting``)
+MAX_NESTING = 64
 
 
 @dataclass(slots=True)
@@ -98,14 +100,16 @@ def strip_line(text: str, dialect: str = "linuxcnc") -> tuple[str, list[int], st
 class _Reader:
     """Recursive-descent reader over one compressed line."""
 
-    __slots__ = ("s", "cols", "i", "grbl", "has_expr")
+    __slots__ = ("s", "cols", "i", "grbl", "has_expr", "depth", "max_depth")
 
-    def __init__(self, s: str, cols: list[int], grbl: bool):
+    def __init__(self, s: str, cols: list[int], grbl: bool, max_depth: int = MAX_NESTING):
         self.s = s
         self.cols = cols
         self.i = 0
         self.grbl = grbl
         self.has_expr = False
+        self.depth = 0             # brackets open around the reader
+        self.max_depth = max_depth
 
     def col(self, i: int | None = None) -> int:
         i = self.i if i is None else i
@@ -138,7 +142,7 @@ class _Reader:
             return self.number()
         if c in "+-":
             nxt = self.s[self.i + 1 : self.i + 2]
-            if nxt.isdigit() or nxt == ".":
+            if "0" <= nxt <= "9" or nxt == ".":
                 return self.number()
             self.i += 1
             v = self.value()
@@ -208,11 +212,15 @@ class _Reader:
 
     def expression(self):
         """``[ ... ]`` with RS274NGC precedence; the reader stands on '['."""
+        if self.depth >= self.max_depth:
+            self.fail(f"expression nested more than {self.max_depth} brackets deep")
+        self.depth += 1
         self.i += 1
         tree = self._level(0)
         if self.peek() != "]":
             self.fail(f"expected ']' or an operator, found {self._found()}")
         self.i += 1
+        self.depth -= 1
         return tree
 
     def _level(self, level: int):
@@ -245,7 +253,7 @@ class _Reader:
             v = self.value()
             label = v
         else:
-            m = re.match(r"\d+", self.s[self.i :])
+            m = re.match(r"[0-9]+", self.s[self.i :])
             if not m:
                 self.fail("o-word needs a number or <name>", at=start)
             label = str(int(m.group()))

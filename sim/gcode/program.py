@@ -16,7 +16,8 @@ import numpy as np
 
 from sim.gcode.errors import GCodeError, LineError, ProgramFileError
 from sim.gcode.expr import evaluate
-from sim.gcode.interpreter import MAX_STEPS, Interpreter
+from sim.gcode.interpreter import Interpreter
+from sim.gcode.limits import Limits
 from sim.gcode.moves import MOVE_DTYPE
 from sim.gcode.parser import parse_line
 from sim.gcode.source_file import check_text, read_program
@@ -45,6 +46,7 @@ class _Source:
     subs: dict = field(default_factory=dict)     # label -> sub line
     struct_errors: list = field(default_factory=list)  # (line index, LineError)
     percent_end: int | None = None
+    has_long_lines: bool = False  # lines over the limit: refused one by one, so no bulk fast path
     cached: object = None  # (n,) bool: lines whose parsed block is kept (loop/sub bodies); None = all
 
     def block(self, i: int, dialect: str):
@@ -76,7 +78,7 @@ def _percent_end(lines) -> int | None:
     return None
 
 
-def _prepare(name: str, index: int, text, dialect: str) -> _Source:
+def _prepare(name: str, index: int, text, dialect: str, max_line_chars: int = Limits.max_line_chars) -> _Source:
     """Split ``text`` (str or UTF-8 bytes) into lines and find its o-word structure."""
     from sim.gcode.fastpath import split_lines
 
@@ -85,8 +87,16 @@ def _prepare(name: str, index: int, text, dialect: str) -> _Source:
     src = _Source(name, index, lines)
     # lines are parsed when first executed; only o-word lines are needed up front
     blocks = src.blocks
+    # an overlong line is refused where it runs (its bytes are never parsed)
+    for i in np.flatnonzero(np.diff(lines.starts) - 1 > max_line_chars):
+        n = int(lines.starts[i + 1] - lines.starts[i] - 1)
+        blocks[int(i)] = LineError(f"line is {n} characters long; at most {max_line_chars} "
+                                   "(LinuxCNC reads 255, GRBL 80)", 1)
+    src.has_long_lines = bool(blocks)
     for i in lines.find_byte_lines(b"oO"):
         i = int(i)
+        if i in blocks:
+            continue
         raw = lines[i]
         if _OWORD_LINE.match(raw):
             try:
@@ -231,20 +241,22 @@ class Program:
 
 
 class _Runner:
-    def __init__(self, it: Interpreter, keep_going: bool, subroutine_path, max_steps: int, fast: bool = True):
+    def __init__(self, it: Interpreter, keep_going: bool, subroutine_path, fast: bool = True):
         self.it = it
         self.fast = fast
         self.keep_going = keep_going
         self.errors: list[GCodeError] = []
         self.sources: list[_Source] = []
         self.sub_path = [Path(p) for p in (subroutine_path or [])]
-        self.max_steps = max_steps
+        self.limits = it.limits
+        self.passes: dict = {}  # (call depth, file, loop's opening line) -> passes since it was entered
         self.snapshots: list[ModalState] = []
         self.snap_lines: list[int] = []
         self.last_key = None
         self.warnings: list[str] = []
 
     def fail(self, src: _Source, i: int, exc: LineError):
+        i = getattr(exc, "line_index", i)  # a loop limit names the loop's opening line
         err = GCodeError(exc.message, src.name, i + 1, exc.column, src.lines[i] if i < len(src.lines) else "",
                          exc.grbl_code if self.it.grbl else None)
         if self.it.grbl and err.grbl_code is None:
@@ -261,7 +273,7 @@ class _Runner:
             self.snap_lines.append(self.it.main_line)
 
     def add_source(self, name: str, text: str) -> _Source:
-        src = _prepare(name, len(self.sources), text, self.it.dialect)
+        src = _prepare(name, len(self.sources), text, self.it.dialect, self.limits.max_line_chars)
         self.sources.append(src)
         if src.index >= len(self.it.files):
             self.it.files.append(name)
@@ -295,13 +307,16 @@ class _Runner:
         calls: list[tuple] = []  # (src, return pc, saved #1..#30)
         repeats: dict = {}
         steps = 0
+        # straight-line code is bounded by the file; loops and calls by the limit
+        max_steps = self.limits.max_steps + len(main.lines)
+        max_rows = self.limits.max_steps + 2 * len(main.lines)
         self.snapshot()
         end_index = main.percent_end
         fl = None
         # room for a row per main line up front: untouched zeroed pages cost no memory, and
         # the table then rarely has to grow (which would touch what it adds)
         it.expect(len(main.lines) + 64)
-        if self.fast:
+        if self.fast and not main.has_long_lines:
             from sim.gcode.fastpath import ChunkScanner, run_simple
 
             fl = ChunkScanner(main.lines)
@@ -319,8 +334,9 @@ class _Runner:
                 p.frames.pop()
                 continue
             steps += 1
-            if steps > self.max_steps:
-                self.fail(src, pc, LineError(f"program ran more than {self.max_steps} blocks: endless o-word loop?"))
+            if steps > max_steps:
+                self.fail(src, pc, LineError(f"program ran more than {self.limits.max_steps} blocks beyond its "
+                                             f"{len(main.lines)} lines: an endless o-word loop?"))
                 break
             if depth == 0:
                 it.main_line = pc + 1
@@ -357,6 +373,10 @@ class _Runner:
                     del it._rows[n_rows:], it._row_line[n_rows:]
                     self.fail(src, pc, LineError(f"cannot compute this line: {exc}"))
                 self.snapshot()
+                if it._n + len(it._rows) > max_rows:
+                    self.fail(src, pc, LineError(f"program made more than {max_rows} moves from its "
+                                                 f"{len(main.lines)} lines: memory is bounded"))
+                    break
                 if len(it._rows) >= SEAL_ROWS:
                     it._seal()  # rows as compact table rows, not Python tuples
                 if it.ended:
@@ -397,6 +417,20 @@ class _Runner:
                     else:
                         p.globals["_value_returned"] = 0.0
         return self
+
+    def count_pass(self, src: _Source, opener: int, depth: int) -> None:
+        """One more pass of the loop opened on line index ``opener``; LineError (naming
+        that line) past the loop limit."""
+        key = (depth, src.index, opener)
+        n = self.passes.get(key, 0) + 1
+        if n > self.limits.max_loop:
+            self.passes.pop(key, None)
+            label, kw, _args, col = src.block(opener, self.it.dialect).oword
+            exc = LineError(f"o{label} {kw.lower()} ran more than {self.limits.max_loop} times: an endless loop? "
+                            "(--max-loop raises the limit)", col)
+            exc.line_index = opener
+            raise exc
+        self.passes[key] = n
 
     def control(self, src: _Source, i: int, b, calls, repeats, depth):
         it = self.it
@@ -447,17 +481,26 @@ class _Runner:
                     return ("jump", br + 1)
             return ("jump", src.end_of[i] + 1)
         if kw in ("ELSEIF", "ELSE"):
-            return ("jump", src.end_of[src.owner[i]] + 1)
+            end = src.end_of.get(src.owner[i])
+            return None if end is None else ("jump", end + 1)  # an if never closed was reported
         if kw == "ENDIF":
             return None
         if kw == "WHILE":
-            return None if cond() else ("jump", src.end_of[i] + 1)
+            if cond():
+                return None
+            self.passes.pop((len(calls), src.index, i), None)
+            return ("jump", src.end_of[i] + 1)
         if kw == "ENDWHILE":
+            self.count_pass(src, src.owner[i], len(calls))
             return ("jump", src.owner[i])
         if kw == "DO":
             return None
         if kw == "DOWHILE":
-            return ("jump", src.owner[i] + 1) if cond() else None
+            if cond():
+                self.count_pass(src, src.owner[i], len(calls))
+                return ("jump", src.owner[i] + 1)
+            self.passes.pop((len(calls), src.index, src.owner[i]), None)
+            return None
         if kw == "REPEAT":
             if not args:
                 raise LineError(f"o{label} repeat needs a [count]", col)
@@ -466,6 +509,9 @@ class _Runner:
             if n < 1:
                 repeats.pop(key, None)
                 return ("jump", src.end_of[i] + 1)
+            if n > self.limits.max_loop:
+                raise LineError(f"o{label} repeat count {n:.0f} is beyond the loop limit of {self.limits.max_loop} "
+                                "(--max-loop raises it)", col)
             repeats[key] = int(n)
             return None
         if kw == "ENDREPEAT":
@@ -480,13 +526,17 @@ class _Runner:
         if kw == "BREAK":
             loop = src.owner[i]
             repeats.pop((len(calls), src.index, loop), None)
-            return ("jump", src.end_of[loop] + 1)
+            self.passes.pop((len(calls), src.index, loop), None)
+            end = src.end_of.get(loop)
+            return None if end is None else ("jump", end + 1)  # a loop never closed was reported
         if kw == "CONTINUE":
             loop = src.owner[i]
             lk = src.kind[loop]
             if lk == "WHILE":
+                self.count_pass(src, loop, len(calls))
                 return ("jump", loop)
-            return ("jump", src.end_of[loop])
+            end = src.end_of.get(loop)
+            return None if end is None else ("jump", end)
         raise LineError(f"unknown o-word command {kw.lower()}", col)  # pragma: no cover
 
 
@@ -508,12 +558,13 @@ def _read_var(var_file):
 
 def interpret(text: str | bytes, filename: str = "<string>", dialect: str = "linuxcnc", tool_table=None,
               var_file=None, machine_units: str = "mm", keep_going: bool = False,
-              subroutine_path=None, max_steps: int = MAX_STEPS, block_delete: bool = True,
+              subroutine_path=None, limits: Limits | None = None, block_delete: bool = True,
               fast: bool = True) -> Program:
     """Interpret G-code ``text`` (str, or bytes decoded as UTF-8); return a :class:`Program`.
 
     ``tool_table`` is a path (LinuxCNC format, in ``machine_units``) or ``{n: ToolEntry}``;
     ``var_file`` a LinuxCNC .var path or ``{param: value}`` (in ``machine_units``).
+    ``limits`` bounds loops, repeats, coordinates and the like (:class:`~sim.gcode.limits.Limits`).
     Raises :class:`GCodeError` at the first error unless ``keep_going``; bytes that are
     not text raise its subclass :class:`~sim.gcode.errors.ProgramFileError` whatever
     ``keep_going`` says. A program with no motion gets the warning "no motion in program".
@@ -525,8 +576,8 @@ def interpret(text: str | bytes, filename: str = "<string>", dialect: str = "lin
     table = _read_tool_table(tool_table, machine_units)
     var = _read_var(var_file)
     it = Interpreter(dialect=dialect, machine_units=machine_units, tool_table=table, var_params=var,
-                     filename=filename, block_delete=block_delete)
-    runner = _Runner(it, keep_going, subroutine_path, max_steps, fast)
+                     filename=filename, block_delete=block_delete, limits=limits)
+    runner = _Runner(it, keep_going, subroutine_path, fast)
     main = runner.add_source(filename, text)
     runner.run(main)
     if it.comp_engine is not None:

@@ -8,6 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from sim.gcode import GCodeError, Interpreter, MoveKind, interpret
+from sim.gcode.limits import Limits
 
 
 @pytest.mark.parametrize("line,code", [
@@ -103,7 +104,7 @@ TOKENS = st.one_of(GCODE_WORDS, NUMBERS)
 @given(st.lists(TOKENS, max_size=40).map(" ".join), st.sampled_from(["linuxcnc", "grbl"]))
 def test_fuzz_only_gcode_errors(text, dialect):
     try:
-        p = interpret(text, dialect=dialect, keep_going=True, max_steps=2000)
+        p = interpret(text, dialect=dialect, keep_going=True, limits=Limits(max_steps=2000))
     except GCodeError:
         return
     assert p.moves.dtype.names[0] == "file"

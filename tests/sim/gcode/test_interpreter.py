@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from sim.gcode import GCodeError, Interpreter, MoveKind, interpret, load_program, work_end
+from sim.gcode.limits import Limits
 from sim.tooltable import ToolEntry
 
 
@@ -341,7 +342,7 @@ def test_keep_going_lists_every_error():
 
 def test_endless_loop_is_stopped():
     with pytest.raises(GCodeError, match="endless"):
-        interpret("o1 while [1]\no1 endwhile\n", max_steps=1000)
+        interpret("o1 while [1]\no1 endwhile\n", limits=Limits(max_steps=1000))
 
 
 # ------------------------------------------------------------------ state, feed modes
