@@ -196,22 +196,24 @@ def design_note(checker, name) -> str | None:
     return f"design {name} is an open surface: material is taken as everything below it"
 
 
-def load_moves(path: str, dialect: str = "linuxcnc", tool_table=None, var_file=None, units: str = "mm",
-               subroutine_path=None, max_loop: int | None = None) -> np.ndarray:
-    """The move table of a program, through the project's G-code interpreter.
+def load_program(path: str, dialect: str = "linuxcnc", tool_table=None, var_file=None, units: str = "mm",
+                 subroutine_path=None, max_loop: int | None = None):
+    """The program (a :class:`sim.gcode.Program`: its move table is ``.moves``), through
+    the project's G-code interpreter.
 
     ``var_file``: LinuxCNC .var path (work offsets, G28/G30), in ``units`` like the tool table.
     ``max_loop``: passes of one o-word loop before it is refused (None: the default).
     """
-    from sim.gcode import Limits, load_program
+    from sim.gcode import Limits
+    from sim.gcode import load_program as sim_load_program
 
     if var_file is not None and not Path(var_file).is_file():
         raise InputError("no such parameter (.var) file", where=f"--var {var_file}")
     if max_loop is not None and max_loop < 1:
         raise InputError(f"must be a positive whole number, got {max_loop}", where="--max-loop")
     limits = Limits() if max_loop is None else Limits(max_loop=max_loop)
-    return load_program(path, dialect=dialect, tool_table=tool_table, var_file=var_file,
-                        machine_units=units, subroutine_path=subroutine_path or None, limits=limits).moves
+    return sim_load_program(path, dialect=dialect, tool_table=tool_table, var_file=var_file,
+                            machine_units=units, subroutine_path=subroutine_path or None, limits=limits)
 
 
 def _cutting_rows(moves: np.ndarray) -> np.ndarray:
@@ -273,7 +275,9 @@ def run(args) -> int:
         grid = build_stock(args.stock, resolution, args.memory_limit)
     else:
         raise InputError("give the stock as --stock box:X0,Y0,Z0,X1,Y1,Z1 (or a mesh), or --resume RUN:STAGE")
-    moves = load_moves(args.program, args.dialect or "linuxcnc", table, args.var, units, sub_dirs, args.max_loop)
+    program = load_program(args.program, args.dialect or "linuxcnc", table, args.var, units, sub_dirs,
+                           args.max_loop)
+    moves = program.moves
     checker = None
     if not args.no_checks:
         from sim.checks.report import checker_from_args
@@ -287,7 +291,7 @@ def run(args) -> int:
         notes.append(flute_note(f"T{num} (tool table)", None, tools[num]))
     notes.append(design_note(checker, args.design))
     return _simulate(args, str(args.program), moves, grid, tool, tools, checker, true_volume=true_volume,
-                     notes=[n for n in notes if n])
+                     notes=[n for n in notes if n], inch=program.inch)
 
 
 def _run_job(args) -> int:
@@ -349,9 +353,9 @@ def _run_job(args) -> int:
         raise InputError("no such program file", where=f"{path}: [program] path {job.program}")
     table = read_tool_table(job.tool_table, job.machine_units) if job.tool_table else None
     # one frame: the job's work system; rows in other systems land at their offsets from it
-    moves = work_moves(load_moves(job.program, job.dialect, table, job.var_file, job.machine_units,
-                                  [str(d) for d in job.subroutine_path], args.max_loop or job.max_loop),
-                       reference_wco(job))
+    program = load_program(job.program, job.dialect, table, job.var_file, job.machine_units,
+                           [str(d) for d in job.subroutine_path], args.max_loop or job.max_loop)
+    moves = work_moves(program.moves, reference_wco(job))
     est = DexelGrid_estimate(job)
     if est > args.memory_limit * 2**20:
         raise InputError(f"the job's dexel grid needs about {est / 2**20:.0f} MB, over the "
@@ -379,7 +383,18 @@ def _run_job(args) -> int:
                                 job.default_tool.spec, wp.default_tool))
     notes.append(design_note(checker, job.design.stl if job.design is not None else None))
     return _simulate(args, str(job.program), moves, wp.stock, wp.default_tool, wp.tools, checker, out,
-                     true_volume=stock_true_volume(solid=job.stock), notes=[n for n in notes if n])
+                     true_volume=stock_true_volume(solid=job.stock), notes=[n for n in notes if n], inch=program.inch)
+
+
+def _setup_findings(moves, grid, tool, tools, checker, inch: bool) -> list:
+    """:func:`sim.checks.setup.setup_findings` of a simulation: the stock's material box,
+    the largest tool radius, the design's box from the checker."""
+    from sim.checks.setup import design_box, material_box, setup_findings
+
+    reach = max([t.radius for t in (tools or {}).values()] + [tool.radius])
+    design = getattr(checker, "design", None)
+    return setup_findings(moves, material_box(grid), reach, design_box(design) if design is not None else None,
+                          inch=inch)
 
 
 def DexelGrid_estimate(job) -> int:
@@ -395,8 +410,11 @@ def DexelGrid_estimate(job) -> int:
 
 
 def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, true_volume=None,
-              notes=()) -> int:
+              notes=(), inch: bool = False) -> int:
     """Cut (and check) ``moves`` into ``grid``; print the report; return the exit status.
+
+    With checks, a setup that cannot be meant (:mod:`sim.checks.setup`: the path never
+    reaches the stock, the design is not in the stock) is reported first, as findings.
 
     Volumes shown are the stock's exact volume (``true_volume`` when known, else the grid's
     trapezoid-rule volume) and what the cut removed by the trapezoid rule (edge rays count
@@ -409,6 +427,7 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
     cutting = _cutting_rows(moves)
     if not cutting.any():
         raise InputError("the program has no motion to simulate (empty program?)", where=program)
+    setup = _setup_findings(moves, grid, tool, tools, checker, inch) if checker is not None else []
     grid_before = grid.volume(weights="trapezoid")
     stock_volume = grid_before if true_volume is None else float(true_volume)
     todo, skip_first = _skip_first_rapid(moves)
@@ -416,7 +435,7 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
     if checker is not None:
         # in batches: one batch's changed-ray log alive at a time, whatever the length
         per_move = checker.check_program(todo, batch=SIM_BATCH)
-        findings = final_findings(checker)
+        findings = setup + final_findings(checker)
     else:
         per_move = Cutter(grid, tool, tools=tools or None).cut_moves(todo, record_changes=False).removed
         findings = []

@@ -15,6 +15,7 @@ import numpy as np
 
 #: every kind a check can report, in the order a report lists them
 KINDS = (
+    "setup",                     # the job cannot be what was meant (path misses the stock ...)
     "gouge",                     # material removed inside the design beyond t_l
     "undercut",                  # material left outside the design beyond t_h
     "rapid_into_stock",          # a rapid (G0) removed / would remove material
@@ -29,7 +30,7 @@ KINDS = (
 )
 
 #: kinds that are collisions (a machine may be damaged), as opposed to part quality
-COLLISION_KINDS = frozenset(KINDS[2:])
+COLLISION_KINDS = frozenset(KINDS[KINDS.index("rapid_into_stock"):])
 
 
 @dataclass(frozen=True)

@@ -207,6 +207,11 @@ class Program:
     def __len__(self) -> int:
         return len(self.moves)
 
+    @property
+    def inch(self) -> bool:
+        """True when the program works in inches (G20) anywhere (its table is in mm)."""
+        return any(not s.metric for s in self._snapshots)
+
     def __repr__(self) -> str:
         return f"Program({self.files[0]!r}, {len(self.moves)} moves, {len(self.errors)} errors)"
 
