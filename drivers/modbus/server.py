@@ -260,7 +260,6 @@ class ModbusVirtualServer:
         #: tracebacks of failures inside the server (answered with exception 4)
         self.errors: list[str] = []
         self._script: collections.deque[str] = collections.deque()
-        self._rng = random.Random(answers.seed if answers else 0)
         self._garble_next = False
         self._loop: asyncio.AbstractEventLoop | None = None
         self._server: ModbusTcpServer | None = None
@@ -277,7 +276,10 @@ class ModbusVirtualServer:
 
     # ------------------------------------------------------------------ lifecycle
     def start(self, timeout: float = 10.0) -> "ModbusVirtualServer":
-        """Listen (on the port bound before, after a :meth:`stop`) and serve from a thread."""
+        """Listen (on the port bound before, after a :meth:`stop`) and serve from a thread;
+        does nothing while serving."""
+        if self._thread is not None and self._thread.is_alive():
+            return self
         self._ready.clear()
         self._error = None
         self._thread = threading.Thread(target=self._run, name="modbus-server", daemon=True)
@@ -304,6 +306,18 @@ class ModbusVirtualServer:
     def restart(self, timeout: float = 10.0) -> "ModbusVirtualServer":
         """Listen again on the same port after :meth:`stop`."""
         return self.start(timeout)
+
+    @property
+    def answers(self) -> AnswerFaults | None:
+        """The :class:`AnswerFaults` drawn for every read answer; setting it reseeds the draws."""
+        return self._answers
+
+    @answers.setter
+    def answers(self, plan: AnswerFaults | None) -> None:
+        self._answers = plan
+        self._rng = random.Random(plan.seed if plan else 0)
+        if plan is not None:
+            self.late_s = plan.late_s
 
     def script(self, *kinds: str) -> None:
         """Apply these faults (names from ``ANSWER_FAULTS``, or ``"ok"``) to the next read
@@ -373,7 +387,7 @@ class ModbusVirtualServer:
     def _next_fault(self) -> str:
         if self._script:
             return self._script.popleft()
-        return self.answers.draw(self._rng) if self.answers is not None else "ok"
+        return self._answers.draw(self._rng) if self._answers is not None else "ok"
 
     async def _answer(self, unit: int, func_code: int, address: int, count: int, values):
         self.requests += 1
