@@ -191,7 +191,9 @@ class ModbusController(Controller):
         """
         with self._lock:
             self._closed = False
-            if not self._open():
+            self._down, self._timeouts = None, 0
+            self._trouble.clear()
+            if not self._open(explain=True):
                 self._closed = True
                 raise ConnectionLost(f"{self.url}: cannot connect ({self.last_error})")
             for blk in self.blocks:
@@ -200,13 +202,15 @@ class ModbusController(Controller):
                 except _Miss as miss:
                     if miss.cause == "exception" and miss.code in CONFIG_EXCEPTIONS:
                         self.close()
-                        raise ModbusExceptionError(f"{miss}: the register map does not fit this device",
+                        raise ModbusExceptionError(f"{self.url}: {miss}: the register map does not fit this device",
                                                    miss.code) from None
                     break
                 except _Dropped:
                     break  # the first poll says so
 
-    def _open(self) -> bool:
+    def _open(self, explain: bool = False) -> bool:
+        """Open a new client; False with ``last_error`` set when it cannot connect
+        (``explain``: ask the operating system why, which costs one more TCP connect)."""
         self._drop_client()
         self._client = self._make_client()
         self.last_error = None
@@ -216,7 +220,7 @@ class ModbusController(Controller):
             ok = False
             self.last_error = str(exc)
         if not ok:
-            self.last_error = self.last_error or self._tcp_reason() or "no connection"
+            self.last_error = self.last_error or (self._tcp_reason() if explain else None) or "cannot connect"
             self._drop_client()
         return ok
 
@@ -258,7 +262,7 @@ class ModbusController(Controller):
             try:
                 st = self._poll_link()
             except Exception as exc:  # noqa: BLE001 - a failure here must become a state, not a stop
-                st = self._missed("garbled", f"{self.url}: cannot read the answer: {type(exc).__name__}: {exc}")
+                st = self._missed("garbled", f"cannot read the answer: {type(exc).__name__}: {exc}")
             if not st.fresh:
                 self.missed += 1
             if st.t < self._last_t:  # monotonic already; kept so t can never go back
@@ -272,8 +276,8 @@ class ModbusController(Controller):
         try:
             values, raw = self._read_all()
         except _Dropped as exc:
+            self.last_error = str(exc)
             if self._down is not None:
-                self.last_error = str(exc)
                 self._drop_client()
                 return self._disconnected()
             return self._lose(str(exc))
@@ -284,11 +288,12 @@ class ModbusController(Controller):
                 return self._missed(miss.cause, str(miss))
             self._timeouts += 1
             if self._down is not None:
+                self.last_error = str(miss)
                 self._drop_client()  # still silent: a fresh socket at the next poll
                 return self._disconnected()
             if self._timeouts >= TIMEOUTS_BEFORE_DOWN:
                 self.counts["timeout"] += 1
-                return self._lose(f"no reply to {TIMEOUTS_BEFORE_DOWN} requests in a row ({miss})")
+                return self._lose(f"no reply to {TIMEOUTS_BEFORE_DOWN} requests in a row (last: {miss})")
             return self._missed("timeout", str(miss))
         self._timeouts = 0
         self._answered()
@@ -322,25 +327,25 @@ class ModbusController(Controller):
             # pymodbus says "No response received ..." when the timeout ran out; any other
             # I/O error is an answer that did not decode
             if "no response" in str(exc).lower():
-                raise _Miss("timeout", f"{self.url}: no reply within {self.timeout:g} s to {where}") from None
-            raise _Miss("garbled", f"{self.url}: {where}: answer does not decode ({exc})") from None
+                raise _Miss("timeout", f"no reply within {self.timeout:g} s to {where}") from None
+            raise _Miss("garbled", f"{where}: answer does not decode ({exc})") from None
         except (ConnectionException, OSError) as exc:
-            raise _Dropped(f"connection lost on {where} ({exc or type(exc).__name__})") from None
+            raise _Dropped(f"{_span(blk.unit, blk.table, blk.address, blk.count)}: {_drop_reason(exc)}") from None
         except Exception as exc:  # noqa: BLE001 - any other decoding failure is a garbled answer
-            raise _Miss("garbled", f"{self.url}: {where}: answer does not decode ({type(exc).__name__}: {exc})") from None
+            raise _Miss("garbled", f"{where}: answer does not decode ({type(exc).__name__}: {exc})") from None
         if rr is None or not hasattr(rr, "isError"):
-            raise _Miss("garbled", f"{self.url}: {where}: no answer object ({rr!r})")
+            raise _Miss("garbled", f"{where}: no answer object ({rr!r})")
         if rr.isError():
             code = int(getattr(rr, "exception_code", 0) or 0)
             cause = {6: "busy", 5: "acknowledge"}.get(code, "exception")
-            raise _Miss(cause, f"{self.url}: {where}: exception code {code} ({EXCEPTION_NAMES.get(code, 'unknown')})",
+            raise _Miss(cause, f"{where}: exception code {code} ({EXCEPTION_NAMES.get(code, 'unknown')})",
                         code)
         if blk.table in ("coil", "discrete"):
             words = [1 if b else 0 for b in (rr.bits or [])[:blk.count]]
         else:
             words = list(rr.registers or [])
         if len(words) != blk.count:
-            raise _Miss("short", f"{self.url}: {where}: answer holds {len(words)} registers of {blk.count}")
+            raise _Miss("short", f"{where}: answer holds {len(words)} registers of {blk.count}")
         return words
 
     # ------------------------------------------------------------------ link state
@@ -361,10 +366,13 @@ class ModbusController(Controller):
         return self._disconnected()
 
     def _disconnected(self) -> MachineState:
-        self._down.polls += 1
+        down = self._down
+        down.polls += 1
         self.counts["disconnected"] += 1
-        why = self.last_error or self._down.reason
-        return stale_state(self._last, RunState.DISCONNECTED, time.monotonic(), f"{self.url}: link down: {why}")
+        t = time.monotonic()
+        return stale_state(self._last, RunState.DISCONNECTED, t,
+                           f"{self.url}: link down for {t - down.t_lost:.1f} s ({down.reason}); "
+                           f"last attempt: {self.last_error}")
 
     def _answered(self) -> None:
         """The controller answered (whatever it said): a link that was down is back."""
@@ -381,6 +389,7 @@ class ModbusController(Controller):
     def _missed(self, cause: str, message: str) -> MachineState:
         """A MISSED state for one poll without a usable answer, counted by ``cause``."""
         self.counts[cause] += 1
+        message = f"{self.url}: {message}"
         self._note_trouble(cause, message)
         return stale_state(self._last, RunState.MISSED, time.monotonic(), message)
 
@@ -475,6 +484,16 @@ class ModbusController(Controller):
             code = int(getattr(rr, "exception_code", 0))
             raise ModbusExceptionError(
                 f"{self.url}: feed-hold write to {where}: exception code {code} ({EXCEPTION_NAMES.get(code, 'unknown')})", code)
+
+
+def _drop_reason(exc: Exception) -> str:
+    """One short line for a link that went away (pymodbus's messages run long)."""
+    text = str(exc)
+    if "unexpectedly closed" in text:
+        return "the controller closed the connection"
+    if isinstance(exc, OSError):
+        return f"connection lost ({exc.strerror or exc})"
+    return f"connection lost ({text.removeprefix('Modbus Error: ')})"
 
 
 def _impossible_value(values: dict[str, float]) -> str | None:

@@ -57,7 +57,9 @@ DROP_DELAY_S = 5.0
 
 # pymodbus warns at every context creation that the old datastore API is deprecated;
 # we only use its request plumbing, so keep the warning out of the user's terminal.
-logging.getLogger("pymodbus").setLevel(logging.ERROR)
+# (never lower than the driver's level, when both are imported: the driver reports its own)
+_pymodbus_log = logging.getLogger("pymodbus")
+_pymodbus_log.setLevel(max(_pymodbus_log.getEffectiveLevel(), logging.ERROR))
 
 
 def machine_values(vm: VirtualMachine, regmap: RegisterMap) -> dict[str, float]:
