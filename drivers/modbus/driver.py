@@ -68,8 +68,9 @@ CONFIG_EXCEPTIONS = (1, 2, 3)
 TIMEOUTS_BEFORE_DOWN = 3
 #: causes of a poll without a fresh state, the keys of ``ModbusController.counts``:
 #: no answer in time, exception 6, exception 5, another exception code, fewer registers
-#: than asked, an answer that does not decode, impossible numbers (BAD), link down
-CAUSES = ("timeout", "busy", "acknowledge", "exception", "short", "garbled", "bad", "disconnected")
+#: than asked, an answer that does not decode, impossible numbers (BAD), link down, and a
+#: failure inside the driver itself (a bug: told, counted, and the polls go on)
+CAUSES = ("timeout", "busy", "acknowledge", "exception", "short", "garbled", "bad", "disconnected", "error")
 #: integer fields whose value is a code or a count: beyond MAX_REPORTED_INT it is garbage
 _INT_FIELDS = ("state", "alarm", "line", "feed_override", "rapid_override", "spindle_override")
 
@@ -262,7 +263,7 @@ class ModbusController(Controller):
             try:
                 st = self._poll_link()
             except Exception as exc:  # noqa: BLE001 - a failure here must become a state, not a stop
-                st = self._missed("garbled", f"cannot read the answer: {type(exc).__name__}: {exc}")
+                st = self._missed("error", f"driver failure reading the answer: {type(exc).__name__}: {exc}")
             if not st.fresh:
                 self.missed += 1
             if st.t < self._last_t:  # monotonic already; kept so t can never go back
@@ -431,7 +432,7 @@ class ModbusController(Controller):
         if "feed" in v:
             feed = v["feed"]
         else:
-            feed = math.sqrt(sum(v.get(f"v{a}", 0.0) ** 2 for a in AXES))
+            feed = math.hypot(*(v.get(f"v{a}", 0.0) for a in AXES))  # no overflow for huge garbage
         alarm = int(v["alarm"]) if "alarm" in v else None
         if "state" in v:
             state = self.regmap.states.get(int(v["state"]), RunState.UNKNOWN)

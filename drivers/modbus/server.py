@@ -102,7 +102,9 @@ OTHER_EXCEPTION_CODES = (ExcCodes.ILLEGAL_FUNCTION, ExcCodes.ILLEGAL_ADDRESS, Ex
                          ExcCodes.DEVICE_FAILURE, ExcCodes.MEMORY_PARITY_ERROR,
                          ExcCodes.GATEWAY_PATH_UNAVIABLE, ExcCodes.GATEWAY_NO_RESPONSE)
 #: raw values a "mutate" fault writes into a float field (non-finite, or beyond any machine)
-FLOAT_GARBAGE = (math.nan, -math.nan, math.inf, -math.inf, 3.0e38, -1.0e30, 1.0e6)
+FLOAT_GARBAGE = (math.nan, -math.nan, math.inf, -math.inf, 3.0e38, -1.0e30, 1.0e6, 1.0e300)
+#: the largest finite float32
+FLOAT32_MAX = 3.4028234663852886e38
 
 
 @dataclass(frozen=True)
@@ -157,6 +159,8 @@ def mutate_words(words: list[int], cells: dict[int, tuple[Field, int]], address:
         garbage = [rng.randrange(0x10000) for _ in range(f.count)]
     elif f.type in ("float32", "float64"):
         value = rng.choice(FLOAT_GARBAGE)
+        if f.type == "float32" and abs(value) > FLOAT32_MAX:
+            value = math.copysign(math.inf, value)  # what a float32 register can hold of it
         garbage = encode(value, f.type, f.word_order, f.byte_order)
     else:
         garbage = [0xFFFF if k == 0 else rng.randrange(0x10000) for k in range(f.count)]
