@@ -412,9 +412,11 @@ class ModbusVirtualServer:
                 await asyncio.sleep(self.faults.plan.late_s)
             elif fault == REPLY_GARBLE:
                 return ExcCodes.DEVICE_FAILURE
-        if values is None:
+        if values is not None:
+            return self._write(unit, func_code, address, values)
+        if func_code in _READ_TABLE:
             return await self._read_with_faults(unit, func_code, address, count)
-        return self._write(unit, func_code, address, values)
+        return self._read(unit, func_code, address, count)  # a write reading its cell back
 
     async def _read_with_faults(self, unit: int, func_code: int, address: int, count: int):
         fault = self._next_fault()
@@ -435,7 +437,7 @@ class ModbusVirtualServer:
             return answer[:self._rng.randrange(count)]
         if fault == "garble":
             self._garble_next = True
-        elif fault == "mutate" and _READ_TABLE.get(func_code) in ("holding", "input"):
+        elif fault == "mutate" and _READ_TABLE[func_code] in ("holding", "input"):
             answer = mutate_words(answer, self._cells[(unit, _READ_TABLE[func_code])], address, self._rng)
         return answer
 
