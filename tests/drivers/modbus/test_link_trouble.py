@@ -235,6 +235,21 @@ def test_server_stopped_and_restarted_on_the_same_port(vm, server):
     assert ts == sorted(ts)
 
 
+def test_a_failure_inside_the_driver_is_a_missed_poll_not_a_stop(vm, server, monkeypatch):
+    c = client(server)
+    try:
+        monkeypatch.setattr(c, "_state", lambda *a: 1 / 0)
+        broken = [c.poll(), c.poll()]
+        monkeypatch.undo()
+        fresh = c.poll()
+        events = c.link_events()
+    finally:
+        c.close()
+    assert [s.state for s in broken] == [RunState.MISSED] * 2 and fresh.fresh
+    assert "ZeroDivisionError" in broken[0].raw and c.counts["error"] == 2
+    assert kinds(events) == [LinkKind.NOTE, LinkKind.NOTE]
+
+
 def test_map_that_does_not_fit_fails_connect_naming_the_registers(vm, server):
     doc = {"fields": {"x": {"table": "input", "address": 0, "type": "float32"},
                       "line": {"table": "input", "address": 200, "type": "uint32"}}}
