@@ -11,29 +11,43 @@ overrides the map's device id; ``rate`` is the poll rate (Hz) used by :meth:`sta
 driver is read-only otherwise, and always when the map names no feed-hold cell).
 
 Each poll reads the map's fields in as few requests as the layout allows
-(:func:`~drivers.modbus.regmap.plan_reads`). A timeout raises :class:`ReplyTimeout`;
-three in a row, or a dropped socket, mark the link down: later polls raise
-:class:`~drivers.errors.ConnectionLost` until a reconnect (with exponential backoff,
-0.1 s to 5 s) succeeds. Exception responses raise :class:`ModbusExceptionError` naming the
-unit, table, registers, fields and exception code.
+(:func:`~drivers.modbus.regmap.plan_reads`). :meth:`ModbusController.connect` opens the
+link and reads every block once: an exception 1, 2 or 3 there (the map does not fit the
+device) fails it, naming the registers. After that :meth:`ModbusController.poll` never
+raises for what the link or the controller does (the contract in :mod:`drivers.state`):
+
+* a timeout, an exception answer (busy 6 and acknowledge 5 included), a short or
+  undecodable answer gives a MISSED state; the same request is simply asked again at the
+  next poll, as the Modbus application protocol intends for busy and acknowledge;
+* an answer whose numbers cannot be right (:func:`~drivers.state.implausible`: NaN,
+  inf, beyond any machine, huge integers) gives a BAD state with the raw registers;
+* three timeouts in a row, or a dropped socket, mark the link down: DISCONNECTED states,
+  one reconnect attempt per poll (no growing backoff: a refused connect is cheap), and
+  when the controller answers again a :class:`~drivers.state.Gap`.
+
+Every miss is counted by cause in :attr:`ModbusController.counts`; a cause is told once
+as a NOTE link event when it appears and once when it clears (LOST/BACK for the link,
+BAD for a run of impossible answers).
 """
 
 from __future__ import annotations
 
 import logging
-import socket
 import math
+import socket
+import threading
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from urllib.parse import parse_qs, unquote, urlsplit
 
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
-from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+from pymodbus.exceptions import ConnectionException, ModbusIOException
 from pymodbus.framer import FramerType
 
 from drivers.errors import ConnectionLost, DriverError
-from drivers.modbus.regmap import AXES, Field, RegisterMap, decode_field, load_map, plan_reads
-from drivers.state import Controller, MachineState, RunState
+from drivers.modbus.regmap import AXES, Field, ReadBlock, RegisterMap, decode_field, load_map, plan_reads
+from drivers.state import (MAX_REPORTED_INT, Controller, Gap, LinkKind, MachineState, RunState, implausible,
+                           stale_state)
 
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)  # we report failures ourselves
 
@@ -48,12 +62,21 @@ EXCEPTION_NAMES = {
     10: "gateway path unavailable",
     11: "gateway target device failed to respond",
 }
+#: exception codes that mean the map asks for something the device does not have
+CONFIG_EXCEPTIONS = (1, 2, 3)
 #: consecutive timeouts after which the link counts as down
 TIMEOUTS_BEFORE_DOWN = 3
+#: causes of a poll without a fresh state, the keys of ``ModbusController.counts``:
+#: no answer in time, exception 6, exception 5, another exception code, fewer registers
+#: than asked, an answer that does not decode, impossible numbers (BAD), link down, and a
+#: failure inside the driver itself (a bug: told, counted, and the polls go on)
+CAUSES = ("timeout", "busy", "acknowledge", "exception", "short", "garbled", "bad", "disconnected", "error")
+#: integer fields whose value is a code or a count: beyond MAX_REPORTED_INT it is garbage
+_INT_FIELDS = ("state", "alarm", "line", "feed_override", "rapid_override", "spindle_override")
 
 
 class ReplyTimeout(DriverError):
-    """The controller did not answer a request in time."""
+    """The controller did not answer a request in time (the feed-hold write)."""
 
 
 class ModbusExceptionError(DriverError):
@@ -62,6 +85,38 @@ class ModbusExceptionError(DriverError):
     def __init__(self, message: str, code: int):
         super().__init__(message)
         self.code = code
+
+
+class _Miss(Exception):
+    """One read brought no usable answer: ``cause`` (a key of ``CAUSES``) and a line
+    saying what and where; ``code`` is the exception code for exception answers."""
+
+    def __init__(self, cause: str, message: str, code: int = 0):
+        super().__init__(message)
+        self.cause = cause
+        self.code = code
+
+
+class _Dropped(Exception):
+    """The socket or serial port went away."""
+
+
+@dataclass
+class _Outage:
+    """The link is down since ``t_lost`` (monotonic s) because of ``reason``;
+    ``polls`` answered DISCONNECTED so far."""
+
+    t_lost: float
+    reason: str
+    polls: int = 0
+
+
+@dataclass
+class _Trouble:
+    """A cause of missed polls, active since ``t_first`` (monotonic s), ``polls`` so far."""
+
+    t_first: float
+    polls: int = 0
 
 
 class ModbusController(Controller):
@@ -75,6 +130,15 @@ class ModbusController(Controller):
     rate : float, poll rate (Hz) for :meth:`states`
     timeout : float, seconds per request
     allow_feed_hold : bool, permit :meth:`feed_hold`/:meth:`resume` writes
+
+    Attributes
+    ----------
+    counts : dict str -> int
+        Polls without a fresh state by cause (keys :data:`CAUSES`).
+    polls, missed, reconnects : int
+        Polls answered, polls without a fresh state, links re-established.
+    gaps : list of Gap
+        Finished outages.
     """
 
     def __init__(self, regmap: RegisterMap, host: str | None = None, port: int = 502,
@@ -94,15 +158,20 @@ class ModbusController(Controller):
         self.allow_feed_hold = bool(allow_feed_hold)
         self.url = url or (f"modbus+tcp://{host}:{port}" if host else f"modbus+rtu://{serial_port}")
         self.blocks = plan_reads(regmap.reading_fields())
-        self._client = None
-        self._up = False
-        self._closed = True
-        self._timeouts = 0
-        self._backoff = 0.1
-        self._next_attempt = 0.0
+        self.counts = dict.fromkeys(CAUSES, 0)
+        self.polls = 0
+        self.missed = 0
         self.reconnects = 0
-        self.missed = 0          # polls that produced no state (timeouts, link down)
+        self.gaps: list[Gap] = []
         self.last_error: str | None = None
+        self._client = None
+        self._closed = True
+        self._lock = threading.RLock()  # one request at a time: polls and the feed-hold write
+        self._last: MachineState | None = None   # the last fresh state
+        self._last_t = -math.inf                 # t of the last state returned
+        self._timeouts = 0                       # consecutive polls without an answer
+        self._down: _Outage | None = None
+        self._trouble: dict[str, _Trouble] = {}
 
     # ------------------------------------------------------------------ lifecycle
     def _make_client(self):
@@ -114,27 +183,47 @@ class ModbusController(Controller):
                                   timeout=self.timeout, retries=0, reconnect_delay=0, reconnect_delay_max=0)
 
     def connect(self) -> None:
-        """Open the socket or serial line; raises ConnectionLost when nothing answers."""
-        self._closed = False
-        if not self._open():
-            raise ConnectionLost(f"{self.url}: cannot connect ({self.last_error})")
+        """Open the socket or serial line and read every block once.
 
-    def _open(self) -> bool:
+        Raises ConnectionLost when nothing answers the connect, and
+        :class:`ModbusExceptionError` (naming the registers) when the device refuses a
+        block with exception 1, 2 or 3: the map does not fit it. Timeouts and busy
+        answers here are left to the polls.
+        """
+        with self._lock:
+            self._closed = False
+            self._down, self._timeouts = None, 0
+            self._trouble.clear()
+            if not self._open(explain=True):
+                self._closed = True
+                raise ConnectionLost(f"{self.url}: cannot connect ({self.last_error})")
+            for blk in self.blocks:
+                try:
+                    self._read_block(blk)
+                except _Miss as miss:
+                    if miss.cause == "exception" and miss.code in CONFIG_EXCEPTIONS:
+                        self.close()
+                        raise ModbusExceptionError(f"{self.url}: {miss}: the register map does not fit this device",
+                                                   miss.code) from None
+                    break
+                except _Dropped:
+                    break  # the first poll says so
+
+    def _open(self, explain: bool = False) -> bool:
+        """Open a new client; False with ``last_error`` set when it cannot connect
+        (``explain``: ask the operating system why, which costs one more TCP connect)."""
         self._drop_client()
         self._client = self._make_client()
+        self.last_error = None
         try:
             ok = bool(self._client.connect())
-        except Exception as exc:  # pyserial/socket errors surface differently per transport
+        except Exception as exc:  # noqa: BLE001 - pyserial/socket errors surface differently per transport
             ok = False
             self.last_error = str(exc)
         if not ok:
-            self.last_error = self.last_error or self._tcp_reason() or "no connection"
+            self.last_error = self.last_error or (self._tcp_reason() if explain else None) or "cannot connect"
             self._drop_client()
-            return False
-        self._up = True
-        self._timeouts = 0
-        self._backoff = 0.1
-        return True
+        return ok
 
     def _tcp_reason(self) -> str | None:
         """Why a TCP connect failed, as the operating system says it.
@@ -154,88 +243,188 @@ class ModbusController(Controller):
         if self._client is not None:
             try:
                 self._client.close()
-            except Exception:
+            except Exception:  # noqa: BLE001 - closing a broken link anyway
                 pass
         self._client = None
-        self._up = False
 
     def close(self) -> None:
         self._closed = True
         self._drop_client()
 
-    def _link_down(self, why: str) -> None:
-        self.last_error = why
-        self._drop_client()
-        self._next_attempt = time.monotonic() + self._backoff
-
-    def _ensure_link(self) -> None:
-        if self._closed:
-            raise ConnectionLost(f"{self.url}: not connected")
-        if self._up:
-            return
-        now = time.monotonic()
-        if now < self._next_attempt:
-            raise ConnectionLost(f"{self.url}: link down ({self.last_error}); next reconnect in {self._next_attempt - now:.2f} s")
-        if self._open():
-            self.reconnects += 1
-            return
-        self._backoff = min(self._backoff * 2, 5.0)
-        self._next_attempt = now + self._backoff
-        raise ConnectionLost(f"{self.url}: reconnect failed ({self.last_error}); retrying in {self._backoff:.2f} s")
-
     # ------------------------------------------------------------------ polling
     def poll(self) -> MachineState:
-        """Read every mapped field and return the state, stamped when the last reply came."""
+        """Read every mapped field and return the state, stamped when the last answer
+        came; a MISSED, BAD or DISCONNECTED state when there is no fresh one (never raises
+        for link or controller trouble once connected)."""
+        with self._lock:
+            if self._closed:
+                raise ConnectionLost(f"{self.url}: not connected")
+            self.polls += 1
+            try:
+                st = self._poll_link()
+            except Exception as exc:  # noqa: BLE001 - a failure here must become a state, not a stop
+                st = self._missed("error", f"driver failure reading the answer: {type(exc).__name__}: {exc}")
+            if not st.fresh:
+                self.missed += 1
+            if st.t < self._last_t:  # monotonic already; kept so t can never go back
+                st = replace(st, t=self._last_t)
+            self._last_t = st.t
+            return st
+
+    def _poll_link(self) -> MachineState:
+        if self._down is not None and not self._reconnect():
+            return self._disconnected()
         try:
-            self._ensure_link()
-            values: dict[str, float] = {}
-            raw_parts = []
-            for blk in self.blocks:
-                words = self._read_block(blk)
-                raw_parts.append(f"{blk.unit}:{blk.table}@{blk.address}={words}")
-                for f in blk.fields:
-                    k = f.address - blk.address
-                    values[f.name] = decode_field(f, words[k:k + f.count])
-            t = time.monotonic()
-        except (ConnectionLost, ReplyTimeout):
-            self.missed += 1
-            raise
-        return self._state(values, t, " ".join(raw_parts))
+            values, raw = self._read_all()
+        except _Dropped as exc:
+            self.last_error = str(exc)
+            if self._down is not None:
+                self._drop_client()
+                return self._disconnected()
+            return self._lose(str(exc))
+        except _Miss as miss:
+            if miss.cause != "timeout":
+                self._timeouts = 0
+                self._answered()
+                return self._missed(miss.cause, str(miss))
+            self._timeouts += 1
+            if self._down is not None:
+                self.last_error = str(miss)
+                self._drop_client()  # still silent: a fresh socket at the next poll
+                return self._disconnected()
+            if self._timeouts >= TIMEOUTS_BEFORE_DOWN:
+                self.counts["timeout"] += 1
+                return self._lose(f"no reply to {TIMEOUTS_BEFORE_DOWN} requests in a row (last: {miss})")
+            return self._missed("timeout", str(miss))
+        self._timeouts = 0
+        self._answered()
+        return self._decoded(values, raw, time.monotonic())
+
+    def _read_all(self) -> tuple[dict[str, float], str]:
+        """Every block's fields decoded, and the raw words; raises _Miss / _Dropped at
+        the first block without a usable answer (the others would only wait as long)."""
+        values: dict[str, float] = {}
+        raw_parts = []
+        for blk in self.blocks:
+            words = self._read_block(blk)
+            raw_parts.append(f"{_span(blk.unit, blk.table, blk.address, blk.count)}={words}")
+            for f in blk.fields:
+                k = f.address - blk.address
+                values[f.name] = decode_field(f, words[k:k + f.count])
+        return values, " ".join(raw_parts)
 
     def states(self, period: float | None = None):
         return super().states(1.0 / self.rate if period is None else period)
 
-    def _read_block(self, blk):
+    def _read_block(self, blk: ReadBlock) -> list[int]:
+        """The words (or bits as 0/1) of one block, exactly ``blk.count`` of them."""
+        where = _where(blk.unit, blk.table, blk.address, blk.count, blk.fields)
         c = self._client
+        readers = {"holding": c.read_holding_registers, "input": c.read_input_registers,
+                   "coil": c.read_coils, "discrete": c.read_discrete_inputs}
         try:
-            if blk.table == "holding":
-                rr = c.read_holding_registers(blk.address, count=blk.count, device_id=blk.unit)
-            elif blk.table == "input":
-                rr = c.read_input_registers(blk.address, count=blk.count, device_id=blk.unit)
-            elif blk.table == "coil":
-                rr = c.read_coils(blk.address, count=blk.count, device_id=blk.unit)
-            else:
-                rr = c.read_discrete_inputs(blk.address, count=blk.count, device_id=blk.unit)
+            rr = readers[blk.table](blk.address, count=blk.count, device_id=blk.unit)
         except ModbusIOException as exc:
-            self._timeouts += 1
-            where = _where(blk.unit, blk.table, blk.address, blk.count, blk.fields)
-            if self._timeouts >= TIMEOUTS_BEFORE_DOWN or not (c.connected if hasattr(c, "connected") else True):
-                self._link_down(f"no reply to {where}")
-            raise ReplyTimeout(f"{self.url}: no reply within {self.timeout:g} s to {where}") from None
+            # pymodbus says "No response received ..." when the timeout ran out; any other
+            # I/O error is an answer that did not decode
+            if "no response" in str(exc).lower():
+                raise _Miss("timeout", f"no reply within {self.timeout:g} s to {where}") from None
+            raise _Miss("garbled", f"{where}: answer does not decode ({exc})") from None
         except (ConnectionException, OSError) as exc:
-            self._link_down(str(exc) or type(exc).__name__)
-            raise ConnectionLost(f"{self.url}: connection lost ({self.last_error})") from None
-        except ModbusException as exc:  # a reply that does not decode
-            raise DriverError(f"{self.url}: bad reply to {_where(blk.unit, blk.table, blk.address, blk.count, blk.fields)}: {exc}") from None
-        self._timeouts = 0
+            raise _Dropped(f"{_span(blk.unit, blk.table, blk.address, blk.count)}: {_drop_reason(exc)}") from None
+        except Exception as exc:  # noqa: BLE001 - any other decoding failure is a garbled answer
+            raise _Miss("garbled", f"{where}: answer does not decode ({type(exc).__name__}: {exc})") from None
+        if rr is None or not hasattr(rr, "isError"):
+            raise _Miss("garbled", f"{where}: no answer object ({rr!r})")
         if rr.isError():
-            code = int(getattr(rr, "exception_code", 0))
-            where = _where(blk.unit, blk.table, blk.address, blk.count, blk.fields)
-            raise ModbusExceptionError(
-                f"{self.url}: {where}: exception code {code} ({EXCEPTION_NAMES.get(code, 'unknown')})", code)
+            code = int(getattr(rr, "exception_code", 0) or 0)
+            cause = {6: "busy", 5: "acknowledge"}.get(code, "exception")
+            raise _Miss(cause, f"{where}: exception code {code} ({EXCEPTION_NAMES.get(code, 'unknown')})",
+                        code)
         if blk.table in ("coil", "discrete"):
-            return [1 if b else 0 for b in rr.bits[:blk.count]]
-        return list(rr.registers)
+            words = [1 if b else 0 for b in (rr.bits or [])[:blk.count]]
+        else:
+            words = list(rr.registers or [])
+        if len(words) != blk.count:
+            raise _Miss("short", f"{where}: answer holds {len(words)} registers of {blk.count}")
+        return words
+
+    # ------------------------------------------------------------------ link state
+    def _reconnect(self) -> bool:
+        """One attempt to reopen the link while it is down (at every poll)."""
+        if self._client is not None:
+            return True
+        return self._open()
+
+    def _lose(self, reason: str) -> MachineState:
+        """The link just went down: LOST, and a DISCONNECTED state."""
+        self.last_error = reason
+        self._drop_client()
+        self._trouble.clear()  # the outage says it all now; BACK ends it
+        t = time.monotonic()
+        self._down = _Outage(t, reason)
+        self._link_event(LinkKind.LOST, f"{self.url}: link lost: {reason}; reconnecting at every poll", t=t)
+        return self._disconnected()
+
+    def _disconnected(self) -> MachineState:
+        down = self._down
+        down.polls += 1
+        self.counts["disconnected"] += 1
+        t = time.monotonic()
+        return stale_state(self._last, RunState.DISCONNECTED, t,
+                           f"{self.url}: link down for {t - down.t_lost:.1f} s ({down.reason}); "
+                           f"last attempt: {self.last_error}")
+
+    def _answered(self) -> None:
+        """The controller answered (whatever it said): a link that was down is back."""
+        if self._down is None:
+            return
+        down, self._down = self._down, None
+        t = time.monotonic()
+        gap = Gap(down.t_lost, t, down.reason, polls_missed=down.polls)
+        self.gaps.append(gap)
+        self.reconnects += 1
+        self._link_event(LinkKind.BACK, f"{self.url}: link back after {gap.seconds:.1f} s, "
+                                        f"{down.polls} poll(s) missed ({down.reason})", gap=gap, t=t)
+
+    def _missed(self, cause: str, message: str) -> MachineState:
+        """A MISSED state for one poll without a usable answer, counted by ``cause``."""
+        self.counts[cause] += 1
+        message = f"{self.url}: {message}"
+        self._note_trouble(cause, message)
+        return stale_state(self._last, RunState.MISSED, time.monotonic(), message)
+
+    def _note_trouble(self, cause: str, message: str, kind: LinkKind = LinkKind.NOTE, raw: str = "") -> None:
+        trouble = self._trouble.get(cause)
+        if trouble is None:
+            self._trouble[cause] = trouble = _Trouble(time.monotonic())
+            again = "; recorded as BAD, skipped" if cause == "bad" else "; asking again at every poll"
+            self._link_event(kind, message + again, raw=raw)
+        trouble.polls += 1
+
+    def _troubles_cleared(self) -> None:
+        t = time.monotonic()
+        for cause, trouble in self._trouble.items():
+            self._link_event(LinkKind.NOTE, f"{self.url}: {cause} cleared: {trouble.polls} poll(s) without a "
+                                            f"fresh state over {t - trouble.t_first:.1f} s", t=t)
+        self._trouble.clear()
+
+    # ------------------------------------------------------------------ decoding
+    def _decoded(self, values: dict[str, float], raw: str, t: float) -> MachineState:
+        """The fresh state, or a BAD one when the numbers cannot be right."""
+        why = _impossible_value(values)
+        st = None
+        if why is None:
+            st = self._state(values, t, raw)
+            why = implausible(st)
+        if why is not None:
+            self.counts["bad"] += 1
+            message = f"{self.url}: impossible answer: {why}"
+            self._note_trouble("bad", message, LinkKind.BAD, raw)
+            return stale_state(self._last, RunState.BAD, t, f"{message}; {raw}")
+        self._troubles_cleared()
+        self._last = st
+        return st
 
     def _state(self, v: dict[str, float], t: float, raw: str) -> MachineState:
         mpos = [v.get(a, 0.0) for a in AXES]
@@ -243,7 +432,7 @@ class ModbusController(Controller):
         if "feed" in v:
             feed = v["feed"]
         else:
-            feed = math.sqrt(sum(v.get(f"v{a}", 0.0) ** 2 for a in AXES))
+            feed = math.hypot(*(v.get(f"v{a}", 0.0) for a in AXES))  # no overflow for huge garbage
         alarm = int(v["alarm"]) if "alarm" in v else None
         if "state" in v:
             state = self.regmap.states.get(int(v["state"]), RunState.UNKNOWN)
@@ -271,7 +460,15 @@ class ModbusController(Controller):
             raise DriverError(f"{self.url}: map {self.regmap.path} names no feed_hold coil or register: read-only")
         if not self.allow_feed_hold:
             raise DriverError(f"{self.url}: read-only: feed hold is not enabled (pass feed_hold=1 / allow_feed_hold=True)")
-        self._ensure_link()
+        with self._lock:
+            if self._closed:
+                raise ConnectionLost(f"{self.url}: not connected")
+            if self._client is None and not self._open():
+                raise ConnectionLost(f"{self.url}: link down, cannot write the feed hold ({self.last_error})")
+            self._write_cell(f, hold)
+
+    def _write_cell(self, f: Field, hold: bool) -> None:
+        where = _where(f.unit, f.table, f.address, 1, (f,))
         broadcast = f.unit == 0
         try:
             if f.table == "coil":
@@ -280,20 +477,46 @@ class ModbusController(Controller):
                 value = f.hold_value if hold else f.resume_value
                 rr = self._client.write_register(f.address, value, device_id=f.unit, no_response_expected=broadcast)
         except ModbusIOException:
-            raise ReplyTimeout(f"{self.url}: no reply within {self.timeout:g} s to the feed-hold write ({f.table} {f.address})") from None
+            raise ReplyTimeout(f"{self.url}: no reply within {self.timeout:g} s to the feed-hold write ({where})") from None
         except (ConnectionException, OSError) as exc:
-            self._link_down(str(exc))
-            raise ConnectionLost(f"{self.url}: connection lost during the feed-hold write") from None
+            self._drop_client()
+            raise ConnectionLost(f"{self.url}: connection lost during the feed-hold write ({where}): {exc}") from None
         if rr is not None and rr.isError():
             code = int(getattr(rr, "exception_code", 0))
             raise ModbusExceptionError(
-                f"{self.url}: feed-hold write to {_where(f.unit, f.table, f.address, 1, (f,))}: exception code {code} ({EXCEPTION_NAMES.get(code, 'unknown')})", code)
+                f"{self.url}: feed-hold write to {where}: exception code {code} ({EXCEPTION_NAMES.get(code, 'unknown')})", code)
+
+
+def _drop_reason(exc: Exception) -> str:
+    """One short line for a link that went away (pymodbus's messages run long)."""
+    text = str(exc)
+    if "unexpectedly closed" in text:
+        return "the controller closed the connection"
+    if isinstance(exc, OSError):
+        return f"connection lost ({exc.strerror or exc})"
+    return f"connection lost ({text.removeprefix('Modbus Error: ')})"
+
+
+def _impossible_value(values: dict[str, float]) -> str | None:
+    """Why a decoded field cannot be turned into a state (non-finite, or an integer code
+    beyond any controller's), or None."""
+    for name, v in values.items():
+        if not math.isfinite(v):
+            return f"{name}={v!r} is not a number"
+        if name in _INT_FIELDS and abs(v) > MAX_REPORTED_INT:
+            return f"{name}={v!r} is out of range"
+    return None
+
+
+def _span(unit: int, table: str, address: int, count: int) -> str:
+    """``unit 1 input 0..34``: the registers (or bits) of one request."""
+    span = f"{address}" if count == 1 else f"{address}..{address + count - 1}"
+    return f"unit {unit} {table} {span}"
 
 
 def _where(unit: int, table: str, address: int, count: int, fields) -> str:
-    names = ",".join(f.name for f in fields)
-    span = f"{address}" if count == 1 else f"{address}..{address + count - 1}"
-    return f"unit {unit} {table} {span} ({names})"
+    """:func:`_span` and the names of the fields it holds."""
+    return f"{_span(unit, table, address, count)} ({','.join(f.name for f in fields)})"
 
 
 _TRUE = {"1", "true", "yes", "on"}

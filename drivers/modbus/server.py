@@ -11,23 +11,40 @@ resumes the machine. Device ids not in the map get no answer (an RTU line's sile
     ...
     server.stop()
 
-Test hooks: ``silent = True`` stops answering (clients time out); ``faults`` (a
-:class:`~drivers.virtual.faults.FaultInjector`) drops, delays or fails replies.
+Test hooks, all off by default: ``silent = True`` stops answering (clients time out);
+``faults`` (a :class:`~drivers.virtual.faults.FaultInjector`) drops, delays or fails
+replies; ``answers`` (an :class:`AnswerFaults`, seeded) and :meth:`ModbusVirtualServer.script`
+make read answers late, busy (exception 6), acknowledge (5), other exception codes,
+short, undecodable, or carry mutated register values (NaN, inf, huge, random words);
+:meth:`ModbusVirtualServer.restart` stops and listens again on the same port (a link
+drop). ``function_codes`` counts every request received by function code, so a test can
+see that no write ever reached the device; ``errors`` collects failures inside the
+server (a test asserts it stays empty).
+
+Each answer carries the transaction id of its own request, even when a later request
+was answered first (pymodbus's handler would stamp a late answer with the newest id).
 """
 
 from __future__ import annotations
 
 import asyncio
+import collections
 import logging
+import math
+import random
 import threading
+import traceback
+from dataclasses import dataclass
 
 from pymodbus.constants import ExcCodes
 from pymodbus.datastore import ModbusServerContext
 from pymodbus.exceptions import NoSuchIdException
+from pymodbus.pdu import ExceptionResponse
 from pymodbus.server import ModbusTcpServer
+from pymodbus.server.requesthandler import ServerRequestHandler
 
 from drivers.errors import DriverError
-from drivers.modbus.regmap import AXES, TYPES, Field, RegisterMap, encode_field
+from drivers.modbus.regmap import AXES, TYPES, Field, RegisterMap, encode, encode_field
 from drivers.state import RunState
 from drivers.virtual.faults import REPLY_DROP, REPLY_GARBLE, REPLY_LATE, FaultInjector
 from drivers.virtual.machine import VirtualMachine
@@ -40,7 +57,9 @@ DROP_DELAY_S = 5.0
 
 # pymodbus warns at every context creation that the old datastore API is deprecated;
 # we only use its request plumbing, so keep the warning out of the user's terminal.
-logging.getLogger("pymodbus").setLevel(logging.ERROR)
+# (never lower than the driver's level, when both are imported: the driver reports its own)
+_pymodbus_log = logging.getLogger("pymodbus")
+_pymodbus_log.setLevel(max(_pymodbus_log.getEffectiveLevel(), logging.ERROR))
 
 
 def machine_values(vm: VirtualMachine, regmap: RegisterMap) -> dict[str, float]:
@@ -76,6 +95,131 @@ def _clamped_words(f: Field, value: float) -> list[int]:
     return encode_field(f, value)
 
 
+#: what can happen to one read answer (besides a normal answer, "ok")
+ANSWER_FAULTS = ("late", "busy", "acknowledge", "exception", "short", "garble", "mutate")
+#: the exception codes an "exception" fault answers with (5 and 6 have their own faults)
+OTHER_EXCEPTION_CODES = (ExcCodes.ILLEGAL_FUNCTION, ExcCodes.ILLEGAL_ADDRESS, ExcCodes.ILLEGAL_VALUE,
+                         ExcCodes.DEVICE_FAILURE, ExcCodes.MEMORY_PARITY_ERROR,
+                         ExcCodes.GATEWAY_PATH_UNAVIABLE, ExcCodes.GATEWAY_NO_RESPONSE)
+#: raw values a "mutate" fault writes into a float field (non-finite, or beyond any machine)
+FLOAT_GARBAGE = (math.nan, -math.nan, math.inf, -math.inf, 3.0e38, -1.0e30, 1.0e6, 1.0e300)
+#: the largest finite float32
+FLOAT32_MAX = 3.4028234663852886e38
+
+
+@dataclass(frozen=True)
+class AnswerFaults:
+    """Probabilities (0..1, summing to at most 1) that one read answer is:
+
+    ``late`` (sent ``late_s`` s late, beyond a client's timeout), ``busy`` (exception 6),
+    ``acknowledge`` (exception 5), ``exception`` (another code: 1-4, 8, 10, 11),
+    ``short`` (fewer registers than asked), ``garble`` (a frame that does not decode, or
+    answers for another device), ``mutate`` (one field's words replaced by NaN, inf or
+    huge float32/float64 patterns, huge integers or random words). ``seed`` seeds the draws.
+    """
+
+    late: float = 0.0
+    busy: float = 0.0
+    acknowledge: float = 0.0
+    exception: float = 0.0
+    short: float = 0.0
+    garble: float = 0.0
+    mutate: float = 0.0
+    late_s: float = 1.0
+    seed: int = 0
+
+    def __post_init__(self):
+        probs = [getattr(self, k) for k in ANSWER_FAULTS]
+        if any(not 0.0 <= p <= 1.0 for p in probs) or sum(probs) > 1.0 + 1e-9:
+            raise DriverError(f"answer faults {probs}: expected probabilities in 0..1 adding up to at most 1")
+        if self.late_s < 0:
+            raise DriverError(f"answer faults late_s={self.late_s}: expected >= 0 s")
+
+    def draw(self, rng: random.Random) -> str:
+        """One fault name from ``ANSWER_FAULTS``, or ``"ok"``."""
+        x = rng.random()
+        for kind in ANSWER_FAULTS:
+            p = getattr(self, kind)
+            if x < p:
+                return kind
+            x -= p
+        return "ok"
+
+
+def mutate_words(words: list[int], cells: dict[int, tuple[Field, int]], address: int,
+                 rng: random.Random) -> list[int]:
+    """``words`` (registers from ``address``) with one field's words replaced by garbage:
+    for float fields NaN, inf or a huge value in the field's own coding, for integer
+    fields the largest word pattern, or random words."""
+    out = list(words)
+    fields = {cells[address + i][0].name: cells[address + i][0] for i in range(len(words))}
+    f = fields[rng.choice(sorted(fields))]
+    lo, hi = max(f.address, address), min(f.address + f.count, address + len(words))
+    if rng.random() < 0.3:
+        garbage = [rng.randrange(0x10000) for _ in range(f.count)]
+    elif f.type in ("float32", "float64"):
+        value = rng.choice(FLOAT_GARBAGE)
+        if f.type == "float32" and abs(value) > FLOAT32_MAX:
+            value = math.copysign(math.inf, value)  # what a float32 register can hold of it
+        garbage = encode(value, f.type, f.word_order, f.byte_order)
+    else:
+        garbage = [0xFFFF if k == 0 else rng.randrange(0x10000) for k in range(f.count)]
+        if f.word_order == "little":
+            garbage.reverse()
+    for a in range(lo, hi):
+        out[a - address] = garbage[a - f.address]
+    return out
+
+
+def garble_frame(packet: bytes, rng: random.Random) -> bytes:
+    """A Modbus TCP answer ``packet`` made undecodable (a byte count beyond the frame, an
+    unknown function code) or addressed to another device (clients skip it: a timeout)."""
+    buf = bytearray(packet)
+    if len(buf) < 9:
+        return packet
+    how = rng.randrange(3)
+    if how == 0:
+        buf[8] = 0xFF                  # byte count beyond the frame
+    elif how == 1:
+        buf[7] = 0x41                  # an unknown function code
+    else:
+        buf[6] = (buf[6] + 1) & 0xFF   # another device id
+    return bytes(buf)
+
+
+class _InOrderHandler(ServerRequestHandler):
+    """pymodbus's request handler, but each answer keeps its own request's transaction
+    and device id (the stock one stamps an answer with the newest request's ids when a
+    later request arrived while it was pending, e.g. during a late answer)."""
+
+    async def handle_request(self):
+        request, addr = self.last_pdu, self.last_addr
+        if not request:
+            return
+        ctx = self.server.context
+        try:
+            if self.server.broadcast_enable and not request.dev_id:
+                for dev_id in ctx.device_ids():
+                    await request.datastore_update(ctx, dev_id)
+                return
+            response = await request.datastore_update(ctx, request.dev_id)
+        except NoSuchIdException:
+            return  # an RTU line's silence: the client times out
+        except asyncio.CancelledError:
+            raise
+        except Exception:  # noqa: BLE001 - a failing test server answers 4 and says why
+            ctx._server.errors.append(traceback.format_exc())
+            response = ExceptionResponse(request.function_code, ExcCodes.DEVICE_FAILURE)
+        response.transaction_id = request.transaction_id
+        response.dev_id = request.dev_id
+        self.server_send(response, addr)
+
+
+class _InOrderTcpServer(ModbusTcpServer):
+    def callback_new_connection(self):
+        return _InOrderHandler(self, self.trace_packet, self.trace_pdu, self.trace_connect)
+
+
 class _MachineContext(ModbusServerContext):
     """pymodbus datastore answering from the machine (the 'old simulator' code path
     hands every request to ``async_getValues``/``async_setValues`` unchanged)."""
@@ -97,18 +241,32 @@ class _MachineContext(ModbusServerContext):
 
 
 class ModbusVirtualServer:
-    """Serve ``vm`` through ``regmap`` on Modbus TCP at ``host:port`` (0 = any free port)."""
+    """Serve ``vm`` through ``regmap`` on Modbus TCP at ``host:port`` (0 = any free port).
+
+    ``answers``: an :class:`AnswerFaults` drawn for every read answer (None: none).
+    """
 
     def __init__(self, vm: VirtualMachine, regmap: RegisterMap, host: str = "127.0.0.1", port: int = 0,
-                 faults: FaultInjector | None = None):
+                 faults: FaultInjector | None = None, answers: AnswerFaults | None = None):
         self.vm = vm
         self.regmap = regmap
         self.host = host
         self.requested_port = int(port)
         self.port: int | None = None
         self.faults = faults
+        self.answers = answers
         self.silent = False
+        #: how late (s) a "late" answer comes
+        self.late_s = answers.late_s if answers else 1.0
         self.requests = 0
+        #: requests received, by function code (reads 1-4, writes 5, 6, 15, 16 ...)
+        self.function_codes: collections.Counter[int] = collections.Counter()
+        #: answer faults applied, by name (``ANSWER_FAULTS``)
+        self.faults_done: collections.Counter[str] = collections.Counter()
+        #: tracebacks of failures inside the server (answered with exception 4)
+        self.errors: list[str] = []
+        self._script: collections.deque[str] = collections.deque()
+        self._garble_next = False
         self._loop: asyncio.AbstractEventLoop | None = None
         self._server: ModbusTcpServer | None = None
         self._thread: threading.Thread | None = None
@@ -124,6 +282,12 @@ class ModbusVirtualServer:
 
     # ------------------------------------------------------------------ lifecycle
     def start(self, timeout: float = 10.0) -> "ModbusVirtualServer":
+        """Listen (on the port bound before, after a :meth:`stop`) and serve from a thread;
+        does nothing while serving."""
+        if self._thread is not None and self._thread.is_alive():
+            return self
+        self._ready.clear()
+        self._error = None
         self._thread = threading.Thread(target=self._run, name="modbus-server", daemon=True)
         self._thread.start()
         if not self._ready.wait(timeout):
@@ -133,6 +297,7 @@ class ModbusVirtualServer:
         return self
 
     def stop(self, timeout: float = 5.0) -> None:
+        """Stop listening and close every client connection (clients see the link drop)."""
         loop = self._loop
         if loop is not None and loop.is_running():
             fut = asyncio.run_coroutine_threadsafe(self._shutdown(), loop)
@@ -143,6 +308,30 @@ class ModbusVirtualServer:
         if self._thread is not None:
             self._thread.join(timeout)
             self._thread = None
+
+    def restart(self, timeout: float = 10.0) -> "ModbusVirtualServer":
+        """Listen again on the same port after :meth:`stop`."""
+        return self.start(timeout)
+
+    @property
+    def answers(self) -> AnswerFaults | None:
+        """The :class:`AnswerFaults` drawn for every read answer; setting it reseeds the draws."""
+        return self._answers
+
+    @answers.setter
+    def answers(self, plan: AnswerFaults | None) -> None:
+        self._answers = plan
+        self._rng = random.Random(plan.seed if plan else 0)
+        if plan is not None:
+            self.late_s = plan.late_s
+
+    def script(self, *kinds: str) -> None:
+        """Apply these faults (names from ``ANSWER_FAULTS``, or ``"ok"``) to the next read
+        answers, one each, in order, before any drawn from ``answers``."""
+        bad = [k for k in kinds if k not in ANSWER_FAULTS + ("ok",)]
+        if bad:
+            raise DriverError(f"answer fault {bad[0]!r}: expected one of {', '.join(ANSWER_FAULTS)}, ok")
+        self._script.extend(kinds)
 
     def __enter__(self):
         return self.start()
@@ -166,14 +355,16 @@ class ModbusVirtualServer:
             loop.close()
 
     async def _serve(self) -> None:
-        self._server = ModbusTcpServer(
-            _MachineContext(self), address=(self.host, self.requested_port),
+        port = self.port if self.port is not None else self.requested_port
+        self._server = _InOrderTcpServer(
+            _MachineContext(self), address=(self.host, port),
             broadcast_enable=True, ignore_missing_devices=True,
+            trace_packet=self._trace_packet, trace_pdu=self._trace_pdu,
         )
         try:
             await self._server.serve_forever(background=True)
         except RuntimeError as exc:
-            raise OSError(f"cannot listen on {self.host}:{self.requested_port}") from exc
+            raise OSError(f"cannot listen on {self.host}:{port}") from exc
         self.port = self._server.transport.sockets[0].getsockname()[1]
         self._ready.set()
 
@@ -186,6 +377,24 @@ class ModbusVirtualServer:
         asyncio.get_running_loop().call_soon(asyncio.get_running_loop().stop)
 
     # ------------------------------------------------------------------ requests
+    def _trace_pdu(self, sending: bool, pdu):
+        if not sending:
+            self.function_codes[pdu.function_code] += 1
+        return pdu
+
+    def _trace_packet(self, sending: bool, packet: bytes) -> bytes:
+        # the answer a "garble" fault was drawn for is the next one sent: nothing awaits
+        # between the datastore returning and the handler sending
+        if sending and self._garble_next:
+            self._garble_next = False
+            return garble_frame(packet, self._rng)
+        return packet
+
+    def _next_fault(self) -> str:
+        if self._script:
+            return self._script.popleft()
+        return self._answers.draw(self._rng) if self._answers is not None else "ok"
+
     async def _answer(self, unit: int, func_code: int, address: int, count: int, values):
         self.requests += 1
         if unit != 0 and unit not in self._units:
@@ -203,9 +412,34 @@ class ModbusVirtualServer:
                 await asyncio.sleep(self.faults.plan.late_s)
             elif fault == REPLY_GARBLE:
                 return ExcCodes.DEVICE_FAILURE
-        if values is None:
-            return self._read(unit, func_code, address, count)
-        return self._write(unit, func_code, address, values)
+        if values is not None:
+            return self._write(unit, func_code, address, values)
+        if func_code in _READ_TABLE:
+            return await self._read_with_faults(unit, func_code, address, count)
+        return self._read(unit, func_code, address, count)  # a write reading its cell back
+
+    async def _read_with_faults(self, unit: int, func_code: int, address: int, count: int):
+        fault = self._next_fault()
+        if fault != "ok":
+            self.faults_done[fault] += 1
+        if fault == "late":
+            await asyncio.sleep(self.late_s)
+        elif fault == "busy":
+            return ExcCodes.DEVICE_BUSY
+        elif fault == "acknowledge":
+            return ExcCodes.ACKNOWLEDGE
+        elif fault == "exception":
+            return self._rng.choice(OTHER_EXCEPTION_CODES)
+        answer = self._read(unit, func_code, address, count)
+        if isinstance(answer, ExcCodes):
+            return answer
+        if fault == "short":
+            return answer[:self._rng.randrange(count)]
+        if fault == "garble":
+            self._garble_next = True
+        elif fault == "mutate" and _READ_TABLE[func_code] in ("holding", "input"):
+            answer = mutate_words(answer, self._cells[(unit, _READ_TABLE[func_code])], address, self._rng)
+        return answer
 
     def _read(self, unit: int, func_code: int, address: int, count: int):
         # write requests read their cells back through here with the write's function code
