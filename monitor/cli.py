@@ -42,12 +42,24 @@ USER_ERRORS = (SimError, DriverError, OSError)
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="dexmon", description="Hardware-in-the-loop monitor for CNC mills.")
+    parser.add_argument("--version", action="version", version=f"dexmon {version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, module in COMMANDS.items():
         p = sub.add_parser(name, help=SUMMARY[name], description=SUMMARY[name])
         if name == command:
             _load(module).add_arguments(p)
     return parser
+
+
+def version() -> str:
+    """The installed dexmon's version ("unknown" when run from a tree that is not installed)."""
+    from importlib.metadata import PackageNotFoundError
+    from importlib.metadata import version as dist_version
+
+    try:
+        return dist_version("dexmon")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 def _load(module: str):
