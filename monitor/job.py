@@ -18,6 +18,7 @@ needs; paths are relative to the job file's folder)::
     work_system = "G54"         # the job's work system: stock, fixtures, design and
                                 # work_offset are in it (G54..G59, G59.1..G59.3)
     max_loop = 100000           # passes of one o-word loop before it is called endless
+                                # (and 10x as many blocks run beyond the file's lines)
 
     work_offset = [0, 0, 0]     # where the job's work system has its zero, machine coords
                                 # (mm), or "controller" (from the WCO it reports)

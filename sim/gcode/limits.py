@@ -29,8 +29,9 @@ class Limits:
     max_loop : int
         Passes of one ``while``/``do``/``repeat`` loop each time it is entered (and the
         largest ``repeat`` count).
-    max_steps : int
-        Blocks executed in all, loops and subroutine calls included.
+    max_steps : int (derived)
+        Blocks executed beyond the file's own lines (loop passes and subroutine calls):
+        ten times ``max_loop``, so the one knob raises both.
     max_cycle_repeats : int
         ``L`` of a canned cycle.
     max_pecks : int
@@ -44,12 +45,15 @@ class Limits:
     """
 
     max_loop: int = 100_000
-    max_steps: int = 5_000_000
     max_cycle_repeats: int = 10_000
     max_pecks: int = 10_000
     max_arc_turns: int = 1_000
     max_line_chars: int = 4_096
     max_tool: int = 2**31 - 1
+
+    @property
+    def max_steps(self) -> int:
+        return 10 * self.max_loop
 
 
 DEFAULT_LIMITS = Limits()

@@ -341,7 +341,8 @@ class _Runner:
             steps += 1
             if steps > max_steps:
                 self.fail(src, pc, LineError(f"program ran more than {self.limits.max_steps} blocks beyond its "
-                                             f"{len(main.lines)} lines: an endless o-word loop?"))
+                                             f"{len(main.lines)} lines: an endless o-word loop? (--max-loop "
+                                             "raises the limit)"))
                 break
             if depth == 0:
                 it.main_line = pc + 1

@@ -104,7 +104,7 @@ TOKENS = st.one_of(GCODE_WORDS, NUMBERS)
 @given(st.lists(TOKENS, max_size=40).map(" ".join), st.sampled_from(["linuxcnc", "grbl"]))
 def test_fuzz_only_gcode_errors(text, dialect):
     try:
-        p = interpret(text, dialect=dialect, keep_going=True, limits=Limits(max_steps=2000))
+        p = interpret(text, dialect=dialect, keep_going=True, limits=Limits(max_loop=200))
     except GCodeError:
         return
     assert p.moves.dtype.names[0] == "file"

@@ -342,7 +342,7 @@ def test_keep_going_lists_every_error():
 
 def test_endless_loop_is_stopped():
     with pytest.raises(GCodeError, match="endless"):
-        interpret("o1 while [1]\no1 endwhile\n", limits=Limits(max_steps=1000))
+        interpret("o1 while [1]\no1 endwhile\n", limits=Limits(max_loop=100))
 
 
 # ------------------------------------------------------------------ state, feed modes
