@@ -7,6 +7,15 @@ ahead over the horizon on a scratch model, both through :class:`sim.checks.Check
 a predicted finding that then happens is one alert, updated to "happened") and append to
 the run file (:mod:`monitor.runfile`).
 
+Link trouble: a state that is not fresh (``drivers.state.NOT_FRESH``: missed, bad,
+disconnected; or fresh with numbers :func:`drivers.state.implausible` refuses, taken as
+bad) is recorded and counted, never synced or cut. After a gap -- a disconnect, a reset
+the controller tells (:meth:`Session.link_event`), or :data:`GAP_POLLS` not-fresh polls in
+a row -- the path in between is unknown: the first fresh state is not joined to the last
+one but found again by a search of the program, the rows the program ran meanwhile are
+cut as programmed (unchecked) when both ends sit on the program, and a gap record says
+what happened (:attr:`Session.gaps`, the run file's ``link_events``, the summary).
+
 Program time (and so lead times) comes from ``Program.cycle_time`` (GRBL-like planner)
 with the job's ``[machine]`` limits, falling back to length / feed only if it fails.
 

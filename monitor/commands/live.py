@@ -1,7 +1,7 @@
 """``dexmon live JOB``: monitor a running machine.
 
     dexmon live JOB.toml [--controller URL] [--run FILE] [--quiet | --json]
-                         [--view | --frames DIR] [job flags]
+                         [--give-up SECONDS] [--view | --frames DIR] [job flags]
 
 Polls the job's controller, follows the program, cuts the real path into the stock,
 predicts findings over the look-ahead horizon and alerts each once (terminal, JSON lines,
