@@ -220,6 +220,11 @@ class Session:
             a, b = self.moves["start"][k, :3], self.moves["end"][k, :3]
             _, rays, _ = live.cut(np.stack([a, (a + b) / 2, b]), np.array([k, k]), None)
             changed = np.union1d(res.changed_rays, rays).astype(np.int64)
+            # the programmed cut of the rows run during a gap (_cut_gap_rows)
+            from sim.cut import Cutter
+
+            Cutter(scratch, self.wp.default_tool, self.wp.tol, tools=self.wp.tools).cut_moves(
+                self.moves[idx[:2]], move_ids=idx[:2] + 1, record_changes=True)
             if trace is not None:
                 try:
                     trace.record(scratch, rays=changed, stage=1)
@@ -308,6 +313,10 @@ class Session:
             return StepInfo(self.last_sync, skipped=state.state.value, seconds=time.perf_counter() - t0)
         gap = self._gap if self._gap is not None or len(self._unfresh) < GAP_POLLS else self._open_gap()
         self._unfresh = []
+        if gap is not None and self.last is None:
+            # trouble before the first fresh state (a reset told at connect): there is no
+            # path to join yet, so no gap to close; the counts keep what was missed
+            gap = self._gap = None
         row_hint = self.last_sync.row if self.last_sync is not None else None
         tip = self.tip(state, row_hint)
         point = self.sync_point(state, tip, row_hint)

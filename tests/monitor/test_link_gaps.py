@@ -201,3 +201,14 @@ def test_session_link_event_back_carries_the_drivers_gap(example):
     s.step(dataclasses.replace(s.last, t=t + 1.0))
     [gap] = s.gaps
     assert gap["lines_lost"] == 3 and gap["came_back"] == "alarm 1" and "3 lines" in gap["message"]
+
+
+def test_a_reset_told_before_the_first_state_is_no_gap(example):
+    """A driver that tells a RESET at connect (the banner) before any fresh state: there is
+    nothing to join yet, so no gap record and the first states are followed as usual."""
+    job, moves, program = example
+    job = dataclasses.replace(job, work_offset=(0.0, 0.0, 0.0))
+    s = Session(job, moves, program=program)
+    s.link_event(LinkEvent(0.0, LinkKind.RESET, "grbl:///dev/ttyUSB0: Grbl 1.1h ['$' for help]"))
+    _on_line_11(s, moves)
+    assert s.gaps == [] and s.last_sync.how == "track" and s.stage == 5
