@@ -168,6 +168,8 @@ def unpack_arrays(header: str, data: bytes, where: str) -> dict[str, np.ndarray]
 # --- writer ----------------------------------------------------------------------------
 
 _STOP = object()
+#: what one row's values can make SQLite raise: that row is skipped, not the run file
+_ROW_ERRORS = (OverflowError, sqlite3.InterfaceError, ValueError, TypeError)
 
 
 class RunWriter:
@@ -192,6 +194,9 @@ class RunWriter:
         self._ready = threading.Event()
         self._closed = False
         self._stage = 0
+        #: rows SQLite refused (a value it cannot store): skipped, counted, the run goes on
+        self.skipped = 0
+        self.last_skip = ""
         self._thread = threading.Thread(target=self._loop, name=f"runfile:{self.path.name}", daemon=True)
         self._thread.start()
         self._ready.wait()
@@ -320,7 +325,11 @@ class RunWriter:
                     if not in_tx:
                         con.execute("BEGIN")
                         in_tx = True
-                    con.execute(*item)
+                    try:
+                        con.execute(*item)
+                    except _ROW_ERRORS as exc:  # one row SQLite cannot take: skip it, go on
+                        self.skipped += 1
+                        self.last_skip = f"{type(exc).__name__}: {exc}"
                     if time.monotonic() - last_commit < self.commit_interval:
                         continue
                 if in_tx:
@@ -330,6 +339,9 @@ class RunWriter:
                 if isinstance(item, threading.Event):
                     item.set()
                 elif item is _STOP:
+                    if self.skipped:
+                        con.execute("INSERT OR REPLACE INTO meta(key, value) VALUES ('skipped_rows', ?)",
+                                    (json.dumps({"rows": self.skipped, "last": self.last_skip}),))
                     break
         except BaseException as exc:
             self._error = exc

@@ -196,3 +196,11 @@ def test_feed_hold_only_when_enabled(tmp_path, monkeypatch, flag):
     code = _main(argv + (["--feed-hold"] if flag else []))
     assert code == 1  # findings either way
     assert (len(calls) > 0) == flag
+
+
+def test_status_line_says_the_controller_is_lost():
+    from monitor.status import status_text
+
+    st = MachineState(t=1.0, mpos=(1, 2, 3), state=RunState.DISCONNECTED, raw="port gone")
+    text = status_text(st, None, 10.0, 0, note="lost 30 s, retrying").plain
+    assert text.startswith("Disconnected") and text.endswith("lost 30 s, retrying")

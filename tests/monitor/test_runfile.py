@@ -203,3 +203,14 @@ def test_run_files_without_the_link_events_table_still_open(tmp_path):
     con.close()
     r = RunReader(path)
     assert r.link_events() == [] and r.state_count() == 1
+
+
+def test_a_row_sqlite_refuses_is_skipped_and_counted_not_fatal(tmp_path):
+    path = tmp_path / "r.sqlite"
+    with RunWriter(path) as w:
+        w._put("INSERT INTO states(t, line) VALUES (?, ?)", (0.0, 2**70))  # past the sanitising appends
+        w.append_state(MachineState(t=0.1, mpos=(0, 0, 0), state=RunState.IDLE))
+        w.flush()
+        assert w.skipped == 1 and "too large" in w.last_skip
+    r = RunReader(path)
+    assert r.state_count() == 1 and json.loads(r.meta()["skipped_rows"])["rows"] == 1
