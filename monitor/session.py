@@ -375,7 +375,8 @@ class Session:
                      "run_s": None if t_lost is None or self._t0 is None else round(t_lost - self._t0, 3),
                      "last_fresh_t": None if self.last is None else self.last.t,
                      "reason": reason or (first.raw if first is not None else ""),
-                     "polls_missed": len(self._unfresh), **counted, "lines_lost": 0, "came_back": ""}
+                     "polls_missed": len(self._unfresh), **counted, "lines_lost": 0, "came_back": "",
+                     "reset": False}
         return self._gap
 
     def link_event(self, ev: LinkEvent) -> dict:
@@ -396,6 +397,7 @@ class Session:
         if kind in (LinkKind.LOST, LinkKind.RESET, LinkKind.BACK):
             gap = self._open_gap(reason=ev.message if kind == LinkKind.LOST else "", t=ev.t)
             if kind == LinkKind.RESET:
+                gap["reset"] = True
                 gap["came_back"] = gap["came_back"] or ev.message
                 gap["reason"] = gap["reason"] or ev.message
             if ev.gap is not None:
@@ -415,7 +417,8 @@ class Session:
         self._gap = None
         last_tip = self._prev_tip
         self._prev_tip, self._prev_row = None, None
-        rows = self._cut_gap_rows(before, s, state)
+        # a controller that reset lost its program: the rows between did not run
+        rows = [] if gap["reset"] else self._cut_gap_rows(before, s, state)
         gap.update({
             "t_back": state.t, "seconds": None if gap["t_lost"] is None else state.t - gap["t_lost"],
             "jump_mm": None if last_tip is None else float(np.linalg.norm(tip - last_tip)),

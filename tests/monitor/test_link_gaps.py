@@ -212,3 +212,18 @@ def test_a_reset_told_before_the_first_state_is_no_gap(example):
     s.link_event(LinkEvent(0.0, LinkKind.RESET, "grbl:///dev/ttyUSB0: Grbl 1.1h ['$' for help]"))
     _on_line_11(s, moves)
     assert s.gaps == [] and s.last_sync.how == "track" and s.stage == 5
+
+
+def test_after_a_reset_the_rows_between_are_not_cut_as_programmed(example):
+    """A controller that reset lost its program: found again further on (the operator
+    restarted from a later line), the rows in between did not run and are not cut."""
+    job, moves, program = example
+    job = dataclasses.replace(job, work_offset=(0.0, 0.0, 0.0))
+    s = Session(job, moves, program=program)
+    t = _on_line_11(s, moves)
+    s.step(MachineState(t=t, mpos=s.last.mpos, state=RunState.DISCONNECTED, raw="port gone"))
+    s.link_event(LinkEvent(t + 1.0, LinkKind.RESET, "Grbl 1.1h banner"))
+    k = _row(moves, 16)
+    s.step(_state(t + 1.0, s.moves["start"][k, :3] + 0.5 * (s.moves["end"][k, :3] - s.moves["start"][k, :3]), line=16))
+    [gap] = s.gaps
+    assert gap["reset"] and gap["resync"]["line"] == 16 and gap["rows_cut_unchecked"] == []
