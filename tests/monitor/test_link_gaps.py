@@ -184,6 +184,10 @@ def test_far_away_positions_do_not_blow_up_a_kernel(example, far):
         info = s.step(_state(t + 0.02 * (i + 1), tip))
         assert info.sync is not None and info.sync.how == "lost"
         assert all(np.all(np.isfinite(f.get("position", [0]))) for f in s.findings)
+    # the work offset far the other way: the tip (mpos - WCO) twice as far
+    info = s.step(MachineState(t=t + 0.12, mpos=(far, far, far, 0, 0, 0), wco=(-far, -far, -far, 0, 0, 0),
+                               state=RunState.RUN, spindle=10000.0))
+    assert info.sync.how == "lost"
     s.step(dataclasses.replace(back, t=t + 0.2))
     assert s.last_sync.how in ("search", "track")
 
