@@ -131,7 +131,8 @@ def link_section(reader) -> list[str]:
         parts.append("</table>")
     if said:
         parts.append("<ul>")
-        parts += [f"<li>{e(str(ev.get('kind')))}: {e(str(ev.get('message', '')))}</li>" for ev in said[:MAX_LINK_EVENTS]]
+        parts += [f"<li>{e(str(ev.get('kind')))}: {e(str(ev.get('message', '')))}</li>"
+                  for ev in said[:MAX_LINK_EVENTS]]
         if len(said) > MAX_LINK_EVENTS:
             parts.append(f"<li>... and {len(said) - MAX_LINK_EVENTS} more</li>")
         parts.append("</ul>")

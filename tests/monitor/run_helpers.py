@@ -40,8 +40,10 @@ def record_link_trouble(w: RunWriter) -> dict:
     kinds = [RunState.RUN] * 5 + [RunState.MISSED] * 3 + [RunState.BAD] * 2 + [RunState.DISCONNECTED] * 4 \
         + [RunState.ALARM] * 5
     for i, k in enumerate(kinds):
-        w.append_state(MachineState(t=100.0 + 0.5 * i, mpos=tuple(PATH[1]), state=k, raw="" if k == RunState.RUN else "why"))
-    w.append_link_event(106.0, "reset", {"event": "link", "kind": "reset", "message": "grbl:///dev/ttyUSB0: Grbl 1.1h banner"})
+        w.append_state(MachineState(t=100.0 + 0.5 * i, mpos=tuple(PATH[1]), state=k,
+                                    raw="" if k == RunState.RUN else "why"))
+    w.append_link_event(106.0, "reset", {"event": "link", "kind": "reset",
+                                         "message": "grbl:///dev/ttyUSB0: Grbl 1.1h banner"})
     gap = {"event": "gap", "t_lost": 102.5, "run_s": 2.5, "t_back": 107.0, "seconds": 4.5, "reason": "port gone",
            "polls_missed": 9, "missed": 3, "bad": 2, "disconnected": 4, "lines_lost": 2,
            "came_back": "reset: Grbl 1.1h banner", "jump_mm": 12.5, "from_line": 11,

@@ -174,8 +174,10 @@ def test_states_with_values_a_controller_made_up_do_not_stop_the_writer(tmp_path
     writer goes on."""
     path = tmp_path / "r.sqlite"
     huge = 2**64 + 5
-    odd = [MachineState(t=0.1, mpos=(1, 2, 3), state=RunState.HOLD, line=huge, substate=huge, raw="<Hold:18446744073709551621|Ln:18446744073709551621>"),
-           MachineState(t=0.2, mpos=(1, 2, 3), state=RunState.ALARM, alarm=-huge, overrides=(huge, 100, 100), raw="ALARM:-huge"),
+    odd = [MachineState(t=0.1, mpos=(1, 2, 3), state=RunState.HOLD, line=huge, substate=huge,
+                        raw="<Hold:18446744073709551621|Ln:18446744073709551621>"),
+           MachineState(t=0.2, mpos=(1, 2, 3), state=RunState.ALARM, alarm=-huge, overrides=(huge, 100, 100),
+                        raw="ALARM:-huge"),
            MachineState(t=0.3, mpos=(1, 2, 3), state=RunState.RUN, line=np.int64(7), buffer=(15, 128), raw=b"<Run>"),
            MachineState(t=0.4, mpos=(1, 2, 3), state=RunState.RUN, line=12, raw="<Run|Ln:12>")]
     with RunWriter(path) as w:
