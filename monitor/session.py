@@ -602,9 +602,14 @@ class Session:
                    "kinds": sorted({f["kind"] for f in self.findings}),
                    "progress_s": None if self.last_sync is None else round(self.last_sync.progress, 3),
                    "program_s": round(self.path.duration, 3), **self.counts, "gaps": list(self.gaps)}
-        if self._gap is not None:  # the run ended inside a gap: say so too
-            summary["gaps"].append({**self._gap, "t_back": None, "seconds": None,
-                                    "message": gap_message({**self._gap, "t_back": None})})
+        if self._gap is not None:  # the run ended inside a gap: say so too (once)
+            gap, self._gap = self._gap, None
+            gap.update(t_back=None, seconds=None)
+            gap["message"] = gap_message(gap)
+            self.gaps.append(gap)
+            summary["gaps"].append(gap)
+            if self.run is not None:
+                self.run.append_link_event(self.last.t if self.last is not None else gap["t_lost"], "gap", gap)
         if self.run is not None:
             self.run.put_meta("summary", summary)
             self.run.flush()

@@ -150,7 +150,11 @@ def test_cli_give_up_exits_2_with_reason_summary_and_run_file(tmp_path, capsys):
     assert summary["disconnected"] > 0 and summary["gaps"][0]["t_back"] is None
     r = RunReader(run)  # closed and complete
     assert json.loads(r.meta()["summary"])["disconnected"] == summary["disconnected"]
-    assert [e["kind"] for e in r.link_events()][:1] == ["lost"]
+    kinds = [e["kind"] for e in r.link_events()]
+    assert kinds[0] == "lost" and kinds[-1] == "gap"  # the gap the run ended in
+    report = tmp_path / "r.html"
+    assert main(["report", str(run), "-o", str(report)]) == 0
+    assert "<td>not back</td>" in report.read_text()
 
 
 def test_cli_link_events_gaps_and_missed_polls(tmp_path, capsys):
