@@ -8,6 +8,7 @@ needs; paths are relative to the job file's folder)::
     [controller]
     url = "grbl:///dev/ttyUSB0?baud=115200"
     poll_hz = 50
+    give_up_s = 600             # end the run (exit 2) when no fresh state came this long
 
     [program]
     path = "part.nc"
@@ -78,6 +79,8 @@ ALERT_ACTIONS = ("log", "bell", "feed_hold")
 #: (an early alert is safe, a late one is not)
 DEFAULT_MACHINE = {"max_rate": (5000.0, 5000.0, 5000.0), "acceleration": (500.0, 500.0, 500.0),
                    "junction_deviation": 0.02}
+#: s without a fresh state from the controller before a live run gives up (exit 2)
+DEFAULT_GIVE_UP_S = 600.0
 DIALECTS = ("linuxcnc", "grbl")
 MACHINE_UNITS = ("mm", "inch")
 #: the work systems, in the order of the interpreter's offset table (G54 = 0 ... G59.3 = 8)
@@ -134,6 +137,7 @@ class Job:
     text: str = ""                      # its TOML text (recorded in the run file)
     controller: str | None = None       # controller URL
     poll_hz: float = 50.0
+    give_up_s: float = DEFAULT_GIVE_UP_S  # s without a fresh state before the run ends (exit 2)
     program: Path | None = None
     dialect: str = "linuxcnc"
     var_file: Path | None = None        # LinuxCNC .var file (work offsets ...), in machine_units
@@ -350,13 +354,15 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
 
     if "controller" in doc:
         t = ctx.table(doc["controller"], "[controller]")
-        ctx.no_unknown(t, {"url", "poll_hz"}, "[controller]")
+        ctx.no_unknown(t, {"url", "poll_hz", "give_up_s"}, "[controller]")
         if "url" in t:
             if not isinstance(t["url"], str) or "://" not in t["url"]:
                 raise ctx.err("[controller] url", 'a controller URL like "grbl:///dev/ttyUSB0"', t["url"])
             job.controller = t["url"]
         if "poll_hz" in t:
             job.poll_hz = ctx.positive(t["poll_hz"], "[controller] poll_hz", "Hz")
+        if "give_up_s" in t:
+            job.give_up_s = ctx.positive(t["give_up_s"], "[controller] give_up_s", "s")
 
     if "program" in doc:
         t = doc["program"]
@@ -504,6 +510,8 @@ def add_job_arguments(parser) -> None:
     g.add_argument("--horizon", type=float, help="look-ahead horizon, s")
     g.add_argument("--horizon-mm", type=float, help="look-ahead horizon, mm of path")
     g.add_argument("--work-offset", help='work zero in machine coords "x,y,z" (mm) or "controller"')
+    g.add_argument("--give-up", type=float, metavar="SECONDS",
+                   help="end the run (exit 2) when the controller gave no fresh state this long (default 600)")
     g.add_argument("--feed-hold", action="store_true", default=None,
                    help="hold the feed when a finding is predicted (off unless given)")
 
@@ -554,6 +562,8 @@ def job_from_args(args, job_path: str | Path | None = None) -> Job:
     if g("work_offset"):
         v = g("work_offset")
         job.work_offset = None if v == "controller" else ctx.numbers(v, 3, "--work-offset", 'mm, or "controller"')
+    if g("give_up") is not None:
+        job.give_up_s = ctx.positive(g("give_up"), "--give-up", "s")
     if g("feed_hold"):
         job.alerts = tuple(dict.fromkeys(job.alerts + ("feed_hold",)))
     return job

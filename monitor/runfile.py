@@ -10,6 +10,13 @@ Layout (all times are ``MachineState.t`` seconds unless said otherwise)::
     alerts(id, t, finding_id, channel, text)
     cuts(id, stage, t, move_id, line, header, data)  cut deltas: named arrays per stage
     trace(id, stage_from, stage_to, header, data)    z-trace / time-trace chunks
+    link_events(id, t, kind, json)                   link trouble: lost, back, reset, bad,
+                                                     note (as the driver told it) and gap
+                                                     (the session's record of each gap)
+
+Old run files without the ``link_events`` table open as having none. State values a
+controller made up (an integer beyond SQLite's 64 bits, a type it cannot store) are stored
+as NULL; the ``raw`` column keeps the text they came from.
 
 Numpy data is stored as raw bytes plus a JSON header naming dtype (``dtype.descr``) and
 shape; reading validates the header (no object fields, sizes that add up) and uses
@@ -60,6 +67,8 @@ CREATE TABLE IF NOT EXISTS cuts(
 CREATE TABLE IF NOT EXISTS trace(
     id INTEGER PRIMARY KEY, stage_from INTEGER NOT NULL, stage_to INTEGER NOT NULL,
     header TEXT NOT NULL, data BLOB NOT NULL);
+CREATE TABLE IF NOT EXISTS link_events(
+    id INTEGER PRIMARY KEY, t REAL, kind TEXT NOT NULL, json TEXT NOT NULL);
 CREATE INDEX IF NOT EXISTS cuts_stage ON cuts(stage);
 CREATE INDEX IF NOT EXISTS trace_stage ON trace(stage_from);
 """
@@ -159,6 +168,8 @@ def unpack_arrays(header: str, data: bytes, where: str) -> dict[str, np.ndarray]
 # --- writer ----------------------------------------------------------------------------
 
 _STOP = object()
+#: what one row's values can make SQLite raise: that row is skipped, not the run file
+_ROW_ERRORS = (OverflowError, sqlite3.InterfaceError, ValueError, TypeError)
 
 
 class RunWriter:
@@ -183,6 +194,9 @@ class RunWriter:
         self._ready = threading.Event()
         self._closed = False
         self._stage = 0
+        #: rows SQLite refused (a value it cannot store): skipped, counted, the run goes on
+        self.skipped = 0
+        self.last_skip = ""
         self._thread = threading.Thread(target=self._loop, name=f"runfile:{self.path.name}", daemon=True)
         self._thread.start()
         self._ready.wait()
@@ -200,12 +214,20 @@ class RunWriter:
         self._put("INSERT OR REPLACE INTO arrays(name, header, data) VALUES (?, ?, ?)", (name, header, data))
 
     def append_state(self, s) -> None:
-        """Append one :class:`drivers.state.MachineState`."""
-        ovr = tuple(s.overrides) + (100,) * (3 - len(s.overrides))
+        """Append one :class:`drivers.state.MachineState` (odd values stored as NULL,
+        see :func:`sql_value`; ``raw`` always kept as text)."""
+        ovr = tuple(s.overrides or ()) + (100,) * (3 - len(s.overrides or ()))
         row = (s.t, *s.mpos, *s.wco, getattr(s.state, "value", str(s.state)), s.substate,
-               s.feed, s.spindle, s.line, ovr[0], ovr[1], ovr[2], s.alarm, s.raw)
+               s.feed, s.spindle, s.line, ovr[0], ovr[1], ovr[2], s.alarm)
+        raw = s.raw if isinstance(s.raw, str) else repr(s.raw)
         self._put(f"INSERT INTO states({', '.join(STATE_COLUMNS)}) VALUES "
-                  f"({', '.join('?' * len(STATE_COLUMNS))})", row)
+                  f"({', '.join('?' * len(STATE_COLUMNS))})", tuple(sql_value(v) for v in row) + (raw,))
+
+    def append_link_event(self, t: float | None, kind: str, record: dict) -> None:
+        """Append one link event or gap record (``kind``: lost, back, reset, bad, note, gap)
+        as its JSON object."""
+        self._put("INSERT INTO link_events(t, kind, json) VALUES (?, ?, ?)",
+                  (sql_value(t), str(kind), json.dumps(record, default=json_default)))
 
     def append_finding(self, finding: dict, t: float | None = None) -> None:
         """Append one finding as its JSON object (keys ``kind``, ``line``, ``lead_time_s`` indexed)."""
@@ -303,7 +325,11 @@ class RunWriter:
                     if not in_tx:
                         con.execute("BEGIN")
                         in_tx = True
-                    con.execute(*item)
+                    try:
+                        con.execute(*item)
+                    except _ROW_ERRORS as exc:  # one row SQLite cannot take: skip it, go on
+                        self.skipped += 1
+                        self.last_skip = f"{type(exc).__name__}: {exc}"
                     if time.monotonic() - last_commit < self.commit_interval:
                         continue
                 if in_tx:
@@ -313,6 +339,9 @@ class RunWriter:
                 if isinstance(item, threading.Event):
                     item.set()
                 elif item is _STOP:
+                    if self.skipped:
+                        con.execute("INSERT OR REPLACE INTO meta(key, value) VALUES ('skipped_rows', ?)",
+                                    (json.dumps({"rows": self.skipped, "last": self.last_skip}),))
                     break
         except BaseException as exc:
             self._error = exc
@@ -331,6 +360,26 @@ class RunWriter:
             except sqlite3.Error:
                 pass
             con.close()
+
+
+#: SQLite's INTEGER range
+_SQL_INT = (-(2**63), 2**63 - 1)
+
+
+def sql_value(v):
+    """``v`` as SQLite stores it: ints within 64 bits, floats, text; anything else (an
+    integer beyond 64 bits, an object) None -- a state a controller made up must not stop
+    the run file."""
+    if v is None or isinstance(v, str):
+        return v
+    if isinstance(v, (bool, np.bool_)):
+        return int(v)
+    if isinstance(v, (int, np.integer)):
+        v = int(v)
+        return v if _SQL_INT[0] <= v <= _SQL_INT[1] else None
+    if isinstance(v, (float, np.floating)):
+        return float(v)
+    return None
 
 
 def _int_or_none(v):
@@ -436,6 +485,26 @@ class RunReader:
                 "WHERE stage >= ? AND stage <= ? ORDER BY stage, id", (int(stage_from), hi)):
             yield {"stage": stage, "t": t, "move_id": mid, "line": line,
                    "arrays": unpack_arrays(header, data, f"{self.path} cuts[{cid}]")}
+
+    def link_events(self) -> list[dict]:
+        """Link events and gap records in the order written (each its JSON object plus
+        ``kind`` and ``t``); [] for a run file written before the table existed."""
+        try:
+            rows = self._con.execute("SELECT id, t, kind, json FROM link_events ORDER BY id").fetchall()
+        except sqlite3.OperationalError as exc:
+            if "no such table" in str(exc):
+                return []
+            raise RunFileError(f"corrupt run file ({exc})", str(self.path)) from exc
+        except sqlite3.DatabaseError as exc:
+            raise RunFileError(f"corrupt run file ({exc})", str(self.path)) from exc
+        out = []
+        for eid, t, kind, js in rows:
+            try:
+                rec = json.loads(js)
+            except json.JSONDecodeError as exc:
+                raise RunFileError(f"link event {eid} is not JSON ({exc})", str(self.path)) from exc
+            out.append({**rec, "kind": kind, "t": t})
+        return out
 
     def trace_chunks(self) -> Iterator[tuple[int, int, dict[str, np.ndarray]]]:
         """``(stage_from, stage_to, arrays)`` in the order written."""

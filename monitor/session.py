@@ -7,6 +7,15 @@ ahead over the horizon on a scratch model, both through :class:`sim.checks.Check
 a predicted finding that then happens is one alert, updated to "happened") and append to
 the run file (:mod:`monitor.runfile`).
 
+Link trouble: a state that is not fresh (``drivers.state.NOT_FRESH``: missed, bad,
+disconnected; or fresh with numbers :func:`drivers.state.implausible` refuses, taken as
+bad) is recorded and counted, never synced or cut. After a gap -- a disconnect, a reset
+the controller tells (:meth:`Session.link_event`), or :data:`GAP_POLLS` not-fresh polls in
+a row -- the path in between is unknown: the first fresh state is not joined to the last
+one but found again by a search of the program, the rows the program ran meanwhile are
+cut as programmed (unchecked) when both ends sit on the program, and a gap record says
+what happened (:attr:`Session.gaps`, the run file's ``link_events``, the summary).
+
 Program time (and so lead times) comes from ``Program.cycle_time`` (GRBL-like planner)
 with the job's ``[machine]`` limits, falling back to length / feed only if it fails.
 
@@ -34,9 +43,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from drivers.state import MachineState, RunState
+from drivers.state import LinkEvent, LinkKind, MachineState, RunState, implausible, stale_state
 from monitor.alerts import Alerter
-from monitor.job import DEFAULT_MACHINE, Job
+from monitor.job import DEFAULT_GIVE_UP_S, DEFAULT_MACHINE, Job
 from monitor.predict import (LiveChecks, Lookahead, Workpiece, build_workpiece, finding_record, lead_time,
                              reference_wco, row_shifts, work_moves)
 from monitor.sync import ProgramPath, ProgramSync, SyncResult, row_seconds
@@ -48,6 +57,11 @@ JUMP_S = 2.0
 TRACE_CHUNK_STAGES = 50
 #: keyframe work (array elements copied / changes replayed) done per trace chunk written
 TRACE_KEYFRAME_BUDGET = 1 << 20
+#: not-fresh polls in a row (missed, bad) after which the path since the last fresh state
+#: counts as unknown: a gap, as a disconnect is at once
+GAP_POLLS = 5
+#: what a not-fresh run state is counted as
+_COUNTED = {RunState.MISSED: "missed", RunState.BAD: "bad", RunState.DISCONNECTED: "disconnected"}
 
 
 @dataclass
@@ -58,6 +72,8 @@ class StepInfo:
     removed: float = 0.0            # mm^3 cut from the live model by this step
     new_findings: list = field(default_factory=list)
     seconds: float = 0.0            # wall time of the step
+    skipped: str = ""               # why the state was not followed (not fresh), else ""
+    gap: dict | None = None         # the gap record this (first fresh) state closed
 
 
 def load_moves(job: Job) -> np.ndarray:
@@ -134,8 +150,18 @@ class Session:
         self.assume_done = assume_done_before_start
         self.findings: list[dict] = []   # every alerted finding
         self.stage = 0                   # live stages cut (one per step that moved)
-        self.last: MachineState | None = None
+        self.last: MachineState | None = None   # the last fresh state followed
         self.last_sync: SyncResult | None = None
+        #: not-fresh states seen, by kind (missed, bad, disconnected)
+        self.counts = {"missed": 0, "bad": 0, "disconnected": 0}
+        self.gaps: list[dict] = []       # finished gap records (see :meth:`_close_gap`)
+        self._gap: dict | None = None    # the open gap, while the path is unknown
+        self._unfresh: list[MachineState] = []  # not-fresh states since the last fresh one
+        self._t0: float | None = None    # t of the first state: gaps say when, from there
+        #: called with every gap record (a JSON-ready dict) when it closes, or None
+        self.on_gap = None
+        #: why :func:`run_controller` ended ("program end", "done", "alarm", "gave up: ...")
+        self.end_reason = ""
         self._prev_tip: np.ndarray | None = None
         self._prev_row: int | None = None   # program row of the last piece cut live
         self._trace = None
@@ -194,6 +220,11 @@ class Session:
             a, b = self.moves["start"][k, :3], self.moves["end"][k, :3]
             _, rays, _ = live.cut(np.stack([a, (a + b) / 2, b]), np.array([k, k]), None)
             changed = np.union1d(res.changed_rays, rays).astype(np.int64)
+            # the programmed cut of the rows run during a gap (_cut_gap_rows)
+            from sim.cut import Cutter
+
+            Cutter(scratch, self.wp.default_tool, self.wp.tol, tools=self.wp.tools).cut_moves(
+                self.moves[idx[:2]], move_ids=idx[:2] + 1, record_changes=True)
             if trace is not None:
                 try:
                     trace.record(scratch, rays=changed, stage=1)
@@ -263,12 +294,29 @@ class Session:
 
     # -- the loop body
     def step(self, state: MachineState) -> StepInfo:
-        """Process one state: sync, cut, look ahead, alert, record."""
+        """Process one state: sync, cut, look ahead, alert, record.
+
+        A state that is not fresh (missed, bad, disconnected; or fresh with numbers
+        :func:`drivers.state.implausible` refuses, recorded as BAD) is recorded and
+        counted, never synced or cut. After a gap the first fresh state is not joined to
+        the last one: it is found again in the program (see :meth:`_close_gap`)."""
         t0 = time.perf_counter()
+        if self._t0 is None:
+            self._t0 = state.t
+        why = implausible(state) if state.fresh else None
+        if why is not None:
+            state = stale_state(self.last, RunState.BAD, state.t, f"{why}: {state.raw}")
         if self.run is not None:
             self.run.append_state(state)
-        if state.state in (RunState.DISCONNECTED, RunState.UNKNOWN) and not np.all(np.isfinite(state.mpos_array)):
-            return StepInfo(None, seconds=time.perf_counter() - t0)
+        if not state.fresh:
+            self._not_fresh(state)
+            return StepInfo(self.last_sync, skipped=state.state.value, seconds=time.perf_counter() - t0)
+        gap = self._gap if self._gap is not None or len(self._unfresh) < GAP_POLLS else self._open_gap()
+        self._unfresh = []
+        if gap is not None and self.last is None:
+            # trouble before the first fresh state (a reset told at connect): there is no
+            # path to join yet, so no gap to close; the counts keep what was missed
+            gap = self._gap = None
         row_hint = self.last_sync.row if self.last_sync is not None else None
         tip = self.tip(state, row_hint)
         point = self.sync_point(state, tip, row_hint)
@@ -277,12 +325,15 @@ class Session:
         if self.line_source is not None:
             # the lines a sender streams (passthrough) say where in the program it is
             line = self.line_source.line_for(state, point, self.sync)
-        s = self.sync.update(point, t=state.t, line=line)
+        s = self.sync.update(point, t=state.t, line=line, search=gap is not None)
         info = StepInfo(s)
         wco = self._wco(state, s.row, learn=s.how in ("track", "line") and s.distance <= self.sync.lost)
         tip = np.asarray(state.mpos_array[:3], np.float64) - wco[:3]
         if prev is None:
             self._start(s, state)
+        elif gap is not None:
+            info.gap = self._close_gap(gap, state, tip, prev, s)
+            self.lookahead.anchor(self.live, s.row, wco)
         elif (s.how in ("search", "line") and abs(s.progress - prev.progress) > JUMP_S) \
                 or self.lookahead.next_row < s.row:
             # a jump, or the spindle overtook the look-ahead (its rows are history now):
@@ -300,6 +351,122 @@ class Session:
         self.last, self.last_sync = state, s
         info.seconds = time.perf_counter() - t0
         return info
+
+    # -- link trouble: not-fresh states, link events, gaps
+    def _not_fresh(self, state: MachineState) -> None:
+        """Count a not-fresh state; a disconnect, or GAP_POLLS of them in a row, opens a gap."""
+        self.counts[_COUNTED[state.state]] += 1
+        self._unfresh.append(state)
+        if self._gap is not None:
+            self._gap["polls_missed"] += 1
+            self._gap[_COUNTED[state.state]] += 1
+        elif state.state == RunState.DISCONNECTED or len(self._unfresh) >= GAP_POLLS:
+            self._open_gap()
+
+    def _open_gap(self, reason: str = "", t: float | None = None) -> dict:
+        """Start a gap record at the first not-fresh state since the last fresh one (or
+        at ``t``, for a controller that says it reset between two fresh states)."""
+        if self._gap is not None:
+            return self._gap
+        first = self._unfresh[0] if self._unfresh else None
+        counted = {k: sum(_COUNTED[u.state] == k for u in self._unfresh) for k in self.counts}
+        t_lost = first.t if first is not None else t
+        self._gap = {"event": "gap", "t_lost": t_lost,
+                     "run_s": None if t_lost is None or self._t0 is None else round(t_lost - self._t0, 3),
+                     "last_fresh_t": None if self.last is None else self.last.t,
+                     "reason": reason or (first.raw if first is not None else ""),
+                     "polls_missed": len(self._unfresh), **counted, "lines_lost": 0, "came_back": "",
+                     "reset": False}
+        return self._gap
+
+    def link_event(self, ev: LinkEvent) -> dict:
+        """Take one :class:`drivers.state.LinkEvent` from the controller: record it, and
+        let a lost link or a reset open a gap (a BACK event's Gap gives the gap record its
+        lines lost and how the controller came back). Returns the event as JSON-ready dict
+        (``{"event": "link", "kind", "message", "t", ...}``)."""
+        kind = LinkKind(ev.kind)
+        rec = {"event": "link", "kind": kind.value, "message": ev.message, "t": ev.t}
+        if ev.raw:
+            rec["raw"] = ev.raw
+        if ev.gap is not None:
+            g = ev.gap
+            rec["gap"] = {"t_lost": g.t_lost, "t_back": g.t_back, "seconds": g.seconds, "reason": g.reason,
+                          "polls_missed": g.polls_missed, "lines_lost": g.lines_lost, "came_back": g.came_back}
+        if self.run is not None:
+            self.run.append_link_event(ev.t, kind.value, rec)
+        if kind in (LinkKind.LOST, LinkKind.RESET, LinkKind.BACK):
+            gap = self._open_gap(reason=ev.message if kind == LinkKind.LOST else "", t=ev.t)
+            if kind == LinkKind.RESET:
+                gap["reset"] = True
+                gap["came_back"] = gap["came_back"] or ev.message
+                gap["reason"] = gap["reason"] or ev.message
+            if ev.gap is not None:
+                gap["lines_lost"] += int(ev.gap.lines_lost)
+                gap["came_back"] = ev.gap.came_back or gap["came_back"]
+                gap["reason"] = gap["reason"] or ev.gap.reason
+        return rec
+
+    def _close_gap(self, gap: dict, state: MachineState, tip: np.ndarray, before: SyncResult,
+                   s: SyncResult) -> dict:
+        """Finish the gap record at ``state``, the first fresh state after it.
+
+        The path during the gap is unknown, so it is not cut: the tip is not joined to the
+        last one. When both ends sit on the program and the machine went forward, the rows
+        the program ran in between are cut into the live model as programmed (unchecked:
+        what happened there was not seen), so the model stays right."""
+        self._gap = None
+        last_tip = self._prev_tip
+        self._prev_tip, self._prev_row = None, None
+        # a controller that reset lost its program: the rows between did not run
+        rows = [] if gap["reset"] else self._cut_gap_rows(before, s, state)
+        gap.update({
+            "t_back": state.t, "seconds": None if gap["t_lost"] is None else state.t - gap["t_lost"],
+            "jump_mm": None if last_tip is None else float(np.linalg.norm(tip - last_tip)),
+            "from_line": int(before.line), "resync": {"how": s.how, "line": int(s.line), "row": int(s.row),
+                                                      "progress_s": round(float(s.progress), 3),
+                                                      "distance_mm": round(float(s.distance), 3)},
+            "rows_cut_unchecked": [int(self.moves["line"][r]) for r in rows],
+        })
+        gap["message"] = gap_message(gap)
+        self.gaps.append(gap)
+        if self.run is not None:
+            self.run.append_link_event(state.t, "gap", gap)
+        if self.on_gap is not None:
+            self.on_gap(gap)
+        return gap
+
+    def _cut_gap_rows(self, before: SyncResult, s: SyncResult, state: MachineState) -> list[int]:
+        """Cut what the program ran between ``before`` and ``s`` (both on the program, ``s``
+        ahead) as programmed: rows ``before.row .. s.row - 1`` whole and row ``s.row`` up
+        to the re-synced point when it is straight. Returns the rows cut."""
+        lost = self.sync.lost
+        if (before.how == "lost" or s.how == "lost" or before.distance > lost or s.distance > lost
+                or s.progress <= before.progress):
+            return []
+        from sim.cut import Cutter
+
+        r0, r1 = int(before.row), int(s.row)
+        pieces = self.moves[r0:r1 + 1].copy()
+        ids = np.arange(r0 + 1, r1 + 2)
+        last = pieces[-1:]
+        if int(last["kind"][0]) in (MoveKind.FEED, MoveKind.RAPID):
+            last["end"][0, :3] = self.path.point_at(s.progress)
+        elif r1 > r0:  # an arc: its part up to here is left to the live cut from here on
+            pieces, ids = pieces[:-1], ids[:-1]
+        else:
+            return []
+        res = Cutter(self.live, self.wp.default_tool, self.wp.tol, tools=self.wp.tools).cut_moves(
+            pieces, move_ids=ids, record_changes=True)
+        rays = np.unique(res.changed_rays).astype(np.int64) if res.changed_rays is not None else np.zeros(0, np.int64)
+        self.stage += 1
+        if self.view is not None and rays.size:
+            self._changed = rays if self._changed is None else np.union1d(self._changed, rays)
+        if self.run is not None:
+            pts = np.concatenate([pieces["start"][:1, :3], pieces["end"][:, :3]])
+            self.run.append_cut(self.stage, {"points": pts}, t=state.t, move_id=r1 + 1, line=int(s.line))
+            if rays.size:
+                self._record_trace(rays)
+        return list(range(r0, r0 + len(pieces)))
 
     def _start(self, s: SyncResult, state: MachineState) -> None:
         if self.assume_done and s.row > 0:
@@ -434,11 +601,55 @@ class Session:
         summary = {"event": "summary", "findings": len(self.findings), "stages": self.stage,
                    "kinds": sorted({f["kind"] for f in self.findings}),
                    "progress_s": None if self.last_sync is None else round(self.last_sync.progress, 3),
-                   "program_s": round(self.path.duration, 3)}
+                   "program_s": round(self.path.duration, 3), **self.counts, "gaps": list(self.gaps)}
+        if self._gap is not None:  # the run ended inside a gap: say so too (once)
+            gap, self._gap = self._gap, None
+            gap.update(t_back=None, seconds=None)
+            gap["message"] = gap_message(gap)
+            self.gaps.append(gap)
+            summary["gaps"].append(gap)
+            if self.run is not None:
+                self.run.append_link_event(self.last.t if self.last is not None else gap["t_lost"], "gap", gap)
         if self.run is not None:
             self.run.put_meta("summary", summary)
             self.run.flush()
         return summary
+
+
+def gap_message(gap: dict) -> str:
+    """One line for a person about a gap record: how long, what was missed, how it came
+    back and where the monitor found the machine again."""
+    seconds = gap.get("seconds")
+    head = (f"link gap of {seconds:.1f} s" if seconds is not None and gap.get("t_back") is not None
+            else "link lost (not back when the run ended)")
+    if gap.get("run_s") is not None:
+        head += f" at {_clock(gap['run_s'])} into the run"
+    missed = [f"{gap.get('polls_missed', 0)} polls missed"]
+    if gap.get("lines_lost"):
+        missed.append(f"{gap['lines_lost']} lines lost")
+    text = f"{head}: {', '.join(missed)}"
+    if gap.get("reason"):
+        text += f" ({gap['reason']})"
+    if gap.get("came_back"):
+        text += f"; came back {gap['came_back']}"
+    if gap.get("jump_mm") is not None:
+        text += f"; position jumped {gap['jump_mm']:.2f} mm (not cut: the path is unknown)"
+    rs = gap.get("resync")
+    if rs:
+        text += (f"; off the program after it (from line {gap.get('from_line')})" if rs["how"] == "lost"
+                 else f"; re-synced at line {rs['line']} (was at line {gap.get('from_line')})")
+    if gap.get("rows_cut_unchecked"):
+        lines = gap["rows_cut_unchecked"]
+        which = f"line {lines[0]}" if lines[0] == lines[-1] else f"lines {lines[0]}..{lines[-1]}"
+        text += f"; {which} cut as programmed, unchecked"
+    return text
+
+
+def _clock(seconds: float) -> str:
+    """``m:ss.s`` (or ``h:mm:ss``) for a person."""
+    m, s = divmod(float(seconds), 60.0)
+    h, m = divmod(int(m), 60)
+    return f"{h}:{m:02d}:{s:04.1f}" if h else f"{m}:{s:04.1f}"
 
 
 def hold_still_axes(points: np.ndarray, moving: np.ndarray) -> np.ndarray:
@@ -501,36 +712,169 @@ def _versions() -> dict:
     return out
 
 
+#: how long a controller may give no fresh state before the run ends (s, wall clock);
+#: job ``[controller] give_up_s``, ``--give-up``
+GIVE_UP_S = DEFAULT_GIVE_UP_S
+#: while no fresh state comes, say so this often (s, wall clock)
+LOST_NOTICE_S = 5.0
+
+
 def run_controller(session: Session, controller, period: float, status=None, stop=None,
-                   done=None, max_seconds: float | None = None) -> int:
+                   done=None, max_seconds: float | None = None, notify=None,
+                   give_up_s: float | None = GIVE_UP_S, notice_every: float = LOST_NOTICE_S) -> int:
     """Poll ``controller`` every ``period`` s and step ``session`` until the program ends.
 
-    ``done()`` (optional) says the run is over (the virtual controller's ``done``); without
-    it the loop ends when the machine is idle at the program's end, on ``stop`` (an Event)
-    or ``KeyboardInterrupt``. Returns the number of states processed.
+    ``done()`` (optional) says the run is over (the virtual controller's ``done``);
+    without it the loop ends when the machine stands idle at the end of the program's
+    last motion, or in alarm. It also ends on ``stop`` (an Event), ``KeyboardInterrupt``,
+    after ``max_seconds``, or when no fresh state came for ``give_up_s`` (wall s; None:
+    never). ``session.end_reason`` says which.
+
+    No driver failure ends or freezes the loop: an exception from the controller is
+    recorded as a MISSED state (``raw``: the exception) and polling goes on. Every poll
+    drains ``controller.link_events()`` (when it has them) into the session. ``notify``
+    (callable(dict), optional) gets every link event and gap record as JSON-ready dicts,
+    and while no fresh state comes, every ``notice_every`` s, a ``{"event": "lost"}``
+    record ("controller lost for 30 s, retrying"). Returns the number of states processed.
     """
     n = 0
     start = time.monotonic()
-    end_row = len(session.moves) - 1
-    for state in controller.states(period):
+    watch = LinkWatch(give_up_s, notice_every, notify)
+    session.on_gap = notify
+    end_at = _program_end(session)
+    session.end_reason = "stopped"
+    for state in _guarded_states(controller, period, session, stop):
+        _drain_link_events(controller, session, notify)
         info = session.step(state)
         n += 1
+        now = time.monotonic()
+        gave_up = watch.see(state, now)
         if status is not None:
-            status.update(state, info.sync, session.path.duration, len(session.findings), info.seconds * 1e3)
+            status.update(state, info.sync, session.path.duration, len(session.findings), info.seconds * 1e3,
+                          note=watch.note(now))
+        if gave_up:
+            session.end_reason = gave_up
+            break
         if stop is not None and stop.is_set():
             break
         if done is not None and done():
             # one more state so the last motion is cut
-            session.step(controller.poll())
-            n += 1
+            last = next(_guarded_states(controller, period, session), None)
+            if last is not None:
+                session.step(last)
+                n += 1
+            session.end_reason = "done"
             break
-        if done is None and info.sync is not None and info.sync.row >= end_row and state.state == RunState.IDLE:
+        if done is None and state.fresh and state.state == RunState.IDLE and _at_end(info.sync, end_at):
+            session.end_reason = "program end"
             break
         if state.state == RunState.ALARM and done is None:
+            session.end_reason = "alarm"
             break
-        if max_seconds is not None and time.monotonic() - start > max_seconds:
+        if max_seconds is not None and now - start > max_seconds:
+            session.end_reason = "time limit"
             break
+    _drain_link_events(controller, session, notify)
     return n
+
+
+def _program_end(session: Session) -> tuple[int, float] | None:
+    """``(row, progress s)`` where the program's last motion ends, or None (no motion)."""
+    mv = session.moves
+    if not len(mv):
+        return None
+    moving = np.nonzero(np.any(mv["start"][:, :3] != mv["end"][:, :3], axis=1))[0]
+    if not moving.size:
+        return None
+    row = int(moving[-1])
+    return row, float(session.path.row_t1[row])
+
+
+def _at_end(sync: SyncResult | None, end_at: tuple[int, float] | None) -> bool:
+    """True when ``sync`` has the machine at the end of the program's last motion (the
+    rows after it -- M5, M2 -- move nothing, so the sync never reaches them)."""
+    if sync is None or end_at is None or sync.how == "lost":
+        return False
+    row, progress = end_at
+    return sync.row >= row and sync.progress >= progress - 1e-9
+
+
+class LinkWatch:
+    """Watches for a controller that gives no fresh state: says so every ``notice_every``
+    s and gives up after ``give_up_s`` (wall clock, s; None: never)."""
+
+    def __init__(self, give_up_s: float | None, notice_every: float, notify=None):
+        self.give_up_s = give_up_s
+        self.notice_every = float(notice_every)
+        self.notify = notify
+        self.since: float | None = None   # wall time of the first not-fresh state in a row
+        self._next_notice = 0.0
+        self.notices = 0
+
+    def see(self, state: MachineState, now: float) -> str | None:
+        """Take one state at wall time ``now``; the reason to give up, or None."""
+        if state.fresh:
+            self.since = None
+            return None
+        if self.since is None:
+            self.since, self._next_notice = now, now + self.notice_every
+            return None
+        lost = now - self.since
+        if self.give_up_s is not None and lost >= self.give_up_s:
+            return (f"gave up: no fresh state from the controller for {lost:.1f} s "
+                    f"(give-up time {self.give_up_s:g} s; last: {state.state.value}: {state.raw})")
+        if now >= self._next_notice:
+            self._next_notice = now + self.notice_every
+            self.notices += 1
+            if self.notify is not None:
+                self.notify({"event": "lost", "t": state.t, "seconds": round(lost, 1), "state": state.state.value,
+                             "message": f"controller lost for {lost:.0f} s, retrying", "raw": state.raw})
+        return None
+
+    def note(self, now: float) -> str:
+        """For the status line: "lost 30 s, retrying" while no fresh state comes, else ""."""
+        if self.since is None or now - self.since < 1.0:
+            return ""
+        return f"lost {now - self.since:.0f} s, retrying"
+
+
+def _guarded_states(controller, period: float, session: Session, stop=None):
+    """``controller.states(period)``, where an exception (a driver that broke its
+    contract) becomes a MISSED state at the last known position, ``raw`` naming it, and
+    polling goes on with a fresh iterator after ``period``. Times never go backwards:
+    an exception's state is stamped on the controller's clock, extrapolated from its last
+    state by the wall clock."""
+    import threading
+
+    pause = stop if stop is not None else threading.Event()
+    last_t, offset = None, 0.0
+    while True:
+        try:
+            for state in controller.states(period):
+                last_t, offset = state.t, state.t - time.monotonic()
+                yield state
+            return  # the controller ended its states (closed)
+        except Exception as exc:  # noqa: BLE001 - any driver failure is a missed poll
+            t = time.monotonic() + offset
+            t = t if last_t is None else max(t, last_t)
+            last_t = t
+            yield stale_state(session.last, RunState.MISSED, t, f"{type(exc).__name__}: {exc}")
+            pause.wait(period)  # pacing the retries, as states() paces the polls
+
+
+def _drain_link_events(controller, session: Session, notify) -> None:
+    """Hand the controller's queued link events to the session (and ``notify``)."""
+    drain = getattr(controller, "link_events", None)
+    if drain is None:
+        return
+    try:
+        events = drain()
+    except Exception:  # noqa: BLE001 - a driver's event queue must not end the run
+        return
+    for ev in events:
+        rec = session.link_event(ev)
+        if notify is not None:
+            notify(rec)
 
 
 def findings_json_line(f: dict) -> str:

@@ -14,13 +14,16 @@ from rich.live import Live
 from rich.text import Text
 
 
-def status_text(state, sync, duration: float, n_findings: int, latency_ms: float | None = None) -> Text:
-    """One line: run state, work position, program line, progress %, findings (, latency)."""
+def status_text(state, sync, duration: float, n_findings: int, latency_ms: float | None = None,
+                note: str = "") -> Text:
+    """One line: run state, work position, program line, progress %, findings (, latency),
+    and ``note`` when there is one ("lost 30 s, retrying")."""
     st = getattr(getattr(state, "state", None), "value", "?")
     wpos = getattr(state, "wpos", (float("nan"),) * 3)
     line = "?" if sync is None else sync.line
     pct = 0.0 if sync is None or duration <= 0 else min(100.0, 100.0 * sync.progress / duration)
-    colour = {"Run": "green", "Hold": "yellow", "Alarm": "bold red", "Idle": "cyan"}.get(st, "white")
+    colour = {"Run": "green", "Hold": "yellow", "Alarm": "bold red", "Idle": "cyan", "Disconnected": "bold red",
+              "Missed": "yellow", "Bad": "yellow"}.get(st, "white")
     t = Text()
     t.append(f"{st:<6}", style=colour)
     t.append(f"  X{wpos[0]:9.3f} Y{wpos[1]:9.3f} Z{wpos[2]:9.3f}")
@@ -30,6 +33,8 @@ def status_text(state, sync, duration: float, n_findings: int, latency_ms: float
         t.append(f"  sync {sync.how}", style="yellow")
     if latency_ms is not None:
         t.append(f"  {latency_ms:5.1f} ms", style="dim")
+    if note:
+        t.append(f"  {note}", style="bold yellow")
     return t
 
 
@@ -50,14 +55,14 @@ class StatusLine:
         return self
 
     def update(self, state, sync, duration: float, n_findings: int, latency_ms: float | None = None,
-               force: bool = False) -> None:
+               force: bool = False, note: str = "") -> None:
         if self._live is None:
             return
         now = time.monotonic()
         if not force and now - self._last < self.period:
             return
         self._last = now
-        self._live.update(status_text(state, sync, duration, n_findings, latency_ms), refresh=True)
+        self._live.update(status_text(state, sync, duration, n_findings, latency_ms, note), refresh=True)
 
     def stop(self) -> None:
         if self._live is not None:

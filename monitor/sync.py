@@ -303,8 +303,12 @@ class ProgramSync:
         self.progress = progress
         self._last_t = None
 
-    def update(self, point, t: float | None = None, line: int | None = None) -> SyncResult:
-        """Take one live tip position (3,) mm at time ``t`` s (and the reported line, if any)."""
+    def update(self, point, t: float | None = None, line: int | None = None, search: bool = False) -> SyncResult:
+        """Take one live tip position (3,) mm at time ``t`` s (and the reported line, if any).
+
+        ``search``: look over the whole path (preferring ahead of the last progress)
+        instead of the window around it -- after a gap, where the machine went meanwhile
+        is unknown."""
         point = np.asarray(point, np.float64)[:3]
         dt = 0.0 if (t is None or self._last_t is None) else max(float(t) - self._last_t, 0.0)
         if t is not None:
@@ -313,7 +317,7 @@ class ProgramSync:
             got = self._by_line(point, int(line))
             if got is not None:
                 return got
-        if self.progress is None:
+        if self.progress is None or search:
             return self._search(point)
         return self._track(point, dt)
 

@@ -21,23 +21,17 @@ reports as WCO the offset of the row it executes (a G55 row: its G55 offset).
 
 from __future__ import annotations
 
+import math
 import threading
+from dataclasses import replace
 from pathlib import Path
 from urllib.parse import parse_qs, unquote, urlsplit
 
 import numpy as np
 
 from drivers.errors import ConnectionLost, DriverError
-from drivers.state import Controller, MachineState, RunState
-from drivers.virtual.faults import (
-    REPLY_DROP,
-    REPLY_GARBLE,
-    REPLY_LATE,
-    FaultInjector,
-    FaultPlan,
-    ReplyDropped,
-    garbled_error,
-)
+from drivers.state import Controller, Gap, LinkKind, MachineState, RunState, implausible, stale_state
+from drivers.virtual.faults import REPLY_BAD, REPLY_DROP, REPLY_GARBLE, REPLY_LATE, FaultInjector, FaultPlan
 from drivers.virtual.machine import MachineConfig, MachineLocked, VirtualMachine
 from drivers.virtual.runner import RealTimeRunner
 from sim.gcode.moves import MOVE_DTYPE
@@ -138,6 +132,9 @@ class VirtualController(Controller):
         self._connected = False
         self._late_wait = threading.Event()
         self.events: list[tuple[float, str, object]] = []
+        self.gaps: list[Gap] = []
+        self._last: MachineState | None = None   # the last fresh state
+        self._lost: tuple[float, str, int] | None = None  # outage: (t lost, why, polls missed)
 
     # ------------------------------------------------------------------ lifecycle
     def connect(self) -> None:
@@ -145,6 +142,7 @@ class VirtualController(Controller):
         self.vm = VirtualMachine(self.config, position=start)
         self.vm.on_event = self._record
         self._feeder = ProgramFeeder(self.moves, self.faults)
+        self._last, self._lost = None, None
         self._connected = True
         if self.clock == "wall":
             self._runner = RealTimeRunner(self.vm, speed=self.speed, on_tick=self._tick).start()
@@ -171,22 +169,28 @@ class VirtualController(Controller):
 
     # ------------------------------------------------------------------ polling
     def poll(self) -> MachineState:
+        """The machine's state now, as the contract wants it (:class:`Controller`): the
+        injected faults give DISCONNECTED (link down, or the machine's thread stopped),
+        MISSED (reply dropped or garbled) and BAD (non-finite numbers) states at the
+        last known position, never an exception once connected."""
         if not self._connected or self.vm is None:
             raise ConnectionLost(f"{self.url}: not connected")
         vm = self.vm
         if self._runner is not None and self._runner.error is not None:
-            raise DriverError(f"{self.url}: virtual machine stopped: {self._runner.error}")
+            return self._link_down(self._now(), f"virtual machine stopped: {self._runner.error}")
         if self.clock == "sim":
             with vm.lock:
                 self._tick(vm)
                 vm.advance(self.speed / self.rate)
         with vm.lock:
-            t = vm.time
-        if self.faults.disconnected(t):
-            raise ConnectionLost(f"{self.url}: link down (fault injection at t={self.faults.plan.disconnect:g} s)")
+            sim_t, t = vm.time, self._now()
+        if self.faults.disconnected(sim_t):
+            return self._link_down(t, f"link down (fault injection at t={self.faults.plan.disconnect:g} s)")
+        if self._lost is not None:
+            self._link_back(t)
         fault = self.faults.reply_fault()
         if fault == REPLY_DROP:
-            raise ReplyDropped(f"{self.url}: no reply to the status request (fault injection)")
+            return self._stale(RunState.MISSED, t, "no reply to the status request (fault injection)")
         if fault == REPLY_LATE:
             late = self.faults.plan.late_s
             if self.clock == "sim":
@@ -198,8 +202,49 @@ class VirtualController(Controller):
             state = vm.snapshot()
         if fault == REPLY_GARBLE:
             raw = self.faults.garble_bytes(_status_text(state).encode())
-            raise garbled_error(self.url, raw)
+            return self._stale(RunState.MISSED, state.t, f"garbled reply {raw!r}: expected a status report")
+        if fault == REPLY_BAD:
+            state = replace(state, mpos=(math.nan,) + state.mpos[1:])
+        why = implausible(state)
+        if why is not None:
+            text = _status_text(state).strip()
+            self._link_event(LinkKind.BAD, f"{self.url}: {why}: {text}", raw=text, t=state.t)
+            return self._stale(RunState.BAD, state.t, f"{why}: {text}")
+        self._last = state
         return state
+
+    def _now(self) -> float:
+        """The machine's clock now (s): what a fresh snapshot would say. Under vm.lock."""
+        return self.vm.t0 + self.vm.time
+
+    def _stale(self, state: RunState, t: float, raw: str) -> MachineState:
+        return stale_state(self._last, state, max(t, self._last.t if self._last else t), raw)
+
+    def _link_down(self, t: float, reason: str) -> MachineState:
+        """A DISCONNECTED state; the first of an outage starts it and says so."""
+        if self._lost is None:
+            self._lost = (t, reason, 0)
+            self._link_event(LinkKind.LOST, f"{self.url}: {reason}", t=t)
+        t_lost, why, polls = self._lost
+        self._lost = (t_lost, why, polls + 1)
+        return self._stale(RunState.DISCONNECTED, t, reason)
+
+    def _link_back(self, t: float) -> None:
+        """The link is back: the outage becomes a :class:`Gap`; with ``reset=1`` the
+        controller restarted meanwhile and comes back at 0 in alarm."""
+        t_lost, why, polls = self._lost
+        self._lost = None
+        came_back = ""
+        if self.faults.plan.reset:
+            with self.vm.lock:
+                self.vm.power_cycle()
+            came_back = "reset: position lost, in alarm"
+        gap = Gap(t_lost, t, why, polls_missed=polls, came_back=came_back)
+        self.gaps.append(gap)
+        self._link_event(LinkKind.BACK, f"{self.url}: link back after {gap.seconds:.1f} s "
+                                        f"({polls} polls missed)", gap=gap, t=t)
+        if came_back:
+            self._link_event(LinkKind.RESET, f"{self.url}: controller came back reset ({came_back})", t=t)
 
     # ------------------------------------------------------------------ commands
     def feed_hold(self) -> None:

@@ -4,12 +4,14 @@ A :class:`FaultPlan` says what goes wrong and when; a :class:`FaultInjector` dra
 faults from a seeded generator, so a run with the same plan fails the same way every
 time. The plan is written as a spec string in URLs and on the command line::
 
-    drop=0.05,garble=0.02,late=0.1,late_s=0.3,disconnect=12.5,disconnect_for=2,alarm=30:1,seed=7
+    drop=0.05,garble=0.02,late=0.1,late_s=0.3,bad=0.01,disconnect=12.5,disconnect_for=2,reset=1,alarm=30:1,seed=7
 
-``drop``/``garble``/``late`` are probabilities per reply; ``disconnect`` and ``alarm``
-are simulated times (s) at which the link goes away (for ``disconnect_for`` s) and at
-which the machine raises an alarm (``alarm=T`` or ``alarm=T:CODE``, code 1 by default,
-GRBL's hard limit). ``:`` may replace ``=`` (``drop:0.05``).
+``drop``/``garble``/``late``/``bad`` are probabilities per reply (``bad``: a reply whose
+numbers cannot be right, a NaN position); ``disconnect`` and ``alarm`` are simulated times
+(s) at which the link goes away (for ``disconnect_for`` s) and at which the machine raises
+an alarm (``alarm=T`` or ``alarm=T:CODE``, code 1 by default, GRBL's hard limit);
+``reset=1``: the controller restarted while the link was down and comes back at
+(0, 0, 0) in alarm, its position lost. ``:`` may replace ``=`` (``drop:0.05``).
 """
 
 from __future__ import annotations
@@ -17,18 +19,14 @@ from __future__ import annotations
 import random
 from dataclasses import dataclass, fields
 
-from drivers.errors import DriverError, ProtocolError
+from drivers.errors import DriverError
 
 #: what can happen to one reply
-REPLY_OK, REPLY_DROP, REPLY_GARBLE, REPLY_LATE = "ok", "drop", "garble", "late"
+REPLY_OK, REPLY_DROP, REPLY_GARBLE, REPLY_LATE, REPLY_BAD = "ok", "drop", "garble", "late", "bad"
 
 
 class FaultSpecError(DriverError):
     """A fault spec string that does not parse."""
-
-
-class ReplyDropped(DriverError):
-    """A reply never came (fault injection): the driver sees a timeout."""
 
 
 @dataclass(frozen=True)
@@ -39,25 +37,28 @@ class FaultPlan:
     garble: float = 0.0
     late: float = 0.0
     late_s: float = 0.25
+    bad: float = 0.0
     disconnect: float | None = None
     disconnect_for: float = 1.0
+    reset: bool = False
     alarm: float | None = None
     alarm_code: int = 1
     seed: int = 0
 
     def __post_init__(self):
-        for name in ("drop", "garble", "late"):
+        for name in ("drop", "garble", "late", "bad"):
             p = getattr(self, name)
             if not 0.0 <= p <= 1.0:
                 raise FaultSpecError(f"fault {name}={p}: expected a probability between 0 and 1")
-        if self.drop + self.garble + self.late > 1.0:
-            raise FaultSpecError("faults drop+garble+late add up to more than 1")
+        if self.drop + self.garble + self.late + self.bad > 1.0:
+            raise FaultSpecError("faults drop+garble+late+bad add up to more than 1")
         if self.late_s < 0 or self.disconnect_for < 0:
             raise FaultSpecError("fault durations late_s and disconnect_for must be >= 0")
 
     @property
     def any(self) -> bool:
-        return bool(self.drop or self.garble or self.late or self.disconnect is not None or self.alarm is not None)
+        return bool(self.drop or self.garble or self.late or self.bad or self.disconnect is not None
+                    or self.alarm is not None)
 
     @classmethod
     def parse(cls, spec: str | None) -> "FaultPlan":
@@ -73,7 +74,7 @@ class FaultPlan:
             key, sep, val = item.replace("=", ":", 1).partition(":")
             key = key.strip()
             if not sep or key not in known or key == "alarm_code":
-                expected = "drop, garble, late, late_s, disconnect, disconnect_for, alarm, seed"
+                expected = "drop, garble, late, late_s, bad, disconnect, disconnect_for, reset, alarm, seed"
                 raise FaultSpecError(f"fault spec {spec!r}: bad item {item!r}; expected KEY=VALUE with KEY one of {expected}")
             try:
                 if key == "alarm":
@@ -83,6 +84,10 @@ class FaultPlan:
                         values["alarm_code"] = int(code)
                 elif key == "seed":
                     values["seed"] = int(val)
+                elif key == "reset":
+                    if val.strip() not in ("0", "1"):
+                        raise FaultSpecError(f"fault spec {spec!r}: reset={val!r}: expected 0 or 1")
+                    values["reset"] = val.strip() == "1"
                 else:
                     values[key] = float(val)
             except ValueError:
@@ -97,16 +102,16 @@ class FaultInjector:
         self.plan = plan if isinstance(plan, FaultPlan) else FaultPlan.parse(plan)
         self.rng = random.Random(self.plan.seed)
         self._alarm_fired = False
-        self.counts = {REPLY_DROP: 0, REPLY_GARBLE: 0, REPLY_LATE: 0, "disconnect": 0, "alarm": 0}
+        self.counts = {REPLY_DROP: 0, REPLY_GARBLE: 0, REPLY_LATE: 0, REPLY_BAD: 0, "disconnect": 0, "alarm": 0}
         self._was_down = False
 
     def reply_fault(self) -> str:
-        """One draw per reply: ``"ok"``, ``"drop"``, ``"garble"`` or ``"late"``."""
+        """One draw per reply: ``"ok"``, ``"drop"``, ``"garble"``, ``"late"`` or ``"bad"``."""
         p = self.plan
-        if not (p.drop or p.garble or p.late):
+        if not (p.drop or p.garble or p.late or p.bad):
             return REPLY_OK
         x = self.rng.random()
-        for kind, prob in ((REPLY_DROP, p.drop), (REPLY_GARBLE, p.garble), (REPLY_LATE, p.late)):
+        for kind, prob in ((REPLY_DROP, p.drop), (REPLY_GARBLE, p.garble), (REPLY_LATE, p.late), (REPLY_BAD, p.bad)):
             if x < prob:
                 self.counts[kind] += 1
                 return kind
@@ -143,8 +148,3 @@ class FaultInjector:
             self.counts["alarm"] += 1
             return p.alarm_code
         return None
-
-
-def garbled_error(where: str, raw: bytes) -> ProtocolError:
-    """The error a driver raises on a garbled reply (for the virtual controller)."""
-    return ProtocolError(f"{where}: garbled reply {raw!r}: expected a status report", raw=raw)

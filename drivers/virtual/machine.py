@@ -371,6 +371,18 @@ class VirtualMachine:
             self.state = RunState.IDLE
             self.alarm = None
 
+    def power_cycle(self) -> None:
+        """The controller restarted (fault injection): planner flushed, position lost
+        (0 on every axis, as GRBL starts), in alarm until homed or unlocked (no code)."""
+        self._flush()
+        self.position[:] = 0.0
+        self._planned_end = self.position.copy()
+        self._prev_unit = None
+        self.feed_override = self.rapid_override = self.spindle_override = 100
+        self.state = RunState.ALARM
+        self.alarm = None
+        self._row = None
+
     def raise_alarm(self, code: int) -> None:
         """Inject an alarm (fault injection): stop at once, flush, state Alarm."""
         self._flush()

@@ -1,13 +1,24 @@
 """``dexmon live JOB``: monitor a running machine.
 
     dexmon live JOB.toml [--controller URL] [--run FILE] [--quiet | --json]
-                         [--view | --frames DIR] [job flags]
+                         [--give-up SECONDS] [--view | --frames DIR] [job flags]
 
 Polls the job's controller, follows the program, cuts the real path into the stock,
 predicts findings over the look-ahead horizon and alerts each once (terminal, JSON lines,
 bell, and feed hold only when the job enables it). Everything goes to a run file (by
-default a new one under ./runs/, whose path is printed first). Exit 0 clean, 1 findings,
-2 error.
+default a new one under ./runs/, whose path is printed first). The run ends when the
+machine stands idle at the end of the program's last motion (or in alarm). Exit 0 clean,
+1 findings, 2 error.
+
+Link trouble is said as it happens, one line each (JSON: ``{"event": "link", "kind":
+"lost"|"back"|"reset"|"bad"|"note", "message": ...}``), and each gap once it is over
+(``{"event": "gap", ...}``: when lost, when back, how long, polls missed, lines lost,
+position jump, where the monitor found the machine again). While no fresh state comes the
+status line says so and every few seconds a line (``{"event": "lost", "seconds": ...}``)
+says "controller lost for 30 s, retrying"; after ``--give-up SECONDS`` (job ``[controller]
+give_up_s``, default 600) the run ends with exit 2, one line saying why, the summary and
+the run file closed. The summary counts missed, bad and disconnected polls and lists the
+gaps.
 
 ``--view`` opens a window that redraws the shaded model as the machine cuts, with the
 tool, the path ahead and the findings marked; ``--frames DIR`` writes the same frames as
@@ -114,10 +125,12 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
         # within REALTIME_SWITCH_S, not the default 5 ms, so a poll never waits that long
         switch = sys.getswitchinterval()
         sys.setswitchinterval(REALTIME_SWITCH_S)
+        notify = _notifier(console, as_json, writer)
         try:
             with status:
-                _follow(session, controller, 1.0 / job.poll_hz, status, done, feed)
+                _follow(session, controller, 1.0 / job.poll_hz, status, done, feed, notify, job.give_up_s)
         except KeyboardInterrupt:
+            session.end_reason = "interrupted"
             err_console.print("interrupted; the run file keeps everything so far")
         finally:
             sys.setswitchinterval(switch)
@@ -125,8 +138,12 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
             controller.close()
             if feed is not None:
                 feed.close()
+        gave_up = session.end_reason.startswith("gave up")
         summary = session.finish()
         summary["run"] = str(run_path)
+        summary["ended"] = session.end_reason
+        if gave_up:  # one line, never wrapped
+            print(f"dexmon live: {session.end_reason}", file=sys.stderr, flush=True)
         if feed is not None:
             summary["frames"] = feed.frames
             if feed.error is not None:
@@ -140,11 +157,49 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
     if as_json:
         _jsonl(summary)
     elif not quiet:
-        n = summary["findings"]
-        colour = "bold red" if n else "green"
-        console.print(f"[{colour}]{n} finding(s)[/{colour}]"
-                      + (f": {', '.join(summary['kinds'])}" if n else "") + f"; run file {run_path}")
+        _print_summary(console, summary, run_path)
+    if gave_up:
+        return 2
     return 1 if summary["findings"] else 0
+
+
+def _print_summary(console, summary: dict, run_path) -> None:
+    """The run's summary on the terminal: findings, then the link's trouble if any."""
+    n = summary["findings"]
+    colour = "bold red" if n else "green"
+    console.print(f"[{colour}]{n} finding(s)[/{colour}]"
+                  + (f": {', '.join(summary['kinds'])}" if n else "") + f"; run file {run_path}")
+    missed = {k: summary.get(k, 0) for k in ("missed", "bad", "disconnected")}
+    if any(missed.values()) or summary.get("gaps"):
+        console.print("[yellow]link: " + ", ".join(f"{v} {k} poll(s)" for k, v in missed.items())
+                      + f", {len(summary.get('gaps', []))} gap(s)[/yellow]", soft_wrap=True)
+    for gap in summary.get("gaps", []):
+        console.print(f"[yellow]  {_escape(gap['message'])}[/yellow]", soft_wrap=True)
+
+
+def _escape(text: str) -> str:
+    from rich.markup import escape
+
+    return escape(str(text))
+
+
+def _notifier(console, as_json: bool, writer):
+    """What the loop calls with each link event, gap record and "controller lost" notice:
+    one line on the terminal or one JSON line; the notices also go to the run file (the
+    session records the events and gaps itself)."""
+    from monitor.jsonable import json_default
+
+    def notify(rec: dict) -> None:
+        if rec.get("event") == "lost":
+            writer.append_link_event(rec.get("t"), "lost", rec)
+        if as_json:
+            sys.stdout.write(json.dumps(rec, default=json_default) + "\n")
+            sys.stdout.flush()
+        elif console is not None:
+            style = "bold red" if rec.get("kind") in ("lost", "reset") or rec.get("event") == "lost" else "yellow"
+            label = "gap" if rec.get("event") == "gap" else "link"
+            console.print(f"[{style}]{label}: {_escape(rec.get('message', ''))}[/{style}]", soft_wrap=True)
+    return notify
 
 
 def _connect(controller) -> None:
@@ -237,22 +292,23 @@ def _announce_endpoints(controller, console, as_json: bool) -> None:
                       f"(the machine is on {ends.get('machine', '?')})")
 
 
-def _follow(session, controller, period: float, status, done, feed) -> None:
+def _follow(session, controller, period: float, status, done, feed, notify=None, give_up_s=None) -> None:
     """Run the loop; with a window the loop runs on a worker thread, since the window
     belongs to the main thread (GUI toolkits are not thread-safe)."""
     import threading
 
     from monitor.session import run_controller
 
+    kw = {"status": status, "done": done, "notify": notify, "give_up_s": give_up_s}
     if feed is None or not feed.view.is_window:
-        run_controller(session, controller, period, status=status, done=done)
+        run_controller(session, controller, period, **kw)
         return
     stop = threading.Event()
     failed: list[BaseException] = []
 
     def loop():
         try:
-            run_controller(session, controller, period, status=status, stop=stop, done=done)
+            run_controller(session, controller, period, stop=stop, **kw)
         except BaseException as exc:  # noqa: BLE001 - re-raised on the main thread
             failed.append(exc)
 

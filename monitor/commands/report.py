@@ -1,7 +1,9 @@
 """``dexmon report RUN -o report.html``: a self-contained HTML report of a recorded run.
 
-Summary (stages, cycle time, removed volume), every finding with its lines and a picture
-of the model where it happened, the removal per move, and pictures of the start and end.
+Summary (stages, cycle time, removed volume), the link (missed, bad and disconnected polls,
+every gap: when, how long, what was missed, how the controller came back, where the
+monitor found the machine again), every finding with its lines and a picture of the model
+where it happened, the removal per move, and pictures of the start and end.
 Pictures are PNG embedded as base64; the file needs nothing else to open.
 """
 
@@ -93,6 +95,50 @@ def _fmt_s(s: float) -> str:
     return f"{int(h)}:{int(m):02d}:{sec:05.2f}" if h else f"{int(m)}:{sec:05.2f}"
 
 
+#: link events listed in the report at most
+MAX_LINK_EVENTS = 50
+
+
+def link_section(reader) -> list[str]:
+    """HTML of the run's link trouble: counts of missed, bad and disconnected polls, one
+    row per gap (when into the run, how long, polls missed, lines lost, position jump,
+    how the controller came back, what the monitor did), and the link events said."""
+    e = html.escape
+    st = reader.states()
+    counts = {k: int(np.count_nonzero(st["state"] == v)) for k, v in
+              (("missed", "Missed"), ("bad", "Bad"), ("disconnected", "Disconnected"))}
+    events = reader.link_events()
+    gaps = [g for g in events if g.get("kind") == "gap"]
+    said = [ev for ev in events if ev.get("kind") not in ("gap", "lost")]
+    parts = ["<h2>Link</h2>"]
+    if not any(counts.values()) and not events:
+        parts.append(f"<p>No link trouble: every one of {len(st)} polls answered.</p>")
+        return parts
+    parts.append("<table>")
+    rows = [("polls recorded", len(st))] + [(f"{k} polls", v) for k, v in counts.items()] + [("gaps", len(gaps))]
+    parts += [f"<tr><th>{e(a)}</th><td>{b}</td></tr>" for a, b in rows]
+    parts.append("</table>")
+    if gaps:
+        parts.append("<table><tr><th>when</th><th>how long</th><th>polls missed</th><th>lines lost</th>"
+                     "<th>position jump</th><th>came back</th><th>what happened</th></tr>")
+        for g in gaps:
+            when = _fmt_s(g["run_s"]) if g.get("run_s") is not None else "?"
+            long = f"{g['seconds']:.1f} s" if g.get("seconds") is not None else "not back"
+            jump = f"{g['jump_mm']:.2f} mm" if g.get("jump_mm") is not None else ""
+            cells = [when, long, g.get("polls_missed", 0), g.get("lines_lost", 0), jump, g.get("came_back", ""),
+                     g.get("message", "")]
+            parts.append("<tr class='gap'>" + "".join(f"<td>{e(str(c))}</td>" for c in cells) + "</tr>")
+        parts.append("</table>")
+    if said:
+        parts.append("<ul>")
+        parts += [f"<li>{e(str(ev.get('kind')))}: {e(str(ev.get('message', '')))}</li>"
+                  for ev in said[:MAX_LINK_EVENTS]]
+        if len(said) > MAX_LINK_EVENTS:
+            parts.append(f"<li>... and {len(said) - MAX_LINK_EVENTS} more</li>")
+        parts.append("</ul>")
+    return parts
+
+
 def build_report(view, size: int = 480, max_findings: int = 50) -> str:
     """The report of a :class:`monitor.trace_io.RunView` as one HTML string."""
     from monitor.commands.replay import finding_positions, format_finding
@@ -139,6 +185,7 @@ def build_report(view, size: int = 480, max_findings: int = 50) -> str:
             rows.append((label, _fmt_s(ct[key])))
     parts += [f"<tr><th>{e(a)}</th><td>{e(str(b))}</td></tr>" for a, b in rows]
     parts.append("</table>")
+    parts += link_section(view.reader)
     parts.append("<h2>Start and end</h2><div class='f'>")
     parts.append(f"<figure>{_img_tag(pic(first, False), 'start')}<figcaption>stage {first}</figcaption></figure>")
     parts.append(f"<figure>{_img_tag(pic(last), 'end')}<figcaption>stage {last} (findings ringed)"

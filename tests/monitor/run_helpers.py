@@ -30,17 +30,45 @@ def program_moves() -> np.ndarray:
     return m
 
 
-def record_run(path, chunk_every: int = 5, stop_after: int | None = None, writer_hook=None, air_cuts: int = 0):
+def record_link_trouble(w: RunWriter) -> dict:
+    """States with link trouble (3 missed, 2 bad, 4 disconnected polls among 10 fresh ones)
+    and the session's records of it (a reset, a gap) as a live session writes them.
+    Returns the gap record."""
+    from drivers.state import MachineState, RunState
+    from monitor.session import gap_message
+
+    kinds = [RunState.RUN] * 5 + [RunState.MISSED] * 3 + [RunState.BAD] * 2 + [RunState.DISCONNECTED] * 4 \
+        + [RunState.ALARM] * 5
+    for i, k in enumerate(kinds):
+        w.append_state(MachineState(t=100.0 + 0.5 * i, mpos=tuple(PATH[1]), state=k,
+                                    raw="" if k == RunState.RUN else "why"))
+    w.append_link_event(106.0, "reset", {"event": "link", "kind": "reset",
+                                         "message": "grbl:///dev/ttyUSB0: Grbl 1.1h banner"})
+    gap = {"event": "gap", "t_lost": 102.5, "run_s": 2.5, "t_back": 107.0, "seconds": 4.5, "reason": "port gone",
+           "polls_missed": 9, "missed": 3, "bad": 2, "disconnected": 4, "lines_lost": 2,
+           "came_back": "reset: Grbl 1.1h banner", "jump_mm": 12.5, "from_line": 11,
+           "resync": {"how": "lost", "line": 11, "row": 1, "progress_s": 2.0, "distance_mm": 30.0},
+           "rows_cut_unchecked": []}
+    gap["message"] = gap_message(gap)
+    w.append_link_event(107.0, "gap", gap)
+    return gap
+
+
+def record_run(path, chunk_every: int = 5, stop_after: int | None = None, writer_hook=None, air_cuts: int = 0,
+               link_trouble: bool = False):
     """Cut the program in small live stages, writing the run file as a session would.
 
     Returns ``(snapshots {stage: DexelGrid}, writer)``; the writer is closed unless
     ``stop_after`` (stages) is given, which leaves it open like a crashed session.
     ``air_cuts``: that many more recorded cuts at the end that remove nothing (a retract
-    in the air: stages with no trace block), as a session records them.
+    in the air: stages with no trace block), as a session records them. ``link_trouble``:
+    also states and link records of a gap (:func:`record_link_trouble`).
     """
     grid = box(61, 41, 0.5, 0.0, 10.0)
     moves = program_moves()
     w = RunWriter(path, commit_interval=0.05)
+    if link_trouble:
+        record_link_trouble(w)
     w.put_meta("tool_spec", "ball:6")
     w.put_meta("program_path", "wave.nc")
     w.put_array("moves", moves)

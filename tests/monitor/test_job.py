@@ -106,6 +106,7 @@ def test_full_job(job_dir):
     ('[limits]\nw = [0, 1]', r"\[limits\]: unknown key 'w'"),
     ('[alerts]\nactions = ["siren"]', r"\[alerts\] actions: expected a list of log, bell, feed_hold"),
     ('[lookahead]\nseconds = 0', r"\[lookahead\] seconds: expected a positive number \(s\)"),
+    ('[controller]\ngive_up_s = -5', r"\[controller\] give_up_s: expected a positive number \(s\), got -5"),
     ('work_offset = "here"', r'work_offset: expected 3 numbers \(mm, or "controller"\), got "here"'),
     ('stock = [', r"job.toml: not valid TOML"),
     ('colour = 1', r"top level: unknown key 'colour'"),
@@ -113,6 +114,15 @@ def test_full_job(job_dir):
 def test_errors_name_key_and_expectation(tmp_path, text, message):
     with pytest.raises(JobError, match=message):
         parse_job_text(text, "job.toml", tmp_path)
+
+
+def test_give_up_time_from_job_and_flag(tmp_path):
+    assert parse_job_text("", "j", tmp_path).give_up_s == 600.0
+    job = parse_job_text("[controller]\ngive_up_s = 30", "j", tmp_path)
+    assert job.give_up_s == 30.0
+    assert job_from_args(_args(["--give-up", "2.5"])).give_up_s == 2.5
+    with pytest.raises(JobError, match=r"--give-up: expected a positive number \(s\), got 0"):
+        job_from_args(_args(["--give-up", "0"]))
 
 
 def test_work_offset_from_controller_and_cylinder(tmp_path):

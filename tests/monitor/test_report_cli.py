@@ -55,3 +55,27 @@ def test_report_errors(recorded, tmp_path, capsys):
     assert main(["report", str(path), "-o", str(tmp_path / "r.txt")]) == 2
     assert ".html" in capsys.readouterr().err
     assert main(["report", str(tmp_path / "nope"), "-o", str(tmp_path / "r.html")]) == 2
+
+
+def test_report_states_every_gap_and_the_missed_and_bad_polls(tmp_path, capsys):
+    path = tmp_path / "trouble.dexrun"
+    record_run(path, link_trouble=True)
+    out = tmp_path / "r.html"
+    assert main(["report", str(path), "-o", str(out)]) == 0
+    text = out.read_text()
+    assert "<h2>Link</h2>" in text
+    for label, n in (("missed polls", 3), ("bad polls", 2), ("disconnected polls", 4), ("gaps", 1)):
+        assert f"<tr><th>{label}</th><td>{n}</td></tr>" in text, label
+    # the gap: when, how long, what was missed, how it came back, where it went on
+    row = re.search(r"<tr class='gap'>(.*?)</tr>", text).group(1)
+    cells = re.findall(r"<td>(.*?)</td>", row)
+    assert cells[:6] == ["0:02.50", "4.5 s", "9", "2", "12.50 mm", "reset: Grbl 1.1h banner"], cells
+    assert "off the program" in cells[6]
+    assert "grbl:///dev/ttyUSB0: Grbl 1.1h banner" in text  # the reset said
+
+
+def test_report_of_a_clean_run_says_no_link_trouble(recorded, tmp_path):
+    path, _ = recorded
+    out = tmp_path / "r.html"
+    assert main(["report", str(path), "-o", str(out)]) == 0
+    assert "No link trouble" in out.read_text()

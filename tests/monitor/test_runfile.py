@@ -166,3 +166,53 @@ def test_sigkill_loses_at_most_the_last_second(tmp_path):
     assert st.size > 0
     assert st["t"].max() >= seen[-1] - 1.0
     assert np.all(np.diff(st["t"]) > 0)
+
+
+def test_states_with_values_a_controller_made_up_do_not_stop_the_writer(tmp_path):
+    """Integers above 2^63 in Ln:, Hold:, ALARM: or Ov: used to end monitoring with
+    "cannot write the run file": they are stored as NULL, the raw text kept, and the
+    writer goes on."""
+    path = tmp_path / "r.sqlite"
+    huge = 2**64 + 5
+    odd = [MachineState(t=0.1, mpos=(1, 2, 3), state=RunState.HOLD, line=huge, substate=huge,
+                        raw="<Hold:18446744073709551621|Ln:18446744073709551621>"),
+           MachineState(t=0.2, mpos=(1, 2, 3), state=RunState.ALARM, alarm=-huge, overrides=(huge, 100, 100),
+                        raw="ALARM:-huge"),
+           MachineState(t=0.3, mpos=(1, 2, 3), state=RunState.RUN, line=np.int64(7), buffer=(15, 128), raw=b"<Run>"),
+           MachineState(t=0.4, mpos=(1, 2, 3), state=RunState.RUN, line=12, raw="<Run|Ln:12>")]
+    with RunWriter(path) as w:
+        for s in odd:
+            w.append_state(s)
+        w.append_link_event(0.4, "bad", {"event": "link", "kind": "bad", "message": "Ln: too big", "n": huge})
+        w.flush()
+    r = RunReader(path)
+    st = r.states()
+    assert len(st) == 4 and st["line"].tolist() == [-1, -1, 7, 12] and st["alarm"].tolist()[:2] == [-1, -1]
+    raws = [x[0] for x in r._query("SELECT raw FROM states ORDER BY id")]
+    assert raws[0].startswith("<Hold:18446744073709551621") and raws[2] == "b'<Run>'"
+    assert r.link_events()[0]["message"] == "Ln: too big"
+
+
+def test_run_files_without_the_link_events_table_still_open(tmp_path):
+    import sqlite3
+
+    path = tmp_path / "old.sqlite"
+    with RunWriter(path) as w:
+        w.append_state(MachineState(t=0.0, mpos=(0, 0, 0), state=RunState.IDLE))
+    con = sqlite3.connect(path)
+    con.execute("DROP TABLE link_events")
+    con.commit()
+    con.close()
+    r = RunReader(path)
+    assert r.link_events() == [] and r.state_count() == 1
+
+
+def test_a_row_sqlite_refuses_is_skipped_and_counted_not_fatal(tmp_path):
+    path = tmp_path / "r.sqlite"
+    with RunWriter(path) as w:
+        w._put("INSERT INTO states(t, line) VALUES (?, ?)", (0.0, 2**70))  # past the sanitising appends
+        w.append_state(MachineState(t=0.1, mpos=(0, 0, 0), state=RunState.IDLE))
+        w.flush()
+        assert w.skipped == 1 and "too large" in w.last_skip
+    r = RunReader(path)
+    assert r.state_count() == 1 and json.loads(r.meta()["skipped_rows"])["rows"] == 1

@@ -6,11 +6,11 @@ import threading
 
 import pytest
 
-from drivers.errors import ConnectionLost, DriverError, ProtocolError
+from drivers.errors import DriverError
 from drivers.registry import open_controller
-from drivers.state import RunState
+from drivers.state import LinkKind, RunState
 from drivers.virtual.controller import VirtualController
-from drivers.virtual.faults import FaultInjector, FaultPlan, FaultSpecError, ReplyDropped
+from drivers.virtual.faults import FaultInjector, FaultPlan, FaultSpecError
 from drivers.virtual.machine import MachineConfig
 from tests.drivers.virtual.helpers import line, rapid, rows
 
@@ -105,27 +105,87 @@ def test_fault_plan_parse_and_determinism():
         FaultPlan.parse("drop=2")
 
 
-def test_faults_in_controller_poll():
+def test_faults_in_controller_poll_are_states_never_exceptions():
+    """The contract (drivers.state.Controller): a dropped or garbled reply is a MISSED
+    state, the link down a DISCONNECTED one, both at the last known position with the
+    reason in ``raw``; poll() never raises for them and time never goes backwards."""
     c = VirtualController(program(), clock="sim", rate=50, config=FREE,
                           faults="drop=0.2,garble=0.2,late=0.2,disconnect=0.5,disconnect_for=1,alarm=3:1,seed=1")
     c.connect()
-    kinds = {"ok": 0, "drop": 0, "garble": 0, "lost": 0}
+    states = [c.poll() for _ in range(200)]
+    kinds = {k: [s for s in states if s.state == k] for k in (RunState.MISSED, RunState.DISCONNECTED)}
+    assert kinds[RunState.MISSED] and kinds[RunState.DISCONNECTED]
+    assert any("garbled" in s.raw for s in kinds[RunState.MISSED])
+    assert any("no reply" in s.raw for s in kinds[RunState.MISSED])
+    assert all(not s.fresh for v in kinds.values() for s in v)
+    assert all(b.t >= a.t for a, b in zip(states, states[1:]))
+    # a not-fresh state carries the last fresh position, never a new one
     last = None
-    for _ in range(200):
-        try:
-            last = c.poll()
-            kinds["ok"] += 1
-        except ReplyDropped:
-            kinds["drop"] += 1
-        except ProtocolError as exc:
-            assert exc.raw
-            kinds["garble"] += 1
-        except ConnectionLost:
-            kinds["lost"] += 1
-    assert all(kinds.values())
+    for s in states:
+        if s.fresh:
+            last = s
+        elif last is not None:
+            assert s.mpos == last.mpos and s.line == last.line
     assert c.faults.counts["disconnect"] == 1
+    last = [s for s in states if s.fresh][-1]
     assert last.state == RunState.ALARM and last.alarm == 1
     assert c.done
+    # the outage told once as LOST then BACK, and kept in ``gaps``
+    events = c.link_events()
+    assert [e.kind for e in events if e.kind in (LinkKind.LOST, LinkKind.BACK)] == [LinkKind.LOST, LinkKind.BACK]
+    back = next(e for e in events if e.kind == LinkKind.BACK)
+    assert len(c.gaps) == 1 and back.gap == c.gaps[0]
+    gap = c.gaps[0]
+    assert gap.polls_missed == len(kinds[RunState.DISCONNECTED])
+    assert 0.5 <= gap.seconds <= 1.3 and "fault injection" in gap.reason  # late replies move time in jumps
+    assert c.link_events() == []  # drained
+
+
+def test_reset_on_reconnect_comes_back_at_zero_in_alarm():
+    """``reset=1``: the controller restarted while the link was down: it comes back at
+    (0, 0, 0) in alarm (position lost), told as a RESET link event and in the gap."""
+    c = VirtualController(program(), clock="sim", rate=50, config=FREE,
+                          faults="disconnect=0.5,disconnect_for=0.2,reset=1")
+    c.connect()
+    states = [c.poll() for _ in range(60)]
+    before = [s for s in states if s.fresh and s.t < 0.5][-1]
+    after = [s for s in states if s.fresh and s.t > 0.5]
+    assert before.mpos[:3] != (0.0, 0.0, 0.0)
+    assert after and all(s.state == RunState.ALARM and s.mpos[:3] == (0.0, 0.0, 0.0) for s in after)
+    kinds = [e.kind for e in c.link_events()]
+    assert kinds == [LinkKind.LOST, LinkKind.BACK, LinkKind.RESET]
+    assert "reset" in c.gaps[0].came_back
+    assert c.done  # in alarm: the program will not go on
+
+
+def test_bad_reply_is_a_bad_state_with_its_text():
+    """``bad=P``: a reply with non-finite numbers is a BAD state at the last position,
+    ``raw`` holding what came, told as a BAD link event; nothing non-finite is handed on."""
+    import math
+
+    c = VirtualController(program(), clock="sim", rate=50, config=FREE, faults="bad=0.5,seed=3")
+    c.connect()
+    states = [c.poll() for _ in range(100)]
+    bad = [s for s in states if s.state == RunState.BAD]
+    assert bad and len(bad) < 100
+    assert all("nan" in s.raw.lower() for s in bad)
+    assert all(math.isfinite(v) for s in states for v in s.mpos + s.wco)
+    assert sum(e.kind == LinkKind.BAD for e in c.link_events()) == len(bad)
+
+
+def test_stopped_machine_thread_is_a_state_not_an_exception():
+    """A wall-clock machine whose thread died: poll() says so as DISCONNECTED states
+    (and one LOST event), it does not raise."""
+    c = VirtualController(program(), clock="wall", speed=50, config=FREE)
+    c.connect()
+    try:
+        c._runner.stop()
+        c._runner.error = RuntimeError("boom")
+        states = [c.poll() for _ in range(3)]
+    finally:
+        c.close()
+    assert all(s.state == RunState.DISCONNECTED and "boom" in s.raw for s in states)
+    assert [e.kind for e in c.link_events()] == [LinkKind.LOST]
 
 
 def test_url_passes_var_file_and_units_to_the_interpreter(tmp_path):
