@@ -33,6 +33,7 @@ from __future__ import annotations
 import collections
 import math
 import select
+import socket
 import threading
 import time
 import traceback
@@ -336,12 +337,8 @@ class GrblController(Controller):
     def close(self) -> None:
         self._closing.set()
         reader, self._reader = self._reader, None
-        ser = self._ser
-        if ser is not None:
-            try:
-                ser.close()
-            except Exception:  # noqa: BLE001 - closing a port that may be half gone
-                pass
+        if self._ser is not None:
+            _close_port(self._ser)
         if reader is not None and reader is not threading.current_thread():
             reader.join(2.0)
         with self._cond:
@@ -563,10 +560,7 @@ class GrblController(Controller):
             self._lines_lost += len(self._pending)
             self._fail_pending(ConnectionLost(f"GRBL {self.port}: connection lost ({reason})"))
             self._cond.notify_all()
-        try:
-            self._ser.close()
-        except Exception:  # noqa: BLE001 - the port is gone already
-            pass
+        _close_port(self._ser)
         self._asm.reset()
 
     def _try_reopen(self) -> None:
@@ -901,6 +895,26 @@ class GrblController(Controller):
     def set_spindle_override(self, percent: int) -> int:
         """Spindle override 10..200 %."""
         return self._set_override("spindle", percent)
+
+
+def _close_port(ser) -> None:
+    """Close ``ser`` at once, whatever state it is in. pyserial's ``socket://`` close()
+    sleeps 0.3 s "for quick reconnects", which would delay the reconnect and every
+    close: its socket is closed first and the port marked closed."""
+    sock = getattr(ser, "_socket", None)
+    try:
+        if sock is not None:
+            ser._socket = None
+            ser.is_open = False
+            try:
+                sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            sock.close()
+        else:
+            ser.close()
+    except Exception:  # noqa: BLE001 - closing a port that may be half gone
+        pass
 
 
 def _read_some(ser, wait: float) -> bytes:
