@@ -274,10 +274,11 @@ class GrblController(Controller):
             else:
                 self._link_event(LinkKind.NOTE, f"GRBL {self.port}: not reset on connect: the machine is "
                                                 f"{_state_name(state)}", raw=state.raw)
-        if state.state is RunState.IDLE and self._read_settings():
-            return
         with self._cond:
             self._queries_due = True
+        if state.state is RunState.IDLE:
+            self._read_settings()  # a failure is told, and they are asked again when Idle
+            return
         units = "inches" if _inches_by_format(state.raw) else "mm"
         self._link_event(LinkKind.NOTE, f"GRBL {self.port}: settings ($I $$ $# $G) not read while the machine is "
                                         f"{_state_name(state)}; they are read once it is Idle; until then "
