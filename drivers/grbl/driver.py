@@ -51,7 +51,7 @@ from drivers.state import (MAX_REPORTED_INT, Controller, Gap, LinkKind, MachineS
 MAX_RATE_HZ = 50.0
 DEFAULT_RATE_HZ = 20.0
 #: s between attempts to reopen a vanished port (at most one poll period)
-RETRY_PERIOD_S = 0.05
+RETRY_PERIOD_S = 0.01
 #: s before the handshake queries are tried again after a refusal or no reply
 QUERY_RETRY_S = 1.0
 #: the only states a soft reset is safe in: in Run/Jog/Home it loses position (ALARM:3),
