@@ -190,6 +190,23 @@ def test_a_lost_or_garbled_reply_is_missed_stamped_now(idle_link):
     assert c.poll().fresh
 
 
+def test_a_late_reply_is_not_taken_for_the_next_poll(idle_link):
+    pr, c = idle_link
+    held = []
+    pr.mutate = lambda d: held.append(d) or b"" if d.startswith(b"<") else d  # the reply is held back
+    missed = c.poll(timeout=0.1)
+    pr.mutate = None
+    arrived = threading.Event()
+    c.on_state = lambda s: arrived.set()
+    pr.inject(held[0].replace(b"MPos:0.000", b"MPos:7.000"))  # ... and arrives after that poll gave up
+    assert arrived.wait(5)
+    c.on_state = None
+    t_ask = time.monotonic()
+    s = c.poll()
+    assert missed.state is RunState.MISSED
+    assert s.fresh and s.t >= t_ask and s.mpos[0] == 0.0  # its own answer, not the late one
+
+
 def test_poll_never_raises_once_connected(peers, controllers):
     _, make_peer = peers
     pr = make_peer()
