@@ -240,7 +240,7 @@ def test_port_vanishes_mid_run_and_comes_back_tcp(peer):
     c.connect()
     try:
         c.send("G1 X30 F1200")
-        before = c.wait_for_state(lambda s: s.state is RunState.RUN, 5)
+        before = c.wait_for_state(lambda s: s.state is RunState.RUN and s.mpos[0] > 0.5, 5)
         pr.close_transports()  # cable pulled
         assert c.wait_disconnected(2)
         s = c.poll()
@@ -249,7 +249,8 @@ def test_port_vanishes_mid_run_and_comes_back_tcp(peer):
         pr.serve_tcp(port=port)
         assert c.wait_connected(5)
         back = c.poll()
-        assert back.state in (RunState.RUN, RunState.IDLE) and back.mpos[0] > before.mpos[0]
+        assert back.state in (RunState.RUN, RunState.IDLE) and back.mpos[0] >= before.mpos[0]
+        assert back.fresh and back.t > before.t  # a new report, not the one before the gap
         assert len(c.gaps) == 1
         gap = c.gaps[0]
         t_lost, t_back = gap
