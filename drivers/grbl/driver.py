@@ -7,8 +7,9 @@ arrive, parses it (:mod:`drivers.grbl.protocol`) and routes it: status reports b
 :attr:`GrblController.garbage` and never stops the reader. :meth:`GrblController.poll`
 returns only a report that answered its ``?`` (BAD when its numbers cannot be right),
 else MISSED, or DISCONNECTED while the port is away (the contract of
-:class:`drivers.state.Controller`). When the port vanishes the reader reopens it every
-poll period at most, redoes the handshake's queries, tells how the controller came back
+:class:`drivers.state.Controller`). When the port vanishes the reader tries to reopen it
+every 10 ms (no backoff: an outage costs what it lasts), redoes the handshake's queries
+once the machine is Idle, tells how the controller came back
 (reset, alarm) and records the gap in :attr:`GrblController.gaps`; LOST, BACK, RESET, BAD
 and NOTE :class:`~drivers.state.LinkEvent` s say it all as it happens.
 
@@ -50,7 +51,8 @@ from drivers.state import (MAX_REPORTED_INT, Controller, Gap, LinkKind, MachineS
 
 MAX_RATE_HZ = 50.0
 DEFAULT_RATE_HZ = 20.0
-#: s between attempts to reopen a vanished port (at most one poll period)
+#: s between attempts to reopen a vanished port (a failed open costs a system call; the
+#: period is also capped at one poll period)
 RETRY_PERIOD_S = 0.01
 #: s before the handshake queries are tried again after a refusal or no reply
 QUERY_RETRY_S = 1.0
