@@ -115,6 +115,10 @@ class GrblPeer:
         self.rx_dropped = 0
         self.status_requests = 0
         self.realtime_log: list[int] = []
+        #: test hook, off (None) by default: ``mutate(data) -> data`` rewrites every line the
+        #: peer sends (``\r\n`` included) before it goes out, e.g. to fuzz a driver with
+        #: flipped bytes, lost or doubled replies (return ``b""`` to drop the line)
+        self.mutate: Callable[[bytes], bytes] | None = None
         self._chained_event = vm.on_event
         vm.on_event = self._on_vm_event
         self.runner = None
@@ -208,6 +212,11 @@ class GrblPeer:
 
     def _send(self, text: str, to: Endpoint | None = None) -> None:
         data = (text + "\r\n").encode("ascii", "replace")
+        mutate = self.mutate
+        if mutate is not None:
+            data = mutate(data)
+            if not data:
+                return
         if to is not None:
             to.write(data)
             return

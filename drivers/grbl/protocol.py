@@ -23,7 +23,7 @@ import re
 from dataclasses import dataclass, field
 
 from drivers.errors import ProtocolError
-from drivers.state import MachineState, RunState
+from drivers.state import MAX_REPORTED_INT, MachineState, RunState
 
 # --------------------------------------------------------------------------------------
 # Real-time bytes (sent alone, never followed by a newline; GRBL acts on them at once)
@@ -426,17 +426,32 @@ _INT = re.compile(r"^[+-]?\d+$")
 _NUM = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)$")
 
 
+#: sane ranges of the integers GRBL reports (Grbl 1.1h keeps them in uint8/int32; grblHAL
+#: goes further for line numbers and buffers): beyond them a line is garbage, not a state
+CODE_RANGE = (0, 255)              # error:N, ALARM:N (uint8 in the firmware)
+SUBSTATE_RANGE = (0, 9)            # Hold:0..1, Door:0..3 (grblHAL adds a few)
+OVERRIDE_RANGE = (0, 255)          # Ov: percent (Grbl 1.1h: 10..200, rapid 25..100)
+COUNT_RANGE = (0, MAX_REPORTED_INT)  # Ln:, Bf:, [OPT:] sizes, T, $N
+
+
 def _number(text: str, what: str, raw: str) -> float:
     text = text.strip()
     if not _NUM.match(text):
         raise ProtocolError(f"GRBL {what}: expected a number, got {text!r} in {raw!r}", raw)
-    return float(text)
+    value = float(text)
+    if not math.isfinite(value):  # hundreds of digits overflow to inf
+        raise ProtocolError(f"GRBL {what}: {text[:20]!r}... is too long to be a number GRBL prints, in {raw[:80]!r}",
+                            raw)
+    return value
 
 
-def _integer(text: str, what: str, raw: str) -> int:
+def _integer(text: str, what: str, raw: str, bounds: tuple[int, int] = (-MAX_REPORTED_INT, MAX_REPORTED_INT)) -> int:
     text = text.strip()
     if not _INT.match(text):
         raise ProtocolError(f"GRBL {what}: expected an integer, got {text!r} in {raw!r}", raw)
+    lo, hi = bounds
+    if len(text) > 12 or not lo <= int(text) <= hi:  # the length test spares int() of a megabyte of digits
+        raise ProtocolError(f"GRBL {what}: expected an integer in {lo}..{hi}, got {text[:24]!r} in {raw[:80]!r}", raw)
     return int(text)
 
 
@@ -467,9 +482,9 @@ def parse_line(text: str) -> Message:
     if head == "[":
         return _parse_bracket(line)
     if line.startswith("error:"):
-        return Error(raw, _integer(line[6:], "error code", raw))
+        return Error(raw, _integer(line[6:], "error code", raw, CODE_RANGE))
     if line.startswith("ALARM:"):
-        return Alarm(raw, _integer(line[6:], "alarm code", raw))
+        return Alarm(raw, _integer(line[6:], "alarm code", raw, CODE_RANGE))
     if head == "$":
         return _parse_dollar(line)
     if head == ">":
@@ -499,8 +514,8 @@ def _parse_bracket(line: str) -> Message:
         return Version(raw, version, info)
     if tag == "OPT":
         parts = body.split(",")
-        blocks = _integer(parts[1], "[OPT:] planner blocks", raw) if len(parts) > 1 else None
-        rx = _integer(parts[2], "[OPT:] RX buffer size", raw) if len(parts) > 2 else None
+        blocks = _integer(parts[1], "[OPT:] planner blocks", raw, COUNT_RANGE) if len(parts) > 1 else None
+        rx = _integer(parts[2], "[OPT:] RX buffer size", raw, COUNT_RANGE) if len(parts) > 2 else None
         return Options(raw, parts[0], blocks, rx, tuple(parts[3:]))
     if tag in OFFSET_TAGS:
         return Offset(raw, tag, _vector(body, f"[{tag}:] offset", raw))
@@ -525,7 +540,7 @@ def _parse_gc(raw: str, body: str) -> ParserState:
     for w in words:
         letter, value = w[:1], w[1:]
         if letter == "T":
-            tool = _integer(value, "[GC:] tool", raw)
+            tool = _integer(value, "[GC:] tool", raw, COUNT_RANGE)
         elif letter == "F":
             feed = _number(value, "[GC:] feed", raw)
         elif letter == "S":
@@ -541,14 +556,15 @@ def _parse_dollar(line: str) -> Message:
     if not sep:
         raise ProtocolError(f"GRBL setting: expected $N=value, got {raw!r}", raw)
     if key.startswith("N") and key[1:].isdigit():
-        return StartupLine(raw, int(key[1:]), value)
+        return StartupLine(raw, _integer(key[1:], "startup line number", raw, COUNT_RANGE), value)
     if not key.isdigit():
         raise ProtocolError(f"GRBL setting: expected a setting number after '$', got {key!r} in {raw!r}", raw)
+    number = _integer(key, "setting number", raw, COUNT_RANGE)
     # grblHAL has string-valued settings (hostnames ...): NaN keeps the type numeric
     num = float(value) if _NUM.match(value.strip()) else math.nan
     if not value.strip():
         raise ProtocolError(f"GRBL setting ${key}: missing value in {raw!r}", raw)
-    return Setting(raw, int(key), num, value)
+    return Setting(raw, number, num, value)
 
 
 def _parse_startup_result(line: str) -> StartupResult:
@@ -560,7 +576,7 @@ def _parse_startup_result(line: str) -> StartupResult:
         return StartupResult(raw, body, True, None)
     body2, sep2, word = body.rpartition(":")
     if sep2 and word == "error":
-        return StartupResult(raw, body2, False, _integer(result, "startup line error code", raw))
+        return StartupResult(raw, body2, False, _integer(result, "startup line error code", raw, CODE_RANGE))
     raise ProtocolError(f"GRBL startup line: expected :ok or :error:N at the end of {raw!r}", raw)
 
 
@@ -575,7 +591,7 @@ def parse_status(line: str) -> StatusReport:
     name, sep, sub = state_text.partition(":")
     if name not in _STATES:
         raise ProtocolError(f"GRBL status report: unknown state {state_text!r} in {raw!r}", raw)
-    substate = _integer(sub, "status sub-state", raw) if sep else None
+    substate = _integer(sub, "status sub-state", raw, SUBSTATE_RANGE) if sep else None
     values: dict = {"state": name, "substate": substate}
     extra = []
     seen = set()
@@ -596,9 +612,10 @@ def parse_status(line: str) -> StatusReport:
             bf = body.split(",")
             if len(bf) != 2:
                 raise ProtocolError(f"GRBL status report: Bf expects blocks,bytes, got {body!r} in {raw!r}", raw)
-            values["buffer"] = (_integer(bf[0], "Bf blocks", raw), _integer(bf[1], "Bf bytes", raw))
+            values["buffer"] = (_integer(bf[0], "Bf blocks", raw, COUNT_RANGE),
+                                _integer(bf[1], "Bf bytes", raw, COUNT_RANGE))
         elif key == "Ln":
-            values["line"] = _integer(body, "Ln", raw)
+            values["line"] = _integer(body, "Ln", raw, COUNT_RANGE)
         elif key == "FS":
             fs = body.split(",")
             if len(fs) != 2:
@@ -616,7 +633,7 @@ def parse_status(line: str) -> StatusReport:
             ov = body.split(",")
             if len(ov) != 3:
                 raise ProtocolError(f"GRBL status report: Ov expects feed,rapid,spindle, got {body!r} in {raw!r}", raw)
-            values["overrides"] = tuple(_integer(v, "Ov", raw) for v in ov)
+            values["overrides"] = tuple(_integer(v, "Ov", raw, OVERRIDE_RANGE) for v in ov)
         elif key == "A":
             bad = [c for c in body if c not in "SCFMT"]
             if bad:
@@ -653,6 +670,8 @@ def status_to_state(
     report : StatusReport
     settings : dict int -> float or None
         GRBL ``$$`` settings; ``$13=1`` means the report is in inches (converted to mm).
+        Without a ``$13`` of 0 or 1 (not read yet, or garbage), the report's format
+        decides (:func:`report_in_inches`).
     last_wco : sequence of float or None
         Work coordinate offset, mm, remembered from an earlier report (GRBL sends
         ``WCO:`` only every 10th-30th report); used when ``report`` carries none.
@@ -667,7 +686,10 @@ def status_to_state(
     The returned state's ``wco`` is the offset in force, so callers remember it as the
     next ``last_wco``. With ``WPos:`` and no offset known yet, WCO is taken as zero.
     """
-    scale = MM_PER_INCH if settings and int(settings.get(13, 0) or 0) & 1 else 1.0
+    inches = inch_setting(settings)
+    if inches is None:
+        inches = report_in_inches(report)
+    scale = MM_PER_INCH if inches else 1.0
     wco = None
     if report.wco is not None:
         wco = tuple(v * scale for v in report.wco)
@@ -709,6 +731,26 @@ def status_to_state(
         accessories=accessories,
         raw=report.raw,
     )
+
+
+def inch_setting(settings: dict[int, float] | None) -> bool | None:
+    """``$13`` (report inches) from ``settings``: True/False, or None when it is absent or
+    not one of the 0/1 GRBL prints (a garbled value must not decide the units)."""
+    value = (settings or {}).get(13)
+    if value in (0, 1):  # NaN, inf and 1e5 are not
+        return value == 1
+    return None
+
+
+_POSITION_DECIMALS = re.compile(r"[MW]Pos:[+-]?\d*\.(\d*)")
+
+
+def report_in_inches(report: StatusReport) -> bool:
+    """Whether a report's format says inches: Grbl 1.1h prints positions with 4 decimals
+    in inches and 3 in mm (``N_DECIMAL_COORDVALUE_INCH``/``_MM``). Used until ``$13`` is
+    known."""
+    m = _POSITION_DECIMALS.search(report.raw)
+    return bool(m) and len(m.group(1)) == 4
 
 
 def override_steps(current: int, target: int, kind: str = "feed") -> list[bytes]:

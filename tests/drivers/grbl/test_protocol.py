@@ -285,3 +285,50 @@ def test_realtime_bytes_set():
     for b in (b"?", b"!", b"~", b"\x18", b"\x90", b"\x97", b"\x9d", b"\x85", b"\xa1"):
         assert b[0] in p.REALTIME_BYTES
     assert ord("G") not in p.REALTIME_BYTES and 0x98 not in p.REALTIME_BYTES
+
+
+# ----------------------------------------------------------------------------- bounds
+
+HUGE = str(2**64 + 1)
+
+
+@pytest.mark.parametrize("text", [
+    f"<Idle|MPos:0,0,0|Ln:{HUGE}|FS:0,0>",
+    "<Idle|MPos:0,0,0|Ln:-5|FS:0,0>",
+    f"<Hold:{HUGE}|MPos:0,0,0|FS:0,0>",
+    "<Door:12|MPos:0,0,0|FS:0,0>",
+    f"<Idle|MPos:0,0,0|FS:0,0|Ov:100,{HUGE},100>",
+    "<Idle|MPos:0,0,0|FS:0,0|Ov:100,-1,100>",
+    f"<Idle|MPos:0,0,0|Bf:15,{HUGE}|FS:0,0>",
+    f"ALARM:{HUGE}",
+    "ALARM:256",
+    f"error:{HUGE}",
+    f"[OPT:V,{HUGE},128]",
+    "[OPT:V,15,-128]",
+    f"[GC:G0 G54 G17 G21 G90 G94 M5 M9 T{HUGE} F0 S0]",
+    f"${HUGE}=1",
+    "<Idle|MPos:" + "9" * 400 + ",0,0|FS:0,0>",  # float() of it is inf
+    "[G54:1" + "0" * 400 + ",0,0]",
+])
+def test_reported_numbers_beyond_sane_ranges_are_protocol_errors(text):
+    with pytest.raises(ProtocolError) as info:
+        p.parse_line(text)
+    assert info.value.raw == text
+
+
+@pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf, 1e5, 2.0**70, -1.0, 0.5])
+def test_status_to_state_survives_any_inch_setting(value):
+    # a garbage $13 must never break unit scaling: it is ignored, the report format decides
+    r = p.parse_line("<Idle|MPos:1.000,2.000,0.000|FS:10,0>")
+    s = p.status_to_state(r, {13: value}, None, 0.0)
+    assert s.mpos[:3] == pytest.approx((1.0, 2.0, 0.0)) and s.feed == 10
+
+
+def test_units_follow_the_report_format_until_the_setting_is_known():
+    # Grbl 1.1h prints 4 decimals in inches, 3 in mm (N_DECIMAL_COORDVALUE_INCH / _MM)
+    inch = p.parse_line("<Idle|MPos:1.0000,0.0000,0.0000|FS:1.0,0>")
+    assert p.status_to_state(inch, None, None, 0.0).mpos[0] == pytest.approx(25.4)
+    assert p.status_to_state(inch, {13: 0}, None, 0.0).mpos[0] == pytest.approx(1.0)  # the setting wins
+    mm = p.parse_line("<Idle|MPos:1.000,0.000,0.000|FS:1,0>")
+    assert p.status_to_state(mm, None, None, 0.0).mpos[0] == pytest.approx(1.0)
+    assert p.report_in_inches(inch) is True and p.report_in_inches(mm) is False
