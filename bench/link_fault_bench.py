@@ -40,7 +40,8 @@ def follow(job, moves, program, faults: str | None):
     """One session over the virtual controller (stepped: 0.1 s of machine time a poll)."""
     from drivers.virtual.faults import FaultInjector
     from monitor.commands.dry_run import virtual_controller
-    from monitor.session import Session, run_controller
+    from monitor.loop import run_controller
+    from monitor.session import Session
 
     vc = virtual_controller(moves, speed=5.0, rate=50, clock="sim")
     vc.faults = FaultInjector(faults)

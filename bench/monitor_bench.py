@@ -129,7 +129,8 @@ def _follow(session, moves, seconds: float) -> dict:
 def dry_run_speed() -> dict:
     from monitor.commands.dry_run import EXAMPLE_JOB, virtual_controller
     from monitor.job import load_job
-    from monitor.session import Session, load_moves, run_controller
+    from monitor.loop import run_controller
+    from monitor.session import Session, load_moves
 
     job = load_job(EXAMPLE_JOB)
     moves, prog = load_moves(job)

@@ -297,7 +297,7 @@ def _follow(session, controller, period: float, status, done, feed, notify=None,
     belongs to the main thread (GUI toolkits are not thread-safe)."""
     import threading
 
-    from monitor.session import run_controller
+    from monitor.loop import run_controller
 
     kw = {"status": status, "done": done, "notify": notify, "give_up_s": give_up_s}
     if feed is None or not feed.view.is_window:

@@ -19,7 +19,8 @@ from monitor.commands.dry_run import EXAMPLE_JOB, virtual_controller
 from monitor.cli import main
 from monitor.job import load_job
 from monitor.runfile import RunReader, RunWriter
-from monitor.session import Session, load_moves, run_controller
+from monitor.loop import run_controller
+from monitor.session import Session, load_moves
 
 GOUGE_LINE, RAPID_LINE = 22, 36
 

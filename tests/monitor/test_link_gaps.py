@@ -19,7 +19,8 @@ from drivers.state import Gap, LinkEvent, LinkKind, MachineState, RunState
 from monitor.commands.dry_run import EXAMPLE_JOB, virtual_controller
 from monitor.job import load_job
 from monitor.runfile import RunReader, RunWriter
-from monitor.session import GAP_POLLS, Session, load_moves, run_controller
+from monitor.loop import run_controller
+from monitor.session import GAP_POLLS, Session, load_moves
 
 
 @pytest.fixture(scope="module")

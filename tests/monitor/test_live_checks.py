@@ -25,7 +25,8 @@ from monitor.job import load_job
 from monitor.predict import (LiveChecks, Lookahead, build_workpiece, finding_to_machine, limits_in_work,
                              work_moves)
 from monitor.runfile import RunReader, RunWriter
-from monitor.session import Session, load_moves, run_controller
+from monitor.loop import run_controller
+from monitor.session import Session, load_moves
 from monitor.sync import ProgramPath
 from sim.checks.findings import Finding
 from sim.gcode.moves import MoveKind, empty_moves, work_end
@@ -341,7 +342,8 @@ from monitor.alerts import Alerter
 from monitor.commands.dry_run import EXAMPLE_JOB, virtual_controller
 from monitor.job import load_job
 from monitor.runfile import RunWriter
-from monitor.session import Session, load_moves, run_controller
+from monitor.loop import run_controller
+from monitor.session import Session, load_moves
 
 def signatures():
     out = {}

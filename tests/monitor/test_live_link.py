@@ -20,7 +20,8 @@ from monitor.cli import main
 from monitor.commands.dry_run import EXAMPLE_JOB, virtual_controller
 from monitor.job import load_job
 from monitor.runfile import RunReader, RunWriter
-from monitor.session import Session, load_moves, run_controller
+from monitor.loop import run_controller
+from monitor.session import Session, load_moves
 
 PROGRAM = EXAMPLE_JOB.parent / "face.nc"
 

@@ -17,7 +17,8 @@ from monitor.cli import main
 from monitor.commands.dry_run import EXAMPLE_JOB
 from monitor.job import JobError, add_job_arguments, job_from_args, load_job, parse_job_text
 from monitor.predict import build_workpiece, reference_wco, row_shifts, work_moves
-from monitor.session import Session, load_moves, run_controller
+from monitor.loop import run_controller
+from monitor.session import Session, load_moves
 
 DATA = Path(__file__).resolve().parent.parent / "data" / "fixtures2"
 TWO = DATA / "two_station.toml"

@@ -1,0 +1,184 @@
+"""The poll loop: poll a controller, step the session, until the program ends.
+
+:func:`run_controller` is the one loop ``live`` and ``dry-run`` (and the tests and
+benchmarks) run. It never lets a driver failure end or freeze monitoring: exceptions
+become MISSED states, link events are drained every poll, a controller that gives no
+fresh state is said every few seconds (:class:`LinkWatch`) and given up after the job's
+give-up time. It ends at the program's end, on an alarm, on ``stop``, or on the caller's
+``done()``; ``session.end_reason`` says which.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from drivers.state import MachineState, RunState, stale_state
+from monitor.job import DEFAULT_GIVE_UP_S
+from monitor.session import Session
+from monitor.sync import SyncResult
+
+#: how long a controller may give no fresh state before the run ends (s, wall clock);
+#: job ``[controller] give_up_s``, ``--give-up``
+GIVE_UP_S = DEFAULT_GIVE_UP_S
+#: while no fresh state comes, say so this often (s, wall clock)
+LOST_NOTICE_S = 5.0
+
+
+def run_controller(session: Session, controller, period: float, status=None, stop=None,
+                   done=None, max_seconds: float | None = None, notify=None,
+                   give_up_s: float | None = GIVE_UP_S, notice_every: float = LOST_NOTICE_S) -> int:
+    """Poll ``controller`` every ``period`` s and step ``session`` until the program ends.
+
+    ``done()`` (optional) says the run is over (the virtual controller's ``done``);
+    without it the loop ends when the machine stands idle at the end of the program's
+    last motion, or in alarm. It also ends on ``stop`` (an Event), ``KeyboardInterrupt``,
+    after ``max_seconds``, or when no fresh state came for ``give_up_s`` (wall s; None:
+    never). ``session.end_reason`` says which.
+
+    No driver failure ends or freezes the loop: an exception from the controller is
+    recorded as a MISSED state (``raw``: the exception) and polling goes on. Every poll
+    drains ``controller.link_events()`` (when it has them) into the session. ``notify``
+    (callable(dict), optional) gets every link event and gap record as JSON-ready dicts,
+    and while no fresh state comes, every ``notice_every`` s, a ``{"event": "lost"}``
+    record ("controller lost for 30 s, retrying"). Returns the number of states processed.
+    """
+    n = 0
+    start = time.monotonic()
+    watch = LinkWatch(give_up_s, notice_every, notify)
+    session.on_gap = notify
+    end_at = _program_end(session)
+    session.end_reason = "stopped"
+    for state in _guarded_states(controller, period, session, stop):
+        _drain_link_events(controller, session, notify)
+        info = session.step(state)
+        n += 1
+        now = time.monotonic()
+        gave_up = watch.see(state, now)
+        if status is not None:
+            status.update(state, info.sync, session.path.duration, len(session.findings), info.seconds * 1e3,
+                          note=watch.note(now))
+        if gave_up:
+            session.end_reason = gave_up
+            break
+        if stop is not None and stop.is_set():
+            break
+        if done is not None and done():
+            # one more state so the last motion is cut
+            last = next(_guarded_states(controller, period, session), None)
+            if last is not None:
+                session.step(last)
+                n += 1
+            session.end_reason = "done"
+            break
+        if done is None and state.fresh and state.state == RunState.IDLE and _at_end(info.sync, end_at):
+            session.end_reason = "program end"
+            break
+        if state.state == RunState.ALARM and done is None:
+            session.end_reason = "alarm"
+            break
+        if max_seconds is not None and now - start > max_seconds:
+            session.end_reason = "time limit"
+            break
+    _drain_link_events(controller, session, notify)
+    return n
+
+
+def _program_end(session: Session) -> tuple[int, float] | None:
+    """``(row, progress s)`` where the program's last motion ends, or None (no motion)."""
+    mv = session.moves
+    if not len(mv):
+        return None
+    moving = np.nonzero(np.any(mv["start"][:, :3] != mv["end"][:, :3], axis=1))[0]
+    if not moving.size:
+        return None
+    row = int(moving[-1])
+    return row, float(session.path.row_t1[row])
+
+
+def _at_end(sync: SyncResult | None, end_at: tuple[int, float] | None) -> bool:
+    """True when ``sync`` has the machine at the end of the program's last motion (the
+    rows after it -- M5, M2 -- move nothing, so the sync never reaches them)."""
+    if sync is None or end_at is None or sync.how == "lost":
+        return False
+    row, progress = end_at
+    return sync.row >= row and sync.progress >= progress - 1e-9
+
+
+class LinkWatch:
+    """Watches for a controller that gives no fresh state: says so every ``notice_every``
+    s and gives up after ``give_up_s`` (wall clock, s; None: never)."""
+
+    def __init__(self, give_up_s: float | None, notice_every: float, notify=None):
+        self.give_up_s = give_up_s
+        self.notice_every = float(notice_every)
+        self.notify = notify
+        self.since: float | None = None   # wall time of the first not-fresh state in a row
+        self._next_notice = 0.0
+        self.notices = 0
+
+    def see(self, state: MachineState, now: float) -> str | None:
+        """Take one state at wall time ``now``; the reason to give up, or None."""
+        if state.fresh:
+            self.since = None
+            return None
+        if self.since is None:
+            self.since, self._next_notice = now, now + self.notice_every
+            return None
+        lost = now - self.since
+        if self.give_up_s is not None and lost >= self.give_up_s:
+            return (f"gave up: no fresh state from the controller for {lost:.1f} s "
+                    f"(give-up time {self.give_up_s:g} s; last: {state.state.value}: {state.raw})")
+        if now >= self._next_notice:
+            self._next_notice = now + self.notice_every
+            self.notices += 1
+            if self.notify is not None:
+                self.notify({"event": "lost", "t": state.t, "seconds": round(lost, 1), "state": state.state.value,
+                             "message": f"controller lost for {lost:.0f} s, retrying", "raw": state.raw})
+        return None
+
+    def note(self, now: float) -> str:
+        """For the status line: "lost 30 s, retrying" while no fresh state comes, else ""."""
+        if self.since is None or now - self.since < 1.0:
+            return ""
+        return f"lost {now - self.since:.0f} s, retrying"
+
+
+def _guarded_states(controller, period: float, session: Session, stop=None):
+    """``controller.states(period)``, where an exception (a driver that broke its
+    contract) becomes a MISSED state at the last known position, ``raw`` naming it, and
+    polling goes on with a fresh iterator after ``period``. Times never go backwards:
+    an exception's state is stamped on the controller's clock, extrapolated from its last
+    state by the wall clock."""
+    import threading
+
+    pause = stop if stop is not None else threading.Event()
+    last_t, offset = None, 0.0
+    while True:
+        try:
+            for state in controller.states(period):
+                last_t, offset = state.t, state.t - time.monotonic()
+                yield state
+            return  # the controller ended its states (closed)
+        except Exception as exc:  # noqa: BLE001 - any driver failure is a missed poll
+            t = time.monotonic() + offset
+            t = t if last_t is None else max(t, last_t)
+            last_t = t
+            yield stale_state(session.last, RunState.MISSED, t, f"{type(exc).__name__}: {exc}")
+            pause.wait(period)  # pacing the retries, as states() paces the polls
+
+
+def _drain_link_events(controller, session: Session, notify) -> None:
+    """Hand the controller's queued link events to the session (and ``notify``)."""
+    drain = getattr(controller, "link_events", None)
+    if drain is None:
+        return
+    try:
+        events = drain()
+    except Exception:  # noqa: BLE001 - a driver's event queue must not end the run
+        return
+    for ev in events:
+        rec = session.link_event(ev)
+        if notify is not None:
+            notify(rec)
