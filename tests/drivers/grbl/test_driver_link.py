@@ -4,7 +4,6 @@ against the GRBL peer on a real pty or TCP socket."""
 
 from __future__ import annotations
 
-import contextlib
 import threading
 import time
 
@@ -15,6 +14,7 @@ from drivers.grbl.driver import GrblController
 from drivers.grbl.peer import GrblPeer
 from drivers.registry import open_controller
 from drivers.state import LinkKind, RunState, implausible
+from tests.drivers.thread_errors import thread_errors
 from drivers.virtual.machine import MachineConfig, VirtualMachine
 
 FAST = dict(max_rate=(3000.0, 3000.0, 3000.0), accel=(200.0, 200.0, 200.0))
@@ -24,19 +24,6 @@ HANDSHAKE = ["$I", "$$", "$#", "$G"]
 
 def make_vm() -> VirtualMachine:
     return VirtualMachine(MachineConfig(travel_min=(-200.0,) * 3, travel_max=(200.0,) * 3, **FAST))
-
-
-@contextlib.contextmanager
-def thread_errors():
-    """Collect exceptions that end any thread (set inside the test: pytest installs its
-    own hook around the test call)."""
-    errors = []
-    old = threading.excepthook
-    threading.excepthook = errors.append
-    try:
-        yield errors
-    finally:
-        threading.excepthook = old
 
 
 @pytest.fixture

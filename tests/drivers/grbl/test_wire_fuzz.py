@@ -17,6 +17,7 @@ from drivers.grbl import protocol as p
 from drivers.grbl.peer import GrblPeer
 from drivers.registry import open_controller
 from drivers.state import NOT_FRESH, MachineState, implausible
+from tests.drivers.thread_errors import thread_errors
 from drivers.virtual.machine import MachineConfig, VirtualMachine
 
 SESSIONS = 100
@@ -134,13 +135,8 @@ def run_session(seed: int, errors: list) -> dict:
 
 
 def test_wire_fuzz_100_sessions():
-    errors = []
-    old = threading.excepthook
-    threading.excepthook = errors.append  # set here: pytest installs its own around the call
-    try:
+    with thread_errors() as errors:
         results = [run_session(seed, errors) for seed in range(SESSIONS)]
-    finally:
-        threading.excepthook = old
     assert errors == []
     connected = [r for r in results if r["connected"]]
     assert len(connected) >= SESSIONS * 0.8  # mutations are a share, not all: most handshakes succeed

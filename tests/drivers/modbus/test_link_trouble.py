@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 import random
-import threading
 import time
 from dataclasses import replace
 
@@ -19,6 +18,7 @@ from drivers.modbus.server import AnswerFaults, ModbusVirtualServer
 from drivers.registry import open_controller
 from drivers.state import LinkKind, RunState, implausible
 from drivers.virtual.machine import MachineConfig, VirtualMachine
+from tests.drivers.thread_errors import thread_errors
 
 FREE = MachineConfig(travel_min=None, travel_max=None)
 #: client timeout (s) where no timeout is expected: generous, for a busy machine
@@ -41,16 +41,6 @@ def server(vm):
     srv.late_s = LATE_S
     yield srv
     srv.stop()
-
-
-@pytest.fixture
-def thread_errors():
-    """Exceptions that escaped any thread meanwhile (``threading.excepthook``)."""
-    seen = []
-    old = threading.excepthook
-    threading.excepthook = lambda args: seen.append(f"{args.thread.name}: {args.exc_type.__name__}: {args.exc_value}")
-    yield seen
-    threading.excepthook = old
 
 
 def client(srv, timeout=TIMEOUT, **q) -> ModbusController:
@@ -295,37 +285,38 @@ FUZZ = AnswerFaults(late=0.04, busy=0.08, acknowledge=0.04, exception=0.06, shor
                     mutate=0.2, late_s=0.2)
 
 
-def test_fuzz_30_sessions_of_late_busy_garbled_and_non_finite_answers(vm, thread_errors):
+def test_fuzz_30_sessions_of_late_busy_garbled_and_non_finite_answers(vm):
     """Each session: a server drawing answer faults from its own seed, a client polling
     60 times; now and then the server stops and comes back on the same port."""
-    totals = dict.fromkeys(("fresh", "missed", "bad", "disconnected"), 0)
-    causes = dict.fromkeys(CAUSES, 0)
-    for seed in range(30):
-        rng = random.Random(seed)
-        with ModbusVirtualServer(vm, load_map("generic")) as srv:
-            c = ModbusController(load_map("generic"), host="127.0.0.1", port=srv.port, timeout=0.1)
-            c.connect()
-            srv.answers = replace(FUZZ, seed=seed)  # after connect(): its probe read is clean
-            states = []
-            try:
-                for k in range(60):
-                    vm.position[:3] = (rng.uniform(-500, 500), rng.uniform(-500, 500), rng.uniform(-100, 0))
-                    if k in (20, 40) and rng.random() < 0.5:
-                        srv.stop()
-                        states.append(c.poll())
-                        srv.restart()
-                    states.append(c.poll())  # never raises
-                    c.link_events()
-            finally:
-                c.close()
-            ts = [s.t for s in states]
-            assert ts == sorted(ts)
-            for st in states:
-                assert not st.fresh or implausible(st) is None, st.raw
-                totals["fresh" if st.fresh else st.state.value.lower()] += 1
-            assert srv.errors == []
-            causes = {k: n + c.counts[k] for k, n in causes.items()}
-    assert thread_errors == []
+    with thread_errors() as errors:
+        totals = dict.fromkeys(("fresh", "missed", "bad", "disconnected"), 0)
+        causes = dict.fromkeys(CAUSES, 0)
+        for seed in range(30):
+            rng = random.Random(seed)
+            with ModbusVirtualServer(vm, load_map("generic")) as srv:
+                c = ModbusController(load_map("generic"), host="127.0.0.1", port=srv.port, timeout=0.1)
+                c.connect()
+                srv.answers = replace(FUZZ, seed=seed)  # after connect(): its probe read is clean
+                states = []
+                try:
+                    for k in range(60):
+                        vm.position[:3] = (rng.uniform(-500, 500), rng.uniform(-500, 500), rng.uniform(-100, 0))
+                        if k in (20, 40) and rng.random() < 0.5:
+                            srv.stop()
+                            states.append(c.poll())
+                            srv.restart()
+                        states.append(c.poll())  # never raises
+                        c.link_events()
+                finally:
+                    c.close()
+                ts = [s.t for s in states]
+                assert ts == sorted(ts)
+                for st in states:
+                    assert not st.fresh or implausible(st) is None, st.raw
+                    totals["fresh" if st.fresh else st.state.value.lower()] += 1
+                assert srv.errors == []
+                causes = {k: n + c.counts[k] for k, n in causes.items()}
+    assert errors == []
     assert min(totals.values()) > 0, totals
     assert causes.pop("error") == 0  # no failure inside the driver
     assert min(causes.values()) > 0, causes  # every kind of trouble was met
