@@ -44,7 +44,7 @@ from drivers.errors import ConnectionLost, DriverError, ProtocolError
 from drivers.grbl import protocol as p
 from drivers.grbl.driver import url_params
 from drivers.grbl.endpoints import Endpoint, PtyEndpoint, TcpEndpoint
-from drivers.state import Controller, MachineState, RunState
+from drivers.state import Controller, LinkKind, MachineState, RunState
 
 _MAX_HELD = 512  # bytes of an unterminated line held before passing them on anyway
 
@@ -142,11 +142,11 @@ class Passthrough(Controller):
         self._ser = self._open()
         self._connected = True
         if self._want_pty:
-            ep = PtyEndpoint(self._from_sender, self._link)
+            ep = PtyEndpoint(self._from_sender, self._link, on_event=self._endpoint_event)
             self._endpoints.append(ep)
             self.sender_path = ep.path
         if self._tcp_port is not None:
-            ep = TcpEndpoint(self._from_sender, self._tcp_host, self._tcp_port)
+            ep = TcpEndpoint(self._from_sender, self._tcp_host, self._tcp_port, on_event=self._endpoint_event)
             self._endpoints.append(ep)
             self.sender_port = ep.port
         for target, name in ((self._machine_loop, "passthrough machine"), (self._poll_loop, "passthrough poller")):
@@ -183,6 +183,14 @@ class Passthrough(Controller):
             raise ConnectionLost(f"passthrough: cannot open machine port {self.port!r}: {exc}") from exc
 
     # ------------------------------------------------------------------ sender -> machine
+
+    def _endpoint_event(self, endpoint: Endpoint, kind: str, message: str) -> None:
+        """An endpoint's news (from its threads): dropped output and failures become
+        NOTE link events; a sender coming or going wakes :meth:`wait_sender_closed`."""
+        if kind in ("dropping", "error"):
+            self._link_event(LinkKind.NOTE, f"passthrough {message}")
+        with self._cond:
+            self._cond.notify_all()
 
     def _from_sender(self, endpoint: Endpoint, data: bytes) -> None:
         out = bytearray()
