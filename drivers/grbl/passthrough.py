@@ -587,6 +587,38 @@ class Passthrough(Controller):
                 timeout,
             )
 
+    @property
+    def sender_connected(self) -> bool:
+        """A sender has the pty or the TCP port open now."""
+        return any(ep.sender_present for ep in self._endpoints)
+
+    def wait_sender_closed(self, timeout: float | None = None, grace: float = 1.0) -> bool:
+        """Keep serving the sender until it disconnects: True once no sender has any
+        endpoint open (none ever did counts) and none opened one again within ``grace``
+        s; False when ``timeout`` s (None: no limit) passed first or the passthrough
+        closed.
+
+        A TCP sender disconnects by closing its connection; a pty sender by closing the
+        port (the master then hangs up). Bytes keep flowing both ways meanwhile, and a
+        sender that closes and reopens the port within ``grace`` is served on."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+
+        def left() -> float | None:
+            return None if deadline is None else max(0.0, deadline - time.monotonic())
+
+        with self._cond:
+            while True:
+                if not self._cond.wait_for(lambda: not self.sender_connected or self._stop.is_set(), left()):
+                    return False
+                if self._stop.is_set():
+                    return False
+                rest = left()
+                if not self._cond.wait_for(lambda: self.sender_connected or self._stop.is_set(),
+                                           grace if rest is None else min(grace, rest)):
+                    return True
+                if self._stop.is_set():
+                    return False
+
     def feed_hold(self) -> None:
         """Hold the machine's feed (the only command the monitor may send)."""
         self._write_machine(p.RT_FEED_HOLD)
