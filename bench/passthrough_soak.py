@@ -179,7 +179,7 @@ def main(argv=None) -> dict:
             monitor.stop.set()
             monitor.join(5.0)
             sender.sock.close()
-        endpoints = {ep.name: {"dropped": ep.dropped, "discarded": ep.unheard} for ep in pt._endpoints}
+        endpoints = pt.sender_output
         events = [f"{ev.kind.value}: {ev.message}" for ev in pt.link_events()]
     finally:
         pt.close()

@@ -588,6 +588,14 @@ class Passthrough(Controller):
             )
 
     @property
+    def sender_output(self) -> dict[str, dict[str, int]]:
+        """Per endpoint (pty path or ``tcp:host:port``): machine output bytes ``dropped``
+        (a connected sender did not read them in time), ``discarded`` (nobody had it
+        open) and ``buffered`` now."""
+        return {ep.name: {"dropped": ep.dropped, "discarded": ep.unheard, "buffered": ep.buffered}
+                for ep in self._endpoints}
+
+    @property
     def sender_connected(self) -> bool:
         """A sender has the pty or the TCP port open now."""
         return any(ep.sender_present for ep in self._endpoints)

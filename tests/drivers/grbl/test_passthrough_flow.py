@@ -117,8 +117,8 @@ def test_sender_on_tcp_is_not_stalled_by_the_pty_nobody_opened(machine):
         assert pt.poll(timeout=5).fresh and pt.poll(timeout=5).fresh
         assert pt.own_polls > 0 and len(pt.states_seen) > seen
         # what the pty could not deliver was discarded, not queued for a later sender
-        pty = next(ep for ep in pt._endpoints if ep.path == pt.sender_path)
-        assert pty.unheard > 0 and pty.dropped == 0
+        pty = pt.sender_output[pt.sender_path]
+        assert pty["discarded"] > 0 and pty["dropped"] == 0
     finally:
         sender.close()
         pt.close()
@@ -137,10 +137,10 @@ def test_tcp_client_that_never_reads_does_not_stall_the_pty_sender(machine):
         assert sender.answers == ["ok"] * sent
         assert sender.reports == sender.queries
         assert pt.poll(timeout=5).fresh
-        tcp = next(ep for ep in pt._endpoints if getattr(ep, "port", None) == pt.sender_port)
-        assert tcp.dropped > 0
+        tcp = f"tcp:127.0.0.1:{pt.sender_port}"
+        assert pt.sender_output[tcp]["dropped"] > 0
         notes = [ev for ev in pt.link_events() if ev.kind is LinkKind.NOTE and "drop" in ev.message]
-        assert len(notes) == 1 and tcp.name in notes[0].message
+        assert len(notes) == 1 and tcp in notes[0].message
     finally:
         sender.close()
         lazy.close()
