@@ -353,6 +353,8 @@ class Passthrough(Controller):
                     return False
                 self._ser = ser
                 self._connected = True
+                self._own_pending = self._sender_pending = 0  # '?' sent into the void meanwhile
+                self._query_t = None
                 gap = Gap(self._t_lost, t, self._lost_reason, self._polls_missed, self._lines_lost)
                 self.gaps.append(gap)
                 self._cond.notify_all()
