@@ -145,3 +145,23 @@ def test_tcp_client_that_never_reads_does_not_stall_the_pty_sender(machine):
         sender.close()
         lazy.close()
         pt.close()
+
+
+def test_sender_on_tcp_is_not_stalled_by_a_pty_opened_and_never_read(machine):
+    peer, machine_path = machine
+    pt = Passthrough(machine_path, rate=50, tcp_port=0)
+    pt.start()
+    lazy = os.open(pt.sender_path, os.O_RDWR | os.O_NOCTTY)  # opened, never read
+    sender = FastSender.tcp(pt.sender_port)
+    try:
+        sent = sender.stream_until(REPLY_BYTES)
+        assert sender.answers == ["ok"] * sent
+        assert sender.reports == sender.queries
+        assert pt.poll(timeout=5).fresh
+        assert pt.sender_output[pt.sender_path]["dropped"] > 0
+        notes = [ev for ev in pt.link_events() if ev.kind is LinkKind.NOTE and "drop" in ev.message]
+        assert len(notes) == 1 and pt.sender_path in notes[0].message
+    finally:
+        sender.close()
+        os.close(lazy)
+        pt.close()
