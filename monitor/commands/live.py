@@ -76,6 +76,7 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
     writer = RunWriter(run_path)
     feed = None
     connected = False
+    serving = False  # a passthrough stays open for the user's sender after the summary
     try:
         alerter = Alerter(console=console, json_stream=sys.stdout if as_json else None,
                           bell=("bell" in job.alerts) and console is not None,
@@ -114,15 +115,19 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
         # within REALTIME_SWITCH_S, not the default 5 ms, so a poll never waits that long
         switch = sys.getswitchinterval()
         sys.setswitchinterval(REALTIME_SWITCH_S)
+        interrupted = False
         try:
             with status:
                 _follow(session, controller, 1.0 / job.poll_hz, status, done, feed)
         except KeyboardInterrupt:
+            interrupted = True
             err_console.print("interrupted; the run file keeps everything so far")
         finally:
             sys.setswitchinterval(switch)
             gc.unfreeze()
-            controller.close()
+            serving = not interrupted and hasattr(controller, "wait_sender_closed")
+            if not serving:
+                controller.close()
             if feed is not None:
                 feed.close()
         summary = session.finish()
@@ -131,6 +136,10 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
             summary["frames"] = feed.frames
             if feed.error is not None:
                 err_console.print(f"live view stopped: {type(feed.error).__name__}: {feed.error}")
+    except BaseException:
+        if serving:
+            controller.close()
+        raise
     finally:
         writer.close()
         if feed is not None:
@@ -144,7 +153,21 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
         colour = "bold red" if n else "green"
         console.print(f"[{colour}]{n} finding(s)[/{colour}]"
                       + (f": {', '.join(summary['kinds'])}" if n else "") + f"; run file {run_path}")
+    if serving:
+        _serve_sender(controller, console or err_console)
     return 1 if summary["findings"] else 0
+
+
+def _serve_sender(controller, console) -> None:
+    """The monitor is done, the user's sender may not be: a passthrough keeps answering it
+    until it disconnects (or Ctrl-C), then closes."""
+    try:
+        console.print("passthrough stays open for your sender until it disconnects; Ctrl-C to stop")
+        controller.wait_sender_closed()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        controller.close()
 
 
 def _connect(controller) -> None:
