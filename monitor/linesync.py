@@ -186,10 +186,19 @@ class StreamedLines:
         return int(path.lines[path.row[segs[k]]])
 
     def finished(self) -> bool:
-        """The sender streamed the program's last line, it was answered, and the machine
-        stands idle: the job is over."""
+        """The sender streamed the program's last line, the controller answered it
+        (``ok`` or ``error:N``), and the machine stands idle: the job is over.
+
+        A line whose answer went with the link (``"lost"``) or with a reset (``"reset"``)
+        is not answered: the machine may never have run it, and the sender may send it
+        again."""
         learned = self._map_new()
-        done = any(self.mapped[k] == self.last_line and learned[k].result is not None
+        done = any(self.mapped[k] == self.last_line and _answered(learned[k].result)
                    for k in range(len(learned) - 1, max(len(learned) - 8, 0) - 1, -1))
         state = getattr(self.controller, "last_state", None)
         return bool(done and state is not None and state.state == RunState.IDLE)
+
+
+def _answered(result: str | None) -> bool:
+    """True when ``result`` is the controller's own answer to a line (``ok``/``error:N``)."""
+    return result is not None and (result == "ok" or result.startswith("error:"))

@@ -17,6 +17,14 @@ swallowed. A sender ``?`` that arrives while an own poll is outstanding is not s
 again: the report on its way is handed to the sender instead (GRBL may answer two close
 ``?`` with one report, so sending both could leave a reply nobody asked for).
 
+As a :class:`~drivers.state.Controller` it keeps the driver/monitor contract: ``poll()``
+returns a report that arrived after it was called, else MISSED (BAD for numbers no machine
+has, DISCONNECTED while the machine's port is away) and never raises; the port is reopened
+every :data:`RETRY_S` while gone, each outage is a :class:`~drivers.state.Gap` and LOST /
+BACK link events (RESET when the controller's banner passes); no thread dies quietly. The
+machine's output is never held up by a sender (see :mod:`drivers.grbl.endpoints`): lines
+nobody understands reach the sender unchanged.
+
 URLs (see :func:`from_url`; registered in :mod:`drivers.registry`)::
 
     grbl+passthrough:///dev/ttyUSB0?tcp=2323            machine on a serial device
@@ -31,6 +39,8 @@ TCP port listens on, 127.0.0.1).
 from __future__ import annotations
 
 import collections
+import dataclasses
+import math
 import select
 import threading
 import time
@@ -44,9 +54,15 @@ from drivers.errors import ConnectionLost, DriverError, ProtocolError
 from drivers.grbl import protocol as p
 from drivers.grbl.driver import url_params
 from drivers.grbl.endpoints import Endpoint, PtyEndpoint, TcpEndpoint
-from drivers.state import Controller, MachineState, RunState
+from drivers.state import Controller, Gap, LinkKind, MachineState, RunState, implausible, stale_state
 
 _MAX_HELD = 512  # bytes of an unterminated line held before passing them on anyway
+#: pause between attempts to reopen the machine's port while it is gone, s (never grows:
+#: a backoff would cost more than the outage)
+RETRY_S = 0.05
+#: a ``?`` unanswered this long is given up (its reply was garbled or lost), s: own polls
+#: resume and a late report goes to the sender
+QUERY_TIMEOUT_S = 0.5
 
 
 @dataclass
@@ -54,7 +70,7 @@ class LearnedLine:
     """A line the sender streamed: order ``index`` (0-based), text as sent (no line end),
     ``n`` its N word if any, times (monotonic s), and the controller's answer
     (``"ok"``, ``"error:N"``, ``"reset"``, ``"lost"`` when the machine's port went away
-    before it answered, or None while in flight)."""
+    before it answered or was away when the line was sent, or None while in flight)."""
 
     index: int
     text: str
@@ -111,9 +127,11 @@ class Passthrough(Controller):
         self.messages: collections.deque[tuple[float, p.Message]] = collections.deque(maxlen=1000)
         self.states_seen: collections.deque[MachineState] = collections.deque(maxlen=10000)
         self.alarms: list[tuple[float, int]] = []
-        self.gaps: list[tuple[float, float]] = []
+        self.gaps: list[Gap] = []
         self.own_polls = 0
         self.swallowed = 0
+        #: '?' (own or the sender's) whose report never came within QUERY_TIMEOUT_S
+        self.queries_expired = 0
         self.on_state: Callable[[MachineState], None] | None = None
         self.on_line: Callable[[LearnedLine], None] | None = None
         # machinery
@@ -127,8 +145,18 @@ class Passthrough(Controller):
         self._sender_pending = 0
         self._own_pending = 0
         self._last_report_t = 0.0
-        self._state: MachineState | None = None
+        self._state: MachineState | None = None     # the newest plausible state
+        self._latest: MachineState | None = None    # the newest reading: _state or a BAD one
+        self._bad_run = False                       # the newest reports were implausible
+        self._query_t: float | None = None          # when the oldest unanswered '?' went out
         self._status_seq = 0
+        self._last_t = 0.0                          # t of the state poll() returned last
+        # the outage under way: since when, why, what it cost
+        self._t_lost = 0.0
+        self._lost_reason = "not connected yet"
+        self._polls_missed = 0
+        self._lines_lost = 0
+        self._failures: collections.Counter = collections.Counter()
         self._alarm: int | None = None
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
@@ -142,11 +170,11 @@ class Passthrough(Controller):
         self._ser = self._open()
         self._connected = True
         if self._want_pty:
-            ep = PtyEndpoint(self._from_sender, self._link)
+            ep = PtyEndpoint(self._from_sender, self._link, on_event=self._endpoint_event)
             self._endpoints.append(ep)
             self.sender_path = ep.path
         if self._tcp_port is not None:
-            ep = TcpEndpoint(self._from_sender, self._tcp_host, self._tcp_port)
+            ep = TcpEndpoint(self._from_sender, self._tcp_host, self._tcp_port, on_event=self._endpoint_event)
             self._endpoints.append(ep)
             self.sender_port = ep.port
         for target, name in ((self._machine_loop, "passthrough machine"), (self._poll_loop, "passthrough poller")):
@@ -164,14 +192,14 @@ class Passthrough(Controller):
         for ep in self._endpoints:
             ep.close()
         self._endpoints = []
+        for th in self._threads:  # first: a reconnect under way must not open a port after this
+            th.join(2.0)
+        self._threads = []
         if self._ser is not None:
             try:
                 self._ser.close()
             except Exception:  # noqa: BLE001
                 pass
-        for th in self._threads:
-            th.join(2.0)
-        self._threads = []
         with self._cond:
             self._connected = False
             self._cond.notify_all()
@@ -183,6 +211,14 @@ class Passthrough(Controller):
             raise ConnectionLost(f"passthrough: cannot open machine port {self.port!r}: {exc}") from exc
 
     # ------------------------------------------------------------------ sender -> machine
+
+    def _endpoint_event(self, endpoint: Endpoint, kind: str, message: str) -> None:
+        """An endpoint's news (from its threads): dropped output and failures become
+        NOTE link events; a sender coming or going wakes :meth:`wait_sender_closed`."""
+        if kind in ("dropping", "error"):
+            self._link_event(LinkKind.NOTE, f"passthrough {message}")
+        with self._cond:
+            self._cond.notify_all()
 
     def _from_sender(self, endpoint: Endpoint, data: bytes) -> None:
         out = bytearray()
@@ -196,23 +232,33 @@ class Passthrough(Controller):
                         self._sender_pending += 1
                         continue
                     self._sender_pending += 1
+                    self._asked(t)
                     out.append(b)
                     continue
                 out.append(b)
                 if b in p.REALTIME_BYTES:
                     continue
                 if b in (0x0A, 0x0D):
-                    self._end_sender_line(t)
+                    try:
+                        self._end_sender_line(t)
+                    except Exception as exc:  # noqa: BLE001 - learning must never stop forwarding
+                        self._failed("learning a sender line", exc)
                 else:
                     self._sender_rx.append(b)
         if out:
             self._write_machine(bytes(out))
 
+    def _asked(self, t: float) -> None:
+        """A '?' went out at ``t``: time it, unless an older one is still unanswered."""
+        if self._query_t is None:
+            self._query_t = t
+
     def _end_sender_line(self, t: float) -> None:
         text = self._sender_rx.decode("latin-1").strip()
         self._sender_rx.clear()
         if not text:
-            self._awaiting.append(None)  # GRBL answers an empty line with ok too
+            if self._connected:
+                self._awaiting.append(None)  # GRBL answers an empty line with ok too
             return
         line = LearnedLine(len(self.lines), text, t)
         stripped = text.lstrip().upper()
@@ -225,10 +271,14 @@ class Passthrough(Controller):
                     break
             line.n = int(digits) if digits else None
         self.lines.append(line)
-        self._awaiting.append(line)
+        if self._connected:
+            self._awaiting.append(line)
+        else:  # its bytes go nowhere, as with a pulled cable: never answered
+            line.result, line.t_ack = "lost", t
+            self._lines_lost += 1
         self._cond.notify_all()
         if self.on_line is not None:
-            self.on_line(line)
+            self._call(self.on_line, line)
 
     def _write_machine(self, data: bytes) -> None:
         ser = self._ser
@@ -243,49 +293,86 @@ class Passthrough(Controller):
     # ------------------------------------------------------------------ machine -> sender
 
     def _machine_loop(self) -> None:
-        backoff = 0.05
         while not self._stop.is_set():
-            ser = self._ser
             try:
-                fd = ser.fileno()
-                ready, _, _ = select.select([fd], [], [], 0.05)
-                if not ready:
-                    continue
-                data = ser.read(4096)
-                if not data:
-                    raise ConnectionLost("machine port readable but returned no data")
-            except Exception:  # noqa: BLE001 - the machine's port went away
+                data = self._read_machine()
+            except Exception as exc:  # noqa: BLE001 - the machine's port went away
                 if self._stop.is_set():
                     return
-                t_lost = time.monotonic()
-                with self._cond:
-                    self._connected = False
-                    self._own_pending = 0
-                    self._cond.notify_all()
-                try:
-                    ser.close()
-                except Exception:  # noqa: BLE001
-                    pass
-                while not self._stop.wait(backoff):
-                    try:
-                        self._ser = self._open()
-                    except ConnectionLost:
-                        backoff = min(2.0, backoff * 2)
-                        continue
-                    with self._cond:
-                        self._connected = True
-                        self.gaps.append((t_lost, time.monotonic()))
-                        for line in self._awaiting:  # their acknowledgements went with the port
-                            if line is not None:
-                                line.result = "lost"
-                        self._awaiting.clear()
-                        self._sender_pending = 0
-                        self._machine_rx.clear()
-                        self._cond.notify_all()
-                    backoff = 0.05
-                    break
+                self._lose(str(exc) or type(exc).__name__)
+                if not self._reconnect():
+                    return
                 continue
-            self._from_machine(data, time.monotonic())
+            if data:
+                try:
+                    self._from_machine(data, time.monotonic())
+                except Exception as exc:  # noqa: BLE001 - the reader must outlive any chunk
+                    self._failed("handling machine output", exc, data)
+
+    def _read_machine(self) -> bytes:
+        """What the machine sent within 0.05 s (b"" if nothing); raises if the port is gone."""
+        ser = self._ser
+        ready, _, _ = select.select([ser.fileno()], [], [], 0.05)
+        if not ready:
+            return b""
+        data = ser.read(4096)
+        if not data:
+            raise ConnectionLost("the port was closed (end of file)")
+        return data
+
+    def _lose(self, reason: str) -> None:
+        """The machine's port went away: fail what was in flight, say so."""
+        t = time.monotonic()
+        with self._cond:
+            self._connected = False
+            self._t_lost, self._lost_reason, self._polls_missed = t, reason, 0
+            self._lines_lost = self._fail_awaiting("lost", t)
+            self._own_pending = self._sender_pending = 0
+            self._query_t = None
+            self._machine_rx.clear()
+            self._asm.reset()
+            self._cond.notify_all()
+        self._link_event(LinkKind.LOST, f"passthrough: machine port {self.port} lost ({reason}); "
+                                        f"retrying every {RETRY_S:g} s", t=t)
+        try:
+            self._ser.close()
+        except Exception:  # noqa: BLE001 - already gone
+            pass
+
+    def _reconnect(self) -> bool:
+        """Reopen the machine's port every RETRY_S until it opens (True) or close() (False)."""
+        while not self._stop.wait(RETRY_S):  # retry pacing, interruptible by close()
+            try:
+                ser = self._open()
+            except Exception:  # noqa: BLE001 - still gone
+                continue
+            t = time.monotonic()
+            with self._cond:
+                if self._stop.is_set():
+                    ser.close()
+                    return False
+                self._ser = ser
+                self._connected = True
+                self._own_pending = self._sender_pending = 0  # '?' sent into the void meanwhile
+                self._query_t = None
+                gap = Gap(self._t_lost, t, self._lost_reason, self._polls_missed, self._lines_lost)
+                self.gaps.append(gap)
+                self._cond.notify_all()
+            self._link_event(LinkKind.BACK, f"passthrough: machine port {self.port} back after "
+                                            f"{gap.seconds:.2f} s ({gap.polls_missed} poll(s) missed, "
+                                            f"{gap.lines_lost} line(s) lost)", gap=gap, t=t)
+            return True
+        return False
+
+    def _fail_awaiting(self, result: str, t: float) -> int:
+        """Give every line awaiting its answer ``result`` (under ``_cond``); return how many."""
+        n = 0
+        for line in self._awaiting:
+            if line is not None:
+                line.result, line.t_ack = result, t
+                n += 1
+        self._awaiting.clear()
+        return n
 
     def _from_machine(self, data: bytes, t: float) -> None:
         self._machine_rx += data
@@ -296,14 +383,19 @@ class Passthrough(Controller):
                 break
             raw = bytes(self._machine_rx[: i + 1])
             del self._machine_rx[: i + 1]
-            if self._route_line(raw, t):
+            try:
+                keep = self._route_line(raw, t)
+            except Exception as exc:  # noqa: BLE001 - a line nobody understands still reaches the sender
+                self._failed("reading a machine line", exc, raw)
+                keep = True
+            if keep:
                 forward += raw
         if len(self._machine_rx) > _MAX_HELD:  # no line end coming: pass the noise on
             forward += self._machine_rx
             self._machine_rx.clear()
         if forward:
             for ep in list(self._endpoints):
-                ep.write(bytes(forward))
+                ep.write(bytes(forward))  # never blocks (see drivers.grbl.endpoints)
 
     def _route_line(self, raw: bytes, t: float) -> bool:
         """Learn from one machine line; True if the sender gets it."""
@@ -317,17 +409,9 @@ class Passthrough(Controller):
             return True
         with self._cond:
             if isinstance(msg, p.StatusReport):
+                to_sender = self._answer_query()
                 self._on_status(msg, t)
-                if self._sender_pending:
-                    self._sender_pending -= 1
-                    if self._own_pending:
-                        self._own_pending -= 1
-                    return True
-                if self._own_pending:
-                    self._own_pending -= 1
-                    self.swallowed += 1
-                    return False
-                return True
+                return to_sender
             self.messages.append((t, msg))
             if isinstance(msg, (p.Ok, p.Error)):
                 while self._awaiting:
@@ -337,46 +421,110 @@ class Passthrough(Controller):
                     line.result, line.t_ack = msg.raw.strip(), t
                     break
             elif isinstance(msg, p.Banner):
-                for line in self._awaiting:
-                    if line is not None:
-                        line.result, line.t_ack = "reset", t
-                self._awaiting.clear()
+                self._fail_awaiting("reset", t)
                 self._sender_pending = self._own_pending = 0
+                self._query_t = None
+                self._link_event(LinkKind.RESET, f"passthrough: the controller on {self.port} reset "
+                                                 f"({text.strip()})", raw=text, t=t)
             elif isinstance(msg, p.Alarm):
                 self._alarm = msg.code
                 self.alarms.append((t, msg.code))
-            elif isinstance(msg, p.Setting):
-                self.settings[msg.number] = msg.value
+            elif isinstance(msg, p.Setting) and math.isfinite(msg.value):
+                self.settings[msg.number] = msg.value  # a value no number names is not learned
             self._cond.notify_all()
         return True
 
+    def _answer_query(self) -> bool:
+        """A status report arrived (under ``_cond``): whose '?' it answers; True if the
+        sender's (or nobody's: the sender gets what it did not ask for, as from GRBL)."""
+        to_sender = True
+        if self._sender_pending:
+            self._sender_pending -= 1
+            if self._own_pending:
+                self._own_pending -= 1
+        elif self._own_pending:
+            self._own_pending -= 1
+            self.swallowed += 1
+            to_sender = False
+        self._query_t = time.monotonic() if self._sender_pending or self._own_pending else None
+        return to_sender
+
     def _on_status(self, report: p.StatusReport, t: float) -> None:
+        """Turn a report into the newest reading (under ``_cond``): a state, or BAD when
+        its numbers cannot be right (the last plausible state is kept)."""
         prev = self._state
-        state = p.status_to_state(report, self.settings, prev.wco if prev else None, t, prev=prev, alarm=self._alarm)
-        self._state = state
+        try:
+            state = p.status_to_state(report, self.settings, prev.wco if prev else None, t, prev=prev,
+                                      alarm=self._alarm)
+            why = implausible(state)
+        except (ArithmeticError, ValueError) as exc:  # numbers no machine has
+            state, why = None, f"cannot be converted ({type(exc).__name__}: {exc})"
         self._status_seq += 1
         self._last_report_t = t
+        if why is not None:
+            self._latest = stale_state(prev, RunState.BAD, t, f"{why}: {report.raw}")
+            if not self._bad_run:  # once per run of bad reports, not 20 times a second
+                self._link_event(LinkKind.BAD, f"passthrough {self.port}: status report with {why}; "
+                                               "recorded as bad and skipped", raw=report.raw, t=t)
+            self._bad_run = True
+            self._cond.notify_all()
+            return
+        self._bad_run = False
+        self._state = self._latest = state
         self.states_seen.append(state)
         self._cond.notify_all()
         if self.on_state is not None:
-            self.on_state(state)
+            self._call(self.on_state, state)
 
     # ------------------------------------------------------------------ own polls
 
     def _poll_loop(self) -> None:
         period = 1.0 / self.rate
-        while not self._stop.is_set():
-            with self._cond:
-                quiet = time.monotonic() - self._last_report_t >= period
-                if quiet and self._connected and not self._own_pending and not self._sender_pending:
-                    self._own_pending += 1
-                    self.own_polls += 1
-                    send = True
-                else:
-                    send = False
+        while not self._stop.wait(period / 4):  # pacing the poll clock
+            try:
+                self._poll_once(period)
+            except Exception as exc:  # noqa: BLE001 - the poller must not die quietly
+                self._failed("polling", exc)
+
+    def _poll_once(self, period: float) -> None:
+        """Send an own '?' when reports do not come at ``period`` and none is outstanding;
+        give up a '?' unanswered for QUERY_TIMEOUT_S."""
+        with self._cond:
+            now = time.monotonic()
+            if self._query_t is not None and now - self._query_t > QUERY_TIMEOUT_S:
+                self.queries_expired += self._own_pending + self._sender_pending
+                self._own_pending = self._sender_pending = 0
+                self._query_t = None
+            quiet = now - self._last_report_t >= period
+            send = quiet and self._connected and not self._own_pending and not self._sender_pending
             if send:
-                self._write_machine(p.RT_STATUS)
-            self._stop.wait(period / 4)  # pacing the poll clock
+                self._own_pending += 1
+                self.own_polls += 1
+                self._asked(now)
+        if send:
+            self._write_machine(p.RT_STATUS)
+
+    # ------------------------------------------------------------------ failures
+
+    def _call(self, callback: Callable, arg) -> None:
+        """Call a user's callback; its exception is reported, never fatal to the caller."""
+        try:
+            callback(arg)
+        except Exception as exc:  # noqa: BLE001 - the monitor's bug must not stop the machine's path
+            self._failed(f"callback {getattr(callback, '__name__', callback)!r}", exc)
+
+    def _failed(self, doing: str, exc: BaseException, raw: bytes = b"") -> None:
+        """A failure inside the passthrough: a NOTE the first time it happens (then counted
+        in ``failures``), and the thread goes on."""
+        message = f"passthrough {self.port}: {doing} failed: {type(exc).__name__}: {exc}"
+        self._failures[message] += 1
+        if self._failures[message] == 1:
+            self._link_event(LinkKind.NOTE, message, raw=raw.decode("latin-1")[:200])
+
+    @property
+    def failures(self) -> dict[str, int]:
+        """Failures inside the passthrough that were survived: message -> times."""
+        return dict(self._failures)
 
     # ------------------------------------------------------------------ Controller
 
@@ -402,20 +550,29 @@ class Passthrough(Controller):
         return out
 
     def poll(self, timeout: float = 0.5) -> MachineState:
-        """The next status report seen (own poll or the sender's), stamped at arrival."""
+        """The first status report that arrives after the call (the reply to an own poll
+        or to the sender's), stamped at arrival. Never the same state twice: MISSED
+        (stamped now, at the last known position) when none comes within ``timeout`` s,
+        BAD when its numbers cannot be right, DISCONNECTED while the machine's port is
+        away. Never raises."""
         with self._cond:
             seq = self._status_seq
             self._cond.wait_for(lambda: self._status_seq > seq or not self._connected, timeout)
-            state = self._state
-            connected = self._connected
+            connected, fresh = self._connected, self._status_seq > seq
+            latest, last = self._latest, self._state
+            if not connected:
+                self._polls_missed += 1
+        t = time.monotonic()
         if not connected:
-            last = state
-            t = time.monotonic()
-            if last is None:
-                return MachineState(t=t, mpos=(0.0,) * 6, state=RunState.DISCONNECTED, raw="machine port lost")
-            return MachineState(t=t, mpos=last.mpos, wco=last.wco, state=RunState.DISCONNECTED, raw="machine port lost")
-        if state is None:
-            raise DriverError(f"passthrough {self.port}: no status report within {timeout:g} s")
+            state = stale_state(last, RunState.DISCONNECTED, t,
+                                f"machine port {self.port} lost ({self._lost_reason})")
+        elif not fresh or latest is None:
+            state = stale_state(last, RunState.MISSED, t, f"no status report within {timeout:g} s")
+        else:
+            state = latest
+        if state.t < self._last_t:  # t never goes backwards
+            state = dataclasses.replace(state, t=self._last_t)
+        self._last_t = state.t
         return state
 
     def wait_connected(self, timeout: float) -> bool:
@@ -431,6 +588,46 @@ class Passthrough(Controller):
                 and (not acked or all(line.result is not None for line in self.lines[:count])),
                 timeout,
             )
+
+    @property
+    def sender_output(self) -> dict[str, dict[str, int]]:
+        """Per endpoint (pty path or ``tcp:host:port``): machine output bytes ``dropped``
+        (a connected sender did not read them in time), ``discarded`` (nobody had it
+        open) and ``buffered`` now."""
+        return {ep.name: {"dropped": ep.dropped, "discarded": ep.unheard, "buffered": ep.buffered}
+                for ep in self._endpoints}
+
+    @property
+    def sender_connected(self) -> bool:
+        """A sender has the pty or the TCP port open now."""
+        return any(ep.sender_present for ep in self._endpoints)
+
+    def wait_sender_closed(self, timeout: float | None = None, grace: float = 1.0) -> bool:
+        """Keep serving the sender until it disconnects: True once no sender has any
+        endpoint open (none ever did counts) and none opened one again within ``grace``
+        s; False when ``timeout`` s (None: no limit) passed first or the passthrough
+        closed.
+
+        A TCP sender disconnects by closing its connection; a pty sender by closing the
+        port (the master then hangs up). Bytes keep flowing both ways meanwhile, and a
+        sender that closes and reopens the port within ``grace`` is served on."""
+        deadline = None if timeout is None else time.monotonic() + timeout
+
+        def left() -> float | None:
+            return None if deadline is None else max(0.0, deadline - time.monotonic())
+
+        with self._cond:
+            while True:
+                if not self._cond.wait_for(lambda: not self.sender_connected or self._stop.is_set(), left()):
+                    return False
+                if self._stop.is_set():
+                    return False
+                rest = left()
+                if not self._cond.wait_for(lambda: self.sender_connected or self._stop.is_set(),
+                                           grace if rest is None else min(grace, rest)):
+                    return True
+                if self._stop.is_set():
+                    return False
 
     def feed_hold(self) -> None:
         """Hold the machine's feed (the only command the monitor may send)."""

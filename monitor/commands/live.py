@@ -87,6 +87,7 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
     writer = RunWriter(run_path)
     feed = None
     connected = False
+    serving = False  # a passthrough stays open for the user's sender after the summary
     try:
         alerter = Alerter(console=console, json_stream=sys.stdout if as_json else None,
                           bell=("bell" in job.alerts) and console is not None,
@@ -135,7 +136,12 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
         finally:
             sys.setswitchinterval(switch)
             gc.unfreeze()
-            controller.close()
+            # a passthrough serves the user's sender on after the summary, unless the run
+            # was interrupted or the machine is gone
+            serving = (session.end_reason != "interrupted" and not session.end_reason.startswith("gave up")
+                       and hasattr(controller, "wait_sender_closed"))
+            if not serving:
+                controller.close()
             if feed is not None:
                 feed.close()
         gave_up = session.end_reason.startswith("gave up")
@@ -148,6 +154,10 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
             summary["frames"] = feed.frames
             if feed.error is not None:
                 err_console.print(f"live view stopped: {type(feed.error).__name__}: {feed.error}")
+    except BaseException:
+        if serving:
+            controller.close()
+        raise
     finally:
         writer.close()
         if feed is not None:
@@ -158,6 +168,8 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
         _jsonl(summary)
     elif not quiet:
         _print_summary(console, summary, run_path)
+    if serving:
+        _serve_sender(controller, console or err_console)
     if gave_up:
         return 2
     return 1 if summary["findings"] else 0
@@ -200,6 +212,18 @@ def _notifier(console, as_json: bool, writer):
             label = "gap" if rec.get("event") == "gap" else "link"
             console.print(f"[{style}]{label}: {_escape(rec.get('message', ''))}[/{style}]", soft_wrap=True)
     return notify
+
+
+def _serve_sender(controller, console) -> None:
+    """The monitor is done, the user's sender may not be: a passthrough keeps answering it
+    until it disconnects (or Ctrl-C), then closes."""
+    try:
+        console.print("passthrough stays open for your sender until it disconnects; Ctrl-C to stop")
+        controller.wait_sender_closed()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        controller.close()
 
 
 def _connect(controller) -> None:

@@ -169,7 +169,7 @@ def test_machine_port_vanishes_and_comes_back():
         assert sender.command("G1 X4") == ["ok"]  # the sender carries on through the new link
         while not sender.query().startswith("<Idle"):
             pass
-        assert len(pt.gaps) == 1 and pt.gaps[0][1] > pt.gaps[0][0]
+        assert len(pt.gaps) == 1 and pt.gaps[0].t_back > pt.gaps[0].t_lost
         assert pt.poll().mpos[0] == pytest.approx(4.0)
         assert len(sender.reports) == sender.queries
     finally:
