@@ -76,6 +76,8 @@ class Endpoint:
         if self.closed or not data:
             return
         started_dropping = False
+        if not self.sender_present and self._opened_meanwhile():
+            self._set_present(True)  # before the reader thread's next look: keep these bytes
         with self._out_cond:
             if not self.sender_present:
                 self.unheard += len(data)
@@ -114,6 +116,10 @@ class Endpoint:
             if left:
                 with self._out_cond:
                     self.unheard += left
+
+    def _opened_meanwhile(self) -> bool:
+        """True when a sender has opened the endpoint since the reader last looked."""
+        return False
 
     def _deliver(self, chunk: bytes) -> int:  # pragma: no cover - overridden
         """Hand ``chunk`` to the sender (may block; returns at close); return the bytes
@@ -239,6 +245,11 @@ class PtyEndpoint(Endpoint):
         elif ev & (select.POLLHUP | select.POLLERR | select.POLLIN):
             self._set_present(False)
         return False
+
+    def _opened_meanwhile(self) -> bool:
+        # a master whose slave nobody holds polls as hung up
+        ev, _ = self._master_events(select.POLLIN, 0)
+        return bool(ev & select.POLLIN) or not ev & select.POLLHUP
 
     def _wait_wake(self, timeout: float) -> bool:
         """Sleep up to ``timeout`` s unless closed; True if closed."""

@@ -201,8 +201,9 @@ def test_garbage_reaches_the_sender_and_breaks_nothing(scripted):
     assert pt.poll(timeout=WAIT).fresh
     # an unparsable setting value (inf) and noise pushed unasked; replies to own polls
     # with a huge line number, and garbage: the poller must not wait for those forever
-    huge = "<Run|MPos:0.000,0.000,0.000|Ln:" + "9" * 30 + "|FS:0,0>"
-    m.reports[:] = [huge, "<Idle|MPos:1.0,zz", "", IDLE]
+    huge = "<Run|MPos:9999999.000,0.000,0.000|FS:0,0>"  # 10 km: parses, but no machine's
+    huge_ln = "<Run|MPos:0.000,0.000,0.000|Ln:" + "9" * 30 + "|FS:0,0>"  # garbage: no GRBL line number
+    m.reports[:] = [huge_ln, huge, "<Idle|MPos:1.0,zz", "", IDLE]
     m.push(b"$13=" + b"9" * 400 + b"\r\n\xff\xfe<Idle|MPos:zz\r\n")
     got = sender.read_until(b"<Idle|MPos:zz")
     assert b"$13=" + b"9" * 400 + b"\r\n\xff\xfe<Idle|MPos:zz" in got  # forwarded as they came
@@ -216,7 +217,7 @@ def test_garbage_reaches_the_sender_and_breaks_nothing(scripted):
     assert fresh >= 3 and st.mpos[:3] == (1.0, 2.0, 3.0)
     assert 13 not in pt.settings  # an infinite setting is not learned
     bads = _events(pt, LinkKind.BAD)
-    assert len(bads) == 1 and "line" in bads[0].message and huge in bads[0].raw
+    assert len(bads) == 1 and "position" in bads[0].message and huge in bads[0].raw
 
 
 def test_a_failing_callback_kills_no_thread(scripted):
