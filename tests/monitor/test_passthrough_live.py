@@ -142,8 +142,10 @@ def test_live_follows_a_sender_through_the_passthrough(machine, tmp_path, monkey
     check_planted(findings)
     assert out[-1]["event"] == "summary" and out[-1]["progress_s"] == pytest.approx(out[-1]["program_s"], abs=0.5)
     # the session followed the stream: most states synced on a line the sender streamed
+    # (which lines a state happens to fall on depends on the machine's speed: the planted
+    # findings' lines are checked above, through the findings themselves)
     on_line = [p for p in picks if p is not None]
-    assert len(on_line) > 0.8 * len(picks) and {22, 36} <= set(on_line), picks
+    assert len(on_line) > 0.8 * len(picks) and len(set(on_line)) >= 10, picks
     r = RunReader(run)
     assert r.state_count() == len(picks) and len(list(r.cuts())) > 20
 
