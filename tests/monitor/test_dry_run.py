@@ -117,9 +117,10 @@ def _session(job, moves):
     return s
 
 
-def _follow_over(example, serve):
+def _follow_over(example, serve, until_done: bool = True):
     """Follow the example job on the fast virtual machine, run at 12x by a real-time
-    runner, through the controller a peer serves: ``serve(vm) -> (url, close)``."""
+    runner, through the controller a peer serves: ``serve(vm) -> (url, close)``. Without
+    ``until_done`` the loop is not told when the machine finished: it must see it."""
     from drivers.registry import open_controller
     from drivers.virtual.controller import ProgramFeeder
     from drivers.virtual.runner import RealTimeRunner
@@ -138,7 +139,7 @@ def _follow_over(example, serve):
         controller = open_controller(url)
         controller.connect()
         try:
-            run_controller(s, controller, 0.01, done=done, max_seconds=60)
+            run_controller(s, controller, 0.01, done=done if until_done else None, max_seconds=120)
         finally:
             controller.close()
     finally:
@@ -154,6 +155,20 @@ def test_grbl_peer_over_pty(example):
         peer = GrblPeer(vm, run=False)
         return f"grbl://{peer.serve_pty()}", peer.close
     check_planted(_follow_over(example, serve).findings)
+
+
+def test_live_on_a_grbl_device_ends_at_the_programs_end(example):
+    """The machine sits idle at the final position: the run ends there by itself, with
+    its findings (it used to wait for Ctrl-C: the end was the table's M2 row, which sync
+    never reaches)."""
+    from drivers.grbl.peer import GrblPeer
+
+    def serve(vm):
+        peer = GrblPeer(vm, run=False)
+        return f"grbl://{peer.serve_pty()}", peer.close
+    s = _follow_over(example, serve, until_done=False)
+    assert s.end_reason == "program end"
+    check_planted(s.findings)
 
 
 def test_modbus_peer_over_tcp(example):
