@@ -58,6 +58,10 @@ needs; paths are relative to the job file's folder)::
     max_rate = [5000, 5000, 2000]   # mm/min (one number: every axis)
     acceleration = [300, 300, 200]  # mm/s^2
     junction_deviation = 0.01       # mm
+    start = [0, 0, 0]           # where the machine stands when the program starts: machine
+                                # coords (mm, like [limits]), e.g. where it homes. Default:
+                                # the top of [limits] z above the program's first point (else
+                                # 10 mm above stock, fixtures and program); see monitor.start
 
 Errors name the file, the key and what was expected:
 ``job.toml: [stock] box: expected 6 numbers (mm), got "abc"``.
@@ -161,6 +165,9 @@ class Job:
     #: machine limits for program timing: {"max_rate": (3,), "acceleration": (3,),
     #: "junction_deviation": mm}; None: :data:`DEFAULT_MACHINE`
     machine: dict | None = None
+    #: where the machine stands when the program starts, machine coords (3,) mm; None: the
+    #: default of :func:`monitor.start.job_start`
+    start: tuple[float, float, float] | None = None
 
     def tool(self, number: int) -> ToolDef | None:
         """The tool for tool number ``number`` (the default tool when it is not listed)."""
@@ -453,7 +460,11 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
 
     if "machine" in doc:
         t = ctx.table(doc["machine"], "[machine]")
-        ctx.no_unknown(t, {"max_rate", "acceleration", "junction_deviation"}, "[machine]")
+        ctx.no_unknown(t, {"max_rate", "acceleration", "junction_deviation", "start"}, "[machine]")
+        if "start" in t:
+            job.start = ctx.numbers(t["start"], 3, "[machine] start", "mm, machine coords: x, y, z")
+            t = {k: v for k, v in t.items() if k != "start"}
+    if "machine" in doc and t:  # timing limits given (start alone leaves the default timing)
         m = dict(DEFAULT_MACHINE)
         for key, unit in (("max_rate", "mm/min"), ("acceleration", "mm/s^2")):
             if key in t:

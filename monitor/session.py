@@ -76,13 +76,19 @@ class StepInfo:
 
 
 def load_moves(job: Job) -> np.ndarray:
-    """The job's program as a move table (MOVE_DTYPE), via the G-code interpreter."""
+    """The job's program as a move table (MOVE_DTYPE), via the G-code interpreter, and the
+    program; both start where the machine starts (:mod:`monitor.start`), not at machine zero."""
+    from monitor.start import job_start, start_at
     from sim.gcode import Limits, load_program
 
     program = load_program(job.program, dialect=job.dialect, tool_table=job.tool_table, var_file=job.var_file,
                            machine_units=job.machine_units, limits=Limits(max_loop=job.max_loop),
                            subroutine_path=[str(d) for d in job.subroutine_path] or None)
-    return np.asarray(program.moves), program
+    moves = np.asarray(program.moves)
+    start = job_start(job, moves)
+    if start is not None:
+        program.moves = moves = start_at(moves, start)  # its cycle time runs from there too
+    return moves, program
 
 
 def program_seconds(program, moves: np.ndarray, machine=None) -> np.ndarray:

@@ -1,0 +1,109 @@
+"""Where a dry run starts, the first move checked alike by ``simulate`` and ``dry-run``, and
+wrong setups never reported as clean (issue 12).
+
+The dry runs go through ``monitor.cli.main`` on the virtual controller with ``--json`` and
+``--clock sim`` (the machine moves a fixed time per poll: the same run however busy the
+computer is)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from monitor.cli import main
+
+#: a short program: up to Z15, over to (5, 5), a 2 mm deep slot, back up
+PROGRAM = """G21 G90 G17 G94 G54
+T1 M6
+S10000 M3
+G0 Z15
+G0 X5 Y5
+G1 Z8 F600
+G1 X30
+G1 Y20
+G0 Z{retract}
+M5
+M30
+"""
+FIRST_RAPID_LINE = 4
+
+
+def write_job(tmp_path: Path, stock, tables: str = "", top: str = "", program: str | None = None,
+              retract: float = 15) -> Path:
+    """A job file for ``PROGRAM`` (or ``program``) with a box stock, a 6 mm flat tool, ``top``
+    (top-level keys) and ``tables`` (TOML tables, at the end)."""
+    (tmp_path / "p.nc").write_text(program if program is not None else PROGRAM.format(retract=retract))
+    job = tmp_path / "job.toml"
+    job.write_text(f"""{top}
+resolution = 0.5
+[program]
+path = "p.nc"
+[stock]
+box = {list(stock)}
+[tools]
+1 = "flat:6:L=20"
+{tables}""")
+    return job
+
+
+def dry_run(capsys, job: Path, *flags) -> tuple[int, list[dict]]:
+    code = main(["dry-run", str(job), "--clock", "sim", "--speed", "10", "--json",
+                 "--run", str(job.parent / "run.sqlite"), *flags])
+    out = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert out[-1]["event"] == "summary" and out[-1]["stages"] > 0 and out[-1]["ended"] == "done", out[-1]
+    return code, out
+
+
+def simulate(capsys, job: Path) -> tuple[int, dict]:
+    code = main(["simulate", str(job), "--json"])
+    return code, json.loads(capsys.readouterr().out)
+
+
+def findings_of(out: list[dict]) -> list[dict]:
+    return [x for x in out if x.get("event") == "finding"]
+
+
+def kinds_lines(findings) -> set[tuple[str, int]]:
+    return {(f["kind"], f["line"]) for f in findings}
+
+
+# --- the start position -------------------------------------------------------------------
+
+def test_a_stock_around_machine_zero_gives_no_false_finding_at_the_first_move(tmp_path, capsys):
+    """The virtual machine used to start at machine (0, 0, 0), inside this stock: its first
+    rapid up to Z15 went through the material (a false rapid_into_stock)."""
+    job = write_job(tmp_path, [-5, -5, -10, 40, 30, 10])
+    code, out = dry_run(capsys, job)
+    assert findings_of(out) == [] and code == 0, findings_of(out)
+    code, doc = simulate(capsys, job)
+    assert doc["findings"] == [] and code == 0
+
+
+def test_a_first_rapid_past_a_travel_limit_is_reported_by_simulate_and_dry_run(tmp_path, capsys):
+    """simulate used to skip the first rapid for every check; it now runs from the start
+    position (the top of Z travel above the first point), so a first rapid past the Z
+    travel is reported, by both commands alike."""
+    job = write_job(tmp_path, [2, 2, 0, 40, 30, 10], retract=11,
+                    tables="[limits]\nx = [-100, 100]\ny = [-100, 100]\nz = [-50, 12]\n")
+    code, doc = simulate(capsys, job)
+    assert code == 1 and first_rapid_past_z(doc["findings"]), doc["findings"]
+    code, out = dry_run(capsys, job)
+    assert code == 1 and first_rapid_past_z(findings_of(out)), findings_of(out)
+
+
+def first_rapid_past_z(findings) -> bool:
+    """The findings are one travel_limit in Z from the first rapid on (up at Z15, over to
+    the slot and down past Z12 again)."""
+    return (len(findings) == 1 and findings[0]["kind"] == "travel_limit" and findings[0]["lines"][0] == FIRST_RAPID_LINE
+            and findings[0]["detail"]["axis"].upper() == "Z")
+
+
+def test_a_first_rapid_through_the_stock_is_reported_by_both(tmp_path, capsys):
+    """From the start position the first rapid is checked as a rapid: one that goes down
+    through the stock is a rapid_into_stock in both commands."""
+    program = PROGRAM.format(retract=15).replace("G0 Z15\nG0 X5 Y5\n", "G0 X20 Y15 Z5\nG0 X5 Y5 Z15\n", 1)
+    job = write_job(tmp_path, [0, 0, 0, 40, 30, 10], program=program)
+    code, doc = simulate(capsys, job)
+    assert code == 1 and ("rapid_into_stock", FIRST_RAPID_LINE) in kinds_lines(doc["findings"]), doc["findings"]
+    code, out = dry_run(capsys, job)
+    assert code == 1 and ("rapid_into_stock", FIRST_RAPID_LINE) in kinds_lines(findings_of(out)), findings_of(out)
