@@ -105,7 +105,10 @@ def _where(rec: dict) -> str:
 
 
 def format_finding(f: dict) -> str:
-    """One line for a person: kind, line, position, lead time and the finding's message."""
+    """One line for a person: kind, line, position, lead time and the finding's message
+    (a setup finding: its message, which says what looks wrong and what to check)."""
+    if f.get("kind") == "setup":
+        return "SETUP: " + str(f.get("message", "")).removeprefix("setup: ")
     lead = f.get("lead_time_s")
     when = "now" if lead is None or lead <= 0 else f"in {lead:.1f} s"
     pos = f.get("position") or []

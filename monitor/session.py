@@ -175,6 +175,8 @@ class Session:
         self.view = None                 # a monitor.render.live.ViewFeed, or None
         self.line_source = None          # a monitor.linesync.StreamedLines, or None
         self._changed: np.ndarray | None = None
+        #: compares the reported WCO with the job's work_offset (:meth:`check_setup`), or None
+        self._offset_check = None
         if run is not None:
             run.put_meta("job", job.text)
             run.put_meta("program", program_text)
@@ -237,6 +239,20 @@ class Session:
                 except Exception:
                     pass
         return time.perf_counter() - t0
+
+    def check_setup(self, inch: bool = False, reports_wco: bool = True, t: float | None = None) -> list[dict]:
+        """Alert what cannot be the setup the user meant, before any cutting is judged
+        (:mod:`monitor.setup_check`): a stock the path never reaches, a design outside the
+        stock (``inch``: the program is in G20); and from now on, when the job gives a
+        ``work_offset`` and the controller ``reports_wco``, a reported WCO that differs
+        (once). Returns the records alerted."""
+        from monitor.setup_check import WorkOffsetCheck, setup_records
+
+        if self.job.work_offset is not None and reports_wco:
+            self._offset_check = WorkOffsetCheck(self.job.work_offset, self.moves_machine, self.reference_wco)
+        fresh = self.alerter.offer(setup_records(self.wp, self.moves, inch, t), t=t)
+        self.findings += fresh
+        return fresh
 
     def attach_view(self, feed) -> None:
         """Post every state to ``feed`` (a :class:`monitor.render.live.ViewFeed`): the
@@ -347,8 +363,9 @@ class Session:
         elif not np.array_equal(wco, self.lookahead.wco):
             self.lookahead.set_wco(wco)
         self.live_checks.set_wco(wco)
-        fresh, info.removed = self._cut_live(tip, s, state)
-        fresh += self._predict(s, state)
+        fresh = self._offset_check.see(state, tip) if self._offset_check is not None else []
+        cut, info.removed = self._cut_live(tip, s, state)
+        fresh += cut + self._predict(s, state)
         if fresh:
             info.new_findings = self._alert(fresh, state)
         if self.view is not None:

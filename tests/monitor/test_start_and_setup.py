@@ -29,15 +29,17 @@ FIRST_RAPID_LINE = 4
 
 
 def write_job(tmp_path: Path, stock, tables: str = "", top: str = "", program: str | None = None,
-              retract: float = 15) -> Path:
+              retract: float = 15, program_keys: str = "") -> Path:
     """A job file for ``PROGRAM`` (or ``program``) with a box stock, a 6 mm flat tool, ``top``
-    (top-level keys) and ``tables`` (TOML tables, at the end)."""
+    (top-level keys), ``program_keys`` (more keys of [program]) and ``tables`` (TOML tables,
+    at the end)."""
     (tmp_path / "p.nc").write_text(program if program is not None else PROGRAM.format(retract=retract))
     job = tmp_path / "job.toml"
     job.write_text(f"""{top}
 resolution = 0.5
 [program]
 path = "p.nc"
+{program_keys}
 [stock]
 box = {list(stock)}
 [tools]
@@ -107,3 +109,88 @@ def test_a_first_rapid_through_the_stock_is_reported_by_both(tmp_path, capsys):
     assert code == 1 and ("rapid_into_stock", FIRST_RAPID_LINE) in kinds_lines(doc["findings"]), doc["findings"]
     code, out = dry_run(capsys, job)
     assert code == 1 and ("rapid_into_stock", FIRST_RAPID_LINE) in kinds_lines(findings_of(out)), findings_of(out)
+
+
+# --- wrong setups are never clean ---------------------------------------------------------
+
+INCH_PROGRAM = """G20 G90 G17 G94 G54
+T1 M6
+S10000 M3
+G0 Z0.6
+G0 X2 Y2
+G1 Z0.3 F20
+G1 X3
+G1 Y2.5
+G0 Z0.6
+M5
+M30
+"""
+
+
+def setup_first(out: list[dict], check: str) -> dict:
+    """The run's one setup finding of ``check``: alerted before any other finding, right
+    after the start line when it is known before the machine moves."""
+    found = findings_of(out)
+    setups = [f for f in found if f["kind"] == "setup"]
+    assert [f["detail"]["check"] for f in setups] == [check], found
+    assert found[0] is setups[0] and setups[0]["status"] == "setup" and setups[0]["lead_time_s"] is None
+    return setups[0]
+
+
+def test_dry_run_says_the_path_never_reaches_the_stock(tmp_path, capsys):
+    job = write_job(tmp_path, [100, 100, 0, 140, 130, 10])
+    code, out = dry_run(capsys, job)
+    f = setup_first(out, "path_misses_stock")
+    assert code == 1 and out[1] is f and "work offset" in f["message"], out
+    assert out[-1]["kinds"] == ["setup"]
+
+
+def test_live_says_the_path_never_reaches_the_stock(tmp_path, capsys):
+    job = write_job(tmp_path, [100, 100, 0, 140, 130, 10])
+    url = f"virtual://{tmp_path / 'p.nc'}?clock=sim&speed=10&rate=50"
+    code = main(["live", str(job), "--controller", url, "--json", "--run", str(tmp_path / "live.sqlite")])
+    out = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    f = setup_first(out, "path_misses_stock")
+    assert code == 1 and out[1] is f and out[-1]["ended"] == "program end", out
+
+
+def test_dry_run_says_an_inch_program_misses_a_stock_in_mm(tmp_path, capsys):
+    job = write_job(tmp_path, [0, 0, 0, 40, 30, 10], program=INCH_PROGRAM)
+    code, out = dry_run(capsys, job)
+    f = setup_first(out, "path_misses_stock")
+    assert code == 1 and out[1] is f and "inches (G20)" in f["message"], f
+
+
+def test_dry_run_says_the_design_is_not_in_the_stock(tmp_path, capsys):
+    import trimesh
+
+    trimesh.creation.box(bounds=[[200, 200, 0], [210, 210, 5]]).export(tmp_path / "design.stl")
+    job = write_job(tmp_path, [0, 0, 0, 40, 30, 10], tables='[design]\nstl = "design.stl"\n')
+    code, out = dry_run(capsys, job)
+    f = setup_first(out, "design_outside_stock")
+    assert code == 1 and out[1] is f and "design" in f["message"], f
+
+
+def test_dry_run_says_the_controller_reports_another_work_offset(tmp_path, capsys):
+    """The virtual controller takes its offsets from the job's .var file (G54 at X-200
+    Y-100 Z-50); the job says its work zero is 10 mm further in X."""
+    (tmp_path / "m.var").write_text("5221 -200\n5222 -100\n5223 -50\n")
+    job = write_job(tmp_path, [0, 0, 0, 40, 30, 10], top="work_offset = [-190, -100, -50]",
+                    program_keys='var = "m.var"')
+    code, out = dry_run(capsys, job)
+    f = setup_first(out, "work_offset_differs")
+    assert code == 1, out
+    assert "X-200.000 Y-100.000 Z-50.000" in f["message"] and "X-190.000 Y-100.000 Z-50.000" in f["message"]
+    assert f["detail"]["controller_wco"] == [-200, -100, -50] and f["detail"]["job_work_offset"] == [-190, -100, -50]
+
+
+def test_a_dry_run_sets_the_machine_up_at_the_jobs_work_offset(tmp_path, capsys):
+    """Without a .var file the virtual machine is set up as the job says, its work zero at
+    the job's work_offset: no setup finding, and the job's findings where the job has them
+    (the first rapid down into the stock and the next one out of it)."""
+    program = PROGRAM.format(retract=15).replace("G0 Z15\nG0 X5 Y5\n", "G0 X20 Y15 Z5\nG0 X5 Y5 Z15\n", 1)
+    job = write_job(tmp_path, [0, 0, 0, 40, 30, 10], top="work_offset = [-190, -100, -50]", program=program)
+    code, out = dry_run(capsys, job)
+    found = findings_of(out)
+    assert code == 1 and {f["kind"] for f in found} == {"rapid_into_stock"}, found
+    assert {n for f in found for n in f["lines"]} == {4, 5}, found
