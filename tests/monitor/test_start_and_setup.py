@@ -10,6 +10,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from monitor.cli import main
 
 #: a short program: up to Z15, over to (5, 5), a 2 mm deep slot, back up
@@ -194,3 +196,92 @@ def test_a_dry_run_sets_the_machine_up_at_the_jobs_work_offset(tmp_path, capsys)
     found = findings_of(out)
     assert code == 1 and {f["kind"] for f in found} == {"rapid_into_stock"}, found
     assert {n for f in found for n in f["lines"]} == {4, 5}, found
+
+
+# --- simulate and dry-run report the same findings ----------------------------------------
+
+#: lines of a corpus program kept (its start, a few passes): the whole programs take minutes
+CORPUS_LINES = 1000
+
+
+def corpus_job(tmp_path: Path, shared: Path, part: str, tool: str) -> Path:
+    """A job for the start of a corpus finishing path (../shared/corpus/parts/README.md):
+    the README's suggested stock, the part's STL bounding box (its .json ``bbox``), which
+    holds machine zero; the design STL; work offset G54 = the STL origin; ``tool``."""
+    parts = shared / "corpus" / "parts"
+    meta = json.loads((parts / f"{part}_ball6_finish.json").read_text())
+    lines = (parts / f"{part}_ball6_finish.ngc").read_text().splitlines()[:CORPUS_LINES]
+    prog = tmp_path / f"{part}.ngc"
+    prog.write_text("\n".join(lines + [f"G0 Z{meta['safe_z']:.4f}", "M5", "M30"]) + "\n")
+    job = tmp_path / f"{part}.toml"
+    job.write_text(f"""resolution = 0.5
+[program]
+path = "{prog.name}"
+[stock]
+box = {list(meta["bbox"])}
+[tools]
+1 = "{tool}:L=20"
+[design]
+stl = "{parts / meta['stl']}"
+[tolerance]
+gouge = 0.01
+""")
+    return job
+
+
+def run_findings(path: Path) -> list[dict]:
+    """The findings a run file holds, as they ended (grown, happened)."""
+    from monitor.runfile import RunReader
+
+    return RunReader(path).findings()
+
+
+def covered(f: dict, others: list[dict], radius: float = 5.0) -> bool:
+    """``f`` is among ``others``: one of its kind shares a line with it or lies within
+    ``radius`` mm (simulate merges a long finding into one, the live alerter into pieces of
+    its radius; JSON line lists stop at 200)."""
+    import numpy as np
+
+    for g in others:
+        if g["kind"] != f["kind"]:
+            continue
+        if set(f["lines"]) & set(g["lines"]) or np.linalg.norm(np.subtract(f["position"], g["position"])) <= radius:
+            return True
+    return False
+
+
+def assert_same_findings(capsys, job: Path, speed: float = 20) -> list[dict]:
+    """simulate and dry-run of ``job`` find the same: every finding of one is among the
+    other's, and the deepest of each kind is as deep. Undercut is left out: it judges the
+    finished part, which only simulate sees. Returns simulate's findings."""
+    code, doc = simulate(capsys, job)
+    sim = [f for f in doc["findings"] if f["kind"] != "undercut"]
+    run = job.with_suffix(".sqlite")
+    main(["dry-run", str(job), "--clock", "sim", "--speed", str(speed), "--quiet", "--run", str(run)])
+    live = run_findings(run)
+    assert {f["kind"] for f in sim} == {f["kind"] for f in live}, (sim, live)
+    assert all(covered(f, live) for f in sim), (sim, live)
+    assert all(covered(f, sim) for f in live), (sim, live)
+    for kind in {f["kind"] for f in sim}:
+        deepest = [max(f.get("depth", 0.0) for f in fs if f["kind"] == kind) for fs in (sim, live)]
+        assert abs(deepest[0] - deepest[1]) <= 0.01, (kind, deepest)
+    return sim
+
+
+def test_simulate_and_dry_run_agree_on_the_bundled_example(tmp_path, capsys):
+    import shutil
+
+    from monitor.commands.dry_run import EXAMPLE_JOB
+
+    shutil.copytree(EXAMPLE_JOB.parent, tmp_path / "ex")
+    sim = assert_same_findings(capsys, tmp_path / "ex" / EXAMPLE_JOB.name)
+    assert {(f["kind"], f["line"]) for f in sim} == {("gouge", 22), ("rapid_into_stock", 36)}
+
+
+@pytest.mark.parametrize("part, tool", [("sphere_on_plate", "ball:6"), ("carpet1", "ball:6"), ("carpet1", "ball:8")])
+def test_simulate_and_dry_run_agree_on_the_corpus_parts(tmp_path, capsys, shared, part, tool):
+    """Both stocks hold machine zero, where the dry-run machine used to start: the first
+    move is now judged alike. The 6 mm ball paths are clean; an 8 mm ball gouges the
+    carpet's creases (README "useful negative tests")."""
+    sim = assert_same_findings(capsys, corpus_job(tmp_path, shared, part, tool))
+    assert {f["kind"] for f in sim} == (set() if tool == "ball:6" else {"gouge"}), sim
