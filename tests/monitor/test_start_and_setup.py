@@ -113,6 +113,30 @@ def test_a_first_rapid_through_the_stock_is_reported_by_both(tmp_path, capsys):
     assert code == 1 and ("rapid_into_stock", FIRST_RAPID_LINE) in kinds_lines(findings_of(out)), findings_of(out)
 
 
+def test_the_start_position_is_in_machine_coordinates(tmp_path, capsys):
+    """``[machine] start`` is where the machine stands (machine coords, like [limits]): the
+    dry-run machine starts there, simulate at its work position; without it, the top of
+    the Z travel above the program's first point (G0 Z15 from machine zero: X0 Y0)."""
+    import numpy as np
+
+    from monitor.runfile import RunReader
+
+    offset = 'work_offset = [-190, -100, -50]'
+    job = write_job(tmp_path, [0, 0, 0, 40, 30, 10], top=offset, tables="[machine]\nstart = [-10, -20, -5]\n")
+    code, doc = simulate(capsys, job)
+    assert code == 0 and doc["start"] == [180.0, 80.0, 45.0]
+    code, out = dry_run(capsys, job)
+    assert code == 0 and findings_of(out) == []
+    # its first poll finds it on its way from there to the first point, X0 Y0 Z15 of work
+    a, b = np.array([-10.0, -20.0, -5.0]), np.array([-190.0, -100.0, -35.0])
+    p = RunReader(tmp_path / "run.sqlite").states()["mpos"][0, :3]
+    k = float(np.dot(p - a, b - a) / np.dot(b - a, b - a))
+    assert 0 <= k < 1 and np.allclose(p, a + k * (b - a)), p
+    job = write_job(tmp_path, [0, 0, 0, 40, 30, 10], top=offset, tables="[limits]\nz = [-150, -2]\n")
+    code, doc = simulate(capsys, job)
+    assert code == 0 and doc["start"] == [0.0, 0.0, 48.0]
+
+
 # --- wrong setups are never clean ---------------------------------------------------------
 
 INCH_PROGRAM = """G20 G90 G17 G94 G54
@@ -285,3 +309,53 @@ def test_simulate_and_dry_run_agree_on_the_corpus_parts(tmp_path, capsys, shared
     carpet's creases (README "useful negative tests")."""
     sim = assert_same_findings(capsys, corpus_job(tmp_path, shared, part, tool))
     assert {f["kind"] for f in sim} == (set() if tool == "ball:6" else {"gouge"}), sim
+
+
+def test_work_offset_check_allows_the_programs_own_offsets_and_tells_once():
+    """A WCO that is the job's work offset plus the program's tool length offset (or G92)
+    is the job's; another one is told once, naming both."""
+    from drivers.state import MachineState, RunState
+    from monitor.setup_check import WorkOffsetCheck
+    from sim.gcode.moves import empty_moves
+
+    moves = empty_moves(3)
+    moves["wco"][1, 2] = 25.0            # G43: tool length 25 mm
+    moves["wco"][2, :3] = (5.0, 0.0, 25.0)  # G92 X-5 on top
+    check = WorkOffsetCheck((-190, -100, -50), moves, (0, 0, 0, 0, 0, 0))
+
+    def state(wco, kind=RunState.RUN):
+        return MachineState(t=1.0, mpos=(0, 0, 0), wco=wco, state=kind)
+
+    for ok in [(-190, -100, -50), (-190, -100, -25), (-185, -100, -25), (-190.004, -100, -50)]:
+        assert check.see(state(ok), (0, 0, 0)) == [], ok
+    assert check.see(state((-180, -100, -50), RunState.MISSED), (0, 0, 0)) == []  # not fresh: not the controller's
+    (rec,) = check.see(state((-180, -100, -50)), (1, 2, 3))
+    assert rec["kind"] == "setup" and rec["detail"]["check"] == "work_offset_differs" and rec["position"] == [1, 2, 3]
+    assert "X-180.000 Y-100.000 Z-50.000" in rec["message"] and "X-190.000" in rec["message"]
+    assert check.see(state((-170, -100, -50)), (0, 0, 0)) == []  # once
+
+
+def test_no_work_offset_check_for_a_controller_that_does_not_report_it():
+    import dataclasses
+
+    from monitor.commands.dry_run import EXAMPLE_JOB
+    from monitor.job import load_job
+    from monitor.session import Session, load_moves
+
+    job = dataclasses.replace(load_job(EXAMPLE_JOB), work_offset=(-190.0, -100.0, -50.0))
+    moves, _ = load_moves(job)
+    s = Session(job, moves)
+    assert s.check_setup(reports_wco=False) == [] and s._offset_check is None
+    assert s.check_setup(reports_wco=True) == [] and s._offset_check is not None
+
+
+def test_a_modbus_map_without_the_work_offset_does_not_report_it():
+    import dataclasses
+
+    from drivers.modbus.driver import ModbusController
+    from drivers.modbus.regmap import load_map
+
+    full = load_map("generic")
+    assert ModbusController(full, host="127.0.0.1").reports_wco
+    bare = dataclasses.replace(full, fields={k: v for k, v in full.fields.items() if not k.startswith("wco_")})
+    assert not ModbusController(bare, host="127.0.0.1").reports_wco
