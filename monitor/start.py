@@ -99,8 +99,10 @@ def job_start(job, moves: np.ndarray) -> np.ndarray | None:
     ref = reference_wco(job)[:3]
     zero = ref if job.work_offset is None else np.asarray(job.work_offset, np.float64)
     z_limits = {k.lower(): v for k, v in (job.limits or {}).items()}.get("z")
-    return start_point(moves, given=job.start, z_top=None if z_limits is None else z_limits[1],
-                       material_top=material_top(job), to_table=ref - zero, reference=ref)
+    z_top = None if z_limits is None else z_limits[1]
+    # the material's top only matters without a start and a Z travel (an STL is loaded for it)
+    top = material_top(job) if job.start is None and z_top is None else None
+    return start_point(moves, given=job.start, z_top=z_top, material_top=top, to_table=ref - zero, reference=ref)
 
 
 def material_top(job) -> float | None:

@@ -359,3 +359,28 @@ def test_a_modbus_map_without_the_work_offset_does_not_report_it():
     assert ModbusController(full, host="127.0.0.1").reports_wco
     bare = dataclasses.replace(full, fields={k: v for k, v in full.fields.items() if not k.startswith("wco_")})
     assert not ModbusController(bare, host="127.0.0.1").reports_wco
+
+
+def test_start_at_moves_only_what_comes_before_the_first_point():
+    import numpy as np
+
+    from monitor.start import start_at, start_point
+    from sim.gcode.moves import MoveKind, empty_moves
+
+    def same(a, b):  # bit for bit (arc centres are NaN)
+        return a.tobytes() == b.tobytes()
+
+    m = empty_moves(3)
+    m["kind"] = [MoveKind.TOOL_CHANGE, MoveKind.RAPID, MoveKind.FEED]
+    m["end"][1:, :3] = [[5, 6, 7], [9, 6, 7]]
+    m["start"][2, :3] = [5, 6, 7]
+    m["tool_length"] = 20.0  # the table holds the controlled point: 20 mm above the tip
+    p = start_point(m, material_top=30.0)
+    assert p.tolist() == [5.0, 6.0, 30.0 + 10.0 + 20.0]  # over the first point, 10 mm above the top
+    out = start_at(m, p)
+    assert out["start"][0, :3].tolist() == out["end"][0, :3].tolist() == out["start"][1, :3].tolist() == p.tolist()
+    assert same(out[2:], m[2:]) and np.array_equal(out["end"][1], m["end"][1])
+    m["kind"][1] = MoveKind.ARC_CW  # an arc from another point would be another arc
+    assert same(start_at(m, p), m)
+    m["kind"][1:] = MoveKind.DWELL
+    assert start_point(m) is None and same(start_at(m, (1, 2, 3)), m)
