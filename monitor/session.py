@@ -75,7 +75,7 @@ class StepInfo:
     gap: dict | None = None         # the gap record this (first fresh) state closed
 
 
-def load_moves(job: Job) -> np.ndarray:
+def load_moves(job: Job) -> tuple[np.ndarray, object]:
     """The job's program as a move table (MOVE_DTYPE), via the G-code interpreter, and the
     program; both start where the machine starts (:mod:`monitor.start`), not at machine zero."""
     from monitor.start import job_start, start_at

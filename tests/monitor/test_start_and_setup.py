@@ -169,6 +169,9 @@ def test_dry_run_says_the_path_never_reaches_the_stock(tmp_path, capsys):
     f = setup_first(out, "path_misses_stock")
     assert code == 1 and out[1] is f and "work offset" in f["message"], out
     assert out[-1]["kinds"] == ["setup"]
+    # the run file keeps it, with what to check
+    assert main(["replay", str(tmp_path / "run.sqlite"), "--findings"]) == 1
+    assert "Setup: the program's cutting moves never reach the stock" in capsys.readouterr().out
 
 
 def test_live_says_the_path_never_reaches_the_stock(tmp_path, capsys):
