@@ -50,9 +50,10 @@ box = {list(stock)}
     return job
 
 
-def dry_run(capsys, job: Path, *flags) -> tuple[int, list[dict]]:
+def dry_run(capsys, job: Path) -> tuple[int, list[dict]]:
+    """``dexmon dry-run JOB --clock sim --json``: exit status and the JSON lines."""
     code = main(["dry-run", str(job), "--clock", "sim", "--speed", "10", "--json",
-                 "--run", str(job.parent / "run.sqlite"), *flags])
+                 "--run", str(job.parent / "run.sqlite")])
     out = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
     assert out[-1]["event"] == "summary" and out[-1]["stages"] > 0 and out[-1]["ended"] == "done", out[-1]
     return code, out
