@@ -458,13 +458,17 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
             raise ctx.err("[alerts] actions", f"a list of {', '.join(ALERT_ACTIONS)}", acts)
         job.alerts = tuple(acts)
 
+    if isinstance(doc.get("machine"), dict) and "start" in doc["machine"]:
+        # where the machine stands, not a timing limit: taken out first (alone, the
+        # timing stays the default)
+        rest = dict(doc["machine"])
+        job.start = ctx.numbers(rest.pop("start"), 3, "[machine] start", "mm, machine coords: x, y, z")
+        doc["machine"] = rest
+        if not rest:
+            del doc["machine"]
     if "machine" in doc:
         t = ctx.table(doc["machine"], "[machine]")
-        ctx.no_unknown(t, {"max_rate", "acceleration", "junction_deviation", "start"}, "[machine]")
-        if "start" in t:
-            job.start = ctx.numbers(t["start"], 3, "[machine] start", "mm, machine coords: x, y, z")
-            t = {k: v for k, v in t.items() if k != "start"}
-    if "machine" in doc and t:  # timing limits given (start alone leaves the default timing)
+        ctx.no_unknown(t, {"max_rate", "acceleration", "junction_deviation"}, "[machine]")
         m = dict(DEFAULT_MACHINE)
         for key, unit in (("max_rate", "mm/min"), ("acceleration", "mm/s^2")):
             if key in t:

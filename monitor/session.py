@@ -240,20 +240,6 @@ class Session:
                     pass
         return time.perf_counter() - t0
 
-    def check_setup(self, inch: bool = False, reports_wco: bool = True, t: float | None = None) -> list[dict]:
-        """Alert what cannot be the setup the user meant, before any cutting is judged
-        (:mod:`monitor.setup_check`): a stock the path never reaches, a design outside the
-        stock (``inch``: the program is in G20); and from now on, when the job gives a
-        ``work_offset`` and the controller ``reports_wco``, a reported WCO that differs
-        (once). Returns the records alerted."""
-        from monitor.setup_check import WorkOffsetCheck, setup_records
-
-        if self.job.work_offset is not None and reports_wco:
-            self._offset_check = WorkOffsetCheck(self.job.work_offset, self.moves_machine, self.reference_wco)
-        fresh = self.alerter.offer(setup_records(self.wp, self.moves, inch, t), t=t)
-        self.findings += fresh
-        return fresh
-
     def attach_view(self, feed) -> None:
         """Post every state to ``feed`` (a :class:`monitor.render.live.ViewFeed`): the
         rays each step changed with their new tops, the tool pose, the progress and the
@@ -616,6 +602,20 @@ class Session:
             self._trace_from = self.stage
             # a slice of any keyframe work due (the trace's in-memory index), off the polls
             self._trace.maintain(TRACE_KEYFRAME_BUDGET)
+
+    def check_setup(self, inch: bool = False, reports_wco: bool = True, t: float | None = None) -> list[dict]:
+        """Alert what cannot be the setup the user meant, before any cutting is judged
+        (:mod:`monitor.setup_check`): a stock the path never reaches, a design outside the
+        stock (``inch``: the program is in G20); and from now on, when the job gives a
+        ``work_offset`` and the controller ``reports_wco``, a reported WCO that differs
+        (once). Returns the records alerted."""
+        from monitor.setup_check import WorkOffsetCheck, setup_records
+
+        if self.job.work_offset is not None and reports_wco:
+            self._offset_check = WorkOffsetCheck(self.job.work_offset, self.moves_machine, self.reference_wco)
+        fresh = self.alerter.offer(setup_records(self.wp, self.moves, inch, t), t=t)
+        self.findings += fresh
+        return fresh
 
     def finish(self) -> dict:
         """Flush what is pending; return a summary dict."""

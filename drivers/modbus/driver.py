@@ -158,13 +158,13 @@ class ModbusController(Controller):
         self.allow_feed_hold = bool(allow_feed_hold)
         self.url = url or (f"modbus+tcp://{host}:{port}" if host else f"modbus+rtu://{serial_port}")
         self.blocks = plan_reads(regmap.reading_fields())
-        # a map without the work offset gives wco 0: not the controller's (Controller.reports_wco)
-        self.reports_wco = all(f"wco_{a}" in regmap.fields for a in "xyz")
         self.counts = dict.fromkeys(CAUSES, 0)
         self.polls = 0
         self.missed = 0
         self.reconnects = 0
         self.gaps: list[Gap] = []
+        # a map without the work offset gives wco 0: not the controller's (Controller.reports_wco)
+        self.reports_wco = all(f"wco_{a}" in regmap.fields for a in "xyz")
         self.last_error: str | None = None
         self._client = None
         self._closed = True
