@@ -105,13 +105,12 @@ def _where(rec: dict) -> str:
 
 
 def format_finding(f: dict) -> str:
-    """One line for a person: kind, line, position, lead time and the finding's message
-    (a setup finding: its message, which says what looks wrong and what to check)."""
-    if f.get("kind") == "setup":
-        return "SETUP: " + str(f.get("message", "")).removeprefix("setup: ")
+    """One line for a person: kind, line, position, lead time and the finding's message."""
     lead = f.get("lead_time_s")
     when = "now" if lead is None or lead <= 0 else f"in {lead:.1f} s"
     pos = f.get("position") or []
+    if f.get("kind") == "setup":  # no lead time: its message says what looks wrong, what to check
+        return "SETUP: " + str(f.get("message", "")).removeprefix("setup: ")
     where = ", ".join(f"{v:.2f}" for v in pos) if pos else "?"
     size = ""
     if f.get("depth") is not None and f.get("kind") in ("gouge", "undercut"):
