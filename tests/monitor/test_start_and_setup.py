@@ -388,3 +388,11 @@ def test_start_at_moves_only_what_comes_before_the_first_point():
     assert same(start_at(m, p), m)
     m["kind"][1:] = MoveKind.DWELL
     assert start_point(m) is None and same(start_at(m, (1, 2, 3)), m)
+
+
+def test_a_setup_finding_is_told_by_its_message_on_the_terminal():
+    from monitor.alerts import format_finding
+
+    rec = {"kind": "setup", "line": 6, "position": [5, 5, 8], "lead_time_s": None,
+           "message": "setup: the design does not lie in the stock: check the design's offset"}
+    assert format_finding(rec) == "SETUP: the design does not lie in the stock: check the design's offset"
