@@ -234,6 +234,9 @@ class Controller(abc.ABC):
     """
 
     url: str = ""
+    #: whether states carry the controller's work offset in ``wco`` (False: not reported,
+    #: zeros); the monitor compares it with the job's work offset only when True
+    reports_wco: bool = True
     #: finished outages, oldest first
     gaps: list[Gap]
 

@@ -109,6 +109,8 @@ def format_finding(f: dict) -> str:
     lead = f.get("lead_time_s")
     when = "now" if lead is None or lead <= 0 else f"in {lead:.1f} s"
     pos = f.get("position") or []
+    if f.get("kind") == "setup":  # no lead time: its message says what looks wrong, what to check
+        return "SETUP: " + str(f.get("message", "")).removeprefix("setup: ")
     where = ", ".join(f"{v:.2f}" for v in pos) if pos else "?"
     size = ""
     if f.get("depth") is not None and f.get("kind") in ("gouge", "undercut"):

@@ -58,6 +58,10 @@ needs; paths are relative to the job file's folder)::
     max_rate = [5000, 5000, 2000]   # mm/min (one number: every axis)
     acceleration = [300, 300, 200]  # mm/s^2
     junction_deviation = 0.01       # mm
+    start = [0, 0, 0]           # where the machine stands when the program starts: machine
+                                # coords (mm, like [limits]), e.g. where it homes. Default:
+                                # the top of [limits] z above the program's first point (else
+                                # 10 mm above stock, fixtures and program); see monitor.start
 
 Errors name the file, the key and what was expected:
 ``job.toml: [stock] box: expected 6 numbers (mm), got "abc"``.
@@ -161,6 +165,9 @@ class Job:
     #: machine limits for program timing: {"max_rate": (3,), "acceleration": (3,),
     #: "junction_deviation": mm}; None: :data:`DEFAULT_MACHINE`
     machine: dict | None = None
+    #: where the machine stands when the program starts, machine coords (3,) mm; None: the
+    #: default of :func:`monitor.start.job_start`
+    start: tuple[float, float, float] | None = None
 
     def tool(self, number: int) -> ToolDef | None:
         """The tool for tool number ``number`` (the default tool when it is not listed)."""
@@ -451,6 +458,14 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
             raise ctx.err("[alerts] actions", f"a list of {', '.join(ALERT_ACTIONS)}", acts)
         job.alerts = tuple(acts)
 
+    if isinstance(doc.get("machine"), dict) and "start" in doc["machine"]:
+        # where the machine stands, not a timing limit: taken out first (alone, the
+        # timing stays the default)
+        rest = dict(doc["machine"])
+        job.start = ctx.numbers(rest.pop("start"), 3, "[machine] start", "mm, machine coords: x, y, z")
+        doc["machine"] = rest
+        if not rest:
+            del doc["machine"]
     if "machine" in doc:
         t = ctx.table(doc["machine"], "[machine]")
         ctx.no_unknown(t, {"max_rate", "acceleration", "junction_deviation"}, "[machine]")

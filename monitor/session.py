@@ -75,14 +75,20 @@ class StepInfo:
     gap: dict | None = None         # the gap record this (first fresh) state closed
 
 
-def load_moves(job: Job) -> np.ndarray:
-    """The job's program as a move table (MOVE_DTYPE), via the G-code interpreter."""
+def load_moves(job: Job) -> tuple[np.ndarray, object]:
+    """The job's program as a move table (MOVE_DTYPE), via the G-code interpreter, and the
+    program; both start where the machine starts (:mod:`monitor.start`), not at machine zero."""
+    from monitor.start import job_start, start_at
     from sim.gcode import Limits, load_program
 
     program = load_program(job.program, dialect=job.dialect, tool_table=job.tool_table, var_file=job.var_file,
                            machine_units=job.machine_units, limits=Limits(max_loop=job.max_loop),
                            subroutine_path=[str(d) for d in job.subroutine_path] or None)
-    return np.asarray(program.moves), program
+    moves = np.asarray(program.moves)
+    start = job_start(job, moves)
+    if start is not None:
+        program.moves = moves = start_at(moves, start)  # its cycle time runs from there too
+    return moves, program
 
 
 def program_seconds(program, moves: np.ndarray, machine=None) -> np.ndarray:
@@ -169,6 +175,8 @@ class Session:
         self.view = None                 # a monitor.render.live.ViewFeed, or None
         self.line_source = None          # a monitor.linesync.StreamedLines, or None
         self._changed: np.ndarray | None = None
+        #: compares the reported WCO with the job's work_offset (:meth:`check_setup`), or None
+        self._offset_check = None
         if run is not None:
             run.put_meta("job", job.text)
             run.put_meta("program", program_text)
@@ -341,8 +349,9 @@ class Session:
         elif not np.array_equal(wco, self.lookahead.wco):
             self.lookahead.set_wco(wco)
         self.live_checks.set_wco(wco)
-        fresh, info.removed = self._cut_live(tip, s, state)
-        fresh += self._predict(s, state)
+        fresh = self._offset_check.see(state, tip) if self._offset_check is not None else []
+        cut, info.removed = self._cut_live(tip, s, state)
+        fresh += cut + self._predict(s, state)
         if fresh:
             info.new_findings = self._alert(fresh, state)
         if self.view is not None:
@@ -593,6 +602,20 @@ class Session:
             self._trace_from = self.stage
             # a slice of any keyframe work due (the trace's in-memory index), off the polls
             self._trace.maintain(TRACE_KEYFRAME_BUDGET)
+
+    def check_setup(self, inch: bool = False, reports_wco: bool = True, t: float | None = None) -> list[dict]:
+        """Alert what cannot be the setup the user meant, before any cutting is judged
+        (:mod:`monitor.setup_check`): a stock the path never reaches, a design outside the
+        stock (``inch``: the program is in G20); and from now on, when the job gives a
+        ``work_offset`` and the controller ``reports_wco``, a reported WCO that differs
+        (once). Returns the records alerted."""
+        from monitor.setup_check import WorkOffsetCheck, setup_records
+
+        if self.job.work_offset is not None and reports_wco:
+            self._offset_check = WorkOffsetCheck(self.job.work_offset, self.moves_machine, self.reference_wco)
+        fresh = self.alerter.offer(setup_records(self.wp, self.moves, inch, t), t=t)
+        self.findings += fresh
+        return fresh
 
     def finish(self) -> dict:
         """Flush what is pending; return a summary dict."""

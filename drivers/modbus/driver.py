@@ -163,6 +163,8 @@ class ModbusController(Controller):
         self.missed = 0
         self.reconnects = 0
         self.gaps: list[Gap] = []
+        # a map without the work offset gives wco 0: not the controller's (Controller.reports_wco)
+        self.reports_wco = all(f"wco_{a}" in regmap.fields for a in "xyz")
         self.last_error: str | None = None
         self._client = None
         self._closed = True

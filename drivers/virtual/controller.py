@@ -140,6 +140,8 @@ class VirtualController(Controller):
     def connect(self) -> None:
         start = self.moves["start"][0] if len(self.moves) else None
         self.vm = VirtualMachine(self.config, position=start)
+        if len(self.moves):  # a controller reports its work offset before the program runs
+            self.vm.set_wco(self.moves["wco"][0])
         self.vm.on_event = self._record
         self._feeder = ProgramFeeder(self.moves, self.faults)
         self._last, self._lost = None, None

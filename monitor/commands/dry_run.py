@@ -7,6 +7,13 @@ The program runs on an in-process virtual machine (no soft limits: the job's [li
 are what the monitor checks) and the monitor follows it exactly as it follows a real
 machine: same sync, cutting, look-ahead, alerts and run file. Exit 0 clean, 1 findings,
 2 error.
+
+The machine starts where the job's machine would (``[machine] start``, default the top of
+the Z travel above the program's first point: :mod:`monitor.start`), so a dry run and
+``simulate`` judge the same first move. Its work offsets are the job's .var file's; without
+one its work system is set up at the job's ``work_offset`` (a number), as the job says the
+real machine is. ``--clock sim`` moves the machine ``speed / poll_hz`` seconds per poll
+instead of by the wall clock: the run is then the same however busy the computer is.
 """
 
 from __future__ import annotations
@@ -32,6 +39,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("job", nargs="?", help="job file (TOML); default: the bundled example")
     parser.add_argument("--speed", type=float, default=5.0,
                         help="simulated seconds per wall second (default 5)")
+    parser.add_argument("--clock", choices=("wall", "sim"), default="wall",
+                        help="wall: the machine runs by the wall clock (default); sim: it moves speed/poll_hz "
+                             "seconds per poll, the same run however busy the computer is")
     add_common_arguments(parser)
 
 
@@ -41,6 +51,25 @@ def virtual_controller(moves, speed: float, rate: float, clock: str = "wall"):
 
     config = MachineConfig(max_rate=VIRTUAL_MAX_RATE, accel=VIRTUAL_ACCEL, soft_limits=False)
     return VirtualController(moves, speed=speed, rate=rate, clock=clock, config=config)
+
+
+def virtual_moves(job, moves):
+    """The table the virtual machine runs: ``moves`` (the interpreter's machine coordinates:
+    work + the .var offsets) as they are when the job has a .var file or takes its work
+    offset from the controller; else moved so that the machine's job work system sits at
+    the job's ``work_offset``, as the job says the real machine is set up."""
+    import numpy as np
+
+    from monitor.predict import reference_wco
+
+    if job.work_offset is None or job.var_file is not None:
+        return moves
+    shift = np.asarray(job.work_offset, np.float64) - reference_wco(job)[:3]
+    out = moves.copy()
+    for column in ("start", "end", "wco"):
+        out[column][:, :3] += shift
+    out["center"] += shift
+    return out
 
 
 def run(args) -> int:
@@ -54,5 +83,6 @@ def run(args) -> int:
     if job.machine is None:
         job.machine = dict(VIRTUAL_MACHINE)
     moves, _ = load_moves(job)
-    controller = virtual_controller(moves, args.speed, job.poll_hz)
+    controller = virtual_controller(virtual_moves(job, moves), args.speed, job.poll_hz,
+                                    clock=getattr(args, "clock", "wall"))
     return run_session(args, job, controller, done=lambda: controller.done)

@@ -118,6 +118,9 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
         elif not quiet:
             console.print(f"run file: {run_path}")
         _announce_endpoints(controller, console, as_json)
+        # a setup that cannot be meant is said before the machine's first move is judged
+        session.check_setup(inch=bool(getattr(program, "inch", False)),
+                            reports_wco=getattr(controller, "reports_wco", True))
         # the setup made many long-lived objects (move table rows, meshes, tools): keep
         # the collector from walking them again during the run (no gen-2 pauses per poll)
         gc.collect()

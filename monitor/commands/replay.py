@@ -201,6 +201,8 @@ def format_finding(f: dict) -> str:
     """One sentence for a person: what, where (lines, X Y Z), how big, and whether it was
     predicted and happened. E.g. ``Gouge at lines 22-23, X30.000 Y19.000 Z-5.500: 0.500 mm
     deep, 73.562 mm² of the design, 26.414 mm³; predicted 4.9 s ahead, then happened.``"""
+    if f.get("kind") == "setup":  # its message says what looks wrong and what to check
+        return "Setup: " + str(f.get("message", "")).removeprefix("setup: ") + "."
     kind = str(f.get("kind", "finding")).replace("_", " ")
     lines = [int(x) for x in (f.get("lines") or ()) if x]
     line = f.get("line")

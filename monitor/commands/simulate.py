@@ -14,8 +14,12 @@ limits and resolution; everything is in its work system's coordinates (G54 unles
 ``[program] work_system`` says otherwise), and program rows in other work systems
 (G55 ... of a multi-fixture program) are placed at their offsets from it.
 
-The first motion row is not cut when it is a rapid: it starts from wherever the machine
-was before the program (the interpreter assumes machine zero), so it is positioning.
+The program runs from where the machine starts, not from machine zero (where the
+interpreter starts): the job's ``[machine] start``, by default the top of the Z travel
+(``[limits] z``, ``--limits Z..``) above the program's first point, else 10 mm above the
+stock and the program (:mod:`monitor.start`). The first move, from there to the first
+point, is cut and checked like any other (``dry-run`` starts its machine there too);
+``start`` in the JSON says where it was (the tool tip, work coordinates).
 
 ``--heights`` writes the top-surface heights, float32 (ny, nx): element ``[j, i]`` is the
 ray at ``X0 + i*resolution, Y0 + j*resolution`` (both ends of the stock included), NaN
@@ -225,21 +229,19 @@ def _cutting_rows(moves: np.ndarray) -> np.ndarray:
     return lut[moves["kind"]]
 
 
-def _skip_first_rapid(moves: np.ndarray) -> tuple[np.ndarray, bool]:
-    """The table to cut, and whether its leading rapid was made a no-op.
+def _from_start(moves: np.ndarray, grid, limits_text: str | None) -> np.ndarray:
+    """``moves`` (a program read without a job: its machine coordinates are the stock's)
+    starting at the default start position (:func:`monitor.start.start_point`): the top
+    of ``--limits`` Z, else above the stock's material and the program."""
+    from monitor.start import start_at, start_point
+    from sim.checks.motion import parse_limits
+    from sim.checks.setup import material_box
 
-    The machine's position before the program is unknown (the interpreter starts at
-    machine zero), so a leading rapid is positioning, not a move into the stock.
-    """
-    from sim.gcode.moves import MoveKind
-
-    cutting = _cutting_rows(moves)
-    first = int(np.argmax(cutting))
-    skip = bool(cutting.any() and moves["kind"][first] == MoveKind.RAPID)
-    todo = moves.copy()
-    if skip:
-        todo["kind"][first] = MoveKind.PAUSE
-    return todo, skip
+    z = parse_limits(limits_text).get("Z") if limits_text else None
+    box = material_box(grid)
+    start = start_point(moves, z_top=None if z is None else z[1],
+                        material_top=None if box is None else float(box[1][2]))
+    return moves if start is None else start_at(moves, start)
 
 
 def run(args) -> int:
@@ -277,7 +279,7 @@ def run(args) -> int:
         raise InputError("give the stock as --stock box:X0,Y0,Z0,X1,Y1,Z1 (or a mesh), or --resume RUN:STAGE")
     program = load_program(args.program, args.dialect or "linuxcnc", table, args.var, units, sub_dirs,
                            args.max_loop)
-    moves = program.moves
+    moves = _from_start(program.moves, grid, getattr(args, "limits", None))
     checker = None
     if not args.no_checks:
         from sim.checks.report import checker_from_args
@@ -301,6 +303,7 @@ def _run_job(args) -> int:
 
     from monitor.job import ToolDef, load_job, parse_solid_spec, require
     from monitor.predict import MIN_VOLUME, build_workpiece, limits_in_work, reference_wco, work_moves
+    from monitor.start import job_start, start_at
     from sim.checks.motion import parse_limits
     from sim.checks.report import _positive
     from sim.tooltable import read_tool_table
@@ -355,7 +358,8 @@ def _run_job(args) -> int:
     # one frame: the job's work system; rows in other systems land at their offsets from it
     program = load_program(job.program, job.dialect, table, job.var_file, job.machine_units,
                            [str(d) for d in job.subroutine_path], args.max_loop or job.max_loop)
-    moves = work_moves(program.moves, reference_wco(job))
+    # from where the machine starts, as a dry run does (monitor.start)
+    moves = work_moves(start_at(program.moves, job_start(job, program.moves)), reference_wco(job))
     est = DexelGrid_estimate(job)
     if est > args.memory_limit * 2**20:
         raise InputError(f"the job's dexel grid needs about {est / 2**20:.0f} MB, over the "
@@ -430,14 +434,13 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
     setup = _setup_findings(moves, grid, tool, tools, checker, inch) if checker is not None else []
     grid_before = grid.volume(weights="trapezoid")
     stock_volume = grid_before if true_volume is None else float(true_volume)
-    todo, skip_first = _skip_first_rapid(moves)
     t0 = time.perf_counter()
     if checker is not None:
         # in batches: one batch's changed-ray log alive at a time, whatever the length
-        per_move = checker.check_program(todo, batch=SIM_BATCH)
+        per_move = checker.check_program(moves, batch=SIM_BATCH)
         findings = setup + final_findings(checker)
     else:
-        per_move = Cutter(grid, tool, tools=tools or None).cut_moves(todo, record_changes=False).removed
+        per_move = Cutter(grid, tool, tools=tools or None).cut_moves(moves, record_changes=False).removed
         findings = []
     seconds = time.perf_counter() - t0
     grid_after = grid.volume(weights="trapezoid")
@@ -452,7 +455,7 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
         "cutting_moves": int((per_move > 0).sum()),
         "removed_mm3": round(removed, 3),
         "removed_by_rapids_mm3": round(rapid_removed, 3),
-        "first_rapid_skipped": skip_first,
+        "start": _start_tip(moves),
         "stock_mm3": round(stock_volume, 3),
         "remaining_mm3": round(max(stock_volume - removed, 0.0), 3),
         "seconds": round(seconds, 4),
@@ -495,6 +498,19 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
             if key in out:
                 w(f"wrote {out[key]}\n")
     return 1 if findings else 0
+
+
+def _start_tip(moves: np.ndarray) -> list[float] | None:
+    """Where the program started: the tool tip at the start of its first motion (the
+    table's coordinates, mm), None without motion."""
+    from monitor.start import first_motion_row
+
+    k = first_motion_row(moves)
+    if k is None:
+        return None
+    tip = np.array(moves["start"][k, :3], np.float64)
+    tip[2] -= float(moves["tool_length"][k])
+    return [round(float(v), 4) for v in tip]
 
 
 #: one short sentence per kind for the text table

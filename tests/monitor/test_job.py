@@ -183,6 +183,16 @@ def test_machine_limits_for_timing_and_their_errors():
         parse_job_text('[machine]\nrapid = 5\n')
 
 
+def test_machine_start_and_its_errors():
+    job = parse_job_text('[machine]\nstart = [0, 0, -2.5]\n')
+    assert job.start == (0.0, 0.0, -2.5) and job.machine is None  # a start alone keeps the default timing
+    job = parse_job_text('[machine]\nstart = [1, 2, 3]\nmax_rate = 1000\n')
+    assert job.start == (1.0, 2.0, 3.0) and job.machine["max_rate"] == (1000.0, 1000.0, 1000.0)
+    assert parse_job_text("").start is None
+    with pytest.raises(JobError, match=r"job.toml: \[machine\] start: expected 3 numbers \(mm, machine coords"):
+        parse_job_text('[machine]\nstart = [1, 2]\n')
+
+
 def test_lead_times_come_from_the_planned_cycle_time():
     """Session program time is Program.cycle_time with the job's machine: slower
     acceleration makes the same program take longer (the length/feed estimate would not)."""

@@ -31,7 +31,9 @@ def test_example_json_and_heights(capsys, tmp_path):
     assert doc["moves"] > 40 and doc["cutting_moves"] > 20
     assert doc["removed_mm3"] > 0 and doc["seconds"] >= 0
     assert doc["remaining_mm3"] == pytest.approx(doc["stock_mm3"] - doc["removed_mm3"], abs=0.01)
-    assert doc["first_rapid_skipped"] and doc["removed_by_rapids_mm3"] == 0
+    # from the start position: 10 mm above the stock and the program's highest point (Z25),
+    # over its first point (G0 Z25: X0 Y0)
+    assert doc["start"] == [0.0, 0.0, 35.0] and doc["removed_by_rapids_mm3"] == 0
     h = np.load(heights)
     assert h.dtype == np.float32 and h.shape == (81, 121)  # (ny, nx), both ends included
 
