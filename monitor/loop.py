@@ -53,6 +53,7 @@ def run_controller(session: Session, controller, period: float, status=None, sto
     for state in _guarded_states(controller, period, session, stop):
         _drain_link_events(controller, session, notify)
         info = session.step(state)
+        session.alerter.follow_state(state)  # after dexmon's feed hold: held? resumed?
         n += 1
         now = time.monotonic()
         gave_up = watch.see(state, now)

@@ -1,0 +1,105 @@
+"""After a feed hold dexmon says at once, on every output, that it sent the hold, why and how
+to go on; it keeps following the machine after a resume and ends when the program ends."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import pytest
+
+from drivers.state import RunState
+from monitor.commands.dry_run import EXAMPLE_JOB, VIRTUAL_MACHINE, virtual_controller
+from monitor.commands.live import run_session
+from monitor.job import load_job
+from monitor.runfile import RunReader
+from monitor.session import load_moves
+
+#: polls the test leaves the machine held before it resumes it (as a machinist would, later)
+HELD_POLLS = 10
+
+
+class ResumingMachine:
+    """The virtual controller (simulated clock: time moves per poll, not per wall second)
+    with a machinist beside it: every hold is resumed after :data:`HELD_POLLS` polls at
+    rest (``Hold:0``, when GRBL takes a cycle start). Counts the holds dexmon sends."""
+
+    def __init__(self, controller):
+        self.controller = controller
+        self.holds = 0
+        self.resumes = 0
+        self.states_seen: list[RunState] = []
+
+    def __getattr__(self, name):
+        return getattr(self.controller, name)
+
+    def feed_hold(self) -> None:
+        self.holds += 1
+        self.controller.feed_hold()
+
+    def states(self, period):
+        held = 0
+        while True:
+            st = self.controller.poll()
+            self.states_seen.append(st.state)
+            held = held + 1 if st.state == RunState.HOLD and st.substate == 0 else 0
+            if held == HELD_POLLS:
+                self.controller.resume()
+                self.resumes += 1
+            yield st
+
+
+@pytest.fixture(scope="module")
+def hold_job():
+    job = load_job(EXAMPLE_JOB)
+    job.alerts = tuple(job.alerts) + ("feed_hold",)
+    job.machine = dict(VIRTUAL_MACHINE)
+    moves, _ = load_moves(job)
+    return job, moves
+
+
+def _run(job, moves, tmp_path, as_json: bool):
+    vc = virtual_controller(moves, 1.0, job.poll_hz, clock="sim")
+    machine = ResumingMachine(vc)
+    args = argparse.Namespace(run=str(tmp_path / "r.sqlite"), json=as_json, quiet=False, view=False, frames=None)
+    code = run_session(args, job, machine, done=lambda: vc.done)
+    return code, machine
+
+
+def test_hold_said_in_json_then_resumed_and_followed_to_the_end(hold_job, tmp_path, capsys):
+    job, moves = hold_job
+    code, machine = _run(job, moves, tmp_path, as_json=True)
+    out = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    assert code == 1
+    findings = [x for x in out if x["event"] == "finding"]
+    holds = [x for x in out if x["event"] == "feed_hold"]
+    # one hold per finding that justifies one, each sent once, each said at once (right after its finding)
+    assert machine.holds == len(holds) == len(findings) == 2, out
+    for h in holds:
+        f = next(x for x in findings if x["kind"] == h["kind"] and x["line"] == h["line"])
+        assert out.index(h) == out.index(f) + 1
+        assert h["sent"] is True and h["lead_time_s"] == f["lead_time_s"] > 0
+        assert f"line {f['line']}" in h["message"] and "~" in h["message"] and "keeps monitoring" in h["message"]
+    # the machine really held, was resumed, and dexmon said so and followed it on
+    assert machine.resumes == 2 and RunState.HOLD in machine.states_seen
+    resumed = [x for x in out if x["event"] == "resumed"]
+    assert len(resumed) == 2 and all("keeps monitoring" in r["message"] for r in resumed)
+    summary = out[-1]
+    assert summary["event"] == "summary" and summary["ended"] == "done"
+    assert summary["progress_s"] == pytest.approx(summary["program_s"], abs=1e-3)
+    alerts = RunReader(tmp_path / "r.sqlite").alerts()
+    said = [a["text"] for a in alerts if a["channel"] == "feed_hold"]
+    assert sum("FEED HOLD sent" in t for t in said) == 2 and sum("resumed" in t for t in said) == 2
+
+
+def test_hold_said_on_a_piped_terminal(hold_job, tmp_path, capsys):
+    job, moves = hold_job
+    code, machine = _run(job, moves, tmp_path, as_json=False)
+    out = capsys.readouterr().out  # captured: not a terminal, as when piped into a log
+    assert code == 1 and machine.holds == 2
+    lines = out.splitlines()
+    gouge = next(k for k, x in enumerate(lines) if x.startswith("GOUGE line 22"))
+    assert lines[gouge + 1].startswith("FEED HOLD sent by dexmon: gouge at line 22"), lines
+    assert "~" in lines[gouge + 1] and "keeps monitoring" in lines[gouge + 1]
+    assert sum("resumed after dexmon's feed hold" in x for x in lines) == 2
+    assert "2 finding(s)" in out
