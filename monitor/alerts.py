@@ -115,7 +115,8 @@ def _where(rec: dict) -> str:
 
 
 def format_finding(f: dict) -> str:
-    """One line for a person: kind, line, position, lead time and the finding's message."""
+    """One line for a person: kind, line, position, lead time (and why it is short, the
+    record's ``lead_note``)."""
     lead = f.get("lead_time_s")
     when = "now" if lead is None or lead <= 0 else f"in {lead:.1f} s"
     pos = f.get("position") or []
@@ -123,6 +124,8 @@ def format_finding(f: dict) -> str:
     size = ""
     if f.get("depth") is not None and f.get("kind") in ("gouge", "undercut"):
         size = f", {f['depth']:.3f} mm deep"
+    if f.get("lead_note"):  # why the lead is short or 0: never silently
+        when += f" ({f['lead_note']})"
     return f"{f.get('kind', '?').upper().replace('_', ' ')} line {f.get('line', '?')} at ({where}){size} — {when}"
 
 
@@ -266,7 +269,7 @@ class Alerter:
             self.run.append_finding(f, t=t)
         if self.console is not None:
             style = "bold red" if f.get("kind") != "undercut" else "yellow"
-            self.console.print(f"[{style}]{_escape(text)}[/{style}]", highlight=False)
+            self.console.print(f"[{style}]{_escape(text)}[/{style}]", highlight=False, soft_wrap=True)
             self._record("terminal", text, t, finding_id)
             if self.bell:
                 self.console.bell()

@@ -184,9 +184,10 @@ def _escape(text: str) -> str:
 
 
 def _notifier(console, as_json: bool, writer):
-    """What the loop calls with each link event, gap record and "controller lost" notice:
-    one line on the terminal or one JSON line; the notices also go to the run file (the
-    session records the events and gaps itself)."""
+    """What the loop calls with each link event, gap record, "controller lost" and "monitor
+    falling behind" notice: one line on the terminal or one JSON line; the lost notices
+    also go to the run file (the session records the events and gaps itself, the loop the
+    falling-behind notices)."""
     from monitor.jsonable import json_default
 
     def notify(rec: dict) -> None:
@@ -197,8 +198,8 @@ def _notifier(console, as_json: bool, writer):
             sys.stdout.flush()
         elif console is not None:
             style = "bold red" if rec.get("kind") in ("lost", "reset") or rec.get("event") == "lost" else "yellow"
-            label = "gap" if rec.get("event") == "gap" else "link"
-            console.print(f"[{style}]{label}: {_escape(rec.get('message', ''))}[/{style}]", soft_wrap=True)
+            label = {"gap": "gap: ", "behind": ""}.get(rec.get("event"), "link: ")  # "monitor falling behind: ..."
+            console.print(f"[{style}]{label}{_escape(rec.get('message', ''))}[/{style}]", soft_wrap=True)
     return notify
 
 
