@@ -74,7 +74,8 @@ def run_controller(session: Session, controller, period: float, status=None, sto
         gave_up = watch.see(state, now)
         if status is not None:
             status.update(state, info.sync, session.path.duration, len(session.findings), info.seconds * 1e3,
-                          note=watch.note(now))
+                          note=watch.note(now) or _hold_note(session.alerter),
+                          upcoming=lambda: _upcoming(session, info.sync, state))
         if gave_up:
             session.end_reason = gave_up
             break
@@ -99,6 +100,24 @@ def run_controller(session: Session, controller, period: float, status=None, sto
             break
     _drain_link_events(controller, session, notify)
     return n
+
+
+def _upcoming(session: Session, sync: SyncResult | None, state: MachineState) -> str:
+    """The status line's countdown to the next predicted finding ("" when none is ahead)."""
+    if sync is None:
+        return ""
+    from monitor.status import next_finding
+
+    ovr = state.overrides[0] if state.overrides else 100
+    return next_finding(session.findings, session.path.row_t0, sync.progress, ovr)
+
+
+def _hold_note(alerter) -> str:
+    """For the status line while the machine stands in dexmon's feed hold."""
+    h = getattr(alerter, "hold", None)
+    if not h or h.get("held_t") is None:
+        return ""
+    return f"HELD by dexmon ({h['kind']} line {h['line']}): resume with ~ / cycle start"
 
 
 def _program_end(session: Session) -> tuple[int, float] | None:

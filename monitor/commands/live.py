@@ -115,7 +115,7 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
             _jsonl({"event": "start", "run": str(run_path), "program": str(job.program),
                     "controller": getattr(controller, "url", "")})
         elif not quiet:
-            console.print(f"run file: {run_path}")
+            console.print(f"run file: {run_path}", soft_wrap=True)
         _announce_endpoints(controller, console, as_json)
         # the setup made many long-lived objects (move table rows, meshes, tools): keep
         # the collector from walking them again during the run (no gen-2 pauses per poll)
