@@ -129,9 +129,9 @@ def format_finding(f: dict) -> str:
     return f"{f.get('kind', '?').upper().replace('_', ' ')} line {f.get('line', '?')} at ({where}){size} — {when}"
 
 
-def hold_message(f: dict) -> str:
+def hold_message(f: dict, resume_how: str = RESUME_HOW) -> str:
     """The line said when dexmon held the feed for finding ``f``: what, why, how to go on."""
-    return f"FEED HOLD sent by dexmon: {f.get('kind', '?')} at {_where(f)} {_when(f)}. To go on: {RESUME_HOW}"
+    return f"FEED HOLD sent by dexmon: {f.get('kind', '?')} at {_where(f)} {_when(f)}. To go on: {resume_how}"
 
 
 def _when(f: dict) -> str:
@@ -159,10 +159,13 @@ class Alerter:
         mm within which two findings of one kind are the same finding.
     line_radius : float
         mm within which two findings of one kind sharing a program line are the same finding.
+    resume_how : str
+        How to go on after a feed hold, said with it (default :data:`RESUME_HOW`).
     """
 
     def __init__(self, console=None, json_stream: TextIO | None = None, bell: bool = False,
-                 feed_hold: Callable[[], None] | None = None, run=None, radius: float = 5.0, line_radius: float = 25.0):
+                 feed_hold: Callable[[], None] | None = None, run=None, radius: float = 5.0, line_radius: float = 25.0,
+                 resume_how: str = RESUME_HOW):
         self.console = console
         self.json_stream = json_stream
         self.bell = bell
@@ -170,6 +173,7 @@ class Alerter:
         self.run = run
         self.radius = float(radius)
         self.line_radius = float(line_radius)
+        self.resume_how = resume_how
         self.findings: list[dict] = []  # every alerted finding, in order
         self.holds_sent = 0
         #: the last hold dexmon sent, until the machine leaves it: {"id", "kind", "line",
@@ -296,7 +300,8 @@ class Alerter:
         self.holds_sent += 1
         self.hold = {"id": finding_id, "kind": f.get("kind"), "line": f.get("line"), "t": t, "held_t": None,
                      "warned": False}
-        self._say({**rec, "sent": True, "message": hold_message(f), "resume": RESUME_HOW}, "bold red",
+        self._say({**rec, "sent": True, "message": hold_message(f, self.resume_how), "resume": self.resume_how},
+                  "bold red",
                   "feed_hold", finding_id)
 
     def follow_state(self, state) -> None:

@@ -35,7 +35,7 @@ BEHIND_BACKLOG_S = 1.0
 def run_controller(session: Session, controller, period: float, status=None, stop=None,
                    done=None, max_seconds: float | None = None, notify=None,
                    give_up_s: float | None = GIVE_UP_S, notice_every: float = LOST_NOTICE_S,
-                   clock=time.monotonic) -> int:
+                   clock=time.monotonic, resume_after: float | None = None) -> int:
     """Poll ``controller`` every ``period`` s and step ``session`` until the program ends.
 
     ``done()`` (optional) says the run is over (the virtual controller's ``done``);
@@ -54,12 +54,15 @@ def run_controller(session: Session, controller, period: float, status=None, sto
     look-ahead) ``notify`` gets, at most every :data:`BEHIND_NOTICE_S`, a ``{"event":
     "behind"}`` record ("monitor falling behind: ..."), also kept in the run file's alerts
     (channel ``behind``). ``clock`` (s) times the steps and the notices (tests pass their
-    own). Returns the number of states processed.
+    own). ``resume_after`` (s, dry runs only): resume the controller that long after it
+    stood in dexmon's feed hold (a virtual machine has no cycle-start button). Returns the
+    number of states processed.
     """
     n = 0
     start = clock()
     watch = LinkWatch(give_up_s, notice_every, notify)
     behind = BehindWatch(period, BEHIND_NOTICE_S, notify, session.run)
+    held_since = None  # clock s when the machine was first seen in dexmon's hold
     session.on_gap = notify
     end_at = _program_end(session)
     session.end_reason = "stopped"
@@ -69,6 +72,8 @@ def run_controller(session: Session, controller, period: float, status=None, sto
         info = session.step(state)
         now = clock()
         session.alerter.follow_state(state)  # after dexmon's feed hold: held? resumed?
+        if resume_after is not None:
+            held_since = _resume_dry_run(controller, session.alerter, resume_after, held_since, now)
         n += 1
         behind.see(state.t, now - t_step, session.lookahead.backlog_s, info.overtaken, session, now)
         gave_up = watch.see(state, now)
@@ -110,6 +115,24 @@ def _upcoming(session: Session, sync: SyncResult | None, state: MachineState) ->
 
     ovr = state.overrides[0] if state.overrides else 100
     return next_finding(session.findings, session.path.row_t0, sync.progress, ovr)
+
+
+def _resume_dry_run(controller, alerter, after: float, since: float | None, now: float) -> float | None:
+    """Resume ``controller`` once it stood ``after`` s (loop clock) in dexmon's feed hold;
+    returns when it was first seen held (None: not held). A resume the machine ignores
+    (still decelerating) is tried again ``after`` s later."""
+    h = alerter.hold
+    if h is None or h.get("held_t") is None:
+        return None
+    if since is None:
+        return now
+    if now - since < after:
+        return since
+    try:
+        controller.resume()
+    except Exception:  # noqa: BLE001 - the loop goes on; the hold note stays on the status line
+        pass
+    return now
 
 
 def _hold_note(alerter) -> str:

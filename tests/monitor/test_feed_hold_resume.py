@@ -103,3 +103,42 @@ def test_hold_said_on_a_piped_terminal(hold_job, tmp_path, capsys):
     assert "~" in lines[gouge + 1] and "keeps monitoring" in lines[gouge + 1]
     assert sum("resumed after dexmon's feed hold" in x for x in lines) == 2
     assert "2 finding(s)" in out
+
+
+def test_dry_run_with_feed_hold_resumes_the_virtual_machine_and_ends(tmp_path, capsys):
+    """A dry run has no sender and no cycle-start button: dexmon itself resumes the
+    virtual machine a few seconds after it held it, says so, and the run ends."""
+    from monitor.cli import main
+
+    code = main(["dry-run", "--feed-hold", "--speed", "20", "--json", "--run", str(tmp_path / "r.sqlite")])
+    out = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    holds = [x for x in out if x["event"] == "feed_hold"]
+    assert code == 1 and len(holds) == 2
+    assert all("dry run: dexmon resumes the virtual machine" in h["message"] for h in holds)
+    assert len([x for x in out if x["event"] == "resumed"]) == 2
+    assert out[-1]["event"] == "summary" and out[-1]["ended"] == "done"
+
+
+def test_a_hold_the_machine_does_not_show_is_said_once():
+    """A controller that ignores the hold (GRBL takes no `!` in some states): after 2 s the
+    machinist is told to hold it by hand -- once; a later hold and resume are followed."""
+    import io
+
+    from drivers.state import MachineState
+    from monitor.alerts import HOLD_CONFIRM_S, Alerter
+
+    js = io.StringIO()
+    a = Alerter(json_stream=js, feed_hold=lambda: None)
+    a.offer([{"kind": "gouge", "line": 22, "position": [1, 2, 3], "lead_time_s": 4.0}], t=10.0)
+
+    def see(t, state):
+        a.follow_state(MachineState(t=t, mpos=(0, 0, 0), state=state))
+    for t in (10.5, 10.0 + HOLD_CONFIRM_S, 13.0, 14.0):
+        see(t, RunState.RUN)
+    see(15.0, RunState.HOLD)
+    see(16.5, RunState.IDLE)
+    events = [json.loads(x) for x in js.getvalue().splitlines()]
+    assert [e["event"] for e in events] == ["finding", "feed_hold", "feed_hold_ignored", "resumed"]
+    assert "not held (state Run): hold it by hand" in events[2]["message"]
+    assert events[3]["held_s"] == 1.5 and "left the hold (now Idle)" in events[3]["message"]
+    assert a.hold is None
