@@ -142,3 +142,18 @@ def test_a_hold_the_machine_does_not_show_is_said_once():
     assert "not held (state Run): hold it by hand" in events[2]["message"]
     assert events[3]["held_s"] == 1.5 and "left the hold (now Idle)" in events[3]["message"]
     assert a.hold is None
+
+
+def test_hold_said_on_a_terminal():
+    import io
+
+    from rich.console import Console
+
+    from monitor.alerts import Alerter
+
+    term = io.StringIO()
+    a = Alerter(console=Console(file=term, force_terminal=True, width=80, color_system=None), feed_hold=lambda: None)
+    a.offer([{"kind": "gouge", "line": 22, "position": [1, 2, 3], "lead_time_s": 4.2}], t=0.0)
+    lines = term.getvalue().splitlines()
+    assert lines[1].startswith("FEED HOLD sent by dexmon: gouge at line 22 (predicted in 4.2 s). To go on: ")
+    assert lines[1].endswith("dexmon keeps monitoring")  # one line, not wrapped at the terminal's width
