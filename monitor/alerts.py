@@ -11,7 +11,10 @@ happens is one alert, its record updated to ``status = "happened"``.
 
 Feed hold is sent through the controller's ``feed_hold()`` and only when the job turned it
 on (``[alerts] actions = ["feed_hold"]`` or ``--feed-hold``): the monitor never moves the
-machine and never sends anything else.
+machine and never sends anything else. A hold is said at once on every channel (terminal,
+JSON ``{"event": "feed_hold"}``, run file): that dexmon sent it, for which finding, and how
+to go on (:data:`RESUME_HOW`); :meth:`Alerter.follow_state` then says when the machine
+really holds and when it leaves the hold (``{"event": "resumed"}``).
 """
 
 from __future__ import annotations
@@ -23,12 +26,19 @@ from typing import Callable, TextIO
 
 import numpy as np
 
+from drivers.state import RunState
 from monitor.jsonable import json_default
 
 #: the kinds that justify a feed hold (machine or part at risk), when feed hold is enabled
 HOLD_KINDS = frozenset({"gouge", "rapid_into_stock", "holder_contact", "shank_contact",
                         "above_flute_contact", "fixture_collision", "spindle_stopped_cutting",
                         "travel_limit", "non_center_cutting_plunge"})
+
+#: how to go on after dexmon held the feed, said with every hold
+RESUME_HOW = ("resume from your G-code sender, or with ~ (cycle start) on the controller, when it is safe; "
+              "dexmon keeps monitoring")
+#: a hold the machine has not shown after this long (controller s) is said to have failed
+HOLD_CONFIRM_S = 2.0
 
 #: points remembered per alerted finding to follow it along (a long gouge)
 MAX_TRACK_POINTS = 4096
@@ -105,7 +115,8 @@ def _where(rec: dict) -> str:
 
 
 def format_finding(f: dict) -> str:
-    """One line for a person: kind, line, position, lead time and the finding's message."""
+    """One line for a person: kind, line, position, lead time (and why it is short, the
+    record's ``lead_note``)."""
     lead = f.get("lead_time_s")
     when = "now" if lead is None or lead <= 0 else f"in {lead:.1f} s"
     pos = f.get("position") or []
@@ -115,7 +126,19 @@ def format_finding(f: dict) -> str:
     size = ""
     if f.get("depth") is not None and f.get("kind") in ("gouge", "undercut"):
         size = f", {f['depth']:.3f} mm deep"
+    if f.get("lead_note"):  # why the lead is short or 0: never silently
+        when += f" ({f['lead_note']})"
     return f"{f.get('kind', '?').upper().replace('_', ' ')} line {f.get('line', '?')} at ({where}){size} — {when}"
+
+
+def hold_message(f: dict, resume_how: str = RESUME_HOW) -> str:
+    """The line said when dexmon held the feed for finding ``f``: what, why, how to go on."""
+    return f"FEED HOLD sent by dexmon: {f.get('kind', '?')} at {_where(f)} {_when(f)}. To go on: {resume_how}"
+
+
+def _when(f: dict) -> str:
+    lead = f.get("lead_time_s")
+    return "(now)" if lead is None or lead <= 0 else f"(predicted in {lead:.1f} s)"
 
 
 class Alerter:
@@ -138,10 +161,13 @@ class Alerter:
         mm within which two findings of one kind are the same finding.
     line_radius : float
         mm within which two findings of one kind sharing a program line are the same finding.
+    resume_how : str
+        How to go on after a feed hold, said with it (default :data:`RESUME_HOW`).
     """
 
     def __init__(self, console=None, json_stream: TextIO | None = None, bell: bool = False,
-                 feed_hold: Callable[[], None] | None = None, run=None, radius: float = 5.0, line_radius: float = 25.0):
+                 feed_hold: Callable[[], None] | None = None, run=None, radius: float = 5.0, line_radius: float = 25.0,
+                 resume_how: str = RESUME_HOW):
         self.console = console
         self.json_stream = json_stream
         self.bell = bell
@@ -149,8 +175,12 @@ class Alerter:
         self.run = run
         self.radius = float(radius)
         self.line_radius = float(line_radius)
+        self.resume_how = resume_how
         self.findings: list[dict] = []  # every alerted finding, in order
         self.holds_sent = 0
+        #: the last hold dexmon sent, until the machine leaves it: {"id", "kind", "line",
+        #: "t" (sent), "held_t" (seen held, or None)}; None when no hold is pending
+        self.hold: dict | None = None
         # finding index -> move ids whose size its record already holds
         self._merged: dict[int, set] = {}
         # kind -> [[lines seen, points seen (m, 3), index in findings, move ids seen], ...]
@@ -245,7 +275,7 @@ class Alerter:
             self.run.append_finding(f, t=t)
         if self.console is not None:
             style = "bold red" if f.get("kind") != "undercut" else "yellow"
-            self.console.print(f"[{style}]{_escape(text)}[/{style}]", highlight=False)
+            self.console.print(f"[{style}]{_escape(text)}[/{style}]", highlight=False, soft_wrap=True)
             self._record("terminal", text, t, finding_id)
             if self.bell:
                 self.console.bell()
@@ -255,18 +285,63 @@ class Alerter:
             self.json_stream.flush()
             self._record("json", f.get("kind", ""), t, finding_id)
         if self.feed_hold is not None and f.get("kind") in HOLD_KINDS:
-            try:
-                self.feed_hold()
-                self.holds_sent += 1
-                self._record("feed_hold", f"feed hold sent for {f.get('kind')} at line {f.get('line')}",
-                             t, finding_id)
-            except Exception as exc:  # a failed hold must be said loudly, not crash the monitor
-                msg = f"FEED HOLD FAILED: {exc}"
-                if self.console is not None:
-                    self.console.print(f"[bold red]{_escape(msg)}[/bold red]")
-                else:
-                    print(msg, file=sys.stderr)
-                self._record("feed_hold", msg, t, finding_id)
+            self._hold(f, finding_id, t)
+
+    def _hold(self, f: dict, finding_id: int, t) -> None:
+        """Send the feed hold for finding ``f`` and say so at once on every channel."""
+        rec = {"event": "feed_hold", "id": finding_id, "kind": f.get("kind"), "line": f.get("line"),
+               "lead_time_s": f.get("lead_time_s"), "t": t}
+        try:
+            self.feed_hold()
+        except Exception as exc:  # a failed hold must be said loudly, not crash the monitor
+            msg = f"FEED HOLD FAILED: {exc}"
+            if self.console is None and self.json_stream is None:
+                print(msg, file=sys.stderr)
+            self._say({**rec, "sent": False, "message": msg}, "bold red", "feed_hold", finding_id)
+            return
+        self.holds_sent += 1
+        self.hold = {"id": finding_id, "kind": f.get("kind"), "line": f.get("line"), "t": t, "held_t": None,
+                     "warned": False}
+        self._say({**rec, "sent": True, "message": hold_message(f, self.resume_how), "resume": self.resume_how},
+                  "bold red",
+                  "feed_hold", finding_id)
+
+    def follow_state(self, state) -> None:
+        """Follow the machine after dexmon's feed hold (call with every state): say when it
+        leaves the hold ("resumed ... dexmon keeps monitoring", ``{"event": "resumed"}``),
+        and once if it shows no hold :data:`HOLD_CONFIRM_S` controller seconds after it
+        was sent (the controller ignored it: hold by hand)."""
+        h = self.hold
+        if h is None or not state.fresh:
+            return
+        if state.state == RunState.HOLD:
+            if h["held_t"] is None:
+                h["held_t"] = state.t
+            return
+        if h["held_t"] is None:
+            if not h["warned"] and h["t"] is not None and state.t - h["t"] >= HOLD_CONFIRM_S:
+                h["warned"] = True
+                msg = (f"feed hold sent {state.t - h['t']:.1f} s ago for {h['kind']} at line {h['line']}, "
+                       f"but the machine is not held (state {state.state.value}): hold it by hand")
+                self._say({"event": "feed_hold_ignored", "id": h["id"], "t": state.t, "state": state.state.value,
+                           "message": msg}, "bold red", "feed_hold", h["id"])
+            return
+        self.hold = None
+        what = "resumed" if state.state == RunState.RUN else f"left the hold (now {state.state.value})"
+        msg = (f"machine {what} after dexmon's feed hold for {h['kind']} at line {h['line']} "
+               f"(held {state.t - h['held_t']:.1f} s); dexmon keeps monitoring")
+        self._say({"event": "resumed", "id": h["id"], "t": state.t, "state": state.state.value,
+                   "held_s": round(state.t - h["held_t"], 3), "message": msg}, "bold yellow", "feed_hold", h["id"])
+
+    def _say(self, rec: dict, style: str, channel: str, finding_id: int | None) -> None:
+        """One record on every channel: its ``message`` on the terminal, the record as a
+        JSON line, the message in the run file's alerts (``channel``)."""
+        if self.console is not None:
+            self.console.print(f"[{style}]{_escape(rec['message'])}[/{style}]", highlight=False, soft_wrap=True)
+        if self.json_stream is not None:
+            self.json_stream.write(json.dumps(rec, default=json_default) + "\n")
+            self.json_stream.flush()
+        self._record(channel, rec["message"], rec.get("t"), finding_id)
 
     def _record(self, channel: str, text: str, t, finding_id: int) -> None:
         if self.run is not None:

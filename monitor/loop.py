@@ -10,6 +10,7 @@ give-up time. It ends at the program's end, on an alarm, on ``stop``, or on the 
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -24,11 +25,17 @@ from monitor.sync import SyncResult
 GIVE_UP_S = DEFAULT_GIVE_UP_S
 #: while no fresh state comes, say so this often (s, wall clock)
 LOST_NOTICE_S = 5.0
+#: "monitor falling behind" is said at most this often (s, wall clock)
+BEHIND_NOTICE_S = 5.0
+#: a look-ahead backlog (program s its waiting rows reach back from the horizon end)
+#: worth saying: predictions there come this much later than they could
+BEHIND_BACKLOG_S = 1.0
 
 
 def run_controller(session: Session, controller, period: float, status=None, stop=None,
                    done=None, max_seconds: float | None = None, notify=None,
-                   give_up_s: float | None = GIVE_UP_S, notice_every: float = LOST_NOTICE_S) -> int:
+                   give_up_s: float | None = GIVE_UP_S, notice_every: float = LOST_NOTICE_S,
+                   clock=time.monotonic, resume_after: float | None = None) -> int:
     """Poll ``controller`` every ``period`` s and step ``session`` until the program ends.
 
     ``done()`` (optional) says the run is over (the virtual controller's ``done``);
@@ -42,23 +49,38 @@ def run_controller(session: Session, controller, period: float, status=None, sto
     drains ``controller.link_events()`` (when it has them) into the session. ``notify``
     (callable(dict), optional) gets every link event and gap record as JSON-ready dicts,
     and while no fresh state comes, every ``notice_every`` s, a ``{"event": "lost"}``
-    record ("controller lost for 30 s, retrying"). Returns the number of states processed.
+    record ("controller lost for 30 s, retrying"). When the monitor cannot keep up (a
+    step longer than ``period``, a look-ahead backlog, the spindle overtaking the
+    look-ahead) ``notify`` gets, at most every :data:`BEHIND_NOTICE_S`, a ``{"event":
+    "behind"}`` record ("monitor falling behind: ..."), also kept in the run file's alerts
+    (channel ``behind``). ``clock`` (s) times the steps and the notices (tests pass their
+    own). ``resume_after`` (s, dry runs only): resume the controller that long after it
+    stood in dexmon's feed hold (a virtual machine has no cycle-start button). Returns the
+    number of states processed.
     """
     n = 0
-    start = time.monotonic()
+    start = clock()
     watch = LinkWatch(give_up_s, notice_every, notify)
+    behind = BehindWatch(period, BEHIND_NOTICE_S, notify, session.run)
+    held_since = None  # clock s when the machine was first seen in dexmon's hold
     session.on_gap = notify
     end_at = _program_end(session)
     session.end_reason = "stopped"
     for state in _guarded_states(controller, period, session, stop):
         _drain_link_events(controller, session, notify)
+        t_step = clock()
         info = session.step(state)
+        now = clock()
+        session.alerter.follow_state(state)  # after dexmon's feed hold: held? resumed?
+        if resume_after is not None:
+            held_since = _resume_dry_run(controller, session.alerter, resume_after, held_since, now)
         n += 1
-        now = time.monotonic()
+        behind.see(state.t, now - t_step, session.lookahead.backlog_s, info.overtaken, session, now)
         gave_up = watch.see(state, now)
         if status is not None:
             status.update(state, info.sync, session.path.duration, len(session.findings), info.seconds * 1e3,
-                          note=watch.note(now))
+                          note=watch.note(now) or _hold_note(session.alerter),
+                          upcoming=lambda: _upcoming(session, info.sync, state))
         if gave_up:
             session.end_reason = gave_up
             break
@@ -85,6 +107,42 @@ def run_controller(session: Session, controller, period: float, status=None, sto
     return n
 
 
+def _upcoming(session: Session, sync: SyncResult | None, state: MachineState) -> str:
+    """The status line's countdown to the next predicted finding ("" when none is ahead)."""
+    if sync is None:
+        return ""
+    from monitor.status import next_finding
+
+    ovr = state.overrides[0] if state.overrides else 100
+    return next_finding(session.findings, session.path.row_t0, sync.progress, ovr)
+
+
+def _resume_dry_run(controller, alerter, after: float, since: float | None, now: float) -> float | None:
+    """Resume ``controller`` once it stood ``after`` s (loop clock) in dexmon's feed hold;
+    returns when it was first seen held (None: not held). A resume the machine ignores
+    (still decelerating) is tried again ``after`` s later."""
+    h = alerter.hold
+    if h is None or h.get("held_t") is None:
+        return None
+    if since is None:
+        return now
+    if now - since < after:
+        return since
+    try:
+        controller.resume()
+    except Exception:  # noqa: BLE001 - the loop goes on; the hold note stays on the status line
+        pass
+    return now
+
+
+def _hold_note(alerter) -> str:
+    """For the status line while the machine stands in dexmon's feed hold."""
+    h = getattr(alerter, "hold", None)
+    if not h or h.get("held_t") is None:
+        return ""
+    return f"HELD by dexmon ({h['kind']} line {h['line']}): resume with ~ / cycle start"
+
+
 def _program_end(session: Session) -> tuple[int, float] | None:
     """``(row, progress s)`` where the program's last motion ends, or None (no motion)."""
     mv = session.moves
@@ -104,6 +162,68 @@ def _at_end(sync: SyncResult | None, end_at: tuple[int, float] | None) -> bool:
         return False
     row, progress = end_at
     return sync.row >= row and sync.progress >= progress - 1e-9
+
+
+class BehindWatch:
+    """Says when the monitor cannot keep up with the machine -- steps longer than the poll
+    ``period`` (s), a look-ahead backlog of :data:`BEHIND_BACKLOG_S` or more, the spindle
+    overtaking the look-ahead -- at once the first time, then at most every
+    ``notice_every`` s (``now``'s clock), each notice summing up what happened since the
+    last one. Notices go to ``notify`` and to ``run``'s alerts (channel ``behind``)."""
+
+    def __init__(self, period: float, notice_every: float, notify=None, run=None):
+        self.period = float(period)
+        self.notice_every = float(notice_every)
+        self.notify = notify
+        self.run = run
+        self.notices = 0
+        self._next_notice = -math.inf
+        self._reset()
+
+    def _reset(self) -> None:
+        self.slow_steps, self.longest_s, self.backlog_s = 0, 0.0, 0.0
+        self.overtaken: list[tuple[int, int]] = []   # program lines (first, last) not predicted
+
+    def see(self, t: float, step_s: float, backlog_s: float, overtaken, session: Session, now: float) -> dict | None:
+        """Take one step: its controller time ``t``, duration ``step_s`` (s), the
+        look-ahead's backlog (program s) and the rows it was overtaken on (or None).
+        Returns the notice given, if any."""
+        if self.period > 0 and step_s > self.period:
+            self.slow_steps += 1
+            self.longest_s = max(self.longest_s, step_s)
+        if backlog_s >= BEHIND_BACKLOG_S:
+            self.backlog_s = max(self.backlog_s, backlog_s)
+        if overtaken is not None:
+            lines = session.moves["line"]
+            self.overtaken.append((int(lines[overtaken[0]]), int(lines[overtaken[1]])))
+        if not (self.slow_steps or self.backlog_s or self.overtaken) or now < self._next_notice:
+            return None
+        rec = self._notice(t)
+        self._next_notice = now + self.notice_every
+        self._reset()
+        return rec
+
+    def _notice(self, t: float) -> dict:
+        parts = []
+        if self.slow_steps:
+            parts.append(f"{self.slow_steps} step(s) longer than the poll period of {self.period * 1e3:.0f} ms "
+                         f"(longest {self.longest_s * 1e3:.0f} ms)")
+        if self.backlog_s:
+            parts.append(f"the look-ahead is up to {self.backlog_s:.1f} s behind its horizon")
+        for a, b in self.overtaken[:3]:
+            parts.append(f"the spindle overtook the look-ahead: {'line ' + str(a) if a == b else f'lines {a}-{b}'} "
+                         "not predicted")
+        rec = {"event": "behind", "t": t, "slow_steps": self.slow_steps,
+               "longest_step_ms": round(self.longest_s * 1e3, 1), "period_ms": round(self.period * 1e3, 1),
+               "backlog_s": round(self.backlog_s, 3), "overtaken_lines": [list(x) for x in self.overtaken],
+               "message": "monitor falling behind: " + "; ".join(parts)
+                          + " (findings there come with less lead time, or only when they happen)"}
+        self.notices += 1
+        if self.run is not None:
+            self.run.append_alert("behind", rec["message"], t=t)
+        if self.notify is not None:
+            self.notify(rec)
+        return rec
 
 
 class LinkWatch:

@@ -375,14 +375,27 @@ class Lookahead:
         self.next_row = 0
         self.wco = np.zeros(6)
         self.rows_checked = 0
+        #: program s the rows waiting to be predicted reach back from the horizon end
+        #: after the last :meth:`advance` (0: caught up)
+        self.backlog_s = 0.0
+        # the furthest horizon end of the advances since the anchor, before / after the
+        # last advance: a row that starts before ``_end_before`` was inside the horizon
+        # earlier and waited (program s)
+        self._end_seen = -math.inf
+        self._end_before = -math.inf
 
     @property
     def model(self) -> DexelGrid | None:
         """The scratch model (the live stock at the anchor, cut by the rows predicted since)."""
         return None if self.checker is None else self.checker.grid
 
-    def anchor(self, live: DexelGrid, row: int, wco=None) -> None:
-        """Restart the scratch model from the live one, predicting from ``row`` on."""
+    def anchor(self, live: DexelGrid, row: int, wco=None, behind: bool = False) -> None:
+        """Restart the scratch model from the live one, predicting from ``row`` on.
+
+        ``behind``: the spindle overtook the look-ahead; the rows ahead were inside the
+        horizon already, so findings on them count as predicted late (:meth:`late_s`)."""
+        if not behind:
+            self._end_seen = -math.inf
         if wco is not None:
             self.wco = np.asarray(wco, np.float64)
         c = self.checker
@@ -423,15 +436,31 @@ class Lookahead:
         allows (at least one); return their findings."""
         if self.checker is None:
             raise RuntimeError("Lookahead.anchor() first")
-        hi = self.target_row(progress)
+        end = self.horizon_end(progress)
+        self._end_before, self._end_seen = self._end_seen, max(self._end_seen, end)
+        target = self.target_row(progress)
         lo = self.next_row
-        if hi <= lo:
+        if target <= lo:
+            self.backlog_s = 0.0
             return []
         budget = self.budget_rays if budget_rays is None else float(budget_rays)
         cap = int(np.searchsorted(self.cost_cum, self.cost_cum[lo] + budget, side="right")) - 1
-        hi = min(hi, max(cap, lo + 1))
+        hi = min(target, max(cap, lo + 1))
         self.next_row = hi
+        self.backlog_s = max(end - float(self.path.row_t0[hi]), 0.0) if hi < target else 0.0
         return self.check_rows(lo, hi)
+
+    def late_s(self, finding: Finding, progress: float) -> float:
+        """Program s of lead the finding lost waiting in the backlog: its row was inside
+        the horizon at an earlier :meth:`advance` (or before the spindle overtook the
+        look-ahead) but predicted only now; 0 when it was predicted at its first chance."""
+        row = int(min(finding.stages or (finding.stage,))) - 1
+        if row < 0 or row >= self.path.row_t0.size:
+            return 0.0
+        t0 = float(self.path.row_t0[row])
+        if t0 >= self._end_before:
+            return 0.0
+        return max(self.horizon_end(progress) - t0, 0.0)
 
     def check_rows(self, lo: int, hi: int) -> list[Finding]:
         """Cut and check rows ``lo..hi-1`` on the scratch model (``Checker.cut_and_check``)."""

@@ -73,6 +73,9 @@ class StepInfo:
     seconds: float = 0.0            # wall time of the step
     skipped: str = ""               # why the state was not followed (not fresh), else ""
     gap: dict | None = None         # the gap record this (first fresh) state closed
+    #: program rows ``(first, last)`` the spindle ran before the look-ahead predicted them
+    #: (it overtook the look-ahead: the monitor fell behind), else None
+    overtaken: tuple | None = None
 
 
 def load_moves(job: Job) -> tuple[np.ndarray, object]:
@@ -169,6 +172,7 @@ class Session:
         self.end_reason = ""
         self._prev_tip: np.ndarray | None = None
         self._prev_row: int | None = None   # program row of the last piece cut live
+        self._predicted_to = 0            # rows before it were predicted (before this step's anchor)
         self._trace = None
         self._trace_from = 0
         self._fill_horizon = False
@@ -324,6 +328,7 @@ class Session:
             # trouble before the first fresh state (a reset told at connect): there is no
             # path to join yet, so no gap to close; the counts keep what was missed
             gap = self._gap = None
+        self._predicted_to = self.lookahead.next_row
         row_hint = self.last_sync.row if self.last_sync is not None else None
         tip = self.tip(state, row_hint)
         point = self.sync_point(state, tip, row_hint)
@@ -341,11 +346,12 @@ class Session:
         elif gap is not None:
             info.gap = self._close_gap(gap, state, tip, prev, s)
             self.lookahead.anchor(self.live, s.row, wco)
-        elif (s.how in ("search", "line") and abs(s.progress - prev.progress) > JUMP_S) \
-                or self.lookahead.next_row < s.row:
-            # a jump, or the spindle overtook the look-ahead (its rows are history now):
-            # predict again from the live model
-            self.lookahead.anchor(self.live, s.row, wco)
+        elif s.how in ("search", "line") and abs(s.progress - prev.progress) > JUMP_S:
+            self.lookahead.anchor(self.live, s.row, wco)  # a jump: predict again from the live model
+        elif self.lookahead.next_row < s.row:
+            # the spindle overtook the look-ahead: its rows are history now, unpredicted
+            info.overtaken = (self.lookahead.next_row, s.row - 1)
+            self.lookahead.anchor(self.live, s.row, wco, behind=True)
         elif not np.array_equal(wco, self.lookahead.wco):
             self.lookahead.set_wco(wco)
         self.live_checks.set_wco(wco)
@@ -510,7 +516,18 @@ class Session:
             self.run.append_cut(self.stage, {"points": pts}, t=state.t, move_id=s.row + 1, line=s.line)
             if removed > 0 and rays.size:
                 self._record_trace(rays)
-        return [finding_record(f, 0.0, state.t, predicted=False, stage=self.stage) for f in found], removed
+        out = [finding_record(f, 0.0, state.t, predicted=False, stage=self.stage) for f in found]
+        for rec, f in zip(out, found):
+            rec["lead_note"] = self._unpredicted_note(f)
+        return out, removed
+
+    def _unpredicted_note(self, f) -> str:
+        """Why a finding on the real motion comes with lead time 0 (when it was not
+        predicted; a predicted one is merged into its alert and this is not said)."""
+        row = int(min(f.stages or (f.stage,))) - 1
+        if row >= self._predicted_to or self.last_sync is None:
+            return "happened before it could be predicted (the look-ahead had not reached it)"
+        return "happened on the real motion, not as the program says (the look-ahead checks the program)"
 
     def _travelled(self, prev: np.ndarray, tip: np.ndarray, s: SyncResult) -> tuple[np.ndarray, np.ndarray]:
         """The path from the last tip to this one: points (k+1, 3) mm and the program row of
@@ -564,7 +581,17 @@ class Session:
         else:
             found = self.lookahead.advance(s.progress)
         ovr = state.overrides[0] if state.overrides else 100
-        return [finding_record(f, lead_time(f, self.path, s.progress, ovr), state.t) for f in found]
+        out = []
+        for f in found:
+            rec = finding_record(f, lead_time(f, self.path, s.progress, ovr), state.t)
+            late = self.lookahead.late_s(f, s.progress)
+            if late > 0:
+                rec["late_s"] = round(late, 3)
+                rec["lead_note"] = f"predicted {late:.1f} s late: the monitor fell behind the machine"
+            elif not rec["lead_time_s"]:
+                rec["lead_note"] = "predicted as the machine reached it (the monitor started or re-synced there)"
+            out.append(rec)
+        return out
 
     def _alert(self, records: list[dict], state: MachineState) -> list[dict]:
         """Offer findings to the alerter (each alerted once; a predicted one that then

@@ -5,8 +5,9 @@
 
 The program runs on an in-process virtual machine (no soft limits: the job's [limits]
 are what the monitor checks) and the monitor follows it exactly as it follows a real
-machine: same sync, cutting, look-ahead, alerts and run file. Exit 0 clean, 1 findings,
-2 error.
+machine: same sync, cutting, look-ahead, alerts and run file. With ``--feed-hold`` dexmon
+holds the virtual machine on a finding and resumes it itself after a few seconds (it has
+no cycle-start button). Exit 0 clean, 1 findings, 2 error.
 
 The machine starts where the job's machine would (``[machine] start``, default the top of
 the Z travel above the program's first point: :mod:`monitor.start`), so a dry run and
@@ -31,6 +32,9 @@ EXAMPLE_JOB = Path(__file__).resolve().parent.parent / "examples" / "clamp_job" 
 #: a brisk hobby-mill: 5 m/min rapids, no soft limits (the job's limits are checked instead)
 VIRTUAL_MAX_RATE = (5000.0, 5000.0, 2000.0)
 VIRTUAL_ACCEL = (300.0, 300.0, 200.0)
+#: a dry run's virtual machine, held by dexmon's feed hold, is resumed by dexmon after this
+#: long (s): it has no cycle-start button
+DRY_RUN_RESUME_S = 3.0
 #: the same machine as timing limits, for lead times (when the job gives no [machine])
 VIRTUAL_MACHINE = {"max_rate": VIRTUAL_MAX_RATE, "acceleration": VIRTUAL_ACCEL, "junction_deviation": 0.01}
 
@@ -85,4 +89,4 @@ def run(args) -> int:
     moves, _ = load_moves(job)
     controller = virtual_controller(virtual_moves(job, moves), args.speed, job.poll_hz,
                                     clock=getattr(args, "clock", "wall"))
-    return run_session(args, job, controller, done=lambda: controller.done)
+    return run_session(args, job, controller, done=lambda: controller.done, resume_after=DRY_RUN_RESUME_S)

@@ -20,6 +20,12 @@ give_up_s``, default 600) the run ends with exit 2, one line saying why, the sum
 the run file closed. The summary counts missed, bad and disconnected polls and lists the
 gaps.
 
+A feed hold is said at once (``{"event": "feed_hold", ...}``: the finding, its line, how to
+go on) and so is the machine leaving it (``{"event": "resumed"}``); dexmon follows the
+machine on to the program's end. A monitor that cannot keep up says "monitor falling
+behind: ..." (``{"event": "behind"}``) at most every few seconds. With the output piped, a
+progress line every few seconds takes the status line's place.
+
 ``--view`` opens a window that redraws the shaded model as the machine cuts, with the
 tool, the path ahead and the findings marked; ``--frames DIR`` writes the same frames as
 numbered PNG files (no display needed). Either is drawn by a thread of its own, at most
@@ -69,11 +75,13 @@ def add_arguments(parser) -> None:
     add_common_arguments(parser)
 
 
-def run_session(args, job: Job, controller, done=None, default_run_dir: str | Path = "runs") -> int:
-    """Open the run file, connect, follow ``controller`` to the end; return the exit status."""
+def run_session(args, job: Job, controller, done=None, default_run_dir: str | Path = "runs",
+                resume_after: float | None = None) -> int:
+    """Open the run file, connect, follow ``controller`` to the end; return the exit status.
+    ``resume_after`` (s, dry runs): dexmon resumes the machine that long after its feed hold."""
     from rich.console import Console
 
-    from monitor.alerts import Alerter
+    from monitor.alerts import RESUME_HOW, Alerter
     from monitor.runfile import RunWriter, default_run_path
     from monitor.session import Session, load_moves
     from monitor.status import StatusLine
@@ -91,7 +99,10 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
     try:
         alerter = Alerter(console=console, json_stream=sys.stdout if as_json else None,
                           bell=("bell" in job.alerts) and console is not None,
-                          feed_hold=controller.feed_hold if job.feed_hold else None, run=writer)
+                          feed_hold=controller.feed_hold if job.feed_hold else None, run=writer,
+                          resume_how=RESUME_HOW if resume_after is None else
+                          f"dry run: dexmon resumes the virtual machine in {resume_after:g} s "
+                          f"(a real machine waits: {RESUME_HOW})")
         program_text = job.program.read_text(errors="replace") if job.program else ""
         session = Session(job, moves, run=writer, alerter=alerter, program_text=program_text, program=program)
         if hasattr(controller, "learned_lines"):
@@ -116,7 +127,7 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
             _jsonl({"event": "start", "run": str(run_path), "program": str(job.program),
                     "controller": getattr(controller, "url", "")})
         elif not quiet:
-            console.print(f"run file: {run_path}")
+            console.print(f"run file: {run_path}", soft_wrap=True)
         _announce_endpoints(controller, console, as_json)
         # a setup that cannot be meant is said before the machine's first move is judged
         session.check_setup(inch=bool(getattr(program, "inch", False)),
@@ -132,7 +143,8 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
         notify = _notifier(console, as_json, writer)
         try:
             with status:
-                _follow(session, controller, 1.0 / job.poll_hz, status, done, feed, notify, job.give_up_s)
+                _follow(session, controller, 1.0 / job.poll_hz, status, done, feed, notify, job.give_up_s,
+                        resume_after)
         except KeyboardInterrupt:
             session.end_reason = "interrupted"
             err_console.print("interrupted; the run file keeps everything so far")
@@ -199,9 +211,10 @@ def _escape(text: str) -> str:
 
 
 def _notifier(console, as_json: bool, writer):
-    """What the loop calls with each link event, gap record and "controller lost" notice:
-    one line on the terminal or one JSON line; the notices also go to the run file (the
-    session records the events and gaps itself)."""
+    """What the loop calls with each link event, gap record, "controller lost" and "monitor
+    falling behind" notice: one line on the terminal or one JSON line; the lost notices
+    also go to the run file (the session records the events and gaps itself, the loop the
+    falling-behind notices)."""
     from monitor.jsonable import json_default
 
     def notify(rec: dict) -> None:
@@ -212,8 +225,8 @@ def _notifier(console, as_json: bool, writer):
             sys.stdout.flush()
         elif console is not None:
             style = "bold red" if rec.get("kind") in ("lost", "reset") or rec.get("event") == "lost" else "yellow"
-            label = "gap" if rec.get("event") == "gap" else "link"
-            console.print(f"[{style}]{label}: {_escape(rec.get('message', ''))}[/{style}]", soft_wrap=True)
+            label = {"gap": "gap: ", "behind": ""}.get(rec.get("event"), "link: ")  # "monitor falling behind: ..."
+            console.print(f"[{style}]{label}{_escape(rec.get('message', ''))}[/{style}]", soft_wrap=True)
     return notify
 
 
@@ -319,14 +332,15 @@ def _announce_endpoints(controller, console, as_json: bool) -> None:
                       f"(the machine is on {ends.get('machine', '?')})")
 
 
-def _follow(session, controller, period: float, status, done, feed, notify=None, give_up_s=None) -> None:
+def _follow(session, controller, period: float, status, done, feed, notify=None, give_up_s=None,
+            resume_after=None) -> None:
     """Run the loop; with a window the loop runs on a worker thread, since the window
     belongs to the main thread (GUI toolkits are not thread-safe)."""
     import threading
 
     from monitor.loop import run_controller
 
-    kw = {"status": status, "done": done, "notify": notify, "give_up_s": give_up_s}
+    kw = {"status": status, "done": done, "notify": notify, "give_up_s": give_up_s, "resume_after": resume_after}
     if feed is None or not feed.view.is_window:
         run_controller(session, controller, period, **kw)
         return

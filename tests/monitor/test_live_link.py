@@ -209,4 +209,4 @@ def test_status_line_says_the_controller_is_lost():
 
     st = MachineState(t=1.0, mpos=(1, 2, 3), state=RunState.DISCONNECTED, raw="port gone")
     text = status_text(st, None, 10.0, 0, note="lost 30 s, retrying").plain
-    assert text.startswith("Disconnected") and text.endswith("lost 30 s, retrying")
+    assert text.startswith("state Disconnected") and text.endswith("lost 30 s, retrying")
