@@ -763,6 +763,14 @@ class GrblController(Controller):
     def last_state(self) -> MachineState | None:
         return self._state
 
+    def machine_limits(self):
+        """The machine's limits from the ``$$`` settings read (see
+        :func:`drivers.grbl.protocol.settings_limits`), or None before ``$$`` was read
+        (attached to a busy machine, it is read once the machine is Idle)."""
+        with self._cond:
+            settings = dict(self.settings)
+        return p.settings_limits(settings, f"GRBL $$ on {self.port}")
+
     def poll(self, timeout: float | None = None) -> MachineState:
         """Ask ``?`` and return the report it brings, stamped at arrival; never raises.
 

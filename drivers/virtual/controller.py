@@ -167,6 +167,10 @@ class VirtualController(Controller):
                 return True
             return self._feeder.all_queued and not vm.busy
 
+    def machine_limits(self):
+        """The configured machine's limits (known before :meth:`connect`)."""
+        return self.config.limits(f"virtual machine {self.url}")
+
     # ------------------------------------------------------------------ polling
     def poll(self) -> MachineState:
         """The machine's state now, as the contract wants it (:class:`Controller`): the

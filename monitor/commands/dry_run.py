@@ -24,8 +24,6 @@ EXAMPLE_JOB = Path(__file__).resolve().parent.parent / "examples" / "clamp_job" 
 #: a brisk hobby-mill: 5 m/min rapids, no soft limits (the job's limits are checked instead)
 VIRTUAL_MAX_RATE = (5000.0, 5000.0, 2000.0)
 VIRTUAL_ACCEL = (300.0, 300.0, 200.0)
-#: the same machine as timing limits, for lead times (when the job gives no [machine])
-VIRTUAL_MACHINE = {"max_rate": VIRTUAL_MAX_RATE, "acceleration": VIRTUAL_ACCEL, "junction_deviation": 0.01}
 
 
 def add_arguments(parser) -> None:
@@ -51,8 +49,6 @@ def run(args) -> int:
         raise JobError(f"expected a positive number, got {args.speed}", "--speed")
     job = job_from_args(args, args.job or EXAMPLE_JOB)
     require(job, "program", "stock", "tools")
-    if job.machine is None:
-        job.machine = dict(VIRTUAL_MACHINE)
     moves, _ = load_moves(job)
     controller = virtual_controller(moves, args.speed, job.poll_hz)
     return run_session(args, job, controller, done=lambda: controller.done)

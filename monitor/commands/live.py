@@ -92,7 +92,8 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
                           bell=("bell" in job.alerts) and console is not None,
                           feed_hold=controller.feed_hold if job.feed_hold else None, run=writer)
         program_text = job.program.read_text(errors="replace") if job.program else ""
-        session = Session(job, moves, run=writer, alerter=alerter, program_text=program_text, program=program)
+        session = Session(job, moves, run=writer, alerter=alerter, program_text=program_text, program=program,
+                          controller_limits=_machine_limits(controller))
         if hasattr(controller, "learned_lines"):
             from monitor.linesync import StreamedLines
 
@@ -116,6 +117,7 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
                     "controller": getattr(controller, "url", "")})
         elif not quiet:
             console.print(f"run file: {run_path}")
+        _take_limits(session, controller, console, as_json)
         _announce_endpoints(controller, console, as_json)
         # the setup made many long-lived objects (move table rows, meshes, tools): keep
         # the collector from walking them again during the run (no gen-2 pauses per poll)
@@ -161,6 +163,36 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
     if gave_up:
         return 2
     return 1 if summary["findings"] else 0
+
+
+def _machine_limits(controller):
+    """``controller.machine_limits()``, or None when it cannot say (yet)."""
+    ask = getattr(controller, "machine_limits", None)
+    try:
+        return ask() if ask is not None else None
+    except Exception:  # noqa: BLE001 - unknown limits: the job's and the defaults hold
+        return None
+
+
+def _take_limits(session, controller, console, as_json: bool) -> None:
+    """After connect: time the program with the limits the controller stated (GRBL read
+    ``$$`` if the machine was Idle), say which limits are in force and where they came
+    from, and when the controller has not said them yet, let the session ask at every
+    step until it has (GRBL attached to a busy machine reads ``$$`` at its next Idle);
+    they are said again when they arrive."""
+
+    def say(force) -> None:
+        if as_json:
+            _jsonl({"event": "machine", "message": force.describe(), **force.to_json()})
+        elif console is not None:
+            console.print(_escape(force.describe()), soft_wrap=True)
+
+    limits = _machine_limits(controller)
+    session.use_controller_limits(limits)
+    say(session.in_force)
+    if limits is None and hasattr(controller, "machine_limits"):
+        session.limits_from = controller.machine_limits
+        session.on_limits = say
 
 
 def _print_summary(console, summary: dict, run_path) -> None:
