@@ -112,12 +112,13 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
             session.warm_up()
         _connect(controller)
         connected = True
+        say_limits = _take_limits(session, controller, console, as_json)
         if as_json:
             _jsonl({"event": "start", "run": str(run_path), "program": str(job.program),
-                    "controller": getattr(controller, "url", "")})
+                    "controller": getattr(controller, "url", ""), "machine": _limits_record(session.in_force)})
         elif not quiet:
             console.print(f"run file: {run_path}")
-        _take_limits(session, controller, console, as_json)
+        say_limits(session.in_force)
         _announce_endpoints(controller, console, as_json)
         # the setup made many long-lived objects (move table rows, meshes, tools): keep
         # the collector from walking them again during the run (no gen-2 pauses per poll)
@@ -174,25 +175,34 @@ def _machine_limits(controller):
         return None
 
 
-def _take_limits(session, controller, console, as_json: bool) -> None:
+def _limits_record(force) -> dict:
+    """The limits in force as JSON: the figures, ``sources`` and a ``message``."""
+    return {"message": force.describe(), **force.to_json()}
+
+
+def _take_limits(session, controller, console, as_json: bool):
     """After connect: time the program with the limits the controller stated (GRBL read
-    ``$$`` if the machine was Idle), say which limits are in force and where they came
-    from, and when the controller has not said them yet, let the session ask at every
-    step until it has (GRBL attached to a busy machine reads ``$$`` at its next Idle);
-    they are said again when they arrive."""
+    ``$$`` if the machine was Idle); when it has not said them yet, let the session ask
+    at every step until it has (GRBL attached to a busy machine reads ``$$`` at its next
+    Idle) and say them when they arrive (JSON: ``{"event": "machine", ...}``). Returns
+    what says limits in force on the terminal (the start record carries them in JSON)."""
+
+    def say_later(force) -> None:
+        if as_json:
+            _jsonl({"event": "machine", **_limits_record(force)})
+        else:
+            say(force)
 
     def say(force) -> None:
-        if as_json:
-            _jsonl({"event": "machine", "message": force.describe(), **force.to_json()})
-        elif console is not None:
+        if console is not None:
             console.print(_escape(force.describe()), soft_wrap=True)
 
     limits = _machine_limits(controller)
     session.use_controller_limits(limits)
-    say(session.in_force)
-    if limits is None and hasattr(controller, "machine_limits"):
+    if limits is None:
         session.limits_from = controller.machine_limits
-        session.on_limits = say
+        session.on_limits = say_later
+    return say
 
 
 def _print_summary(console, summary: dict, run_path) -> None:

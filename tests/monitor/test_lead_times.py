@@ -129,8 +129,8 @@ def test_lead_times_on_a_slow_grbl_are_the_machines(example, tmp_path, capsys):
         peer.close()
     out = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
     assert code == 1
-    said = [x for x in out if x["event"] == "machine"]
-    assert said and said[0]["sources"] == {"max_rate": "controller", "acceleration": "controller",
+    said = [out[0]["machine"]]  # the start record says the limits in force
+    assert said[0]["sources"] == {"max_rate": "controller", "acceleration": "controller",
                                            "junction_deviation": "controller"}, said
     assert said[0]["max_rate"] == [500.0] * 3 and "GRBL $$" in said[0]["message"]
     findings = {x["line"]: x for x in out if x["event"] == "finding"}
@@ -149,3 +149,82 @@ def _go_after_handshake(peer: GrblPeer, machine: SteppedMachine, timeout: float 
     while "$G" not in peer.received_lines and time.monotonic() < deadline:
         time.sleep(0.01)  # polling a list the peer appends to; no event exists for it
     machine.go()
+
+
+GRBL_SLOW = ControllerLimits(max_rate=(500.0,) * 3, acceleration=(20.0,) * 3, junction_deviation=0.01,
+                             travel=((-200.0, 0.0),) * 3, soft_limits=True, source="GRBL $$ on /dev/ttyUSB0")
+
+
+def test_job_machine_overrides_the_controller_field_by_field():
+    job = parse_job_text("[machine]\nacceleration = 40\n")
+    assert job.machine == {"acceleration": (40.0, 40.0, 40.0)}  # only what the job says
+    got = in_force(job.machine, GRBL_SLOW, job.limits)
+    assert got.machine == {"max_rate": (500.0,) * 3, "acceleration": (40.0, 40.0, 40.0),
+                           "junction_deviation": 0.01}
+    assert got.sources == {"max_rate": "controller", "acceleration": "job", "junction_deviation": "controller"}
+    line = got.describe()
+    assert "max rate X500 Y500 Z500 mm/min" in line and "(from GRBL $$ on /dev/ttyUSB0" in line
+    assert "acceleration X40 Y40 Z40 mm/s^2 (from job [machine])" in line
+    # soft limits on: the controller's travel is checked unless the job gives [limits]
+    assert got.travel == {"X": (-200.0, 0.0), "Y": (-200.0, 0.0), "Z": (-200.0, 0.0)}
+    assert "travel limits X[-200, 0]" in line
+    own = in_force(None, GRBL_SLOW, {"X": (-50.0, 0.0)})
+    assert own.travel == {"X": (-50.0, 0.0)} and own.travel_source == "job"
+    # nothing from the controller: the defaults, said as such
+    dflt = in_force(None, None)
+    assert set(dflt.sources.values()) == {"default"} and "dexmon default" in dflt.describe()
+
+
+def test_limits_learned_after_the_session_was_built_retime_it_in_place(example, tmp_path):
+    """GRBL reads $$ only when Idle: attached to a busy machine the session starts on the
+    defaults and is retimed between two steps when the limits arrive."""
+    from drivers.state import MachineState, RunState
+    from monitor.runfile import RunReader, RunWriter
+
+    job, moves = example
+    _, program = load_moves(job)
+    with RunWriter(tmp_path / "r.sqlite") as w:
+        s = Session(job, moves, program=program, run=w)
+        brisk = s.path.duration
+        assert s.in_force.sources["max_rate"] == "default"
+        asked, said = [], []
+
+        def limits():
+            asked.append(1)
+            return None if len(asked) < 3 else GRBL_SLOW
+        s.limits_from, s.on_limits = limits, said.append
+        k = len(s.path) // 3
+        where = (s.path.p0[k] + s.path.p1[k]) / 2
+        for i in range(4):
+            s.step(MachineState(t=float(i), mpos=tuple(where), state=RunState.RUN))
+            if i == 1:
+                before = s.last_sync
+        assert len(asked) == 3 and said == [s.in_force] and s.limits_from is None
+        assert s.path.duration == pytest.approx(125.9, rel=0.01) and brisk < s.path.duration / 2
+        # the progress followed stays at the same place on the path, now in the slow timing
+        assert s.sync.progress > before.progress
+        assert np.allclose(s.path.point_at(s.sync.progress), s.path.point_at(s.last_sync.progress))
+        assert s.sync_path.t1 is s.path.t1  # sync and look-ahead read the same times
+        assert s.lookahead.limits == GRBL_SLOW.travel_limits()
+    r = RunReader(tmp_path / "r.sqlite")
+    assert r.get_array("row_seconds").sum() == pytest.approx(s.path.duration)
+    assert json.loads(r.meta()["machine"])["sources"]["max_rate"] == "controller"
+
+
+def test_report_machine_time_is_the_controllers_at_any_speed(tmp_path):
+    """'machine time recorded' is the controller's clock: a dry run at --speed 10 and at
+    --speed 50 records the same machine time (within a poll: 1 s of machine time at
+    50x and 50 polls/s), and the program time agrees with it."""
+    from monitor.cli import main
+    from monitor.commands.report import cycle_time
+    from monitor.trace_io import RunView
+
+    got = {}
+    for speed in (10, 50):
+        run = tmp_path / f"r{speed}.sqlite"
+        assert main(["dry-run", "--speed", str(speed), "--quiet", "--run", str(run)]) == 1
+        with RunView(run) as view:
+            got[speed] = cycle_time(view)
+    assert got[10]["machine_s"] == pytest.approx(got[50]["machine_s"], abs=1.5)
+    for speed in (10, 50):
+        assert got[speed]["machine_s"] == pytest.approx(got[speed]["program_s"], rel=0.05)
