@@ -75,7 +75,8 @@ from sim.errors import InputError
 from sim.tolerance import Tolerance
 
 ALERT_ACTIONS = ("log", "bell", "feed_hold")
-#: program timing when the job gives no [machine]: brisk enough that lead times err short
+#: program timing for what neither the job's [machine] nor the controller says: brisk
+#: enough that lead times err short
 #: (an early alert is safe, a late one is not)
 DEFAULT_MACHINE = {"max_rate": (5000.0, 5000.0, 5000.0), "acceleration": (500.0, 500.0, 500.0),
                    "junction_deviation": 0.02}
