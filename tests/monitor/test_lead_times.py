@@ -213,18 +213,23 @@ def test_limits_learned_after_the_session_was_built_retime_it_in_place(example, 
 
 def test_report_machine_time_is_the_controllers_at_any_speed(tmp_path):
     """'machine time recorded' is the controller's clock: a dry run at --speed 10 and at
-    --speed 50 records the same machine time (within a poll: 1 s of machine time at
-    50x and 50 polls/s), and the program time agrees with it."""
+    --speed 50 records the same machine time, and the program time agrees with it. The
+    program starts at the first poll, and the run ends at the first poll that finds it
+    done: each figure may be one poll late (in machine time), never more."""
     from monitor.cli import main
     from monitor.commands.report import cycle_time
+    from monitor.runfile import RunReader
     from monitor.trace_io import RunView
 
-    got = {}
+    got, last_poll = {}, {}
     for speed in (10, 50):
         run = tmp_path / f"r{speed}.sqlite"
         assert main(["dry-run", "--speed", str(speed), "--quiet", "--run", str(run)]) == 1
         with RunView(run) as view:
             got[speed] = cycle_time(view)
-    assert got[10]["machine_s"] == pytest.approx(got[50]["machine_s"], abs=1.5)
+        t = RunReader(run).states()["t"]
+        last_poll[speed] = float(np.diff(t)[-5:].max())  # machine s between the last polls
+    assert abs(got[10]["machine_s"] - got[50]["machine_s"]) <= last_poll[10] + last_poll[50] + 0.1
     for speed in (10, 50):
-        assert got[speed]["machine_s"] == pytest.approx(got[speed]["program_s"], rel=0.05)
+        program = got[speed]["program_s"]
+        assert program * 0.97 <= got[speed]["machine_s"] <= program * 1.03 + last_poll[speed], (speed, got)
