@@ -284,7 +284,8 @@ class GrblController(Controller):
         units = "inches" if _inches_by_format(state.raw) else "mm"
         self._link_event(LinkKind.NOTE, f"GRBL {self.port}: settings ($I $$ $# $G) not read while the machine is "
                                         f"{_state_name(state)}; they are read once it is Idle; until then "
-                                        f"positions are taken in {units}, as the report format says",
+                                        f"positions are taken in {units}, as the report format says, and "
+                                        f"the machine's limits ($110-$132) are unknown",
                          raw=state.raw)
 
     def _first_state(self) -> MachineState:
