@@ -770,7 +770,8 @@ class GrblController(Controller):
         (attached to a busy machine, it is read once the machine is Idle)."""
         with self._cond:
             settings = dict(self.settings)
-        return p.settings_limits(settings, f"GRBL $$ on {self.port}")
+            codes = self.options.codes if self.options is not None else ""
+        return p.settings_limits(settings, f"GRBL $$ on {self.port}", codes)
 
     def poll(self, timeout: float | None = None) -> MachineState:
         """Ask ``?`` and return the report it brings, stamped at arrival; never raises.

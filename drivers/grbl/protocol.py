@@ -742,12 +742,14 @@ def inch_setting(settings: dict[int, float] | None) -> bool | None:
     return None
 
 
-def settings_limits(settings: dict[int, float] | None, source: str) -> ControllerLimits | None:
+def settings_limits(settings: dict[int, float] | None, source: str, option_codes: str = "") -> ControllerLimits | None:
     """The machine's limits from GRBL ``$$`` settings: ``$110-$112`` max rates (mm/min),
     ``$120-$122`` accelerations (mm/s^2), ``$11`` junction deviation (mm), ``$130-$132``
-    travel (mm; the machine moves in ``[-$13x, 0]``, GRBL homing to the positive end),
-    ``$20`` soft limits, ``$13`` report inches. GRBL keeps all of them in mm whatever
-    ``$13`` says. A group missing or not positive and finite is None; None when no limit
+    travel (mm), ``$20`` soft limits, ``$13`` report inches. GRBL keeps all of them in mm
+    whatever ``$13`` says. The travel is ``[-$13x, 0]`` (GRBL's soft-limit check), or
+    ``[0, $13x]`` for an axis homing to its negative end (``$23`` bit set) on a firmware
+    built with HOMING_FORCE_SET_ORIGIN (``Z`` among ``option_codes``, from ``$I``'s
+    ``[OPT:]``). A group missing or not positive and finite is None; None when no limit
     at all is known (``$$`` not read yet)."""
     settings = settings or {}
 
@@ -763,8 +765,11 @@ def settings_limits(settings: dict[int, float] | None, source: str) -> Controlle
     if rate is None and accel is None and jd is None and travel is None:
         return None
     soft = settings.get(20)
-    return ControllerLimits(max_rate=rate, acceleration=accel, junction_deviation=jd,
-                            travel=None if travel is None else tuple((-v, 0.0) for v in travel),
+    if travel is not None:
+        dir_mask = int(settings.get(23, 0)) if math.isfinite(settings.get(23, 0)) else 0
+        positive = ["Z" in option_codes and bool(dir_mask >> i & 1) for i in range(3)]
+        travel = tuple((0.0, v) if up else (-v, 0.0) for v, up in zip(travel, positive))
+    return ControllerLimits(max_rate=rate, acceleration=accel, junction_deviation=jd, travel=travel,
                             soft_limits=None if soft not in (0, 1) else soft == 1,
                             report_inches=inch_setting(settings), source=source)
 

@@ -29,6 +29,11 @@ def test_settings_limits_reads_rates_accelerations_deviation_travel_and_flags():
     assert got.travel_limits() == {"X": (-200.0, 0.0), "Y": (-200.0, 0.0), "Z": (-80.0, 0.0)}
     # travel is no limit where the controller does not enforce it ($20=0: no homing needed)
     assert p.settings_limits(p.DEFAULT_SETTINGS, "").travel_limits() is None
+    # a firmware built with HOMING_FORCE_SET_ORIGIN ([OPT:Z..]) homes an axis whose $23 bit is
+    # set to its negative end and sets the origin there: that axis travels [0, $13x]
+    forced = p.settings_limits({**p.DEFAULT_SETTINGS, 23: 5, 20: 1}, "", "VZ")
+    assert forced.travel == ((0.0, 200.0), (-200.0, 0.0), (0.0, 200.0))
+    assert p.settings_limits({**p.DEFAULT_SETTINGS, 23: 5}, "", "V").travel == ((-200.0, 0.0),) * 3
     # $$ not read yet: nothing known; a group with a missing or impossible value is unknown
     assert p.settings_limits({}, "") is None and p.settings_limits({10: 1, 13: 0}, "") is None
     odd = p.settings_limits({110: 500, 111: math.nan, 112: 500, 120: 10, 121: 10, 122: 0, 11: -1,
