@@ -24,6 +24,9 @@ EXAMPLE_JOB = Path(__file__).resolve().parent.parent / "examples" / "clamp_job" 
 #: a brisk hobby-mill: 5 m/min rapids, no soft limits (the job's limits are checked instead)
 VIRTUAL_MAX_RATE = (5000.0, 5000.0, 2000.0)
 VIRTUAL_ACCEL = (300.0, 300.0, 200.0)
+#: the same machine as a job's [machine] table (the virtual controller states these
+#: limits itself, so a dry run needs no [machine]; tests use it with other controllers)
+VIRTUAL_MACHINE = {"max_rate": VIRTUAL_MAX_RATE, "acceleration": VIRTUAL_ACCEL, "junction_deviation": 0.01}
 
 
 def add_arguments(parser) -> None:
