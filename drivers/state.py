@@ -210,6 +210,46 @@ class LinkEvent:
     gap: Gap | None = None
 
 
+@dataclass(frozen=True)
+class ControllerLimits:
+    """The machine's limits as its controller states them (GRBL ``$$``, a Modbus map,
+    the virtual machine's configuration); a field is None when the controller did not say.
+
+    ``max_rate``: X Y Z, mm/min (GRBL ``$110-$112``); ``acceleration``: X Y Z, mm/s^2
+    (``$120-$122``); ``junction_deviation``: mm (``$11``); ``travel``: X Y Z machine
+    coordinate ranges ``(lo, hi)`` mm (GRBL homes to the positive end: ``(-$13x, 0)``);
+    ``soft_limits``: whether the controller enforces ``travel`` (``$20``);
+    ``report_inches``: positions are reported in inches (``$13``; the limits above are mm
+    whatever it says); ``source``: where they were read, for the user ("GRBL $$ on
+    /dev/ttyUSB0").
+    """
+
+    max_rate: tuple[float, float, float] | None = None
+    acceleration: tuple[float, float, float] | None = None
+    junction_deviation: float | None = None
+    travel: tuple[tuple[float, float], ...] | None = None
+    soft_limits: bool | None = None
+    report_inches: bool | None = None
+    source: str = ""
+
+    def timing(self) -> dict:
+        """The planner fields known, as ``[machine]`` names them (``max_rate``,
+        ``acceleration``, ``junction_deviation``)."""
+        out = {}
+        for name in ("max_rate", "acceleration", "junction_deviation"):
+            if getattr(self, name) is not None:
+                out[name] = getattr(self, name)
+        return out
+
+    def travel_limits(self) -> dict | None:
+        """``{axis: (lo, hi)}`` machine coordinates, mm, when the controller enforces its
+        travel (soft limits on), else None: without soft limits (and so homing) machine
+        coordinates need not be where the travel numbers say."""
+        if not self.soft_limits or not self.travel:
+            return None
+        return {axis: (float(lo), float(hi)) for axis, (lo, hi) in zip("XYZ", self.travel)}
+
+
 class Controller(abc.ABC):
     """Interface of every controller driver (GRBL, Modbus, virtual).
 
@@ -282,6 +322,11 @@ class Controller(abc.ABC):
                 time.sleep(delay)  # pacing a poll loop, not synchronising a test
             else:
                 next_t = time.monotonic()
+
+    def machine_limits(self) -> ControllerLimits | None:
+        """The machine's limits as the controller stated them, or None while unknown (a
+        GRBL attached to a busy machine reads ``$$`` once it is Idle)."""
+        return None
 
     def send(self, line: str) -> None:
         """Send one program line (where the protocol allows streaming)."""

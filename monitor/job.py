@@ -54,7 +54,7 @@ needs; paths are relative to the job file's folder)::
     mm = 100
     [alerts]
     actions = ["log", "bell"]   # "feed_hold" lets dexmon hold the feed on a finding
-    [machine]                   # for program timing (lead times); GRBL $110-112, $120-122, $11
+    [machine]                   # program timing (lead times); each key overrides the controller's
     max_rate = [5000, 5000, 2000]   # mm/min (one number: every axis)
     acceleration = [300, 300, 200]  # mm/s^2
     junction_deviation = 0.01       # mm
@@ -79,7 +79,8 @@ from sim.errors import InputError
 from sim.tolerance import Tolerance
 
 ALERT_ACTIONS = ("log", "bell", "feed_hold")
-#: program timing when the job gives no [machine]: brisk enough that lead times err short
+#: program timing for what neither the job's [machine] nor the controller says: brisk
+#: enough that lead times err short
 #: (an early alert is safe, a late one is not)
 DEFAULT_MACHINE = {"max_rate": (5000.0, 5000.0, 5000.0), "acceleration": (500.0, 500.0, 500.0),
                    "junction_deviation": 0.02}
@@ -162,8 +163,9 @@ class Job:
     horizon_s: float = 5.0
     horizon_mm: float | None = None
     alerts: tuple[str, ...] = ("log",)
-    #: machine limits for program timing: {"max_rate": (3,), "acceleration": (3,),
-    #: "junction_deviation": mm}; None: :data:`DEFAULT_MACHINE`
+    #: machine limits for program timing, only the keys the job gives: {"max_rate": (3,)
+    #: mm/min, "acceleration": (3,) mm/s^2, "junction_deviation": mm}; each key left out
+    #: comes from the controller, else :data:`DEFAULT_MACHINE` (see monitor.machine)
     machine: dict | None = None
     #: where the machine stands when the program starts, machine coords (3,) mm; None: the
     #: default of :func:`monitor.start.job_start`
@@ -469,7 +471,7 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
     if "machine" in doc:
         t = ctx.table(doc["machine"], "[machine]")
         ctx.no_unknown(t, {"max_rate", "acceleration", "junction_deviation"}, "[machine]")
-        m = dict(DEFAULT_MACHINE)
+        m = {}  # only what the job says: the rest comes from the controller, else the defaults
         for key, unit in (("max_rate", "mm/min"), ("acceleration", "mm/s^2")):
             if key in t:
                 v = t[key]

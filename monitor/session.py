@@ -17,7 +17,11 @@ cut as programmed (unchecked) when both ends sit on the program, and a gap recor
 what happened (:attr:`Session.gaps`, the run file's ``link_events``, the summary).
 
 Program time (and so lead times) comes from ``Program.cycle_time`` (GRBL-like planner)
-with the job's ``[machine]`` limits, falling back to length / feed only if it fails.
+with the machine limits in force (:mod:`monitor.machine`: the job's ``[machine]`` field by
+field over the controller's over defaults), falling back to length / feed only if it
+fails. Limits the controller states after the session was built (GRBL reads ``$$`` at
+connect when Idle, else at the next Idle) retime the path between two steps
+(:meth:`Session.use_controller_limits`).
 
 Two frames. The *model* frame is the job's work system (G54 unless the job says), in
 which stock, fixtures and design sit and the program's rows are placed by their machine
@@ -44,9 +48,10 @@ import numpy as np
 
 from drivers.state import LinkEvent, LinkKind, MachineState, RunState, implausible, stale_state
 from monitor.alerts import Alerter
-from monitor.job import DEFAULT_MACHINE, Job
+from monitor.job import Job
+from monitor.machine import in_force
 from monitor.predict import (LiveChecks, Lookahead, Workpiece, build_workpiece, finding_record, lead_time,
-                             reference_wco, row_shifts, work_moves)
+                             limits_in_work, reference_wco, row_shifts, work_moves)
 from monitor.sync import ProgramPath, ProgramSync, SyncResult, row_seconds
 from sim.gcode.moves import MoveKind
 
@@ -126,7 +131,7 @@ class Session:
 
     def __init__(self, job: Job, moves: np.ndarray, seconds: np.ndarray | None = None, run=None,
                  alerter=None, program_text: str = "", assume_done_before_start: bool = True,
-                 workpiece: Workpiece | None = None, program=None):
+                 workpiece: Workpiece | None = None, program=None, controller_limits=None):
         self.job = job
         self.moves_machine = moves
         #: offset (machine - work) of the job's work system in the interpreter, (6,) mm
@@ -137,12 +142,17 @@ class Session:
         #: machine - interpreter machine coordinates, learned from the WCO while the
         #: program runs in the job's system (None until then)
         self._machine_shift: np.ndarray | None = None
-        secs = (program_seconds(program, moves, job.machine or DEFAULT_MACHINE) if seconds is None
+        #: the machine limits in force (monitor.machine.InForce): timing and travel
+        self.in_force = in_force(job.machine, controller_limits, job.limits)
+        self._program = program
+        self._fixed_seconds = seconds is not None
+        secs = (program_seconds(program, moves, self.in_force.machine) if seconds is None
                 else np.asarray(seconds, np.float64))
         # the travelled path between polls follows these chords: on arcs they must stay
         # well inside the gouge band, or the live check would see the chords' sagitta
         tol = job.tolerance
-        self.path = ProgramPath.from_moves(self.moves, secs, chord=max(tol.chord, min(0.05, tol.gouge / 4)))
+        self._chord = max(tol.chord, min(0.05, tol.gouge / 4))
+        self.path = ProgramPath.from_moves(self.moves, secs, chord=self._chord)
         # the same segments in each row's own work coordinates (a translation per row)
         self.sync_path = self.path
         if np.any(self.row_shift != 0.0):
@@ -151,8 +161,14 @@ class Session:
         self.sync = ProgramSync(self.sync_path)
         self.wp = workpiece or build_workpiece(job, moves)
         self.live = self.wp.stock
-        self.lookahead = Lookahead(self.wp, self.moves, self.path, job.horizon_s, job.horizon_mm, job.limits)
-        self.live_checks = LiveChecks(self.wp, self.moves, job.limits)
+        travel = self.in_force.travel
+        self.lookahead = Lookahead(self.wp, self.moves, self.path, job.horizon_s, job.horizon_mm, travel)
+        self.live_checks = LiveChecks(self.wp, self.moves, travel)
+        #: ``controller.machine_limits`` while the controller has not said them (the
+        #: session asks at every step until it has), else None
+        self.limits_from = None
+        #: called with the new ``in_force`` when limits learned later change it, or None
+        self.on_limits = None
         self.run = run
         self.alerter = alerter if alerter is not None else Alerter()
         self.assume_done = assume_done_before_start
@@ -192,6 +208,7 @@ class Session:
             run.put_meta("versions", _versions())
             run.put_array("moves", moves)
             run.put_array("row_seconds", secs)
+            run.put_meta("machine", self.in_force.to_json())
             self._start_trace()
 
     def warm_up(self, rows: int = 12) -> float:
@@ -224,9 +241,9 @@ class Session:
             pick += list(mine[:rows]) + list(arcs[:2])
         idx = np.unique(np.asarray(pick, np.int64))
         if idx.size:
-            checker = make_checker(self.wp, scratch, self.job.limits, np.zeros(6))
+            checker = make_checker(self.wp, scratch, self.in_force.travel, np.zeros(6))
             res, _ = checker.cut_and_check(self.moves[idx], move_ids=idx + 1)
-            live = LiveChecks(replace(self.wp, stock=scratch), self.moves, self.job.limits)
+            live = LiveChecks(replace(self.wp, stock=scratch), self.moves, self.in_force.travel)
             k = int(idx[0])
             a, b = self.moves["start"][k, :3], self.moves["end"][k, :3]
             _, rays, _ = live.cut(np.stack([a, (a + b) / 2, b]), np.array([k, k]), None)
@@ -243,6 +260,54 @@ class Session:
                 except Exception:
                     pass
         return time.perf_counter() - t0
+
+    def use_controller_limits(self, limits) -> bool:
+        """Take the limits the controller stated (``drivers.state.ControllerLimits`` or
+        None). When they change what is in force, the rows are timed again and the path
+        retimed in place (sync, look-ahead and view share its arrays), the progress
+        followed so far kept at the same place on the path, the run file given the new
+        row seconds; travel limits learned from the controller apply to later checks.
+        Call between steps. True when anything in force changed."""
+        new = in_force(self.job.machine, limits, self.job.limits)
+        if new == self.in_force:
+            return False
+        old, self.in_force = self.in_force, new
+        if new.machine != old.machine and not self._fixed_seconds:
+            self._retime(program_seconds(self._program, self.moves_machine, new.machine))
+        if new.travel != old.travel:
+            for checks in (self.lookahead, self.live_checks):
+                checks.limits = {k.upper(): v for k, v in (new.travel or {}).items()}
+                if checks.checker is not None:
+                    checks.checker.limits = limits_in_work(checks.limits, checks.wco)
+        if self.run is not None:
+            self.run.put_meta("machine", new.to_json())
+        return True
+
+    def _retime(self, secs: np.ndarray) -> None:
+        """Program time per row ``secs`` (n,) s into the path's arrays, in place."""
+        path = self.path
+        moved = [self.sync.progress, None if self.last_sync is None else self.last_sync.progress]
+        where = [None if p is None else (path.segment_at(p), _fraction(path, p)) for p in moved]
+        new = ProgramPath.from_moves(self.moves, secs, chord=self._chord)
+        for name in ("t0", "t1", "row_t0", "row_t1"):
+            getattr(path, name)[:] = getattr(new, name)
+        now = [None if w is None else float(path.t0[w[0]] + w[1] * (path.t1[w[0]] - path.t0[w[0]])) for w in where]
+        self.sync.progress = now[0]
+        if self.last_sync is not None:
+            self.last_sync = replace(self.last_sync, progress=now[1])
+        if self.run is not None:
+            self.run.put_array("row_seconds", secs)
+
+    def _learn_limits(self) -> None:
+        """Ask the controller for its limits until it has said them (see :attr:`limits_from`)."""
+        try:
+            limits = self.limits_from()
+        except Exception:  # a driver that cannot say: keep what is in force
+            limits = None
+        if limits is not None:
+            self.limits_from = None
+            if self.use_controller_limits(limits) and self.on_limits is not None:
+                self.on_limits(self.in_force)
 
     def attach_view(self, feed) -> None:
         """Post every state to ``feed`` (a :class:`monitor.render.live.ViewFeed`): the
@@ -322,6 +387,8 @@ class Session:
         if not state.fresh:
             self._not_fresh(state)
             return StepInfo(self.last_sync, skipped=state.state.value, seconds=time.perf_counter() - t0)
+        if self.limits_from is not None:
+            self._learn_limits()
         gap = self._gap if self._gap is not None or len(self._unfresh) < GAP_POLLS else self._open_gap()
         self._unfresh = []
         if gap is not None and self.last is None:
@@ -743,6 +810,13 @@ def _spindle_rpm(state: MachineState) -> float | None:
     if "S" in (state.accessories or "") or "C" in (state.accessories or ""):
         return None
     return 0.0
+
+
+def _fraction(path: ProgramPath, progress: float) -> float:
+    """How far into its segment program time ``progress`` lies, 0..1."""
+    k = path.segment_at(progress)
+    dt = path.t1[k] - path.t0[k]
+    return 0.0 if dt <= 0 else float(np.clip((progress - path.t0[k]) / dt, 0.0, 1.0))
 
 
 def _versions() -> dict:

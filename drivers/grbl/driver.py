@@ -284,7 +284,8 @@ class GrblController(Controller):
         units = "inches" if _inches_by_format(state.raw) else "mm"
         self._link_event(LinkKind.NOTE, f"GRBL {self.port}: settings ($I $$ $# $G) not read while the machine is "
                                         f"{_state_name(state)}; they are read once it is Idle; until then "
-                                        f"positions are taken in {units}, as the report format says",
+                                        f"positions are taken in {units}, as the report format says, and "
+                                        f"the machine's limits ($110-$132) are unknown",
                          raw=state.raw)
 
     def _first_state(self) -> MachineState:
@@ -762,6 +763,15 @@ class GrblController(Controller):
     @property
     def last_state(self) -> MachineState | None:
         return self._state
+
+    def machine_limits(self):
+        """The machine's limits from the ``$$`` settings read (see
+        :func:`drivers.grbl.protocol.settings_limits`), or None before ``$$`` was read
+        (attached to a busy machine, it is read once the machine is Idle)."""
+        with self._cond:
+            settings = dict(self.settings)
+            codes = self.options.codes if self.options is not None else ""
+        return p.settings_limits(settings, f"GRBL $$ on {self.port}", codes)
 
     def poll(self, timeout: float | None = None) -> MachineState:
         """Ask ``?`` and return the report it brings, stamped at arrival; never raises.

@@ -532,6 +532,11 @@ class Passthrough(Controller):
     def last_state(self) -> MachineState | None:
         return self._state
 
+    def machine_limits(self):
+        """The machine's limits from the ``$$`` replies the sender's traffic showed (see
+        :func:`drivers.grbl.protocol.settings_limits`), or None until a sender asked."""
+        return p.settings_limits(dict(self.settings), f"GRBL $$ seen on {self.port}")
+
     @property
     def learned_lines(self) -> list[LearnedLine]:
         """Every line the sender streamed, in order (appended as they pass)."""

@@ -23,7 +23,7 @@ import re
 from dataclasses import dataclass, field
 
 from drivers.errors import ProtocolError
-from drivers.state import MAX_REPORTED_INT, MachineState, RunState
+from drivers.state import MAX_REPORTED_INT, ControllerLimits, MachineState, RunState
 
 # --------------------------------------------------------------------------------------
 # Real-time bytes (sent alone, never followed by a newline; GRBL acts on them at once)
@@ -740,6 +740,38 @@ def inch_setting(settings: dict[int, float] | None) -> bool | None:
     if value in (0, 1):  # NaN, inf and 1e5 are not
         return value == 1
     return None
+
+
+def settings_limits(settings: dict[int, float] | None, source: str, option_codes: str = "") -> ControllerLimits | None:
+    """The machine's limits from GRBL ``$$`` settings: ``$110-$112`` max rates (mm/min),
+    ``$120-$122`` accelerations (mm/s^2), ``$11`` junction deviation (mm), ``$130-$132``
+    travel (mm), ``$20`` soft limits, ``$13`` report inches. GRBL keeps all of them in mm
+    whatever ``$13`` says. The travel is ``[-$13x, 0]`` (GRBL's soft-limit check), or
+    ``[0, $13x]`` for an axis homing to its negative end (``$23`` bit set) on a firmware
+    built with HOMING_FORCE_SET_ORIGIN (``Z`` among ``option_codes``, from ``$I``'s
+    ``[OPT:]``). A group missing or not positive and finite is None; None when no limit
+    at all is known (``$$`` not read yet)."""
+    settings = settings or {}
+
+    def axes(first: int) -> tuple[float, float, float] | None:
+        vals = [settings.get(first + i) for i in range(3)]
+        if all(v is not None and math.isfinite(v) and v > 0 for v in vals):
+            return tuple(float(v) for v in vals)
+        return None
+
+    rate, accel, travel = axes(110), axes(120), axes(130)
+    jd = settings.get(11)
+    jd = float(jd) if jd is not None and math.isfinite(jd) and jd > 0 else None
+    if rate is None and accel is None and jd is None and travel is None:
+        return None
+    soft = settings.get(20)
+    if travel is not None:
+        dir_mask = int(settings.get(23, 0)) if math.isfinite(settings.get(23, 0)) else 0
+        positive = ["Z" in option_codes and bool(dir_mask >> i & 1) for i in range(3)]
+        travel = tuple((0.0, v) if up else (-v, 0.0) for v, up in zip(travel, positive))
+    return ControllerLimits(max_rate=rate, acceleration=accel, junction_deviation=jd, travel=travel,
+                            soft_limits=None if soft not in (0, 1) else soft == 1,
+                            report_inches=inch_setting(settings), source=source)
 
 
 _POSITION_DECIMALS = re.compile(r"[MW]Pos:[+-]?\d*\.(\d*)")

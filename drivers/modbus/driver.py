@@ -45,7 +45,8 @@ from pymodbus.exceptions import ConnectionException, ModbusIOException
 from pymodbus.framer import FramerType
 
 from drivers.errors import ConnectionLost, DriverError
-from drivers.modbus.regmap import AXES, Field, ReadBlock, RegisterMap, decode_field, load_map, plan_reads
+from drivers.modbus.regmap import (AXES, Field, ReadBlock, RegisterMap, decode_field, limits_from_values, load_map,
+                                   plan_reads)
 from drivers.state import (MAX_REPORTED_INT, Controller, Gap, LinkKind, MachineState, RunState, implausible,
                            stale_state)
 
@@ -158,6 +159,8 @@ class ModbusController(Controller):
         self.allow_feed_hold = bool(allow_feed_hold)
         self.url = url or (f"modbus+tcp://{host}:{port}" if host else f"modbus+rtu://{serial_port}")
         self.blocks = plan_reads(regmap.reading_fields())
+        self.limit_blocks = plan_reads(regmap.limit_fields()) if regmap.limit_fields() else []
+        self._limits = None  # drivers.state.ControllerLimits read at connect, if the map names them
         self.counts = dict.fromkeys(CAUSES, 0)
         self.polls = 0
         self.missed = 0
@@ -210,6 +213,29 @@ class ModbusController(Controller):
                     break
                 except _Dropped:
                     break  # the first poll says so
+            self._read_limits()
+
+    def _read_limits(self) -> None:
+        """The map's limit fields, once (a failure is told; timing then uses the job's
+        and the default limits)."""
+        if not self.limit_blocks:
+            return
+        values: dict[str, float] = {}
+        try:
+            for blk in self.limit_blocks:
+                words = self._read_block(blk)
+                for f in blk.fields:
+                    k = f.address - blk.address
+                    values[f.name] = decode_field(f, words[k:k + f.count])
+        except (_Miss, _Dropped) as exc:
+            self._link_event(LinkKind.NOTE, f"{self.url}: machine limits not read ({exc}); program timing uses "
+                                            f"the job's [machine] and the defaults")
+            return
+        self._limits = limits_from_values(values, f"Modbus map {self.regmap.name} on {self.url}")
+
+    def machine_limits(self):
+        """The machine's limits the register map names (read at connect), or None."""
+        return self._limits
 
     def _open(self, explain: bool = False) -> bool:
         """Open a new client; False with ``last_error`` set when it cannot connect

@@ -26,7 +26,9 @@ feed when no ``feed`` field is mapped); ``feed`` (mm/min), ``spindle`` (rpm), ``
 (code, named through ``[states]``), ``alarm`` (code, 0 = none), ``line``,
 ``feed_override`` ``rapid_override`` ``spindle_override`` (percent), and the optional
 writable ``feed_hold`` (a coil, or a holding register with ``hold_value`` /
-``resume_value``).
+``resume_value``). The machine's limits, for program timing, may be named too and are
+read once at connect: ``max_rate_x`` .. ``max_rate_z`` (mm/min), ``accel_x`` ..
+``accel_z`` (mm/s^2), ``junction_deviation`` (mm).
 
 Pure functions :func:`encode` and :func:`decode` turn values into register words and
 back; :func:`plan_reads` coalesces contiguous registers into few requests.
@@ -41,7 +43,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from drivers.errors import DriverError
-from drivers.state import RunState
+from drivers.state import ControllerLimits, RunState
 
 TABLES = ("holding", "input", "coil", "discrete")
 #: type -> (struct code, number of 16-bit registers)
@@ -62,6 +64,10 @@ FIELD_NAMES = (
     + tuple(f"v{a}" for a in AXES)
     + ("feed", "spindle", "state", "alarm", "line", "feed_override", "rapid_override", "spindle_override", "feed_hold")
 )
+#: the machine's limits, read once at connect (not at every poll)
+LIMIT_FIELDS = (tuple(f"max_rate_{a}" for a in "xyz") + tuple(f"accel_{a}" for a in "xyz")
+                + ("junction_deviation",))
+FIELD_NAMES += LIMIT_FIELDS
 #: Modbus limits per request (registers, bits)
 MAX_REGS_PER_READ = 125
 MAX_BITS_PER_READ = 2000
@@ -124,8 +130,12 @@ class RegisterMap:
     path: str = "<map>"
 
     def reading_fields(self) -> list[Field]:
-        """Fields read at each poll (all but the feed-hold command)."""
-        return [f for n, f in self.fields.items() if n != "feed_hold"]
+        """Fields read at each poll (all but the feed-hold command and the limits)."""
+        return [f for n, f in self.fields.items() if n != "feed_hold" and n not in LIMIT_FIELDS]
+
+    def limit_fields(self) -> list[Field]:
+        """The machine-limit fields mapped (read once at connect)."""
+        return [f for n, f in self.fields.items() if n in LIMIT_FIELDS]
 
     @property
     def feed_hold(self) -> Field | None:
@@ -241,6 +251,24 @@ def plan_reads(fields: list[Field], max_regs: int = MAX_REGS_PER_READ, max_bits:
                 start, end, members = f.address, f.address + f.count, [f]
         blocks.append(ReadBlock(unit, table, start, end - start, tuple(members)))
     return blocks
+
+
+def limits_from_values(values: dict[str, float], source: str) -> ControllerLimits | None:
+    """The machine's limits from decoded limit fields: a group (max rates, accelerations)
+    counts only with all three axes positive and finite; None when nothing is known."""
+
+    def axes(prefix: str) -> tuple[float, float, float] | None:
+        vals = [values.get(f"{prefix}_{a}") for a in "xyz"]
+        if all(v is not None and math.isfinite(v) and v > 0 for v in vals):
+            return tuple(float(v) for v in vals)
+        return None
+
+    jd = values.get("junction_deviation")
+    jd = float(jd) if jd is not None and math.isfinite(jd) and jd > 0 else None
+    rate, accel = axes("max_rate"), axes("accel")
+    if rate is None and accel is None and jd is None:
+        return None
+    return ControllerLimits(max_rate=rate, acceleration=accel, junction_deviation=jd, source=source)
 
 
 # --------------------------------------------------------------------------- loading

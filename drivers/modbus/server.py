@@ -79,6 +79,10 @@ def machine_values(vm: VirtualMachine, regmap: RegisterMap) -> dict[str, float]:
     values["line"] = float(st.line or 0)
     values["feed_override"], values["rapid_override"], values["spindle_override"] = map(float, st.overrides)
     values["feed_hold"] = 1.0 if st.state == RunState.HOLD else 0.0
+    cfg = vm.config
+    for i, a in enumerate("xyz"):
+        values[f"max_rate_{a}"], values[f"accel_{a}"] = float(cfg.max_rate[i]), float(cfg.accel[i])
+    values["junction_deviation"] = float(cfg.junction_deviation)
     return values
 
 

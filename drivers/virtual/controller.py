@@ -130,6 +130,7 @@ class VirtualController(Controller):
         self._runner: RealTimeRunner | None = None
         self._feeder = ProgramFeeder(self.moves, self.faults)
         self._connected = False
+        self._started = False  # the program is fed from the first poll on
         self._late_wait = threading.Event()
         self.events: list[tuple[float, str, object]] = []
         self.gaps: list[Gap] = []
@@ -145,6 +146,7 @@ class VirtualController(Controller):
         self.vm.on_event = self._record
         self._feeder = ProgramFeeder(self.moves, self.faults)
         self._last, self._lost = None, None
+        self._started = False
         self._connected = True
         if self.clock == "wall":
             self._runner = RealTimeRunner(self.vm, speed=self.speed, on_tick=self._tick).start()
@@ -169,6 +171,10 @@ class VirtualController(Controller):
                 return True
             return self._feeder.all_queued and not vm.busy
 
+    def machine_limits(self):
+        """The configured machine's limits (known before :meth:`connect`)."""
+        return self.config.limits(f"virtual machine {self.url}")
+
     # ------------------------------------------------------------------ polling
     def poll(self) -> MachineState:
         """The machine's state now, as the contract wants it (:class:`Controller`): the
@@ -178,6 +184,9 @@ class VirtualController(Controller):
         if not self._connected or self.vm is None:
             raise ConnectionLost(f"{self.url}: not connected")
         vm = self.vm
+        if not self._started:
+            with vm.lock:
+                self._started = True
         if self._runner is not None and self._runner.error is not None:
             return self._link_down(self._now(), f"virtual machine stopped: {self._runner.error}")
         if self.clock == "sim":
@@ -275,8 +284,13 @@ class VirtualController(Controller):
 
     # ------------------------------------------------------------------ internals
     def _tick(self, vm: VirtualMachine) -> None:
-        """Feed program rows into free planner blocks; fire a scheduled alarm. Under vm.lock."""
-        self._feeder(vm)
+        """Feed program rows into free planner blocks; fire a scheduled alarm. Under vm.lock.
+        The program starts at the first poll, as an operator starts the cycle once the
+        monitor is ready: however long the monitor takes between connect and its first
+        poll, it sees the whole program, and the machine time it records is the same
+        at any speed."""
+        if self._started:
+            self._feeder(vm)
 
     def _record(self, name: str, payload) -> None:
         if name == "block_done":

@@ -32,7 +32,7 @@ from typing import Callable
 
 import numpy as np
 
-from drivers.state import MachineState, RunState
+from drivers.state import ControllerLimits, MachineState, RunState
 from sim.gcode.moves import COOLANT_FLOOD, COOLANT_MIST, MOVE_DTYPE, MoveKind, Plane
 
 #: GRBL's MINIMUM_FEED_RATE (mm/min): no block is planned slower than this
@@ -122,6 +122,16 @@ class MachineConfig:
         rate[: self.n_axes] = np.asarray(self.max_rate) / 60.0
         acc[: self.n_axes] = np.asarray(self.accel)
         return rate, acc
+
+    def limits(self, source: str) -> ControllerLimits:
+        """These limits as a controller states them (X Y Z)."""
+        travel = None
+        if self.travel_min is not None and self.travel_max is not None:
+            travel = tuple((float(lo), float(hi)) for lo, hi in zip(self.travel_min[:3], self.travel_max[:3]))
+        return ControllerLimits(max_rate=tuple(float(v) for v in self.max_rate[:3]),
+                                acceleration=tuple(float(v) for v in self.accel[:3]),
+                                junction_deviation=float(self.junction_deviation) or None, travel=travel,
+                                soft_limits=bool(self.soft_limits), report_inches=False, source=source)
 
     def out_of_travel(self, target: np.ndarray) -> bool:
         """True when ``target`` (shape (6,), mm) is outside the soft limits."""

@@ -35,7 +35,8 @@ VIRTUAL_ACCEL = (300.0, 300.0, 200.0)
 #: a dry run's virtual machine, held by dexmon's feed hold, is resumed by dexmon after this
 #: long (s): it has no cycle-start button
 DRY_RUN_RESUME_S = 3.0
-#: the same machine as timing limits, for lead times (when the job gives no [machine])
+#: the same machine as a job's [machine] table (the virtual controller states these
+#: limits itself, so a dry run needs no [machine]; tests use it with other controllers)
 VIRTUAL_MACHINE = {"max_rate": VIRTUAL_MAX_RATE, "acceleration": VIRTUAL_ACCEL, "junction_deviation": 0.01}
 
 
@@ -84,8 +85,6 @@ def run(args) -> int:
         raise JobError(f"expected a positive number, got {args.speed}", "--speed")
     job = job_from_args(args, args.job or EXAMPLE_JOB)
     require(job, "program", "stock", "tools")
-    if job.machine is None:
-        job.machine = dict(VIRTUAL_MACHINE)
     moves, _ = load_moves(job)
     controller = virtual_controller(virtual_moves(job, moves), args.speed, job.poll_hz,
                                     clock=getattr(args, "clock", "wall"))

@@ -104,7 +104,8 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
                           f"dry run: dexmon resumes the virtual machine in {resume_after:g} s "
                           f"(a real machine waits: {RESUME_HOW})")
         program_text = job.program.read_text(errors="replace") if job.program else ""
-        session = Session(job, moves, run=writer, alerter=alerter, program_text=program_text, program=program)
+        session = Session(job, moves, run=writer, alerter=alerter, program_text=program_text, program=program,
+                          controller_limits=_machine_limits(controller))
         if hasattr(controller, "learned_lines"):
             from monitor.linesync import StreamedLines
 
@@ -123,11 +124,13 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
             session.warm_up()
         _connect(controller)
         connected = True
+        say_limits = _take_limits(session, controller, console, as_json)
         if as_json:
             _jsonl({"event": "start", "run": str(run_path), "program": str(job.program),
-                    "controller": getattr(controller, "url", "")})
+                    "controller": getattr(controller, "url", ""), "machine": _limits_record(session.in_force)})
         elif not quiet:
             console.print(f"run file: {run_path}", soft_wrap=True)
+        say_limits(session.in_force)
         _announce_endpoints(controller, console, as_json)
         # a setup that cannot be meant is said before the machine's first move is judged
         session.check_setup(inch=bool(getattr(program, "inch", False)),
@@ -188,6 +191,45 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
     if gave_up:
         return 2
     return 1 if summary["findings"] else 0
+
+
+def _machine_limits(controller):
+    """``controller.machine_limits()``, or None when it cannot say (yet)."""
+    ask = getattr(controller, "machine_limits", None)
+    try:
+        return ask() if ask is not None else None
+    except Exception:  # noqa: BLE001 - unknown limits: the job's and the defaults hold
+        return None
+
+
+def _limits_record(force) -> dict:
+    """The limits in force as JSON: the figures, ``sources`` and a ``message``."""
+    return {"message": force.describe(), **force.to_json()}
+
+
+def _take_limits(session, controller, console, as_json: bool):
+    """After connect: time the program with the limits the controller stated (GRBL read
+    ``$$`` if the machine was Idle); when it has not said them yet, let the session ask
+    at every step until it has (GRBL attached to a busy machine reads ``$$`` at its next
+    Idle) and say them when they arrive (JSON: ``{"event": "machine", ...}``). Returns
+    what says limits in force on the terminal (the start record carries them in JSON)."""
+
+    def say_later(force) -> None:
+        if as_json:
+            _jsonl({"event": "machine", **_limits_record(force)})
+        else:
+            say(force)
+
+    def say(force) -> None:
+        if console is not None:
+            console.print(_escape(force.describe()), soft_wrap=True)
+
+    limits = _machine_limits(controller)
+    session.use_controller_limits(limits)
+    if limits is None:
+        session.limits_from = controller.machine_limits
+        session.on_limits = say_later
+    return say
 
 
 def _print_summary(console, summary: dict, run_path) -> None:
