@@ -59,8 +59,9 @@ class Endpoint:
         self.dropped = 0
         #: bytes discarded because no sender had the endpoint open
         self.unheard = 0
-        #: a sender has the endpoint open now
+        #: a sender has the endpoint open now (and the event says so to waiters)
         self.sender_present = False
+        self._present = threading.Event()
         self._receive = receive
         self._on_event = on_event
         self._out: collections.deque[bytes] = collections.deque()
@@ -94,6 +95,10 @@ class Endpoint:
         if started_dropping:
             self._event("dropping", f"{self.name}: the sender does not read its output; the oldest "
                                     f"is dropped beyond {self.max_buffered} bytes held")
+
+    def wait_sender(self, timeout: float) -> bool:
+        """Wait until a sender has the endpoint open; True if one has."""
+        return self._present.wait(timeout)
 
     @property
     def buffered(self) -> int:
@@ -133,6 +138,7 @@ class Endpoint:
             if present == self.sender_present:
                 return
             self.sender_present = present
+            (self._present.set if present else self._present.clear)()
             self._dropping = False
             if not present:  # what was queued for the sender that left is nobody's
                 self.unheard += self._out_bytes

@@ -41,7 +41,6 @@ from __future__ import annotations
 import collections
 import dataclasses
 import math
-import select
 import threading
 import time
 from dataclasses import dataclass
@@ -52,7 +51,7 @@ import serial
 
 from drivers.errors import ConnectionLost, DriverError, ProtocolError
 from drivers.grbl import protocol as p
-from drivers.grbl.driver import url_params
+from drivers.grbl.driver import read_available, url_params
 from drivers.grbl.endpoints import Endpoint, PtyEndpoint, TcpEndpoint
 from drivers.state import Controller, Gap, LinkKind, MachineState, RunState, implausible, stale_state
 
@@ -311,14 +310,7 @@ class Passthrough(Controller):
 
     def _read_machine(self) -> bytes:
         """What the machine sent within 0.05 s (b"" if nothing); raises if the port is gone."""
-        ser = self._ser
-        ready, _, _ = select.select([ser.fileno()], [], [], 0.05)
-        if not ready:
-            return b""
-        data = ser.read(4096)
-        if not data:
-            raise ConnectionLost("the port was closed (end of file)")
-        return data
+        return read_available(self._ser, 0.05)
 
     def _lose(self, reason: str) -> None:
         """The machine's port went away: fail what was in flight, say so."""

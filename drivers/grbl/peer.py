@@ -182,6 +182,19 @@ class GrblPeer:
             raise ValueError(f"transport must be 'pty' or 'tcp', got {transport!r}")
         return f"{url}?{query}" if query else url
 
+    def wait_for_client(self, timeout: float) -> bool:
+        """Wait until a driver has one of the served ports open (a byte written before
+        that is lost, as on a real port nobody has open); True if one has."""
+        deadline = time.monotonic() + timeout
+        while True:
+            transports = list(self._transports)
+            if any(t.sender_present for t in transports):
+                return True
+            left = deadline - time.monotonic()
+            if left <= 0 or not transports:
+                return False
+            transports[0].wait_sender(min(left, 0.05))
+
     def close_transports(self) -> None:
         """Drop every pty and socket (the cable is pulled); the machine keeps running."""
         transports, self._transports = self._transports, []

@@ -335,7 +335,7 @@ def test_restarted_controller_is_reported_as_reset_and_handshaken_again(peers, c
     assert c.wait_disconnected(5)
     pr = make_peer()
     _serve(pr, transport, where)
-    assert c.wait_connected(5)
+    assert c.wait_connected(5) and pr.wait_for_client(5)  # the banner comes once the port is open
     t_banner = time.monotonic()
     pr.reset()
     assert c.wait_for_message(lambda m: isinstance(m, p.Banner), 5, since=t_banner)

@@ -9,7 +9,8 @@ import time
 import pytest
 
 from drivers.errors import DriverError
-from drivers.grbl.driver import GrblController, GrblError, from_url
+from drivers.grbl.driver import GrblController, from_url
+from drivers.grbl.streaming import GrblError
 from drivers.grbl.peer import GrblPeer
 from drivers.registry import open_controller
 from drivers.state import RunState

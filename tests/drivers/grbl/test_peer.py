@@ -8,7 +8,6 @@ import pytest
 
 from drivers.grbl import protocol as p
 from drivers.grbl.peer import BANNER, GrblPeer
-from drivers.state import RunState
 from drivers.virtual.machine import MachineConfig, VirtualMachine
 
 
