@@ -10,7 +10,7 @@ the run file (:mod:`monitor.runfile`).
 Link trouble: a state that is not fresh (``drivers.state.NOT_FRESH``: missed, bad,
 disconnected; or fresh with numbers :func:`drivers.state.implausible` refuses, taken as
 bad) is recorded and counted, never synced or cut. After a gap -- a disconnect, a reset
-the controller tells (:meth:`Session.link_event`), or :data:`GAP_POLLS` not-fresh polls in
+the controller tells (:meth:`Session.link_event`), or :data:`monitor.gaps.GAP_POLLS` not-fresh polls in
 a row -- the path in between is unknown: the first fresh state is not joined to the last
 one but found again by a search of the program, the rows the program ran meanwhile are
 cut as programmed (unchecked) when both ends sit on the program, and a gap record says
@@ -46,8 +46,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from drivers.state import LinkEvent, LinkKind, MachineState, RunState, implausible, stale_state
+from drivers.state import LinkEvent, MachineState, RunState, implausible, stale_state
 from monitor.alerts import Alerter
+from monitor.gaps import GapLedger
 from monitor.job import Job
 from monitor.machine import in_force
 from monitor.predict import (LiveChecks, Lookahead, Workpiece, build_workpiece, finding_record, lead_time,
@@ -61,11 +62,6 @@ JUMP_S = 2.0
 TRACE_CHUNK_STAGES = 50
 #: keyframe work (array elements copied / changes replayed) done per trace chunk written
 TRACE_KEYFRAME_BUDGET = 1 << 20
-#: not-fresh polls in a row (missed, bad) after which the path since the last fresh state
-#: counts as unknown: a gap, as a disconnect is at once
-GAP_POLLS = 5
-#: what a not-fresh run state is counted as
-_COUNTED = {RunState.MISSED: "missed", RunState.BAD: "bad", RunState.DISCONNECTED: "disconnected"}
 
 
 @dataclass
@@ -176,14 +172,8 @@ class Session:
         self.stage = 0                   # live stages cut (one per step that moved)
         self.last: MachineState | None = None   # the last fresh state followed
         self.last_sync: SyncResult | None = None
-        #: not-fresh states seen, by kind (missed, bad, disconnected)
-        self.counts = {"missed": 0, "bad": 0, "disconnected": 0}
-        self.gaps: list[dict] = []       # finished gap records (see :meth:`_close_gap`)
-        self._gap: dict | None = None    # the open gap, while the path is unknown
-        self._unfresh: list[MachineState] = []  # not-fresh states since the last fresh one
-        self._t0: float | None = None    # t of the first state: gaps say when, from there
-        #: called with every gap record (a JSON-ready dict) when it closes, or None
-        self.on_gap = None
+        #: not-fresh polls counted, gaps opened and closed (:mod:`monitor.gaps`)
+        self.ledger = GapLedger(run)
         #: why :func:`run_controller` ended ("program end", "done", "alarm", "gave up: ...")
         self.end_reason = ""
         self._prev_tip: np.ndarray | None = None
@@ -377,24 +367,18 @@ class Session:
         counted, never synced or cut. After a gap the first fresh state is not joined to
         the last one: it is found again in the program (see :meth:`_close_gap`)."""
         t0 = time.perf_counter()
-        if self._t0 is None:
-            self._t0 = state.t
+        self.ledger.started(state.t)
         why = implausible(state) if state.fresh else None
         if why is not None:
             state = stale_state(self.last, RunState.BAD, state.t, f"{why}: {state.raw}")
         if self.run is not None:
             self.run.append_state(state)
         if not state.fresh:
-            self._not_fresh(state)
+            self.ledger.not_fresh(state)
             return StepInfo(self.last_sync, skipped=state.state.value, seconds=time.perf_counter() - t0)
         if self.limits_from is not None:
             self._learn_limits()
-        gap = self._gap if self._gap is not None or len(self._unfresh) < GAP_POLLS else self._open_gap()
-        self._unfresh = []
-        if gap is not None and self.last is None:
-            # trouble before the first fresh state (a reset told at connect): there is no
-            # path to join yet, so no gap to close; the counts keep what was missed
-            gap = self._gap = None
+        gap = self.ledger.fresh(state.t)
         self._predicted_to = self.lookahead.next_row
         row_hint = self.last_sync.row if self.last_sync is not None else None
         tip = self.tip(state, row_hint)
@@ -433,59 +417,30 @@ class Session:
         info.seconds = time.perf_counter() - t0
         return info
 
-    # -- link trouble: not-fresh states, link events, gaps
-    def _not_fresh(self, state: MachineState) -> None:
-        """Count a not-fresh state; a disconnect, or GAP_POLLS of them in a row, opens a gap."""
-        self.counts[_COUNTED[state.state]] += 1
-        self._unfresh.append(state)
-        if self._gap is not None:
-            self._gap["polls_missed"] += 1
-            self._gap[_COUNTED[state.state]] += 1
-        elif state.state == RunState.DISCONNECTED or len(self._unfresh) >= GAP_POLLS:
-            self._open_gap()
+    # -- link trouble: the ledger counts and files; the session closes gaps on the model
+    @property
+    def counts(self) -> dict:
+        """Not-fresh states seen, by kind (missed, bad, disconnected)."""
+        return self.ledger.counts
 
-    def _open_gap(self, reason: str = "", t: float | None = None) -> dict:
-        """Start a gap record at the first not-fresh state since the last fresh one (or
-        at ``t``, for a controller that says it reset between two fresh states)."""
-        if self._gap is not None:
-            return self._gap
-        first = self._unfresh[0] if self._unfresh else None
-        counted = {k: sum(_COUNTED[u.state] == k for u in self._unfresh) for k in self.counts}
-        t_lost = first.t if first is not None else t
-        self._gap = {"event": "gap", "t_lost": t_lost,
-                     "run_s": None if t_lost is None or self._t0 is None else round(t_lost - self._t0, 3),
-                     "last_fresh_t": None if self.last is None else self.last.t,
-                     "reason": reason or (first.raw if first is not None else ""),
-                     "polls_missed": len(self._unfresh), **counted, "lines_lost": 0, "came_back": "",
-                     "reset": False}
-        return self._gap
+    @property
+    def gaps(self) -> list[dict]:
+        """Closed gap records, oldest first."""
+        return self.ledger.gaps
+
+    @property
+    def on_gap(self):
+        """Called with every gap record (a JSON-ready dict) when it closes, or None."""
+        return self.ledger.on_gap
+
+    @on_gap.setter
+    def on_gap(self, fn) -> None:
+        self.ledger.on_gap = fn
 
     def link_event(self, ev: LinkEvent) -> dict:
-        """Take one :class:`drivers.state.LinkEvent` from the controller: record it, and
-        let a lost link or a reset open a gap (a BACK event's Gap gives the gap record its
-        lines lost and how the controller came back). Returns the event as JSON-ready dict
-        (``{"event": "link", "kind", "message", "t", ...}``)."""
-        kind = LinkKind(ev.kind)
-        rec = {"event": "link", "kind": kind.value, "message": ev.message, "t": ev.t}
-        if ev.raw:
-            rec["raw"] = ev.raw
-        if ev.gap is not None:
-            g = ev.gap
-            rec["gap"] = {"t_lost": g.t_lost, "t_back": g.t_back, "seconds": g.seconds, "reason": g.reason,
-                          "polls_missed": g.polls_missed, "lines_lost": g.lines_lost, "came_back": g.came_back}
-        if self.run is not None:
-            self.run.append_link_event(ev.t, kind.value, rec)
-        if kind in (LinkKind.LOST, LinkKind.RESET, LinkKind.BACK):
-            gap = self._open_gap(reason=ev.message if kind == LinkKind.LOST else "", t=ev.t)
-            if kind == LinkKind.RESET:
-                gap["reset"] = True
-                gap["came_back"] = gap["came_back"] or ev.message
-                gap["reason"] = gap["reason"] or ev.message
-            if ev.gap is not None:
-                gap["lines_lost"] += int(ev.gap.lines_lost)
-                gap["came_back"] = ev.gap.came_back or gap["came_back"]
-                gap["reason"] = gap["reason"] or ev.gap.reason
-        return rec
+        """Take one :class:`drivers.state.LinkEvent` from the controller (see
+        :meth:`monitor.gaps.GapLedger.link_event`); returns it as a JSON-ready dict."""
+        return self.ledger.link_event(ev)
 
     def _close_gap(self, gap: dict, state: MachineState, tip: np.ndarray, before: SyncResult,
                    s: SyncResult) -> dict:
@@ -495,26 +450,16 @@ class Session:
         last one. When both ends sit on the program and the machine went forward, the rows
         the program ran in between are cut into the live model as programmed (unchecked:
         what happened there was not seen), so the model stays right."""
-        self._gap = None
         last_tip = self._prev_tip
         self._prev_tip, self._prev_row = None, None
         # a controller that reset lost its program: the rows between did not run
         rows = [] if gap["reset"] else self._cut_gap_rows(before, s, state)
-        gap.update({
-            "t_back": state.t, "seconds": None if gap["t_lost"] is None else state.t - gap["t_lost"],
-            "jump_mm": None if last_tip is None else float(np.linalg.norm(tip - last_tip)),
-            "from_line": int(before.line), "resync": {"how": s.how, "line": int(s.line), "row": int(s.row),
-                                                      "progress_s": round(float(s.progress), 3),
-                                                      "distance_mm": round(float(s.distance), 3)},
-            "rows_cut_unchecked": [int(self.moves["line"][r]) for r in rows],
-        })
-        gap["message"] = gap_message(gap)
-        self.gaps.append(gap)
-        if self.run is not None:
-            self.run.append_link_event(state.t, "gap", gap)
-        if self.on_gap is not None:
-            self.on_gap(gap)
-        return gap
+        return self.ledger.close(
+            gap, state.t, jump_mm=None if last_tip is None else float(np.linalg.norm(tip - last_tip)),
+            from_line=int(before.line), resync={"how": s.how, "line": int(s.line), "row": int(s.row),
+                                                "progress_s": round(float(s.progress), 3),
+                                                "distance_mm": round(float(s.distance), 3)},
+            rows_cut_unchecked=[int(self.moves["line"][r]) for r in rows])
 
     def _cut_gap_rows(self, before: SyncResult, s: SyncResult, state: MachineState) -> list[int]:
         """Cut what the program ran between ``before`` and ``s`` (both on the program, ``s``
@@ -718,54 +663,13 @@ class Session:
                    "kinds": sorted({f["kind"] for f in self.findings}),
                    "progress_s": None if self.last_sync is None else round(self.last_sync.progress, 3),
                    "program_s": round(self.path.duration, 3), **self.counts, "gaps": list(self.gaps)}
-        if self._gap is not None:  # the run ended inside a gap: say so too (once)
-            gap, self._gap = self._gap, None
-            gap.update(t_back=None, seconds=None)
-            gap["message"] = gap_message(gap)
-            self.gaps.append(gap)
+        if self.ledger.open is not None:  # the run ended inside a gap: say so too (once)
+            gap = self.ledger.close(self.ledger.open, self.last.t if self.last is not None else None, back=False)
             summary["gaps"].append(gap)
-            if self.run is not None:
-                self.run.append_link_event(self.last.t if self.last is not None else gap["t_lost"], "gap", gap)
         if self.run is not None:
             self.run.put_meta("summary", summary)
             self.run.flush()
         return summary
-
-
-def gap_message(gap: dict) -> str:
-    """One line for a person about a gap record: how long, what was missed, how it came
-    back and where the monitor found the machine again."""
-    seconds = gap.get("seconds")
-    head = (f"link gap of {seconds:.1f} s" if seconds is not None and gap.get("t_back") is not None
-            else "link lost (not back when the run ended)")
-    if gap.get("run_s") is not None:
-        head += f" at {_clock(gap['run_s'])} into the run"
-    missed = [f"{gap.get('polls_missed', 0)} polls missed"]
-    if gap.get("lines_lost"):
-        missed.append(f"{gap['lines_lost']} lines lost")
-    text = f"{head}: {', '.join(missed)}"
-    if gap.get("reason"):
-        text += f" ({gap['reason']})"
-    if gap.get("came_back"):
-        text += f"; came back {gap['came_back']}"
-    if gap.get("jump_mm") is not None:
-        text += f"; position jumped {gap['jump_mm']:.2f} mm (not cut: the path is unknown)"
-    rs = gap.get("resync")
-    if rs:
-        text += (f"; off the program after it (from line {gap.get('from_line')})" if rs["how"] == "lost"
-                 else f"; re-synced at line {rs['line']} (was at line {gap.get('from_line')})")
-    if gap.get("rows_cut_unchecked"):
-        lines = gap["rows_cut_unchecked"]
-        which = f"line {lines[0]}" if lines[0] == lines[-1] else f"lines {lines[0]}..{lines[-1]}"
-        text += f"; {which} cut as programmed, unchecked"
-    return text
-
-
-def _clock(seconds: float) -> str:
-    """``m:ss.s`` (or ``h:mm:ss``) for a person."""
-    m, s = divmod(float(seconds), 60.0)
-    h, m = divmod(int(m), 60)
-    return f"{h}:{m:02d}:{s:04.1f}" if h else f"{m}:{s:04.1f}"
 
 
 def hold_still_axes(points: np.ndarray, moving: np.ndarray) -> np.ndarray:

@@ -35,7 +35,7 @@ def record_link_trouble(w: RunWriter) -> dict:
     and the session's records of it (a reset, a gap) as a live session writes them.
     Returns the gap record."""
     from drivers.state import MachineState, RunState
-    from monitor.session import gap_message
+    from monitor.gaps import gap_message
 
     kinds = [RunState.RUN] * 5 + [RunState.MISSED] * 3 + [RunState.BAD] * 2 + [RunState.DISCONNECTED] * 4 \
         + [RunState.ALARM] * 5

@@ -4,7 +4,6 @@ are predicted with lead time > 0, each alerted once, and the run file holds the 
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys

@@ -18,7 +18,6 @@ import numpy as np
 import pytest
 
 from drivers.grbl.peer import GrblPeer
-from drivers.grbl.protocol import settings_limits
 from drivers.state import ControllerLimits
 from drivers.virtual.controller import ProgramFeeder
 from drivers.virtual.machine import MachineConfig, VirtualMachine

@@ -20,7 +20,8 @@ from monitor.commands.dry_run import EXAMPLE_JOB, virtual_controller
 from monitor.job import load_job
 from monitor.runfile import RunReader, RunWriter
 from monitor.loop import run_controller
-from monitor.session import GAP_POLLS, Session, load_moves
+from monitor.gaps import GAP_POLLS
+from monitor.session import Session, load_moves
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,6 @@ import io
 import json
 import re
 
-import numpy as np
 import pytest
 
 from monitor.cli import main
