@@ -6,6 +6,7 @@ import abc
 import collections
 import enum
 import math
+import os
 import time
 from dataclasses import dataclass, field
 from typing import Iterator
@@ -161,6 +162,15 @@ def stale_state(last: MachineState | None, state: RunState, t: float, raw: str) 
                         overrides=last.overrides, raw=raw)
 
 
+def check_device(port: str, what: str) -> None:
+    """DriverError when ``port`` is a device path (not a pyserial URL) that does not exist."""
+    from drivers.errors import ConnectionLost
+
+    if "://" not in port and not os.path.exists(port):
+        raise ConnectionLost(f"{what}: no such serial device {port!r} (is the controller plugged in and "
+                             "switched on? its name is in /dev/serial/by-id)")
+
+
 @dataclass(frozen=True)
 class Gap:
     """A time the link was away: ``t_lost``/``t_back`` monotonic s, and why.
@@ -298,6 +308,10 @@ class Controller(abc.ABC):
         ev = LinkEvent(time.monotonic() if t is None else t, LinkKind(kind), message, raw, gap)
         self.__dict__.setdefault("_link_q", collections.deque(maxlen=1000)).append(ev)
         return ev
+
+    def preflight(self) -> None:
+        """Cheap checks that need no connection (a serial device that does not exist),
+        made before anything slow starts: raise DriverError naming what is wrong."""
 
     @abc.abstractmethod
     def connect(self) -> None:

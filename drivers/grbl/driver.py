@@ -46,8 +46,8 @@ import serial
 from drivers.errors import ConnectionLost, DriverError, ProtocolError
 from drivers.grbl import protocol as p
 from drivers.grbl.streaming import Command, Streaming
-from drivers.state import (MAX_REPORTED_INT, Controller, Gap, LinkKind, MachineState, RunState, implausible,
-                           stale_state)
+from drivers.state import (MAX_REPORTED_INT, Controller, Gap, LinkKind, MachineState, RunState, check_device,
+                           implausible, stale_state)
 
 MAX_RATE_HZ = 50.0
 DEFAULT_RATE_HZ = 20.0
@@ -154,6 +154,9 @@ class GrblController(Streaming, Controller):
         self._alarm_since_back: int | None = None
 
     # ------------------------------------------------------------------ connection
+
+    def preflight(self) -> None:
+        check_device(self.port, "GRBL")
 
     def _open_port(self):
         try:

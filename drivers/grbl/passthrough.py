@@ -53,7 +53,8 @@ from drivers.errors import ConnectionLost, DriverError, ProtocolError
 from drivers.grbl import protocol as p
 from drivers.grbl.driver import read_available, url_params
 from drivers.grbl.endpoints import Endpoint, PtyEndpoint, TcpEndpoint
-from drivers.state import Controller, Gap, LinkKind, MachineState, RunState, implausible, stale_state
+from drivers.state import (Controller, Gap, LinkKind, MachineState, RunState, check_device, implausible,
+                           stale_state)
 
 _MAX_HELD = 512  # bytes of an unterminated line held before passing them on anyway
 #: pause between attempts to reopen the machine's port while it is gone, s (never grows:
@@ -202,6 +203,9 @@ class Passthrough(Controller):
         with self._cond:
             self._connected = False
             self._cond.notify_all()
+
+    def preflight(self) -> None:
+        check_device(self.port, "passthrough: the machine's port")
 
     def _open(self):
         try:

@@ -47,8 +47,8 @@ from pymodbus.framer import FramerType
 from drivers.errors import ConnectionLost, DriverError
 from drivers.modbus.regmap import (AXES, Field, ReadBlock, RegisterMap, decode_field, limits_from_values, load_map,
                                    plan_reads)
-from drivers.state import (MAX_REPORTED_INT, Controller, Gap, LinkKind, MachineState, RunState, implausible,
-                           stale_state)
+from drivers.state import (MAX_REPORTED_INT, Controller, Gap, LinkKind, MachineState, RunState, check_device,
+                           implausible, stale_state)
 
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)  # we report failures ourselves
 
@@ -186,6 +186,10 @@ class ModbusController(Controller):
         return ModbusSerialClient(self.serial_port, framer=FramerType.RTU, baudrate=self.baud,
                                   parity=self.parity, stopbits=self.stopbits, bytesize=self.bytesize,
                                   timeout=self.timeout, retries=0, reconnect_delay=0, reconnect_delay_max=0)
+
+    def preflight(self) -> None:
+        if self.serial_port is not None:
+            check_device(self.serial_port, f"{self.url}")
 
     def connect(self) -> None:
         """Open the socket or serial line and read every block once.

@@ -420,4 +420,5 @@ def run(args) -> int:
     job = job_from_args(args, args.job)
     require(job, "program", "stock", "controller", "tools")
     controller = open_controller(job.controller)
+    controller.preflight()  # a missing device is said now, not after the kernels compiled
     return run_session(args, job, controller)

@@ -18,7 +18,6 @@ from sim.gcode.errors import GCodeError, LineError, ProgramFileError
 from sim.gcode.expr import evaluate
 from sim.gcode.interpreter import Interpreter
 from sim.gcode.limits import Limits
-from sim.gcode.moves import MOVE_DTYPE
 from sim.gcode.parser import parse_line
 from sim.gcode.source_file import check_text, read_program
 from sim.gcode.state import ModalState

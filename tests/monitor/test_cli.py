@@ -31,3 +31,16 @@ def test_help_and_argument_errors_load_nothing_heavy(tmp_path):
     assert _heavy_modules_after(["live", "--no-such-flag"]) == set()
     assert _heavy_modules_after(["simulate", str(tmp_path / "missing.nc"), "--stock", "box:0,0,0,1,1,1",
                                  "--tool", "ball:6"]) == set()
+
+
+def test_a_missing_serial_device_is_said_before_anything_slow(tmp_path, capsys):
+    from monitor.commands.dry_run import EXAMPLE_JOB
+
+    missing = str(tmp_path / "ttyUSB9")
+    for url in (f"grbl://{missing}", f"grbl+passthrough://{missing}", f"modbus+rtu://{missing}"):
+        assert main(["live", str(EXAMPLE_JOB), "--controller", url, "--run", str(tmp_path / "r.sqlite")]) == 2
+        err = capsys.readouterr().err
+        assert "no such serial device" in err and missing in err, err
+    assert not (tmp_path / "r.sqlite").exists()
+    assert _heavy_modules_after(["live", str(EXAMPLE_JOB), "--controller", f"grbl://{missing}",
+                                 "--run", str(tmp_path / "r.sqlite")]) == set()

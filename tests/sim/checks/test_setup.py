@@ -67,7 +67,6 @@ def test_a_design_outside_the_stock_is_a_setup_finding():
 
 
 def test_material_box_of_a_grid():
-    from sim.grid import DexelGrid  # noqa: F401 - the stock builder below makes one
     from monitor.commands.simulate import build_stock
 
     grid = build_stock("box:0,0,-10,30,20,0", 0.5, 4096)
