@@ -370,6 +370,7 @@ class RunWriter:
         self._ready.set()
         in_tx = False
         last_commit = time.monotonic()
+        rows: dict[str, int] = {}  # rows appended per table, written as meta "rows" on closing
         try:
             while True:
                 wait = max(self.commit_interval - (time.monotonic() - last_commit), 0.0) if in_tx else None
@@ -383,6 +384,9 @@ class RunWriter:
                         in_tx = True
                     try:
                         con.execute(*item)
+                        if item[0].startswith("INSERT INTO "):
+                            table = item[0][12:].split("(", 1)[0]
+                            rows[table] = rows.get(table, 0) + 1
                     except _ROW_ERRORS as exc:  # one row SQLite cannot take: skip it, go on
                         self.skipped += 1
                         self.last_skip = f"{type(exc).__name__}: {exc}"
@@ -395,6 +399,8 @@ class RunWriter:
                 if isinstance(item, threading.Event):
                     item.set()
                 elif item is _STOP:
+                    row = ("rows", json.dumps(rows))
+                    con.execute("INSERT OR REPLACE INTO meta(key, value, crc) VALUES (?, ?, ?)", row + (row_crc(row),))
                     if self.skipped:
                         row = ("skipped_rows", json.dumps({"rows": self.skipped, "last": self.last_skip}))
                         con.execute("INSERT OR REPLACE INTO meta(key, value, crc) VALUES (?, ?, ?)",
@@ -481,6 +487,7 @@ class RunReader:
         where = str(self.path)
         #: damaged places found so far, in the order found (a dict: each named once)
         self._damage: dict[str, None] = {}
+        self._row_counts: dict[str, int] = {}
         if not self.path.is_file():
             raise RunFileError("no such run file", where)
         try:
@@ -498,6 +505,8 @@ class RunReader:
         #: False for run files written before rows carried checksums: damage may go unseen
         self.checked = all("crc" in self._columns[t] for t in _FIRST_TABLES if self._columns[t])
         rows = self.meta()
+        #: rows appended per table as the writer counted them when it closed ({} if it did not)
+        self._row_counts = _counts(rows.get("rows"))
         if rows.get("format") != FORMAT:
             if self._damage:
                 raise self.damaged(f"meta format unreadable ({self.damage[0]})")
@@ -558,7 +567,7 @@ class RunReader:
         checked = "crc" in have
         sql = (f"SELECT rowid, {', '.join(cols)}{', crc' if checked else ''} FROM {table} "
                f"{where_sql} ORDER BY rowid")
-        out, last = [], None
+        out, last = [], 0 if contiguous else None
         self._con.text_factory = bytes  # text that is not UTF-8 is one damaged row, not an error
         try:
             for row in self._con.execute(sql, params):
@@ -576,6 +585,10 @@ class RunReader:
             self.note(f"{table} after row {last or 0} ({exc})")
         finally:
             self._con.text_factory = str
+        written = self._row_counts.get(table, 0) if contiguous and not where_sql else 0
+        if last is not None and written > last:
+            self.note(f"{table} rows {last + 1}..{written} (missing)" if written > last + 1
+                      else f"{table} row {written} (missing)")
         return out
 
     def meta(self) -> dict[str, str]:
@@ -695,6 +708,15 @@ class RunReader:
     def __exit__(self, *exc):
         self.close()
         return False
+
+
+def _counts(text) -> dict[str, int]:
+    """The meta ``rows`` entry ({table: rows written}), {} when absent or not that."""
+    try:
+        counts = json.loads(text) if text else {}
+    except ValueError:
+        return {}
+    return {k: v for k, v in counts.items() if isinstance(v, int)} if isinstance(counts, dict) else {}
 
 
 def _reason(exc: RunFileError) -> str:

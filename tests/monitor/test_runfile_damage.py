@@ -64,3 +64,113 @@ def test_wrong_type_in_a_state_cell_is_named_and_the_report_is_written(recorded,
     assert out_html.is_file() and "wrote" in out
     warning = one_line(err)
     assert "states row 1" in warning and run in warning
+
+
+def trace_row_bytes(path, row: int) -> bytes:
+    return sqlite3.connect(path).execute("SELECT data FROM trace WHERE id = ?", (row,)).fetchone()[0]
+
+
+def test_a_flipped_byte_in_a_trace_chunk_is_detected_not_drawn(recorded, tmp_path, capsys):
+    """Chunks carry a checksum: the damaged chunk and those after it are skipped, the run
+    replays up to the stage before it, and the warning names the row."""
+    rows = sqlite3.connect(recorded).execute("SELECT id, stage_from FROM trace ORDER BY id").fetchall()
+    bad_row, bad_from = rows[3]
+    data = bytearray(trace_row_bytes(recorded, bad_row))
+    data[len(data) // 2] ^= 0x01  # one bit: the arrays still decode, only the checksum sees it
+    run = damaged_copy(recorded, tmp_path, f"UPDATE trace SET data = ? WHERE id = {bad_row}", params=(bytes(data),))
+    assert main(["replay", run, "--json"]) == 0
+    out, err = capsys.readouterr()
+    import json
+    summary = json.loads(out)
+    assert summary["last_stage"] < bad_from and summary["truncated"]
+    warning = one_line(err)
+    assert f"trace row {bad_row} (checksum mismatch)" in warning and f"trace rows {bad_row + 1}.." in warning
+
+
+def test_a_first_trace_chunk_damaged_is_a_one_line_error_and_findings_still_list(recorded, tmp_path, capsys):
+    run = damaged_copy(recorded, tmp_path, "UPDATE trace SET stage_to = 'later' WHERE id = 1")
+    assert main(["replay", run, "--stage", "end", "--png", str(tmp_path / "x.png")]) == 2
+    line = one_line(capsys.readouterr().err)
+    assert run in line and "trace row 1 (checksum mismatch)" in line and "no stage can be rebuilt" in line
+    assert "states" in line and "2 findings readable" in line
+    assert main(["replay", run, "--findings"]) == 1
+    out, err = capsys.readouterr()
+    assert "Gouge" in out and err == ""
+
+
+def test_rows_deleted_at_the_end_are_missing_not_unseen(recorded, tmp_path, capsys):
+    """The writer counts the rows of each table when it closes: a lost last trace chunk or
+    finding is named, not replayed as if the run had ended there."""
+    run = damaged_copy(recorded, tmp_path, "DELETE FROM trace WHERE id = (SELECT MAX(id) FROM trace)",
+                       "DELETE FROM findings WHERE id = 2")
+    assert main(["replay", run, "--findings"]) == 1
+    out, err = capsys.readouterr()
+    assert "findings row 2 (missing)" in one_line(err)
+    assert main(["replay", run]) == 0
+    out, err = capsys.readouterr()
+    assert "(cut short)" in out and "trace row" in one_line(err) and "(missing)" in err
+
+
+def test_a_file_damaged_beyond_opening_is_one_line(recorded, tmp_path, capsys):
+    run = tmp_path / "zeroed.dexrun"
+    raw = bytearray(recorded.read_bytes())
+    raw[:100] = bytes(100)  # the SQLite header
+    run.write_bytes(bytes(raw))
+    assert main(["report", str(run), "-o", str(tmp_path / "r.html")]) == 2
+    line = one_line(capsys.readouterr().err)
+    assert str(run) in line and "damaged beyond opening" in line
+
+
+def test_byte_flips_anywhere_never_give_a_traceback(recorded, tmp_path, capsys):
+    """A small seeded sweep (bench/runfile_fuzz.py runs the big one): every outcome is a
+    one-line error, a clean replay, or a replay with a one-line warning."""
+    import random
+
+    rng = random.Random(12)
+    base = recorded.read_bytes()
+    run = tmp_path / "flipped.dexrun"
+    for k in range(40):
+        raw = bytearray(base)
+        for _ in range(1 + k % 3):
+            raw[rng.randrange(len(raw))] ^= rng.randrange(1, 256)
+        run.write_bytes(bytes(raw))
+        rc = main(["replay", str(run), "--stage", "end", "--png", str(tmp_path / "f.png")])
+        err = capsys.readouterr().err
+        assert rc in (0, 2) and len(err.splitlines()) <= 1, err
+        assert rc == 0 or "error:" in err
+
+
+def test_old_run_files_without_checksums_open_and_say_so(recorded, tmp_path, capsys):
+    tables = ("meta", "arrays", "states", "findings", "alerts", "cuts", "trace", "link_events")
+    run = damaged_copy(recorded, tmp_path, *[f"ALTER TABLE {t} DROP COLUMN crc" for t in tables])
+    assert main(["replay", run, "--stage", "end", "--png", str(tmp_path / "o.png")]) == 0
+    line = one_line(capsys.readouterr().err)
+    assert "note:" in line and "no checksums" in line
+    from monitor.runfile import RunReader
+    assert not RunReader(run).checked and RunReader(recorded).checked
+
+
+def test_row_checksums_hold_for_what_sqlite_gives_back():
+    """SQLite turns 2 into 2.0 in a REAL column, -0.0 into 0, NaN into NULL: the checksum
+    is the same either way."""
+    from monitor.runfile import row_crc
+    assert row_crc((2, "a", b"b")) == row_crc((2.0, b"a", b"b"))
+    assert row_crc((-0.0,)) == row_crc((0,))
+    assert row_crc((float("nan"),)) == row_crc((None,))
+    assert row_crc((1.5,)) != row_crc((1.25,)) and row_crc(("x",)) != row_crc((None,))
+
+
+def test_unpack_refuses_headers_that_would_overflow():
+    import json
+    import numpy as np
+    from monitor.runfile import RunFileError, pack_arrays, unpack_arrays
+
+    header, data = pack_arrays({"a": np.arange(4, dtype=np.int32)})
+    for change in ({"shape": [1e999]}, {"shape": [[1]]}, {"dtype": [["x", "<i4", [1e999]]]},
+                   {"dtype": 7}, {"nbytes": "many"}, {"dtype": "|V0", "shape": [2**62], "nbytes": 0}):
+        bad = json.loads(header)
+        bad[0].update(change)
+        with pytest.raises(RunFileError):
+            unpack_arrays(json.dumps(bad), data, "x")
+    with pytest.raises(RunFileError, match="not JSON"):
+        unpack_arrays("[" * 100000, data, "x")
