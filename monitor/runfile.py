@@ -469,6 +469,8 @@ def _float_or_none(v):
 
 # --- reader ------------------------------------------------------------------------------
 
+#: what reading a damaged SQLite file raises (a schema whose names are not UTF-8: UnicodeDecodeError)
+_SQL_ERRORS = (sqlite3.Error, UnicodeDecodeError)
 #: tables a run file has had from the start (link_events came later)
 _FIRST_TABLES = ("meta", "arrays", "states", "findings", "alerts", "cuts", "trace")
 #: at most this many damaged places are named in one warning line
@@ -494,7 +496,7 @@ class RunReader:
             self._con = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
             self._columns = {name: {r[1] for r in self._con.execute(f"PRAGMA table_info({name})")}
                              for name in TABLES}
-        except sqlite3.Error as exc:
+        except _SQL_ERRORS as exc:
             raise RunFileError(f"not a dexmon run file, or damaged beyond opening ({exc}); nothing readable",
                                where) from exc
         if not self._columns["meta"]:
@@ -541,7 +543,7 @@ class RunReader:
         """The error for damage that leaves nothing to show: names it and what is still readable."""
         try:
             readable = f"{len(self.states())} states, {len(self.findings())} findings readable"
-        except (RunFileError, sqlite3.Error):
+        except (RunFileError, *_SQL_ERRORS):
             readable = "no states or findings readable"
         return RunFileError(f"run file is damaged: {what}; {readable}", str(self.path))
 
@@ -550,7 +552,7 @@ class RunReader:
         """Raw SQL rows (unchecked)."""
         try:
             return self._con.execute(sql, params).fetchall()
-        except sqlite3.Error as exc:
+        except _SQL_ERRORS as exc:
             raise self.damaged(str(exc)) from exc
 
     def _rows(self, table: str, where_sql: str = "", params: tuple = (), contiguous: bool = True) -> list[tuple]:
@@ -581,7 +583,7 @@ class RunReader:
                     self.note(f"{table} row {rid} ({problem})")
                     continue
                 out.append((rid, tuple(_as_read(v, k) for v, k in zip(values, cols.values()))))
-        except sqlite3.Error as exc:
+        except _SQL_ERRORS as exc:
             self.note(f"{table} after row {last or 0} ({exc})")
         finally:
             self._con.text_factory = str

@@ -174,3 +174,14 @@ def test_unpack_refuses_headers_that_would_overflow():
             unpack_arrays(json.dumps(bad), data, "x")
     with pytest.raises(RunFileError, match="not JSON"):
         unpack_arrays("[" * 100000, data, "x")
+
+
+def test_a_schema_whose_names_are_not_utf8_is_one_line(recorded, tmp_path, capsys):
+    """Found by bench/runfile_fuzz.py: a damaged schema made sqlite3 raise UnicodeDecodeError
+    (for the text of its error message)."""
+    bad = b"CREATE TABLE alerts(a) \x84\xff"  # the error message quotes it: not UTF-8
+    run = damaged_copy(recorded, tmp_path, "PRAGMA writable_schema = 1",
+                       "UPDATE sqlite_master SET sql = CAST(? AS TEXT) WHERE name = 'alerts'", params=(bad,))
+    assert main(["replay", run, "--findings"]) == 2
+    line = one_line(capsys.readouterr().err)
+    assert run in line and "damaged beyond opening" in line
