@@ -185,3 +185,43 @@ def test_a_schema_whose_names_are_not_utf8_is_one_line(recorded, tmp_path, capsy
     assert main(["replay", run, "--findings"]) == 2
     line = one_line(capsys.readouterr().err)
     assert run in line and "damaged beyond opening" in line
+
+
+def test_an_intact_run_file_reads_without_damage(tmp_path):
+    """No false alarms: odd values a controller made up, NaN, -0.0, ints in REAL columns,
+    and findings updated after they were appended all keep their checksums."""
+    import numpy as np
+
+    from drivers.state import MachineState, RunState
+    from monitor.runfile import RunReader, RunWriter
+
+    path = tmp_path / "r.sqlite"
+    with RunWriter(path) as w:
+        w.append_state(MachineState(t=0, mpos=(1, -0.0, float("nan")), state=RunState.RUN, line=2**64,
+                                    feed=np.float32(600), raw=b"<Run>"))
+        w.append_state(MachineState(t=0.5, mpos=(1, 2, 3), state=RunState.HOLD, line=np.int64(7), raw="<Hold>"))
+        w.append_finding({"kind": "gouge", "line": 3, "lead_time_s": 2.0}, t=np.float64(0.25))
+        w.update_finding(1, {"kind": "gouge", "line": 3, "lead_time_s": 1.5, "status": "happened"})
+        w.append_alert("terminal", "gouge", t=1, finding_id=1)
+        w.append_cut(1, {"p1": np.ones(3)}, t=np.float64(0.5), move_id=np.int64(2), line=3)
+        w.append_link_event(0.5, "note", {"message": "ok", "n": float("inf")})
+        w.put_meta("limits", {"x": [0, 1]})
+        w.put_array("moves", np.zeros(2, [("line", "<i4"), ("end", "<f8", 3)]))
+    r = RunReader(path)
+    assert len(r.states()) == 2 and r.findings()[0]["status"] == "happened" and len(r.alerts()) == 1
+    assert len(list(r.cuts())) == 1 and r.link_events()[0]["message"] == "ok"
+    assert r.get_array("moves").size == 2 and r.meta()["limits"]
+    assert r.damage == [] and r.damage_line() is None
+
+
+def test_resume_from_a_damaged_run_names_the_damage_past_its_intact_stages(recorded, tmp_path):
+    from monitor.resume import resume_grid
+    from sim.errors import InputError
+
+    last_row = sqlite3.connect(recorded).execute("SELECT MAX(id) FROM trace").fetchone()[0]
+    run = damaged_copy(recorded, tmp_path, f"UPDATE trace SET header = header || ' ' WHERE id = {last_row}")
+    grid, stage = resume_grid(f"{run}:end")
+    assert 0 < stage < LAST
+    with pytest.raises(InputError, match=rf"beyond the run's last recorded stage {stage} .*trace row {last_row} "
+                                         r"\(checksum mismatch\)"):
+        resume_grid(f"{run}:{LAST}")
