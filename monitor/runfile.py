@@ -499,6 +499,15 @@ class RunReader:
         except _SQL_ERRORS as exc:
             raise RunFileError(f"not a dexmon run file, or damaged beyond opening ({exc}); nothing readable",
                                where) from exc
+        try:
+            self._check_format()
+        except RunFileError:
+            self._con.close()
+            raise
+
+    def _check_format(self) -> None:
+        """RunFileError unless the meta table says this is a run file this dexmon reads."""
+        where = str(self.path)
         if not self._columns["meta"]:
             if self._columns["trace"] and self._columns["states"]:
                 self.checked = True
@@ -509,9 +518,9 @@ class RunReader:
         rows = self.meta()
         #: rows appended per table as the writer counted them when it closed ({} if it did not)
         self._row_counts = _counts(rows.get("rows"))
+        if self._damage and (rows.get("format") != FORMAT or rows.get("version") is None):
+            raise self.damaged(f"meta format or version unreadable ({self.damage[0]})")
         if rows.get("format") != FORMAT:
-            if self._damage:
-                raise self.damaged(f"meta format unreadable ({self.damage[0]})")
             raise RunFileError(f"not a dexmon run file (meta format is {rows.get('format')!r})", where)
         try:
             version = int(rows.get("version", "0"))
@@ -555,7 +564,7 @@ class RunReader:
         except _SQL_ERRORS as exc:
             raise self.damaged(str(exc)) from exc
 
-    def _rows(self, table: str, where_sql: str = "", params: tuple = (), contiguous: bool = True) -> list[tuple]:
+    def _rows(self, table: str, contiguous: bool = True) -> list[tuple]:
         """``(rowid, values)`` of the rows of ``table`` whose checksum and types hold, in
         rowid order; values as :data:`TABLES` lists them (text as str, blobs as bytes,
         numbers as int/float). Damaged rows, rows missing between others (``contiguous``:
@@ -567,12 +576,11 @@ class RunReader:
                 self.note(f"table {table} (missing)")
             return []
         checked = "crc" in have
-        sql = (f"SELECT rowid, {', '.join(cols)}{', crc' if checked else ''} FROM {table} "
-               f"{where_sql} ORDER BY rowid")
+        sql = f"SELECT rowid, {', '.join(cols)}{', crc' if checked else ''} FROM {table} ORDER BY rowid"
         out, last = [], 0 if contiguous else None
         self._con.text_factory = bytes  # text that is not UTF-8 is one damaged row, not an error
         try:
-            for row in self._con.execute(sql, params):
+            for row in self._con.execute(sql):
                 rid, values = row[0], row[1:1 + len(cols)]
                 if contiguous and last is not None and rid != last + 1:
                     self.note(f"{table} rows {last + 1}..{rid - 1} (missing)" if rid > last + 2
@@ -587,7 +595,7 @@ class RunReader:
             self.note(f"{table} after row {last or 0} ({exc})")
         finally:
             self._con.text_factory = str
-        written = self._row_counts.get(table, 0) if contiguous and not where_sql else 0
+        written = self._row_counts.get(table, 0) if contiguous else 0
         if last is not None and written > last:
             self.note(f"{table} rows {last + 1}..{written} (missing)" if written > last + 1
                       else f"{table} row {written} (missing)")
