@@ -188,13 +188,14 @@ def damage(base: Path, out: Path, rng: random.Random, unchecked_share: float) ->
         if rng.random() < 0.35:
             done.append(rng.choice(FILE_MUTATIONS)(out, rng))
             continue
+        con = sqlite3.connect(out)
         try:
-            con = sqlite3.connect(out)
             done.append(rng.choice(SQL_MUTATIONS)(con, rng))
             con.commit()
+        except (sqlite3.Error, UnicodeDecodeError, IndexError) as exc:  # damaged beyond SQL already
+            done.append(f"sql refused ({str(exc)[:60]})")
+        finally:
             con.close()
-        except sqlite3.Error as exc:  # already damaged beyond SQL: the next mutation is bytes
-            done.append(f"sql refused ({exc})")
     return "; ".join(done)
 
 
