@@ -652,8 +652,10 @@ class RunReader:
         """How many states are readable."""
         return len(self._rows("states"))
 
-    def _json_rows(self, table: str) -> Iterator[tuple[int, tuple, dict]]:
-        """``(rowid, values, object)`` of the rows whose ``json`` column holds a JSON object."""
+    def _json_rows(self, table: str, fields: dict) -> Iterator[tuple[int, tuple, dict]]:
+        """``(rowid, values, object)`` of the rows whose ``json`` column holds a JSON object
+        whose ``fields`` (key -> test) are None or pass their test (what the commands rely on;
+        an unchecked file may hold anything)."""
         for rid, values in self._rows(table):
             try:
                 obj = _json(values[-1], "json", "")
@@ -662,10 +664,14 @@ class RunReader:
             if not isinstance(obj, dict):
                 self.note(f"{table} row {rid} (json is not a JSON object)")
                 continue
+            bad = next((k for k, test in fields.items() if obj.get(k) is not None and not test(obj[k])), None)
+            if bad:
+                self.note(f"{table} row {rid} ({bad} is {repr(obj[bad])[:20]}, expected {fields[bad].__doc__})")
+                continue
             yield rid, values, obj
 
     def findings(self) -> list[dict]:
-        return [obj for _, _, obj in self._json_rows("findings")]
+        return [obj for _, _, obj in self._json_rows("findings", _FINDING_FIELDS)]
 
     def alerts(self) -> list[dict]:
         return [{"t": t, "finding_id": fid, "channel": ch, "text": text}
@@ -688,7 +694,7 @@ class RunReader:
     def link_events(self) -> list[dict]:
         """Link events and gap records in the order written (each its JSON object plus
         ``kind`` and ``t``); [] for a run file written before the table existed."""
-        return [{**obj, "kind": kind, "t": t} for _, (t, kind, _js), obj in self._json_rows("link_events")]
+        return [{**obj, "kind": kind, "t": t} for _, (t, kind, _js), obj in self._json_rows("link_events", _GAP_FIELDS)]
 
     def trace_chunks(self) -> list[tuple[int, int, dict[str, np.ndarray]]]:
         """``(stage_from, stage_to, arrays)`` in the order written, up to the first damaged
@@ -718,6 +724,39 @@ class RunReader:
     def __exit__(self, *exc):
         self.close()
         return False
+
+
+def _text(v) -> bool:
+    """text"""
+    return isinstance(v, str)
+
+
+def _number(v) -> bool:
+    """a number"""
+    return isinstance(v, (int, float))
+
+
+def _integer(v) -> bool:
+    """an integer"""
+    return isinstance(v, int)
+
+
+def _integers(v) -> bool:
+    """a list of integers"""
+    return isinstance(v, list) and all(isinstance(x, int) for x in v)
+
+
+def _numbers(v) -> bool:
+    """a list of numbers"""
+    return isinstance(v, list) and all(isinstance(x, (int, float)) for x in v)
+
+
+#: the fields of a finding the commands read, and what each must be when present
+_FINDING_FIELDS = {"kind": _text, "line": _integer, "lines": _integers, "stage": _integer, "position": _numbers,
+                   "depth": _number, "area": _number, "volume": _number, "lead_time_s": _number,
+                   "status": _text, "message": _text}
+#: the same for link events and gap records
+_GAP_FIELDS = {"run_s": _number, "seconds": _number, "jump_mm": _number, "message": _text}
 
 
 def _counts(text) -> dict[str, int]:

@@ -169,7 +169,11 @@ class RunView:
             return None
         frame = self.meta_json("frame", {})
         ref = frame.get("reference_wco") if isinstance(frame, dict) else None
-        return work_moves(moves, None if ref is None else np.asarray(ref, np.float64))
+        try:
+            return work_moves(moves, None if ref is None else np.asarray(ref, np.float64))
+        except (ValueError, TypeError, IndexError):  # an unchecked run file's meta frame
+            self.reader.note(f"meta frame (reference_wco {str(ref)[:30]}, expected 6 numbers)")
+            return None
 
     @cached_property
     def row_seconds(self) -> np.ndarray | None:

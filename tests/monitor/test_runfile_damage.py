@@ -225,3 +225,18 @@ def test_resume_from_a_damaged_run_names_the_damage_past_its_intact_stages(recor
     with pytest.raises(InputError, match=rf"beyond the run's last recorded stage {stage} .*trace row {last_row} "
                                          r"\(checksum mismatch\)"):
         resume_grid(f"{run}:{LAST}")
+
+
+UNCHECKED = [f"ALTER TABLE {t} DROP COLUMN crc" for t in
+             ("meta", "arrays", "states", "findings", "alerts", "cuts", "trace", "link_events")]
+
+
+def test_an_unchecked_finding_with_fields_of_the_wrong_type_is_skipped(recorded, tmp_path, capsys):
+    """Without checksums only the types guard the commands: a finding whose position is
+    not numbers gave ``ValueError`` in format_finding."""
+    odd = '{"kind": "gouge", "position": ["a", "b", "c"], "depth": "x"}'
+    run = damaged_copy(recorded, tmp_path, *UNCHECKED, f"UPDATE findings SET json = '{odd}' WHERE id = 1")
+    assert main(["replay", run, "--findings"]) == 1
+    out, err = capsys.readouterr()
+    assert "Rapid into stock" in out and "Gouge" not in out
+    assert "findings row 1 (position is ['a', 'b', 'c'], expected a list of numbers)" in one_line(err)
