@@ -790,7 +790,7 @@ def _row_problem(values: tuple, crc, cols: dict[str, str], checked: bool) -> str
             continue
         k = kind.lower()
         if k in "tb" and not isinstance(v, bytes) or k in "fi" and not isinstance(v, (int, float)) \
-                or k == "i" and isinstance(v, float) and not v.is_integer():
+                or k == "i" and isinstance(v, float) and not (v.is_integer() and abs(v) < 2**63):
             return f"{name} holds {_held(v)}, expected {_EXPECTED[k]}"
         if k == "t":
             try:
@@ -815,4 +815,4 @@ _EXPECTED = {"t": "text", "b": "bytes", "f": "a number", "i": "an integer"}
 
 
 def _held(v) -> str:
-    return "text" if isinstance(v, bytes) else "a fraction" if isinstance(v, float) else "a number"
+    return "text" if isinstance(v, bytes) else repr(v)[:24]

@@ -240,3 +240,10 @@ def test_an_unchecked_finding_with_fields_of_the_wrong_type_is_skipped(recorded,
     out, err = capsys.readouterr()
     assert "Rapid into stock" in out and "Gouge" not in out
     assert "findings row 1 (position is ['a', 'b', 'c'], expected a list of numbers)" in one_line(err)
+
+
+def test_an_unchecked_integer_cell_beyond_64_bits_is_skipped(recorded, tmp_path, capsys):
+    """Found by bench/runfile_fuzz.py: a stage of 1e308 in an unchecked file gave OverflowError."""
+    run = damaged_copy(recorded, tmp_path, *UNCHECKED, "UPDATE cuts SET stage = 1e308 WHERE id = 3")
+    assert main(["replay", run, "--stage", "end", "--png", str(tmp_path / "o.png")]) == 0
+    assert "cuts row 3 (stage holds 1e+308, expected an integer)" in one_line(capsys.readouterr().err)
