@@ -3,8 +3,9 @@
 The run file (:mod:`monitor.runfile`) keeps trace chunks as rows of named raw arrays;
 :func:`store_trace_chunk` appends what a :class:`sim.trace.Trace` recorded since its last
 chunk, :func:`load_trace` reads them back (stopping at the first damaged or missing row, so
-a run cut short or damaged replays up to its last intact stage). :class:`RunView` gathers the rest a picture
-needs: frame, moves in work coordinates, stage -> move/line, findings, tools.
+a run cut short or damaged replays up to its last intact stage). :class:`RunView` gathers
+the rest a picture needs: frame, moves in work coordinates, stage -> move/line, findings,
+tools.
 """
 
 from __future__ import annotations
@@ -158,21 +159,20 @@ class RunView:
             return None
         from monitor.predict import work_moves
         from monitor.runfile import RunFileError
-        from sim.gcode.moves import MOVE_DTYPE
 
         try:
             moves = np.array(self.reader.get_array("moves"))
         except RunFileError:  # damaged: noted by the reader, the run replays without it
             return None
-        if moves.dtype != MOVE_DTYPE:  # an unchecked run file whose table is not a move table
+        if not {"line", "start", "end"} <= set(moves.dtype.names or ()):  # unchecked: not a move table
             self.reader.note(f"arrays moves (dtype {str(moves.dtype)[:60]}, expected the move table)")
             return None
         frame = self.meta_json("frame", {})
         ref = frame.get("reference_wco") if isinstance(frame, dict) else None
         try:
             return work_moves(moves, None if ref is None else np.asarray(ref, np.float64))
-        except (ValueError, TypeError, IndexError):  # an unchecked run file's meta frame
-            self.reader.note(f"meta frame (reference_wco {str(ref)[:30]}, expected 6 numbers)")
+        except (ValueError, TypeError, IndexError, KeyError) as exc:  # unchecked: meta frame or moves odd
+            self.reader.note(f"arrays moves (does not fit the meta frame: {type(exc).__name__})")
             return None
 
     @cached_property
