@@ -110,23 +110,35 @@ TABLES = {
 }
 
 
+def normal_row(table: str, values) -> tuple:
+    """A row's values as SQLite will give them back (what :func:`row_crc` is taken of):
+    numbers in REAL columns as floats, integral ones in INTEGER columns as ints, NaN as
+    NULL, -0.0 as 0.0; numbers a column cannot hold (not a number, beyond 64 bits) NULL."""
+    return tuple(_normal(v, kind) for v, kind in zip(values, TABLES[table].values()))
+
+
+def _normal(v, kind: str):
+    if v is None:
+        return None
+    if kind in "TtBb":
+        return (v if isinstance(v, str) else str(v)) if kind in "Tt" else bytes(v)
+    if not isinstance(v, (int, float, np.integer, np.floating)):
+        return None
+    try:
+        f = float(v)
+    except OverflowError:
+        return None
+    if f != f:
+        return None
+    if kind in "Ii" and (isinstance(v, (int, np.integer)) or f.is_integer()) and abs(f) < 2**63:
+        return int(v)
+    return f + 0.0  # + 0.0: no -0.0
+
+
 def row_crc(values) -> int:
-    """CRC-32 of one row's values as SQLite gives them back: text and blobs by their bytes,
-    numbers as floats (a REAL column turns 2 into 2.0, an INTEGER column 2.0 into 2), NaN
-    as NULL (SQLite stores it so)."""
-    crc = 0
-    for v in values:
-        if v is None:
-            part = b"\x00N"
-        elif isinstance(v, str):
-            part = b"\x00S" + v.encode("utf-8", "surrogatepass")
-        elif isinstance(v, (bytes, bytearray, memoryview)):
-            part = b"\x00S" + bytes(v)
-        else:
-            f = float(v)
-            part = b"\x00N" if f != f else b"\x00F" + repr(f + 0.0).encode()  # + 0.0: no -0.0
-        crc = zlib.crc32(part, crc)
-    return crc
+    """CRC-32 of one row's values (as :func:`normal_row` makes them): of their ``repr``,
+    so a number that became text or a float that became an integer does not match."""
+    return zlib.crc32(repr(tuple(values)).encode("utf-8", "surrogatepass"))
 
 
 class RunFileError(InputError):
@@ -218,7 +230,7 @@ def unpack_arrays(header: str, data: bytes, where: str) -> dict[str, np.ndarray]
 
 _STOP = object()
 #: what one row's values can make SQLite raise: that row is skipped, not the run file
-_ROW_ERRORS = (OverflowError, sqlite3.InterfaceError, ValueError, TypeError)
+_ROW_ERRORS = (OverflowError, sqlite3.InterfaceError, sqlite3.IntegrityError, ValueError, TypeError)
 
 
 class RunWriter:
@@ -276,32 +288,31 @@ class RunWriter:
     def append_link_event(self, t: float | None, kind: str, record: dict) -> None:
         """Append one link event or gap record (``kind``: lost, back, reset, bad, note, gap)
         as its JSON object."""
-        self._row("link_events", (sql_value(t), str(kind), json.dumps(record, default=json_default)))
+        self._row("link_events", (t, str(kind), json.dumps(record, default=json_default)))
 
     def append_finding(self, finding: dict, t: float | None = None) -> None:
         """Append one finding as its JSON object (keys ``kind``, ``line``, ``lead_time_s`` indexed)."""
-        key = (sql_value(t), str(finding.get("kind", "")), sql_value(_int_or_none(finding.get("line"))))
+        key = (t, str(finding.get("kind", "")), _int_or_none(finding.get("line")))
         self._finding_keys.append(key)
-        self._row("findings", key + (_float_or_none(finding.get("lead_time_s")),
-                                     json.dumps(finding, default=json_default)))
+        self._row("findings", key + (finding.get("lead_time_s"), json.dumps(finding, default=json_default)))
 
     def update_finding(self, finding_id: int, finding: dict) -> None:
         """Replace the JSON of finding ``finding_id`` (1-based, in append order), e.g. when a
         predicted finding really happened."""
-        lead, text = _float_or_none(finding.get("lead_time_s")), json.dumps(finding, default=json_default)
+        lead, text = _normal(finding.get("lead_time_s"), "f"), json.dumps(finding, default=json_default)
         key = self._finding_keys[int(finding_id) - 1] if 0 < int(finding_id) <= len(self._finding_keys) else None
-        crc = _crc_or_none(key + (lead, text)) if key else None
+        crc = _crc_or_none(normal_row("findings", key + (lead, text))) if key else None
         self._put("UPDATE findings SET lead_time_s = ?, json = ?, crc = ? WHERE id = ?",
                   (lead, text, crc, int(finding_id)))
 
     def append_alert(self, channel: str, text: str, t: float | None = None, finding_id: int | None = None) -> None:
-        self._row("alerts", (sql_value(t), sql_value(finding_id), channel, text))
+        self._row("alerts", (t, finding_id, channel, text))
 
     def append_cut(self, stage: int, arrays: dict[str, np.ndarray], t: float | None = None,
                    move_id: int | None = None, line: int | None = None) -> None:
         """Append the cut delta of one stage (e.g. path points, changed rays and their new segments)."""
         header, data = pack_arrays(arrays)
-        self._row("cuts", (int(stage), sql_value(t), sql_value(move_id), sql_value(line), header, data))
+        self._row("cuts", (int(stage), t, move_id, line, header, data))
 
     def append_trace_chunk(self, stage_from: int, stage_to: int, arrays: dict[str, np.ndarray]) -> None:
         """Append a z-trace / time-trace chunk covering stages ``stage_from..stage_to``."""
@@ -337,14 +348,17 @@ class RunWriter:
     def _row(self, table: str, values: tuple, verb: str = "INSERT") -> None:
         """Queue one row of ``table`` (values of :data:`TABLES` ``[table]``, in order) with its checksum."""
         cols = tuple(TABLES[table]) + ("crc",)
+        # the writer thread adds the checksum: the caller's loop does not wait for it
         self._put(f"{verb} INTO {table}({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})",
-                  tuple(values) + (_crc_or_none(values),))
+                  tuple(values), table)
 
-    def _put(self, sql: str, params: tuple) -> None:
+    def _put(self, sql: str, params: tuple, table: str | None = None) -> None:
+        """Queue one statement; with ``table``, ``params`` are that table's checked columns
+        and the writer thread appends their checksum."""
         self._check()
         if self._closed:
             raise RunFileError("run file is closed", str(self.path))
-        self._q.put((sql, params))
+        self._q.put((sql, params, table))
 
     def _check(self) -> None:
         if self._error is not None:
@@ -382,10 +396,14 @@ class RunWriter:
                     if not in_tx:
                         con.execute("BEGIN")
                         in_tx = True
+                    sql, params, table = item
                     try:
-                        con.execute(*item)
-                        if item[0].startswith("INSERT INTO "):
-                            table = item[0][12:].split("(", 1)[0]
+                        if table:
+                            params = normal_row(table, params)
+                            params += (row_crc(params),)
+                        con.execute(sql, params)
+                        if sql.startswith("INSERT INTO "):
+                            table = sql[12:].split("(", 1)[0]
                             rows[table] = rows.get(table, 0) + 1
                     except _ROW_ERRORS as exc:  # one row SQLite cannot take: skip it, go on
                         self.skipped += 1
@@ -460,13 +478,6 @@ def _int_or_none(v):
         return None
 
 
-def _float_or_none(v):
-    try:
-        return None if v is None else float(v)
-    except (TypeError, ValueError):
-        return None
-
-
 # --- reader ------------------------------------------------------------------------------
 
 #: what reading a damaged SQLite file raises (a schema whose names are not UTF-8: UnicodeDecodeError)
@@ -490,6 +501,8 @@ class RunReader:
         #: damaged places found so far, in the order found (a dict: each named once)
         self._damage: dict[str, None] = {}
         self._row_counts: dict[str, int] = {}
+        #: rows read per table, kept once the writer has closed the file (it changes no more)
+        self._read: dict[str, list] = {}
         if not self.path.is_file():
             raise RunFileError("no such run file", where)
         try:
@@ -569,6 +582,8 @@ class RunReader:
         rowid order; values as :data:`TABLES` lists them (text as str, blobs as bytes,
         numbers as int/float). Damaged rows, rows missing between others (``contiguous``:
         the writer never deletes) and a table that is gone are noted and skipped."""
+        if table in self._read:
+            return self._read[table]
         cols = TABLES[table]
         have = self._columns[table]
         if not have:
@@ -578,19 +593,25 @@ class RunReader:
         checked = "crc" in have
         sql = f"SELECT rowid, {', '.join(cols)}{', crc' if checked else ''} FROM {table} ORDER BY rowid"
         out, last = [], 0 if contiguous else None
+        texts = [i for i, kind in enumerate(cols.values()) if kind in "Tt"]
         self._con.text_factory = bytes  # text that is not UTF-8 is one damaged row, not an error
         try:
             for row in self._con.execute(sql):
-                rid, values = row[0], row[1:1 + len(cols)]
+                rid, values = row[0], list(row[1:1 + len(cols)])
                 if contiguous and last is not None and rid != last + 1:
                     self.note(f"{table} rows {last + 1}..{rid - 1} (missing)" if rid > last + 2
                                else f"{table} row {last + 1} (missing)")
                 last = rid
-                problem = _row_problem(values, row[-1] if checked else None, cols, checked)
+                problem = _decode_texts(values, texts, cols)
+                if problem is None and checked:
+                    problem = None if _crc_matches(values, row[-1]) else "checksum mismatch"
+                elif problem is None:  # unchecked: only the types guard what follows
+                    problem = _type_problem(values, cols)
+                    values = [_as_read(v, kind) for v, kind in zip(values, cols.values())]
                 if problem:
                     self.note(f"{table} row {rid} ({problem})")
                     continue
-                out.append((rid, tuple(_as_read(v, k) for v, k in zip(values, cols.values()))))
+                out.append((rid, tuple(values)))
         except _SQL_ERRORS as exc:
             self.note(f"{table} after row {last or 0} ({exc})")
         finally:
@@ -599,6 +620,8 @@ class RunReader:
         if last is not None and written > last:
             self.note(f"{table} rows {last + 1}..{written} (missing)" if written > last + 1
                       else f"{table} row {written} (missing)")
+        if self._row_counts:  # closed by its writer: nothing changes any more
+            self._read[table] = out
         return out
 
     def meta(self) -> dict[str, str]:
@@ -774,40 +797,44 @@ def _reason(exc: RunFileError) -> str:
     return text[len(exc.where) + 2:] if exc.where and text.startswith(f"{exc.where}: ") else text
 
 
-def _row_problem(values: tuple, crc, cols: dict[str, str], checked: bool) -> str | None:
-    """What is wrong with one row as read (text as bytes), or None: checksum, then types."""
-    if checked:
-        try:
-            ok = crc is not None and isinstance(crc, int) and row_crc(values) == crc
-        except (TypeError, ValueError, OverflowError):
-            ok = False
-        if not ok:
-            return "checksum mismatch"
+def _decode_texts(values: list, texts: list[int], cols: dict[str, str]) -> str | None:
+    """Decode the text columns (read as bytes) of one row in place; what is not UTF-8, or None."""
+    for i in texts:
+        if isinstance(values[i], bytes):
+            try:
+                values[i] = values[i].decode()
+            except UnicodeDecodeError:
+                return f"{list(cols)[i]} is not UTF-8 text"
+    return None
+
+
+def _crc_matches(values: list, crc) -> bool:
+    try:
+        return isinstance(crc, int) and row_crc(values) == crc
+    except (TypeError, ValueError, OverflowError):
+        return False
+
+
+def _type_problem(values: list, cols: dict[str, str]) -> str | None:
+    """What does not fit its column in one row of an unchecked file (text decoded), or None."""
     for v, (name, kind) in zip(values, cols.items()):
+        k = kind.lower()
         if v is None:
             if kind.isupper():
-                return f"{name} is NULL, expected {_EXPECTED[kind.lower()]}"
-            continue
-        k = kind.lower()
-        if k in "tb" and not isinstance(v, bytes) or k in "fi" and not isinstance(v, (int, float)) \
+                return f"{name} is NULL, expected {_EXPECTED[k]}"
+        elif k == "t" and not isinstance(v, str) or k == "b" and not isinstance(v, (bytes, str)) \
+                or k in "fi" and not isinstance(v, (int, float)) \
                 or k == "i" and isinstance(v, float) and not (v.is_integer() and abs(v) < 2**63):
             return f"{name} holds {_held(v)}, expected {_EXPECTED[k]}"
-        if k == "t":
-            try:
-                v.decode()
-            except UnicodeDecodeError:
-                return f"{name} is not UTF-8 text"
     return None
 
 
 def _as_read(v, kind: str):
-    """A value of a row that passed :func:`_row_problem` as its column holds it."""
-    if v is None:
-        return None
-    if kind in "Tt":
-        return v.decode()
-    if kind in "Ii" and isinstance(v, float):
+    """A value of an unchecked row that passed :func:`_type_problem` as its column holds it."""
+    if kind in "Ii" and isinstance(v, float) and v.is_integer() and abs(v) < 2**63:
         return int(v)
+    if kind in "Bb" and isinstance(v, str):
+        return v.encode()
     return v
 
 
@@ -815,4 +842,4 @@ _EXPECTED = {"t": "text", "b": "bytes", "f": "a number", "i": "an integer"}
 
 
 def _held(v) -> str:
-    return "text" if isinstance(v, bytes) else repr(v)[:24]
+    return "text" if isinstance(v, (bytes, str)) else repr(v)[:24]

@@ -151,13 +151,16 @@ def test_old_run_files_without_checksums_open_and_say_so(recorded, tmp_path, cap
 
 
 def test_row_checksums_hold_for_what_sqlite_gives_back():
-    """SQLite turns 2 into 2.0 in a REAL column, -0.0 into 0, NaN into NULL: the checksum
-    is the same either way."""
-    from monitor.runfile import row_crc
-    assert row_crc((2, "a", b"b")) == row_crc((2.0, b"a", b"b"))
-    assert row_crc((-0.0,)) == row_crc((0,))
-    assert row_crc((float("nan"),)) == row_crc((None,))
-    assert row_crc((1.5,)) != row_crc((1.25,)) and row_crc(("x",)) != row_crc((None,))
+    """The writer stores numbers as SQLite gives them back (2 in a REAL column as 2.0, 3.0
+    in an INTEGER column as 3, NaN as NULL, -0.0 as 0.0), so their checksums match; a
+    number that became text does not."""
+    import numpy as np
+
+    from monitor.runfile import normal_row, row_crc
+    written = normal_row("findings", (2, "gouge", np.float64(3.0), float("nan"), "{}"))
+    assert written == (2.0, "gouge", 3, None, "{}") and row_crc(written) == row_crc((2.0, "gouge", 3, None, "{}"))
+    assert normal_row("cuts", (1, -0.0, 2**70, np.int64(5), "[]", b"x")) == (1, 0.0, 2.0**70, 5, "[]", b"x")
+    assert row_crc((1.5,)) != row_crc(("1.5",)) and row_crc((3,)) != row_crc((3.0,))
 
 
 def test_unpack_refuses_headers_that_would_overflow():
