@@ -14,11 +14,13 @@ Layout (all times are ``MachineState.t`` seconds unless said otherwise)::
                                                      note (as the driver told it) and gap
                                                      (the session's record of each gap)
 
-Every table has a ``crc`` column: the CRC-32 of the row's other values (:func:`row_crc`),
-checked on reading, so damage (a flipped byte in a trace chunk, a cell of the wrong type)
-is detected, not drawn. A damaged or missing row is skipped and named in
-``RunReader.damage``; trace chunks are used up to the first damaged one. Run files written
-before checksums open as *unchecked* (``RunReader.checked`` False).
+Every table has a ``crc`` column: the CRC-32 of the row's other values as SQLite gives
+them back (:func:`normal_row`, :func:`row_crc`; the writer thread adds it), checked on
+reading, so damage (a flipped byte in a trace chunk, a cell of the wrong type) is detected,
+not drawn. A damaged or missing row (the writer never deletes; on closing it writes each
+table's row count to meta ``rows``) is skipped and named in ``RunReader.damage``; trace
+chunks are used up to the first damaged one. Run files written before checksums open as
+*unchecked* (``RunReader.checked`` False): only the types of their cells are checked.
 
 Old run files without the ``link_events`` table open as having none. State values a
 controller made up (an integer beyond SQLite's 64 bits, a type it cannot store) are stored
