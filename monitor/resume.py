@@ -24,16 +24,20 @@ def parse_resume(spec: str) -> tuple[Path, str]:
 def resume_grid(spec: str) -> tuple[DexelGrid, int]:
     """The model rebuilt at ``RUN:STAGE`` and the stage number it is at."""
     from monitor.commands.replay import parse_stage
+    from monitor.runfile import RunReader
     from monitor.trace_io import load_trace
 
     path, stage_text = parse_resume(spec)
     if not path.is_file():
         raise InputError("no such run file", f"--resume {path}")
-    trace = load_trace(path)
+    with RunReader(path) as reader:
+        trace = load_trace(reader)
+        damage = reader.damage_line()
     if trace.z is None:
         raise InputError("the run has no z-trace, so its model cannot be rebuilt", f"--resume {path}")
     stage = parse_stage(stage_text, trace.last_stage, trace.z.first_stage, "--resume")
     if stage > trace.last_stage:
-        raise InputError(f"stage {stage} is beyond the run's last recorded stage {trace.last_stage}",
+        why = f" ({damage})" if damage else ""
+        raise InputError(f"stage {stage} is beyond the run's last recorded stage {trace.last_stage}{why}",
                          f"--resume {spec}")
     return trace.grid_at(stage), stage

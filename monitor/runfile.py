@@ -14,6 +14,14 @@ Layout (all times are ``MachineState.t`` seconds unless said otherwise)::
                                                      note (as the driver told it) and gap
                                                      (the session's record of each gap)
 
+Every table has a ``crc`` column: the CRC-32 of the row's other values as SQLite gives
+them back (:func:`normal_row`, :func:`row_crc`; the writer thread adds it), checked on
+reading, so damage (a flipped byte in a trace chunk, a cell of the wrong type) is detected,
+not drawn. A damaged or missing row (the writer never deletes; on closing it writes each
+table's row count to meta ``rows``) is skipped and named in ``RunReader.damage``; trace
+chunks are used up to the first damaged one. Run files written before checksums open as
+*unchecked* (``RunReader.checked`` False): only the types of their cells are checked.
+
 Old run files without the ``link_events`` table open as having none. State values a
 controller made up (an integer beyond SQLite's 64 bits, a type it cannot store) are stored
 as NULL; the ``raw`` column keeps the text they came from.
@@ -31,10 +39,12 @@ never waits on the disk.
 from __future__ import annotations
 
 import json
+import math
 import queue
 import sqlite3
 import threading
 import time
+import zlib
 from datetime import datetime
 from pathlib import Path
 from typing import Iterator
@@ -48,27 +58,28 @@ FORMAT = "dexmon-run"
 VERSION = 1
 
 _SCHEMA = """
-CREATE TABLE IF NOT EXISTS meta(key TEXT PRIMARY KEY, value TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS arrays(name TEXT PRIMARY KEY, header TEXT NOT NULL, data BLOB NOT NULL);
+CREATE TABLE IF NOT EXISTS meta(key TEXT PRIMARY KEY, value TEXT NOT NULL, crc INTEGER);
+CREATE TABLE IF NOT EXISTS arrays(name TEXT PRIMARY KEY, header TEXT NOT NULL, data BLOB NOT NULL, crc INTEGER);
 CREATE TABLE IF NOT EXISTS states(
     id INTEGER PRIMARY KEY, t REAL NOT NULL,
     mx REAL, my REAL, mz REAL, ma REAL, mb REAL, mc REAL,
     wx REAL, wy REAL, wz REAL, wa REAL, wb REAL, wc REAL,
     state TEXT, substate INTEGER, feed REAL, spindle REAL, line INTEGER,
-    ovr_feed INTEGER, ovr_rapid INTEGER, ovr_spindle INTEGER, alarm INTEGER, raw TEXT);
+    ovr_feed INTEGER, ovr_rapid INTEGER, ovr_spindle INTEGER, alarm INTEGER, raw TEXT, crc INTEGER);
 CREATE TABLE IF NOT EXISTS findings(
     id INTEGER PRIMARY KEY, t REAL, kind TEXT NOT NULL, line INTEGER, lead_time_s REAL,
-    json TEXT NOT NULL);
+    json TEXT NOT NULL, crc INTEGER);
 CREATE TABLE IF NOT EXISTS alerts(
-    id INTEGER PRIMARY KEY, t REAL, finding_id INTEGER, channel TEXT NOT NULL, text TEXT NOT NULL);
+    id INTEGER PRIMARY KEY, t REAL, finding_id INTEGER, channel TEXT NOT NULL, text TEXT NOT NULL,
+    crc INTEGER);
 CREATE TABLE IF NOT EXISTS cuts(
     id INTEGER PRIMARY KEY, stage INTEGER NOT NULL, t REAL, move_id INTEGER, line INTEGER,
-    header TEXT NOT NULL, data BLOB NOT NULL);
+    header TEXT NOT NULL, data BLOB NOT NULL, crc INTEGER);
 CREATE TABLE IF NOT EXISTS trace(
     id INTEGER PRIMARY KEY, stage_from INTEGER NOT NULL, stage_to INTEGER NOT NULL,
-    header TEXT NOT NULL, data BLOB NOT NULL);
+    header TEXT NOT NULL, data BLOB NOT NULL, crc INTEGER);
 CREATE TABLE IF NOT EXISTS link_events(
-    id INTEGER PRIMARY KEY, t REAL, kind TEXT NOT NULL, json TEXT NOT NULL);
+    id INTEGER PRIMARY KEY, t REAL, kind TEXT NOT NULL, json TEXT NOT NULL, crc INTEGER);
 CREATE INDEX IF NOT EXISTS cuts_stage ON cuts(stage);
 CREATE INDEX IF NOT EXISTS trace_stage ON trace(stage_from);
 """
@@ -83,6 +94,53 @@ STATE_DTYPE = np.dtype([
     ("state", "U12"), ("substate", np.int32), ("feed", np.float64), ("spindle", np.float64),
     ("line", np.int32), ("overrides", np.int32, 3), ("alarm", np.int32),
 ])
+
+
+#: per table, the columns its ``crc`` covers and what each holds: T/t text, B blob, F/f a
+#: number, I/i an integer (upper case: never NULL)
+TABLES = {
+    "meta": {"key": "T", "value": "T"},
+    "arrays": {"name": "T", "header": "T", "data": "B"},
+    "states": {"t": "F", **{c: "f" for c in STATE_COLUMNS[1:13]}, "state": "t", "substate": "i", "feed": "f",
+               "spindle": "f", "line": "i", "ovr_feed": "i", "ovr_rapid": "i", "ovr_spindle": "i",
+               "alarm": "i", "raw": "t"},
+    "findings": {"t": "f", "kind": "T", "line": "i", "lead_time_s": "f", "json": "T"},
+    "alerts": {"t": "f", "finding_id": "i", "channel": "T", "text": "T"},
+    "cuts": {"stage": "I", "t": "f", "move_id": "i", "line": "i", "header": "T", "data": "B"},
+    "trace": {"stage_from": "I", "stage_to": "I", "header": "T", "data": "B"},
+    "link_events": {"t": "f", "kind": "T", "json": "T"},
+}
+
+
+def normal_row(table: str, values) -> tuple:
+    """A row's values as SQLite will give them back (what :func:`row_crc` is taken of):
+    numbers in REAL columns as floats, integral ones in INTEGER columns as ints, NaN as
+    NULL, -0.0 as 0.0; numbers a column cannot hold (not a number, beyond 64 bits) NULL."""
+    return tuple(_normal(v, kind) for v, kind in zip(values, TABLES[table].values()))
+
+
+def _normal(v, kind: str):
+    if v is None:
+        return None
+    if kind in "TtBb":
+        return (v if isinstance(v, str) else str(v)) if kind in "Tt" else bytes(v)
+    if not isinstance(v, (int, float, np.integer, np.floating)):
+        return None
+    try:
+        f = float(v)
+    except OverflowError:
+        return None
+    if f != f:
+        return None
+    if kind in "Ii" and (isinstance(v, (int, np.integer)) or f.is_integer()) and abs(f) < 2**63:
+        return int(v)
+    return f + 0.0  # + 0.0: no -0.0
+
+
+def row_crc(values) -> int:
+    """CRC-32 of one row's values (as :func:`normal_row` makes them): of their ``repr``,
+    so a number that became text or a float that became an integer does not match."""
+    return zlib.crc32(repr(tuple(values)).encode("utf-8", "surrogatepass"))
 
 
 class RunFileError(InputError):
@@ -111,17 +169,25 @@ def _descr_to_dtype(descr, where: str) -> np.dtype:
         out = []
         for field in d:
             if not isinstance(field, list) or len(field) not in (2, 3) or not isinstance(field[0], str):
-                raise RunFileError(f"bad dtype field {field!r}", where)
+                raise RunFileError(f"bad dtype field {str(field)[:80]}", where)
             name, sub = field[0], tuples(field[1])
             out.append((name, sub) if len(field) == 2 else (name, sub, tuple(int(x) for x in field[2])))
         return out
     try:
         dtype = np.lib.format.descr_to_dtype(tuples(descr))
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, KeyError, OverflowError, RecursionError) as exc:
         raise RunFileError(f"bad dtype {descr!r} ({exc})", where) from exc
     if dtype.hasobject:
         raise RunFileError("object arrays are not allowed in a run file", where)
     return dtype
+
+
+def _json(text, what: str, where: str):
+    """``text`` parsed as JSON, else RunFileError naming ``what``."""
+    try:
+        return json.loads(text)
+    except (ValueError, RecursionError) as exc:  # JSONDecodeError, UnicodeDecodeError
+        raise RunFileError(f"{what} is not JSON ({str(exc)[:80]})", where) from exc
 
 
 def pack_arrays(arrays: dict[str, np.ndarray]) -> tuple[str, bytes]:
@@ -141,10 +207,7 @@ def pack_arrays(arrays: dict[str, np.ndarray]) -> tuple[str, bytes]:
 
 def unpack_arrays(header: str, data: bytes, where: str) -> dict[str, np.ndarray]:
     """Inverse of :func:`pack_arrays`; validates every entry. Arrays are read-only views."""
-    try:
-        entries = json.loads(header)
-    except json.JSONDecodeError as exc:
-        raise RunFileError(f"array header is not JSON ({exc})", where) from exc
+    entries = _json(header, "array header", where)
     if not isinstance(entries, list):
         raise RunFileError("array header must be a list", where)
     out = {}
@@ -153,12 +216,12 @@ def unpack_arrays(header: str, data: bytes, where: str) -> dict[str, np.ndarray]
         try:
             name, descr, shape = e["name"], e["dtype"], [int(s) for s in e["shape"]]
             offset, nbytes = int(e["offset"]), int(e["nbytes"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise RunFileError(f"bad array header entry {e!r}", where) from exc
+        except (KeyError, TypeError, ValueError, OverflowError) as exc:
+            raise RunFileError(f"bad array header entry {str(e)[:80]}", where) from exc
         dtype = _descr_to_dtype(descr, f"{where} [{name}]")
-        count = int(np.prod(shape)) if shape else 1
+        count = math.prod(shape)
         if min(shape, default=0) < 0 or count * dtype.itemsize != nbytes or offset < 0 \
-                or offset + nbytes > len(data):
+                or offset + nbytes > len(data) or count > 2**40:
             raise RunFileError(f"array {name!r}: shape {shape} of {dtype} does not match "
                                f"{nbytes} bytes at offset {offset} of {len(data)}", where)
         out[name] = np.frombuffer(buf[offset:offset + nbytes], dtype=dtype, count=count).reshape(shape)
@@ -169,7 +232,7 @@ def unpack_arrays(header: str, data: bytes, where: str) -> dict[str, np.ndarray]
 
 _STOP = object()
 #: what one row's values can make SQLite raise: that row is skipped, not the run file
-_ROW_ERRORS = (OverflowError, sqlite3.InterfaceError, ValueError, TypeError)
+_ROW_ERRORS = (OverflowError, sqlite3.InterfaceError, sqlite3.IntegrityError, ValueError, TypeError)
 
 
 class RunWriter:
@@ -194,6 +257,8 @@ class RunWriter:
         self._ready = threading.Event()
         self._closed = False
         self._stage = 0
+        #: (t, kind, line) of each finding appended, for the checksum of its updates
+        self._finding_keys: list[tuple] = []
         #: rows SQLite refused (a value it cannot store): skipped, counted, the run goes on
         self.skipped = 0
         self.last_skip = ""
@@ -206,12 +271,12 @@ class RunWriter:
     def put_meta(self, key: str, value) -> None:
         """Set a meta entry; non-strings are stored as JSON."""
         text = value if isinstance(value, str) else json.dumps(value)
-        self._put("INSERT OR REPLACE INTO meta(key, value) VALUES (?, ?)", (key, text))
+        self._row("meta", (key, text), "INSERT OR REPLACE")
 
     def put_array(self, name: str, arr: np.ndarray) -> None:
         """Store (or replace) one named array, e.g. the move table (``"moves"``)."""
         header, data = pack_arrays({name: arr})
-        self._put("INSERT OR REPLACE INTO arrays(name, header, data) VALUES (?, ?, ?)", (name, header, data))
+        self._row("arrays", (name, header, data), "INSERT OR REPLACE")
 
     def append_state(self, s) -> None:
         """Append one :class:`drivers.state.MachineState` (odd values stored as NULL,
@@ -220,44 +285,41 @@ class RunWriter:
         row = (s.t, *s.mpos, *s.wco, getattr(s.state, "value", str(s.state)), s.substate,
                s.feed, s.spindle, s.line, ovr[0], ovr[1], ovr[2], s.alarm)
         raw = s.raw if isinstance(s.raw, str) else repr(s.raw)
-        self._put(f"INSERT INTO states({', '.join(STATE_COLUMNS)}) VALUES "
-                  f"({', '.join('?' * len(STATE_COLUMNS))})", tuple(sql_value(v) for v in row) + (raw,))
+        self._row("states", tuple(sql_value(v) for v in row) + (raw,))
 
     def append_link_event(self, t: float | None, kind: str, record: dict) -> None:
         """Append one link event or gap record (``kind``: lost, back, reset, bad, note, gap)
         as its JSON object."""
-        self._put("INSERT INTO link_events(t, kind, json) VALUES (?, ?, ?)",
-                  (sql_value(t), str(kind), json.dumps(record, default=json_default)))
+        self._row("link_events", (t, str(kind), json.dumps(record, default=json_default)))
 
     def append_finding(self, finding: dict, t: float | None = None) -> None:
         """Append one finding as its JSON object (keys ``kind``, ``line``, ``lead_time_s`` indexed)."""
-        self._put("INSERT INTO findings(t, kind, line, lead_time_s, json) VALUES (?, ?, ?, ?, ?)",
-                  (t, str(finding.get("kind", "")), _int_or_none(finding.get("line")),
-                   _float_or_none(finding.get("lead_time_s")), json.dumps(finding, default=json_default)))
+        key = (t, str(finding.get("kind", "")), _int_or_none(finding.get("line")))
+        self._finding_keys.append(key)
+        self._row("findings", key + (finding.get("lead_time_s"), json.dumps(finding, default=json_default)))
 
     def update_finding(self, finding_id: int, finding: dict) -> None:
         """Replace the JSON of finding ``finding_id`` (1-based, in append order), e.g. when a
         predicted finding really happened."""
-        self._put("UPDATE findings SET lead_time_s = ?, json = ? WHERE id = ?",
-                  (_float_or_none(finding.get("lead_time_s")), json.dumps(finding, default=json_default),
-                   int(finding_id)))
+        lead, text = _normal(finding.get("lead_time_s"), "f"), json.dumps(finding, default=json_default)
+        key = self._finding_keys[int(finding_id) - 1] if 0 < int(finding_id) <= len(self._finding_keys) else None
+        crc = _crc_or_none(normal_row("findings", key + (lead, text))) if key else None
+        self._put("UPDATE findings SET lead_time_s = ?, json = ?, crc = ? WHERE id = ?",
+                  (lead, text, crc, int(finding_id)))
 
     def append_alert(self, channel: str, text: str, t: float | None = None, finding_id: int | None = None) -> None:
-        self._put("INSERT INTO alerts(t, finding_id, channel, text) VALUES (?, ?, ?, ?)",
-                  (t, finding_id, channel, text))
+        self._row("alerts", (t, finding_id, channel, text))
 
     def append_cut(self, stage: int, arrays: dict[str, np.ndarray], t: float | None = None,
                    move_id: int | None = None, line: int | None = None) -> None:
         """Append the cut delta of one stage (e.g. path points, changed rays and their new segments)."""
         header, data = pack_arrays(arrays)
-        self._put("INSERT INTO cuts(stage, t, move_id, line, header, data) VALUES (?, ?, ?, ?, ?, ?)",
-                  (int(stage), t, move_id, line, header, data))
+        self._row("cuts", (int(stage), t, move_id, line, header, data))
 
     def append_trace_chunk(self, stage_from: int, stage_to: int, arrays: dict[str, np.ndarray]) -> None:
         """Append a z-trace / time-trace chunk covering stages ``stage_from..stage_to``."""
         header, data = pack_arrays(arrays)
-        self._put("INSERT INTO trace(stage_from, stage_to, header, data) VALUES (?, ?, ?, ?)",
-                  (int(stage_from), int(stage_to), header, data))
+        self._row("trace", (int(stage_from), int(stage_to), header, data))
 
     def flush(self, timeout: float = 30.0) -> None:
         """Block until everything appended so far is committed."""
@@ -285,11 +347,20 @@ class RunWriter:
         return False
 
     # -- internals
-    def _put(self, sql: str, params: tuple) -> None:
+    def _row(self, table: str, values: tuple, verb: str = "INSERT") -> None:
+        """Queue one row of ``table`` (values of :data:`TABLES` ``[table]``, in order) with its checksum."""
+        cols = tuple(TABLES[table]) + ("crc",)
+        # the writer thread adds the checksum: the caller's loop does not wait for it
+        self._put(f"{verb} INTO {table}({', '.join(cols)}) VALUES ({', '.join('?' * len(cols))})",
+                  tuple(values), table)
+
+    def _put(self, sql: str, params: tuple, table: str | None = None) -> None:
+        """Queue one statement; with ``table``, ``params`` are that table's checked columns
+        and the writer thread appends their checksum."""
         self._check()
         if self._closed:
             raise RunFileError("run file is closed", str(self.path))
-        self._q.put((sql, params))
+        self._q.put((sql, params, table))
 
     def _check(self) -> None:
         if self._error is not None:
@@ -304,8 +375,9 @@ class RunWriter:
             con.execute("PRAGMA journal_mode=WAL")
             con.execute("PRAGMA synchronous=NORMAL")
             con.executescript(_SCHEMA)
-            con.execute("INSERT INTO meta(key, value) VALUES ('format', ?), ('version', ?), ('created', ?)",
-                        (FORMAT, str(VERSION), datetime.now().isoformat(timespec="seconds")))
+            for key, value in (("format", FORMAT), ("version", str(VERSION)),
+                               ("created", datetime.now().isoformat(timespec="seconds"))):
+                con.execute("INSERT INTO meta(key, value, crc) VALUES (?, ?, ?)", (key, value, row_crc((key, value))))
         except BaseException as exc:  # reported to the caller by _check
             self._error = exc
             self._closed = True
@@ -314,6 +386,7 @@ class RunWriter:
         self._ready.set()
         in_tx = False
         last_commit = time.monotonic()
+        rows: dict[str, int] = {}  # rows appended per table, written as meta "rows" on closing
         try:
             while True:
                 wait = max(self.commit_interval - (time.monotonic() - last_commit), 0.0) if in_tx else None
@@ -325,8 +398,15 @@ class RunWriter:
                     if not in_tx:
                         con.execute("BEGIN")
                         in_tx = True
+                    sql, params, table = item
                     try:
-                        con.execute(*item)
+                        if table:
+                            params = normal_row(table, params)
+                            params += (row_crc(params),)
+                        con.execute(sql, params)
+                        if sql.startswith("INSERT INTO "):
+                            table = sql[12:].split("(", 1)[0]
+                            rows[table] = rows.get(table, 0) + 1
                     except _ROW_ERRORS as exc:  # one row SQLite cannot take: skip it, go on
                         self.skipped += 1
                         self.last_skip = f"{type(exc).__name__}: {exc}"
@@ -339,9 +419,12 @@ class RunWriter:
                 if isinstance(item, threading.Event):
                     item.set()
                 elif item is _STOP:
+                    row = ("rows", json.dumps(rows))
+                    con.execute("INSERT OR REPLACE INTO meta(key, value, crc) VALUES (?, ?, ?)", row + (row_crc(row),))
                     if self.skipped:
-                        con.execute("INSERT OR REPLACE INTO meta(key, value) VALUES ('skipped_rows', ?)",
-                                    (json.dumps({"rows": self.skipped, "last": self.last_skip}),))
+                        row = ("skipped_rows", json.dumps({"rows": self.skipped, "last": self.last_skip}))
+                        con.execute("INSERT OR REPLACE INTO meta(key, value, crc) VALUES (?, ?, ?)",
+                                    row + (row_crc(row),))
                     break
         except BaseException as exc:
             self._error = exc
@@ -382,6 +465,14 @@ def sql_value(v):
     return None
 
 
+def _crc_or_none(values):
+    """:func:`row_crc`, or None for values SQLite will refuse anyway (the row is then skipped)."""
+    try:
+        return row_crc(values)
+    except (TypeError, ValueError, OverflowError):
+        return None
+
+
 def _int_or_none(v):
     try:
         return None if v is None else int(v)
@@ -389,28 +480,61 @@ def _int_or_none(v):
         return None
 
 
-def _float_or_none(v):
-    try:
-        return None if v is None else float(v)
-    except (TypeError, ValueError):
-        return None
-
-
 # --- reader ------------------------------------------------------------------------------
 
+#: what reading a damaged SQLite file raises (a schema whose names are not UTF-8: UnicodeDecodeError)
+_SQL_ERRORS = (sqlite3.Error, UnicodeDecodeError)
+#: tables a run file has had from the start (link_events came later)
+_FIRST_TABLES = ("meta", "arrays", "states", "findings", "alerts", "cuts", "trace")
+#: at most this many damaged places are named in one warning line
+_NAMED = 4
+
+
 class RunReader:
-    """Read a run file, also while it is being written (WAL readers see the last commit)."""
+    """Read a run file, also while it is being written (WAL readers see the last commit).
+
+    Rows whose checksum or types do not hold are skipped; ``damage`` names each (table and
+    row, what was wrong) for the one-line warning of the commands (:meth:`damage_line`).
+    """
 
     def __init__(self, path: str | Path):
         self.path = Path(path)
         where = str(self.path)
+        #: damaged places found so far, in the order found (a dict: each named once)
+        self._damage: dict[str, None] = {}
+        self._row_counts: dict[str, int] = {}
+        #: rows read per table, kept once the writer has closed the file (it changes no more)
+        self._read: dict[str, list] = {}
         if not self.path.is_file():
             raise RunFileError("no such run file", where)
         try:
             self._con = sqlite3.connect(f"file:{self.path}?mode=ro", uri=True)
-            rows = dict(self._con.execute("SELECT key, value FROM meta").fetchall())
-        except sqlite3.DatabaseError as exc:
-            raise RunFileError(f"not a dexmon run file ({exc})", where) from exc
+            self._columns = {name: {r[1] for r in self._con.execute(f"PRAGMA table_info({name})")}
+                             for name in TABLES}
+        except _SQL_ERRORS as exc:
+            raise RunFileError(f"not a dexmon run file, or damaged beyond opening ({exc}); nothing readable",
+                               where) from exc
+        try:
+            self._check_format()
+        except RunFileError:
+            self._con.close()
+            raise
+
+    def _check_format(self) -> None:
+        """RunFileError unless the meta table says this is a run file this dexmon reads."""
+        where = str(self.path)
+        if not self._columns["meta"]:
+            if self._columns["trace"] and self._columns["states"]:
+                self.checked = True
+                raise self.damaged("table meta (missing)")
+            raise RunFileError("not a dexmon run file (no meta table)", where)
+        #: False for run files written before rows carried checksums: damage may go unseen
+        self.checked = all("crc" in self._columns[t] for t in _FIRST_TABLES if self._columns[t])
+        rows = self.meta()
+        #: rows appended per table as the writer counted them when it closed ({} if it did not)
+        self._row_counts = _counts(rows.get("rows"))
+        if self._damage and (rows.get("format") != FORMAT or rows.get("version") is None):
+            raise self.damaged(f"meta format or version unreadable ({self.damage[0]})")
         if rows.get("format") != FORMAT:
             raise RunFileError(f"not a dexmon run file (meta format is {rows.get('format')!r})", where)
         try:
@@ -420,97 +544,201 @@ class RunReader:
         if version != VERSION:
             raise RunFileError(f"run file version {rows.get('version')!r}, this dexmon reads {VERSION}", where)
 
+    # -- damage
+    @property
+    def damage(self) -> list[str]:
+        """What was found damaged and skipped so far, e.g. ``"trace row 2 (checksum mismatch)"``."""
+        return list(self._damage)
+
+    def note(self, what: str) -> None:
+        """Name one damaged place (once)."""
+        self._damage.setdefault(what, None)
+
+    def damage_line(self) -> str | None:
+        """One line naming what was damaged and skipped, or None for an intact file."""
+        if not self._damage:
+            return None
+        named = self.damage[:_NAMED]
+        more = len(self._damage) - len(named)
+        return (f"{self.path} is damaged; skipped {', '.join(named)}"
+                f"{f' and {more} more' if more else ''}; used what is intact")
+
+    def damaged(self, what: str) -> RunFileError:
+        """The error for damage that leaves nothing to show: names it and what is still readable."""
+        try:
+            readable = f"{len(self.states())} states, {len(self.findings())} findings readable"
+        except (RunFileError, *_SQL_ERRORS):
+            readable = "no states or findings readable"
+        return RunFileError(f"run file is damaged: {what}; {readable}", str(self.path))
+
+    # -- rows
     def _query(self, sql: str, params: tuple = ()) -> list:
+        """Raw SQL rows (unchecked)."""
         try:
             return self._con.execute(sql, params).fetchall()
-        except sqlite3.DatabaseError as exc:
-            raise RunFileError(f"corrupt run file ({exc})", str(self.path)) from exc
+        except _SQL_ERRORS as exc:
+            raise self.damaged(str(exc)) from exc
+
+    def _rows(self, table: str, contiguous: bool = True) -> list[tuple]:
+        """``(rowid, values)`` of the rows of ``table`` whose checksum and types hold, in
+        rowid order; values as :data:`TABLES` lists them (text as str, blobs as bytes,
+        numbers as int/float). Damaged rows, rows missing between others (``contiguous``:
+        the writer never deletes) and a table that is gone are noted and skipped."""
+        if table in self._read:
+            return self._read[table]
+        cols = TABLES[table]
+        have = self._columns[table]
+        if not have:
+            if table in _FIRST_TABLES or self.checked:
+                self.note(f"table {table} (missing)")
+            return []
+        checked = "crc" in have
+        sql = f"SELECT rowid, {', '.join(cols)}{', crc' if checked else ''} FROM {table} ORDER BY rowid"
+        out, last = [], 0 if contiguous else None
+        texts = [i for i, kind in enumerate(cols.values()) if kind in "Tt"]
+        self._con.text_factory = bytes  # text that is not UTF-8 is one damaged row, not an error
+        try:
+            for row in self._con.execute(sql):
+                rid, values = row[0], list(row[1:1 + len(cols)])
+                if contiguous and last is not None and rid != last + 1:
+                    self.note(f"{table} rows {last + 1}..{rid - 1} (missing)" if rid > last + 2
+                               else f"{table} row {last + 1} (missing)")
+                last = rid
+                problem = _decode_texts(values, texts, cols)
+                if problem is None and checked:
+                    problem = None if _crc_matches(values, row[-1]) else "checksum mismatch"
+                elif problem is None:  # unchecked: only the types guard what follows
+                    problem = _type_problem(values, cols)
+                    values = [_as_read(v, kind) for v, kind in zip(values, cols.values())]
+                if problem:
+                    self.note(f"{table} row {rid} ({problem})")
+                    continue
+                out.append((rid, tuple(values)))
+        except _SQL_ERRORS as exc:
+            self.note(f"{table} after row {last or 0} ({exc})")
+        finally:
+            self._con.text_factory = str
+        written = self._row_counts.get(table, 0) if contiguous else 0
+        if last is not None and written > last:
+            self.note(f"{table} rows {last + 1}..{written} (missing)" if written > last + 1
+                      else f"{table} row {written} (missing)")
+        if self._row_counts:  # closed by its writer: nothing changes any more
+            self._read[table] = out
+        return out
 
     def meta(self) -> dict[str, str]:
-        return dict(self._query("SELECT key, value FROM meta"))
+        return dict(v for _, v in self._rows("meta", contiguous=False))
+
+    def _arrays(self) -> dict[str, tuple[int, str, bytes]]:
+        return {name: (rid, header, data) for rid, (name, header, data) in self._rows("arrays", contiguous=False)}
 
     def array_names(self) -> list[str]:
-        return [r[0] for r in self._query("SELECT name FROM arrays ORDER BY name")]
+        return sorted(self._arrays())
 
     def get_array(self, name: str) -> np.ndarray:
-        rows = self._query("SELECT header, data FROM arrays WHERE name = ?", (name,))
-        if not rows:
-            raise RunFileError(f"no array named {name!r} (has {self.array_names()})", str(self.path))
-        arrays = unpack_arrays(rows[0][0], rows[0][1], f"{self.path} arrays[{name}]")
+        arrays = self._arrays()
         if name not in arrays:
-            raise RunFileError(f"array {name!r} header names {sorted(arrays)}", str(self.path))
-        return arrays[name]
+            damaged = [d for d in self._damage if d.startswith("arrays") or d.startswith("table arrays")]
+            if damaged:
+                raise self.damaged(f"array {name!r} unreadable ({damaged[0]})")
+            raise RunFileError(f"no array named {name!r} (has {sorted(arrays)})", str(self.path))
+        rid, header, data = arrays[name]
+        try:
+            out = unpack_arrays(header, data, f"{self.path} arrays row {rid} ({name})")
+        except RunFileError as exc:
+            self.note(f"arrays row {rid} ({name}: {_reason(exc)})")
+            raise
+        if name not in out:
+            raise RunFileError(f"array {name!r} header names {sorted(out)}", str(self.path))
+        return out[name]
 
     def states(self) -> np.ndarray:
-        """All machine states, a structured array of :data:`STATE_DTYPE` in time order."""
-        rows = self._query(f"SELECT {', '.join(STATE_COLUMNS[:-1])} FROM states ORDER BY id")
+        """All readable machine states, a structured array of :data:`STATE_DTYPE` in time order."""
+        rows = [v for _, v in self._rows("states")]
         out = np.zeros(len(rows), STATE_DTYPE)
         if rows:
             cols = list(zip(*rows))
-            f = lambda c, default=0: np.array([default if v is None else v for v in c])  # noqa: E731
+            f = lambda c, default=0: np.array([default if v is None else v for v in c], np.float64)  # noqa: E731
+            i32 = lambda c, default: np.array([v if isinstance(v, int) and -2**31 <= v < 2**31 else default  # noqa: E731
+                                               for v in c], np.int32)
             out["t"] = f(cols[0])
             out["mpos"] = np.stack([f(c) for c in cols[1:7]], axis=1)
             out["wco"] = np.stack([f(c) for c in cols[7:13]], axis=1)
-            out["state"] = [c or "" for c in cols[13]]
-            out["substate"] = f(cols[14], -1)
+            out["state"] = [(c or "")[:12] for c in cols[13]]
+            out["substate"] = i32(cols[14], -1)
             out["feed"] = f(cols[15])
             out["spindle"] = f(cols[16])
-            out["line"] = f(cols[17], -1)
-            out["overrides"] = np.stack([f(c, 100) for c in cols[18:21]], axis=1)
-            out["alarm"] = f(cols[21], -1)
+            out["line"] = i32(cols[17], -1)
+            out["overrides"] = np.stack([i32(c, 100) for c in cols[18:21]], axis=1)
+            out["alarm"] = i32(cols[21], -1)
         return out
 
     def state_count(self) -> int:
-        return int(self._query("SELECT COUNT(*) FROM states")[0][0])
+        """How many states are readable."""
+        return len(self._rows("states"))
+
+    def _json_rows(self, table: str, fields: dict) -> Iterator[tuple[int, tuple, dict]]:
+        """``(rowid, values, object)`` of the rows whose ``json`` column holds a JSON object
+        whose ``fields`` (key -> test) are None or pass their test (what the commands rely on;
+        an unchecked file may hold anything)."""
+        for rid, values in self._rows(table):
+            try:
+                obj = _json(values[-1], "json", "")
+            except RunFileError:
+                obj = None
+            if not isinstance(obj, dict):
+                self.note(f"{table} row {rid} (json is not a JSON object)")
+                continue
+            bad = next((k for k, test in fields.items() if obj.get(k) is not None and not test(obj[k])), None)
+            if bad:
+                self.note(f"{table} row {rid} ({bad} is {repr(obj[bad])[:20]}, expected {fields[bad].__doc__})")
+                continue
+            yield rid, values, obj
 
     def findings(self) -> list[dict]:
-        out = []
-        for fid, t, js in self._query("SELECT id, t, json FROM findings ORDER BY id"):
-            try:
-                d = json.loads(js)
-            except json.JSONDecodeError as exc:
-                raise RunFileError(f"finding {fid} is not JSON ({exc})", str(self.path)) from exc
-            out.append(d)
-        return out
+        return [obj for _, _, obj in self._json_rows("findings", _FINDING_FIELDS)]
 
     def alerts(self) -> list[dict]:
         return [{"t": t, "finding_id": fid, "channel": ch, "text": text}
-                for t, fid, ch, text in self._query("SELECT t, finding_id, channel, text FROM alerts ORDER BY id")]
+                for _, (t, fid, ch, text) in self._rows("alerts")]
 
     def cuts(self, stage_from: int = 0, stage_to: int | None = None) -> Iterator[dict]:
-        """Cut deltas in stage order: dicts with ``stage, t, move_id, line, arrays``."""
-        hi = 2**62 if stage_to is None else int(stage_to)
-        for cid, stage, t, mid, line, header, data in self._query(
-                "SELECT id, stage, t, move_id, line, header, data FROM cuts "
-                "WHERE stage >= ? AND stage <= ? ORDER BY stage, id", (int(stage_from), hi)):
-            yield {"stage": stage, "t": t, "move_id": mid, "line": line,
-                   "arrays": unpack_arrays(header, data, f"{self.path} cuts[{cid}]")}
+        """Readable cut deltas in stage order: dicts with ``stage, t, move_id, line, arrays``."""
+        hi = math.inf if stage_to is None else int(stage_to)
+        rows = sorted(self._rows("cuts"), key=lambda r: (r[1][0], r[0]))
+        for cid, (stage, t, mid, line, header, data) in rows:
+            if not stage_from <= stage <= hi:
+                continue
+            try:
+                arrays = unpack_arrays(header, data, f"{self.path} cuts row {cid}")
+            except RunFileError as exc:
+                self.note(f"cuts row {cid} ({_reason(exc)})")
+                continue
+            yield {"stage": stage, "t": t, "move_id": mid, "line": line, "arrays": arrays}
 
     def link_events(self) -> list[dict]:
         """Link events and gap records in the order written (each its JSON object plus
         ``kind`` and ``t``); [] for a run file written before the table existed."""
-        try:
-            rows = self._con.execute("SELECT id, t, kind, json FROM link_events ORDER BY id").fetchall()
-        except sqlite3.OperationalError as exc:
-            if "no such table" in str(exc):
-                return []
-            raise RunFileError(f"corrupt run file ({exc})", str(self.path)) from exc
-        except sqlite3.DatabaseError as exc:
-            raise RunFileError(f"corrupt run file ({exc})", str(self.path)) from exc
-        out = []
-        for eid, t, kind, js in rows:
-            try:
-                rec = json.loads(js)
-            except json.JSONDecodeError as exc:
-                raise RunFileError(f"link event {eid} is not JSON ({exc})", str(self.path)) from exc
-            out.append({**rec, "kind": kind, "t": t})
-        return out
+        return [{**obj, "kind": kind, "t": t} for _, (t, kind, _js), obj in self._json_rows("link_events", _GAP_FIELDS)]
 
-    def trace_chunks(self) -> Iterator[tuple[int, int, dict[str, np.ndarray]]]:
-        """``(stage_from, stage_to, arrays)`` in the order written."""
-        for cid, a, b, header, data in self._query(
-                "SELECT id, stage_from, stage_to, header, data FROM trace ORDER BY id"):
-            yield a, b, unpack_arrays(header, data, f"{self.path} trace[{cid}]")
+    def trace_chunks(self) -> list[tuple[int, int, dict[str, np.ndarray]]]:
+        """``(stage_from, stage_to, arrays)`` in the order written, up to the first damaged
+        or missing chunk (each chunk builds on the ones before it)."""
+        out = []
+        rows = self._rows("trace")
+        for k, (cid, (a, b, header, data)) in enumerate(rows):
+            if cid != k + 1:  # row k + 1 was damaged or missing (noted): the rest builds on it
+                self.note(f"trace rows {cid}.. (they build on trace row {k + 1})")
+                break
+            try:
+                arrays = unpack_arrays(header, data, f"{self.path} trace row {cid}")
+            except RunFileError as exc:
+                self.note(f"trace row {cid} ({_reason(exc)})")
+                if k + 1 < len(rows):
+                    self.note(f"trace rows {cid + 1}.. (they build on trace row {cid})")
+                break
+            out.append((a, b, arrays))
+        return out
 
     def close(self) -> None:
         self._con.close()
@@ -521,3 +749,99 @@ class RunReader:
     def __exit__(self, *exc):
         self.close()
         return False
+
+
+def _text(v) -> bool:
+    """text"""
+    return isinstance(v, str)
+
+
+def _number(v) -> bool:
+    """a number"""
+    return isinstance(v, (int, float))
+
+
+def _integer(v) -> bool:
+    """an integer"""
+    return isinstance(v, int)
+
+
+def _integers(v) -> bool:
+    """a list of integers"""
+    return isinstance(v, list) and all(isinstance(x, int) for x in v)
+
+
+def _numbers(v) -> bool:
+    """a list of numbers"""
+    return isinstance(v, list) and all(isinstance(x, (int, float)) for x in v)
+
+
+#: the fields of a finding the commands read, and what each must be when present
+_FINDING_FIELDS = {"kind": _text, "line": _integer, "lines": _integers, "stage": _integer, "position": _numbers,
+                   "depth": _number, "area": _number, "volume": _number, "lead_time_s": _number,
+                   "status": _text, "message": _text}
+#: the same for link events and gap records
+_GAP_FIELDS = {"run_s": _number, "seconds": _number, "jump_mm": _number, "message": _text}
+
+
+def _counts(text) -> dict[str, int]:
+    """The meta ``rows`` entry ({table: rows written}), {} when absent or not that."""
+    try:
+        counts = json.loads(text) if text else {}
+    except ValueError:
+        return {}
+    return {k: v for k, v in counts.items() if isinstance(v, int)} if isinstance(counts, dict) else {}
+
+
+def _reason(exc: RunFileError) -> str:
+    """The message of a RunFileError without its ``where:`` prefix."""
+    text = str(exc)
+    return text[len(exc.where) + 2:] if exc.where and text.startswith(f"{exc.where}: ") else text
+
+
+def _decode_texts(values: list, texts: list[int], cols: dict[str, str]) -> str | None:
+    """Decode the text columns (read as bytes) of one row in place; what is not UTF-8, or None."""
+    for i in texts:
+        if isinstance(values[i], bytes):
+            try:
+                values[i] = values[i].decode()
+            except UnicodeDecodeError:
+                return f"{list(cols)[i]} is not UTF-8 text"
+    return None
+
+
+def _crc_matches(values: list, crc) -> bool:
+    try:
+        return isinstance(crc, int) and row_crc(values) == crc
+    except (TypeError, ValueError, OverflowError):
+        return False
+
+
+def _type_problem(values: list, cols: dict[str, str]) -> str | None:
+    """What does not fit its column in one row of an unchecked file (text decoded), or None."""
+    for v, (name, kind) in zip(values, cols.items()):
+        k = kind.lower()
+        if v is None:
+            if kind.isupper():
+                return f"{name} is NULL, expected {_EXPECTED[k]}"
+        elif k == "t" and not isinstance(v, str) or k == "b" and not isinstance(v, (bytes, str)) \
+                or k in "fi" and not isinstance(v, (int, float)) \
+                or k == "i" and isinstance(v, float) and not (v.is_integer() and abs(v) < 2**63):
+            return f"{name} holds {_held(v)}, expected {_EXPECTED[k]}"
+    return None
+
+
+def _as_read(v, kind: str):
+    """A value of an unchecked row that passed :func:`_type_problem` as its column holds it."""
+    if kind in "Ii" and isinstance(v, float) and v.is_integer() and abs(v) < 2**63:
+        return int(v)
+    if kind in "Bb" and isinstance(v, str):
+        return v.encode()
+    return v
+
+
+_EXPECTED = {"t": "text", "b": "bytes", "f": "a number", "i": "an integer"}
+
+
+def _held(v) -> str:
+    return "text" if isinstance(v, (bytes, str)) else repr(v)[:24]

@@ -2,9 +2,10 @@
 
 The run file (:mod:`monitor.runfile`) keeps trace chunks as rows of named raw arrays;
 :func:`store_trace_chunk` appends what a :class:`sim.trace.Trace` recorded since its last
-chunk, :func:`load_trace` reads them back (stopping at the first damaged row, so a run cut
-short replays up to its last complete stage). :class:`RunView` gathers the rest a picture
-needs: frame, moves in work coordinates, stage -> move/line, findings, tools.
+chunk, :func:`load_trace` reads them back (stopping at the first damaged or missing row, so
+a run cut short or damaged replays up to its last intact stage). :class:`RunView` gathers
+the rest a picture needs: frame, moves in work coordinates, stage -> move/line, findings,
+tools.
 """
 
 from __future__ import annotations
@@ -31,34 +32,29 @@ def store_trace_chunk(writer, trace: Trace, stage_from: int | None = None) -> bo
     return True
 
 
-def trace_chunks(reader) -> tuple[list[dict], bool]:
-    """Every readable trace chunk of a run, in order, and whether reading stopped early."""
-    from monitor.runfile import RunFileError, unpack_arrays
-
-    try:
-        ids = [r[0] for r in reader._query("SELECT id FROM trace ORDER BY id")]
-    except RunFileError:
-        return [], True
-    out = []
-    for cid in ids:
-        try:
-            rows = reader._query("SELECT header, data FROM trace WHERE id = ?", (cid,))
-            out.append(unpack_arrays(rows[0][0], rows[0][1], f"{reader.path} trace[{cid}]"))
-        except (RunFileError, IndexError):
-            return out, True
-    return out, False
+#: what decoding trace arrays that passed their checks can still raise on a damaged or
+#: unchecked run file
+_DECODE_ERRORS = (ValueError, IndexError, KeyError, TypeError, OverflowError, MemoryError)
 
 
 def load_trace(run) -> Trace:
-    """The trace of a run file (path or ``RunReader``); InputError if it recorded none."""
+    """The trace of a run file (path or ``RunReader``) up to its first damaged or missing
+    chunk; InputError if it recorded none, RunFileError if none is readable."""
     from monitor.runfile import RunReader
 
     reader = run if hasattr(run, "trace_chunks") else RunReader(run)
-    chunks, stopped = trace_chunks(reader)
+    before = len(reader.damage)
+    chunks = [arrays for _, _, arrays in reader.trace_chunks()]
+    stopped = any(d.startswith(("trace", "table trace")) for d in reader.damage[before:])
     if not chunks:
+        if stopped:
+            raise reader.damaged(f"no stage can be rebuilt ({reader.damage[before]})")
         raise InputError("the run has no trace recorded (was sim.trace available when it ran?)",
                          str(reader.path))
-    trace = Trace.from_chunks(chunks, where=str(reader.path))
+    try:
+        trace = Trace.from_chunks(chunks, where=str(reader.path))
+    except _DECODE_ERRORS as exc:
+        raise reader.damaged(f"its trace does not decode ({type(exc).__name__}: {str(exc)[:80]})") from exc
     if stopped and trace.z is not None:
         trace.z.truncated = True
     return trace
@@ -82,6 +78,11 @@ class RunView:
     def __exit__(self, *exc):
         self.close()
         return False
+
+    @property
+    def damage_line(self) -> str | None:
+        """One line naming what was damaged and skipped so far, or None."""
+        return self.reader.damage_line()
 
     @cached_property
     def meta(self) -> dict:
@@ -157,17 +158,33 @@ class RunView:
         if "moves" not in self.reader.array_names():
             return None
         from monitor.predict import work_moves
+        from monitor.runfile import RunFileError
 
-        moves = np.array(self.reader.get_array("moves"))
+        try:
+            moves = np.array(self.reader.get_array("moves"))
+        except RunFileError:  # damaged: noted by the reader, the run replays without it
+            return None
+        if not {"line", "start", "end"} <= set(moves.dtype.names or ()):  # unchecked: not a move table
+            self.reader.note(f"arrays moves (dtype {str(moves.dtype)[:60]}, expected the move table)")
+            return None
         frame = self.meta_json("frame", {})
         ref = frame.get("reference_wco") if isinstance(frame, dict) else None
-        return work_moves(moves, None if ref is None else np.asarray(ref, np.float64))
+        try:
+            return work_moves(moves, None if ref is None else np.asarray(ref, np.float64))
+        except (ValueError, TypeError, IndexError, KeyError) as exc:  # unchecked: meta frame or moves odd
+            self.reader.note(f"arrays moves (does not fit the meta frame: {type(exc).__name__})")
+            return None
 
     @cached_property
     def row_seconds(self) -> np.ndarray | None:
+        from monitor.runfile import RunFileError
+
         if "row_seconds" not in self.reader.array_names():
             return None
-        return np.array(self.reader.get_array("row_seconds"), np.float64)
+        try:
+            return np.array(self.reader.get_array("row_seconds"), np.float64)
+        except (RunFileError, ValueError, TypeError):  # damaged: the run replays without it
+            return None
 
     @cached_property
     def stage_table(self) -> np.ndarray:

@@ -130,12 +130,11 @@ def run(args) -> int:
     out = sys.stdout
     status = 0
     with RunView(args.run) as view:
-        tr = view.trace
-        first, last = view.first_stage, view.last_stage
+        # only the findings need no trace: a run whose trace is damaged still lists them
+        tr = None if args.findings and not (args.png or args.gif or args.mp4 or args.export_stl or args.view) \
+            else view.trace
+        first, last = (view.first_stage, view.last_stage) if tr is not None else (0, 0)
         did = False
-        if tr.truncated:
-            print(f"dexmon replay: note: {args.run} was cut short; it replays up to stage {last}",
-                  file=sys.stderr)
         if args.png:
             if args.stage is None:
                 raise InputError("--png needs --stage N", "--png")
@@ -194,7 +193,21 @@ def run(args) -> int:
             _say(args, out, summary,
                  f"{args.run}: stages {first}..{last}{' (cut short)' if tr.truncated else ''}, "
                  f"{len(view.findings)} findings, {tr.frame.nu}x{tr.frame.nv} rays at {tr.frame.spacing} mm")
+        say_damage("replay", view, f"it replays up to stage {last}" if tr is not None and tr.truncated else None)
     return status
+
+
+def say_damage(command: str, view, cut_short: str | None = None) -> None:
+    """One line on stderr when the run file was damaged (what was skipped), cut short
+    (``cut_short``: up to where it replays), or written without checksums."""
+    damage = view.damage_line
+    if damage:
+        print(f"dexmon {command}: warning: {damage}", file=sys.stderr)
+    elif cut_short:
+        print(f"dexmon {command}: note: {view.path} was cut short; {cut_short}", file=sys.stderr)
+    elif not view.reader.checked:
+        print(f"dexmon {command}: note: {view.path} has no checksums (written by an older dexmon): "
+              "damage in it would go unnoticed", file=sys.stderr)
 
 
 def format_finding(f: dict) -> str:

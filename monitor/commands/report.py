@@ -172,6 +172,7 @@ def build_report(view, size: int = 480, max_findings: int = 50) -> str:
         "th{background:#eee}.f{display:flex;gap:1em;align-items:flex-start;margin:1em 0}"
         ".bad{color:#b00}img{image-rendering:pixelated;border:1px solid #999}</style></head><body>",
         f"<h1>dexmon run report: {e(view.path.name)}</h1>",
+        "<!-- damage -->",  # what was damaged, filled in at the end (when everything has been read)
         "<h2>Summary</h2><table>",
     ]
     rows = [("program", view.meta.get("program_path", "")),
@@ -212,10 +213,13 @@ def build_report(view, size: int = 480, max_findings: int = 50) -> str:
         line = int(moves["line"][m - 1]) if moves is not None and 1 <= m <= len(moves) else ""
         parts.append(f"<tr><td>{m}</td><td>{line}</td><td>{v:.3f}</td></tr>")
     parts.append("</table></body></html>")
+    if view.damage_line:
+        parts[parts.index("<!-- damage -->")] = f"<p class='bad'>{e(view.damage_line)}</p>"
     return "\n".join(parts)
 
 
 def run(args) -> int:
+    from monitor.commands.replay import say_damage
     from monitor.trace_io import RunView
 
     out = Path(args.output)
@@ -224,6 +228,8 @@ def run(args) -> int:
     with RunView(args.run) as view:
         text = build_report(view, args.size, args.max_findings)
         n = len(view.findings)
+        say_damage("report", view, "the report shows it up to its last intact stage"
+                   if view.trace.truncated else None)
     out.write_text(text, encoding="utf-8")
     if getattr(args, "json", False):
         print(json.dumps({"event": "report", "path": str(out), "findings": n}), file=sys.stdout)
