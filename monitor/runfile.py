@@ -512,7 +512,7 @@ class RunReader:
             self._columns = {name: {r[1] for r in self._con.execute(f"PRAGMA table_info({name})")}
                              for name in TABLES}
         except _SQL_ERRORS as exc:
-            raise RunFileError(f"not a dexmon run file, or damaged beyond opening ({exc}); nothing readable",
+            raise RunFileError(f"not a dexmon run file, or damaged beyond opening ({_said(exc)}); nothing readable",
                                where) from exc
         try:
             self._check_format()
@@ -577,7 +577,7 @@ class RunReader:
         try:
             return self._con.execute(sql, params).fetchall()
         except _SQL_ERRORS as exc:
-            raise self.damaged(str(exc)) from exc
+            raise self.damaged(_said(exc)) from exc
 
     def _rows(self, table: str, contiguous: bool = True) -> list[tuple]:
         """``(rowid, values)`` of the rows of ``table`` whose checksum and types hold, in
@@ -615,7 +615,7 @@ class RunReader:
                     continue
                 out.append((rid, tuple(values)))
         except _SQL_ERRORS as exc:
-            self.note(f"{table} after row {last or 0} ({exc})")
+            self.note(f"{table} after row {last or 0} ({_said(exc)})")
         finally:
             self._con.text_factory = str
         written = self._row_counts.get(table, 0) if contiguous else 0
@@ -782,6 +782,11 @@ _FINDING_FIELDS = {"kind": _text, "line": _integer, "lines": _integers, "stage":
                    "status": _text, "message": _text}
 #: the same for link events and gap records
 _GAP_FIELDS = {"run_s": _number, "seconds": _number, "jump_mm": _number, "message": _text}
+
+
+def _said(exc: BaseException) -> str:
+    """What SQLite said, on one printable line (it quotes damaged bytes)."""
+    return "".join(c if c.isprintable() else f"\\x{ord(c):02x}" for c in str(exc))[:200]
 
 
 def _counts(text) -> dict[str, int]:

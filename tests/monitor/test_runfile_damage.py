@@ -250,3 +250,12 @@ def test_an_unchecked_integer_cell_beyond_64_bits_is_skipped(recorded, tmp_path,
     run = damaged_copy(recorded, tmp_path, *UNCHECKED, "UPDATE cuts SET stage = 1e308 WHERE id = 3")
     assert main(["replay", run, "--stage", "end", "--png", str(tmp_path / "o.png")]) == 0
     assert "cuts row 3 (stage holds 1e+308, expected an integer)" in one_line(capsys.readouterr().err)
+
+
+def test_control_characters_in_sqlite_messages_stay_on_one_line(recorded, tmp_path, capsys):
+    """Found by bench/runfile_fuzz.py: SQLite quoted a damaged schema's \\x1e, which
+    splits lines for Python."""
+    run = damaged_copy(recorded, tmp_path, "PRAGMA writable_schema = 1",
+                       "UPDATE sqlite_master SET sql = 'CREATE TABLE alerts(a) \x1e' WHERE name = 'alerts'")
+    assert main(["replay", run, "--findings"]) == 2
+    assert "\\x1e" in one_line(capsys.readouterr().err)
