@@ -24,7 +24,7 @@ def parse_resume(spec: str) -> tuple[Path, str]:
 def resume_grid(spec: str) -> tuple[DexelGrid, int]:
     """The model rebuilt at ``RUN:STAGE`` and the stage number it is at."""
     from monitor.commands.replay import parse_stage
-    from monitor.runfile import RunReader
+    from monitor.runreader import RunReader
     from monitor.trace_io import load_trace
 
     path, stage_text = parse_resume(spec)

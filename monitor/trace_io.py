@@ -40,7 +40,7 @@ _DECODE_ERRORS = (ValueError, IndexError, KeyError, TypeError, OverflowError, Me
 def load_trace(run) -> Trace:
     """The trace of a run file (path or ``RunReader``) up to its first damaged or missing
     chunk; InputError if it recorded none, RunFileError if none is readable."""
-    from monitor.runfile import RunReader
+    from monitor.runreader import RunReader
 
     reader = run if hasattr(run, "trace_chunks") else RunReader(run)
     before = len(reader.damage)
@@ -64,7 +64,7 @@ class RunView:
     """What replay and report need from one run file (read lazily)."""
 
     def __init__(self, path):
-        from monitor.runfile import RunReader
+        from monitor.runreader import RunReader
 
         self.path = Path(path)
         self.reader = RunReader(self.path)

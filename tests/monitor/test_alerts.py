@@ -9,7 +9,8 @@ import numpy as np
 from rich.console import Console
 
 from monitor.alerts import Alerter, format_finding
-from monitor.runfile import RunReader, RunWriter
+from monitor.runfile import RunWriter
+from monitor.runreader import RunReader
 
 
 def gouge(line=12, pos=(10.0, 5.0, -1.0), lead=2.5, lines=None):

@@ -17,7 +17,8 @@ from monitor.alerts import Alerter
 from monitor.commands.dry_run import EXAMPLE_JOB, virtual_controller
 from monitor.cli import main
 from monitor.job import load_job
-from monitor.runfile import RunReader, RunWriter
+from monitor.runfile import RunWriter
+from monitor.runreader import RunReader
 from monitor.loop import run_controller
 from monitor.session import Session, load_moves
 

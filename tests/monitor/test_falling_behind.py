@@ -16,7 +16,8 @@ from monitor.alerts import Alerter
 from monitor.commands.dry_run import EXAMPLE_JOB, VIRTUAL_MACHINE, virtual_controller
 from monitor.job import load_job
 from monitor.loop import BEHIND_NOTICE_S, run_controller
-from monitor.runfile import RunReader, RunWriter
+from monitor.runfile import RunWriter
+from monitor.runreader import RunReader
 from monitor.session import Session, load_moves
 
 POLL_HZ = 50.0

@@ -12,7 +12,7 @@ from drivers.state import RunState
 from monitor.commands.dry_run import EXAMPLE_JOB, VIRTUAL_MACHINE, virtual_controller
 from monitor.commands.live import run_session
 from monitor.job import load_job
-from monitor.runfile import RunReader
+from monitor.runreader import RunReader
 from monitor.session import load_moves
 
 #: polls the test leaves the machine held before it resumes it (as a machinist would, later)

@@ -178,7 +178,8 @@ def test_limits_learned_after_the_session_was_built_retime_it_in_place(example, 
     """GRBL reads $$ only when Idle: attached to a busy machine the session starts on the
     defaults and is retimed between two steps when the limits arrive."""
     from drivers.state import MachineState, RunState
-    from monitor.runfile import RunReader, RunWriter
+    from monitor.runfile import RunWriter
+    from monitor.runreader import RunReader
 
     job, moves = example
     _, program = load_moves(job)
@@ -217,7 +218,7 @@ def test_report_machine_time_is_the_controllers_at_any_speed(tmp_path):
     done: each figure may be one poll late (in machine time), never more."""
     from monitor.cli import main
     from monitor.commands.report import cycle_time
-    from monitor.runfile import RunReader
+    from monitor.runreader import RunReader
     from monitor.trace_io import RunView
 
     got, last_poll = {}, {}

@@ -18,7 +18,8 @@ from drivers.virtual.faults import FaultInjector
 from drivers.state import Gap, LinkEvent, LinkKind, MachineState, RunState
 from monitor.commands.dry_run import EXAMPLE_JOB, virtual_controller
 from monitor.job import load_job
-from monitor.runfile import RunReader, RunWriter
+from monitor.runfile import RunWriter
+from monitor.runreader import RunReader
 from monitor.loop import run_controller
 from monitor.gaps import GAP_POLLS
 from monitor.session import Session, load_moves

@@ -24,7 +24,8 @@ from monitor.commands.dry_run import EXAMPLE_JOB, virtual_controller
 from monitor.job import load_job
 from monitor.predict import (LiveChecks, Lookahead, build_workpiece, finding_to_machine, limits_in_work,
                              work_moves)
-from monitor.runfile import RunReader, RunWriter
+from monitor.runfile import RunWriter
+from monitor.runreader import RunReader
 from monitor.loop import run_controller
 from monitor.session import Session, load_moves
 from monitor.sync import ProgramPath

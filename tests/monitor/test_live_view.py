@@ -10,7 +10,7 @@ import pytest
 from monitor.cli import main
 from monitor.render import shaded
 from monitor.render.live import LiveView, ViewFeed, feed_status, finding_positions, path_ahead, tops_of
-from monitor.runfile import RunReader
+from monitor.runreader import RunReader
 from monitor.sync import ProgramPath
 from sim.frame import Frame
 from sim.gcode.moves import MoveKind, empty_moves

@@ -235,7 +235,7 @@ def test_cli_dry_run_two_stations_with_var_flag(tmp_path, capsys):
     # wherever the polls fall (wall clock): nothing at all, the retracts at the slot ends
     # included (tests/monitor/test_live_path.py pins the poll straddles down)
     assert [x for x in out if x["event"] == "finding"] == [] and code == 0, out
-    from monitor.runfile import RunReader
+    from monitor.runreader import RunReader
 
     r = RunReader(run)
     frame = r.meta()["frame"]

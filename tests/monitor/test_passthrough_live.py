@@ -20,7 +20,7 @@ from monitor.cli import main
 from monitor.commands.dry_run import EXAMPLE_JOB
 from monitor.job import load_job
 from monitor.linesync import StreamedLines, normalise
-from monitor.runfile import RunReader
+from monitor.runreader import RunReader
 from monitor.session import load_moves
 from monitor.sync import ProgramPath, ProgramSync
 from sim.gcode.moves import MoveKind, empty_moves
@@ -173,7 +173,7 @@ def test_cli_reports_a_missing_machine_port_in_one_line(tmp_path, capsys):
     code = main(["live", str(EXAMPLE_JOB), "--controller", f"grbl+passthrough://{tmp_path}/no-such-port",
                  "--quiet", "--run", str(tmp_path / "r.sqlite")])
     err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and len(err) == 1 and "cannot open machine port" in err[0] and "no-such-port" in err[0]
+    assert code == 2 and len(err) == 1 and "no such serial device" in err[0] and "no-such-port" in err[0]
 
 
 # --- line sync from the stream, without a machine -------------------------------------------

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from drivers.state import MachineState, RunState
-from monitor.runfile import (RunFileError, RunReader, RunWriter, default_run_path, pack_arrays,
-                             unpack_arrays)
+from monitor.runfile import RunFileError, RunWriter, default_run_path, pack_arrays, unpack_arrays
+from monitor.runreader import RunReader
 from sim.gcode.moves import MOVE_DTYPE, empty_moves
 
 

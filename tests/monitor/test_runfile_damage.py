@@ -146,7 +146,7 @@ def test_old_run_files_without_checksums_open_and_say_so(recorded, tmp_path, cap
     assert main(["replay", run, "--stage", "end", "--png", str(tmp_path / "o.png")]) == 0
     line = one_line(capsys.readouterr().err)
     assert "note:" in line and "no checksums" in line
-    from monitor.runfile import RunReader
+    from monitor.runreader import RunReader
     assert not RunReader(run).checked and RunReader(recorded).checked
 
 
@@ -196,7 +196,8 @@ def test_an_intact_run_file_reads_without_damage(tmp_path):
     import numpy as np
 
     from drivers.state import MachineState, RunState
-    from monitor.runfile import RunReader, RunWriter
+    from monitor.runfile import RunWriter
+    from monitor.runreader import RunReader
 
     path = tmp_path / "r.sqlite"
     with RunWriter(path) as w:

@@ -120,7 +120,7 @@ def test_the_start_position_is_in_machine_coordinates(tmp_path, capsys):
     the Z travel above the program's first point (G0 Z15 from machine zero: X0 Y0)."""
     import numpy as np
 
-    from monitor.runfile import RunReader
+    from monitor.runreader import RunReader
 
     offset = 'work_offset = [-190, -100, -50]'
     job = write_job(tmp_path, [0, 0, 0, 40, 30, 10], top=offset, tables="[machine]\nstart = [-10, -20, -5]\n")
@@ -259,7 +259,7 @@ gouge = 0.01
 
 def run_findings(path: Path) -> list[dict]:
     """The findings a run file holds, as they ended (grown, happened)."""
-    from monitor.runfile import RunReader
+    from monitor.runreader import RunReader
 
     return RunReader(path).findings()
 
