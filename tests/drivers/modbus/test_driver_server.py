@@ -14,11 +14,9 @@ from drivers.modbus.regmap import load_map, parse_map
 from drivers.modbus.server import ModbusVirtualServer
 from drivers.registry import open_controller
 from drivers.state import RunState
-from drivers.virtual.machine import MachineConfig, VirtualMachine
 from drivers.virtual.runner import RealTimeRunner
 from tests.drivers.virtual.helpers import line, rows
 
-FREE = MachineConfig(travel_min=None, travel_max=None)
 pace = threading.Event()  # never set: .wait(t) paces retry loops
 
 
@@ -37,16 +35,6 @@ def until(fn, timeout=10.0, every=0.01):
     raise AssertionError(f"condition not met in {timeout} s (last error: {last})")
 
 
-@pytest.fixture
-def vm():
-    return VirtualMachine(FREE)
-
-
-@pytest.fixture
-def server(vm):
-    srv = ModbusVirtualServer(vm, load_map("generic"), port=0).start()
-    yield srv
-    srv.stop()
 
 
 def client(srv, **q):

@@ -17,10 +17,10 @@ from drivers.modbus.regmap import load_map, parse_map
 from drivers.modbus.server import AnswerFaults, ModbusVirtualServer
 from drivers.registry import open_controller
 from drivers.state import LinkKind, RunState, implausible
-from drivers.virtual.machine import MachineConfig, VirtualMachine
+from drivers.virtual.machine import VirtualMachine
+from tests.drivers.modbus.conftest import FREE
 from tests.drivers.thread_errors import thread_errors
 
-FREE = MachineConfig(travel_min=None, travel_max=None)
 #: client timeout (s) where no timeout is expected: generous, for a busy machine
 TIMEOUT = 2.0
 #: client timeout (s) where timeouts are the point, and how late a late answer comes
@@ -31,16 +31,9 @@ WRITE_CODES = {5, 6, 15, 16, 22, 23}
 
 
 @pytest.fixture
-def vm():
-    return VirtualMachine(FREE)
-
-
-@pytest.fixture
-def server(vm):
-    srv = ModbusVirtualServer(vm, load_map("generic"), port=0).start()
-    srv.late_s = LATE_S
-    yield srv
-    srv.stop()
+def server(server):
+    server.late_s = LATE_S  # the conftest's server, answering late this late
+    return server
 
 
 def client(srv, timeout=TIMEOUT, **q) -> ModbusController:
