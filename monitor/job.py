@@ -20,6 +20,7 @@ needs; paths are relative to the job file's folder)::
                                 # work_offset are in it (G54..G59, G59.1..G59.3)
     max_loop = 100000           # passes of one o-word loop before it is called endless
                                 # (and 10x as many blocks run beyond the file's lines)
+    block_delete = false        # the controller's block delete switch: on skips '/' lines
 
     work_offset = [0, 0, 0]     # where the job's work system has its zero, machine coords
                                 # (mm), or "controller" (from the WCO it reports)
@@ -149,6 +150,7 @@ class Job:
     machine_units: str = "mm"           # units of the tool table and the .var file
     subroutine_path: list[Path] = field(default_factory=list)
     max_loop: int = 100_000             # passes of one o-word loop (sim.gcode.limits.Limits.max_loop)
+    block_delete: bool = False          # the block delete switch: on, '/' lines are skipped
     work_system: str = "G54"            # the model frame: stock, fixtures, design are in it
     work_offset: tuple[float, float, float] | None = None  # None: read from the controller (WCO)
     stock: Solid | None = None
@@ -283,6 +285,11 @@ MAX_LOOP_HELP = "passes of one o-word loop (and the largest repeat count) before
                 "as endless (default 100000)"
 
 
+#: help text of ``--block-delete`` (job, moves and simulate commands)
+BLOCK_DELETE_HELP = "skip the lines that start with '/', as a controller with its block delete switch on " \
+                    "(default: they run, as LinuxCNC starts with the switch off)"
+
+
 def _count(ctx: _Ctx, value, where: str) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         raise ctx.err(where, "a positive whole number", value)
@@ -379,7 +386,7 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
             t = {"path": t}
         t = ctx.table(t, "[program]")
         ctx.no_unknown(t, {"path", "dialect", "var", "machine_units", "subroutine_path", "work_system",
-                           "max_loop"}, "[program]")
+                           "max_loop", "block_delete"}, "[program]")
         if "path" in t:
             job.program = ctx.path(t["path"], "[program] path")
         if "dialect" in t:
@@ -396,6 +403,10 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
             job.work_system = _work_system(ctx, t["work_system"], "[program] work_system")
         if "max_loop" in t:
             job.max_loop = _count(ctx, t["max_loop"], "[program] max_loop")
+        if "block_delete" in t:
+            if not isinstance(t["block_delete"], bool):
+                raise ctx.err("[program] block_delete", "true or false", t["block_delete"])
+            job.block_delete = t["block_delete"]
 
     if "work_offset" in doc:
         v = doc["work_offset"]
@@ -521,6 +532,7 @@ def add_job_arguments(parser) -> None:
                    help="folders searched for o<name> call files, os.pathsep-separated; repeatable")
     g.add_argument("--work-system", help="the job's work system (G54..G59.3) stock and fixtures are in")
     g.add_argument("--max-loop", type=int, metavar="N", help=MAX_LOOP_HELP)
+    g.add_argument("--block-delete", action="store_true", default=None, help=BLOCK_DELETE_HELP)
     g.add_argument("--design", help="design model STL")
     g.add_argument("--resolution", type=float, help="dexel spacing, mm")
     g.add_argument("--gouge-tol", type=float, help="gouge band, mm")
@@ -564,6 +576,8 @@ def job_from_args(args, job_path: str | Path | None = None) -> Job:
         job.work_system = _work_system(ctx, g("work_system"), "--work-system")
     if g("max_loop") is not None:
         job.max_loop = _count(ctx, g("max_loop"), "--max-loop")
+    if g("block_delete"):
+        job.block_delete = True
     if g("design"):
         spec = g("design")
         job.design = parse_solid_spec(spec if ":" in spec and not spec.lower().endswith(".stl")

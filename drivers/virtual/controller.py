@@ -14,7 +14,8 @@ mm/s^2), ``travel`` (the GRBL travel per axis, giving soft limits ``[-travel, 0]
 default ``none``: no soft limits, so programs run as written); for the G-code
 interpreter: ``dialect`` (``linuxcnc``/``grbl``), ``var`` (a LinuxCNC .var file: work
 offsets G54..G59.3 ...), ``machine_units`` (``mm``/``inch``: of the .var file and
-``tool_table``) and ``subroutine_path`` (folders, ``os.pathsep``-separated), e.g.
+``tool_table``), ``subroutine_path`` (folders, ``os.pathsep``-separated) and
+``block_delete`` (``on``/``off``, default off: the switch that skips '/' lines), e.g.
 ``virtual:///jobs/mmount.ngc?var=/jobs/mmount.var&machine_units=inch``. The machine
 reports as WCO the offset of the row it executes (a G55 row: its G55 offset).
 """
@@ -41,7 +42,7 @@ def load_moves(program, **interpreter) -> tuple[np.ndarray, str]:
     """Move table (MOVE_DTYPE) and a name from a path, a ``Program`` or a move table.
 
     ``interpreter``: keywords for ``sim.gcode.load_program`` when ``program`` is a path
-    (``dialect``, ``var_file``, ``machine_units``, ``tool_table``, ``subroutine_path``)."""
+    (``dialect``, ``var_file``, ``machine_units``, ``tool_table``, ``subroutine_path``, ``block_delete``)."""
     if program is None:
         from sim.gcode.moves import empty_moves
 
@@ -318,7 +319,7 @@ def from_url(url: str) -> VirtualController:
     path = unquote(parts.netloc + parts.path)
     query = {k: v[-1] for k, v in parse_qs(parts.query, keep_blank_values=True).items()}
     known = {"speed", "rate", "clock", "faults", "max_rate", "accel", "travel", "dialect", "var", "machine_units",
-             "tool_table", "subroutine_path"}
+             "tool_table", "subroutine_path", "block_delete"}
     unknown = sorted(set(query) - known)
     if unknown:
         raise DriverError(f"virtual URL {url!r}: unknown option {unknown[0]!r}; expected one of {', '.join(sorted(known))}")
@@ -358,7 +359,7 @@ def from_url(url: str) -> VirtualController:
 
 def _interpreter_options(url: str, query: dict) -> dict:
     """``load_program`` keywords from the URL's ``dialect``, ``var``, ``machine_units``,
-    ``tool_table`` and ``subroutine_path``; DriverError naming the option that is wrong."""
+    ``tool_table``, ``subroutine_path`` and ``block_delete``; DriverError naming the option that is wrong."""
     import os
 
     kw: dict = {}
@@ -381,4 +382,9 @@ def _interpreter_options(url: str, query: dict) -> dict:
             if not Path(d).is_dir():
                 raise DriverError(f"virtual URL {url!r}: subroutine_path folder {d!r} not found")
         kw["subroutine_path"] = dirs
+    if "block_delete" in query:
+        switch = {"on": True, "1": True, "true": True, "off": False, "0": False, "false": False}
+        if query["block_delete"].lower() not in switch:
+            raise DriverError(f"virtual URL {url!r}: block_delete={query['block_delete']!r}; expected on or off")
+        kw["block_delete"] = switch[query["block_delete"].lower()]
     return kw

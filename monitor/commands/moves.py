@@ -8,7 +8,7 @@ import math
 import os
 import sys
 
-from monitor.job import MAX_LOOP_HELP
+from monitor.job import BLOCK_DELETE_HELP, MAX_LOOP_HELP
 
 HELP = "print a program's move table (jsonl or csv)"
 
@@ -31,6 +31,7 @@ def add_arguments(parser) -> None:
                              "the program's own directory is searched last")
     parser.add_argument("--format", choices=("jsonl", "csv"), default="jsonl", help="output format (default jsonl)")
     parser.add_argument("--max-loop", type=int, default=None, metavar="N", help=MAX_LOOP_HELP)
+    parser.add_argument("--block-delete", action="store_true", help=BLOCK_DELETE_HELP)
     parser.add_argument("--keep-going", action="store_true",
                         help="list every error (on stderr) instead of stopping at the first")
     parser.add_argument("--linearize", type=float, metavar="MM",
@@ -92,7 +93,7 @@ def run(args) -> int:
             return 2
     prog = load_program(args.program, dialect=args.dialect, tool_table=args.tool_table, var_file=args.var,
                         machine_units=args.machine_units, keep_going=args.keep_going, subroutine_path=sub_path,
-                        limits=limits)
+                        limits=limits, block_delete=args.block_delete)
     moves = prog.moves
     if args.linearize is not None:
         if not (args.linearize > 0 and math.isfinite(args.linearize)):

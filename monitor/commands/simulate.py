@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from monitor.job import MAX_LOOP_HELP
+from monitor.job import BLOCK_DELETE_HELP, MAX_LOOP_HELP
 from sim.errors import InputError
 
 HELP = "cut and check a whole program (or a JOB.toml) without a machine; findings table or --json"
@@ -75,6 +75,7 @@ def add_arguments(parser) -> None:
                              f"'{os.pathsep}'-separated like LinuxCNC's SUBROUTINE_PATH; repeatable; "
                              "the program's own directory is searched last")
     parser.add_argument("--max-loop", type=int, default=None, metavar="N", help=MAX_LOOP_HELP)
+    parser.add_argument("--block-delete", action="store_true", default=None, help=BLOCK_DELETE_HELP)
     parser.add_argument("--memory-limit", type=float, default=4096.0, metavar="MB",
                         help="refuse grids needing more than this (default 4096 MB)")
     parser.add_argument("--heights", default=None, metavar="OUT.npy", help="write top-surface heights (float32 ny x nx)")
@@ -201,12 +202,13 @@ def design_note(checker, name) -> str | None:
 
 
 def load_program(path: str, dialect: str = "linuxcnc", tool_table=None, var_file=None, units: str = "mm",
-                 subroutine_path=None, max_loop: int | None = None):
+                 subroutine_path=None, max_loop: int | None = None, block_delete: bool = False):
     """The program (a :class:`sim.gcode.Program`: its move table is ``.moves``), through
     the project's G-code interpreter.
 
     ``var_file``: LinuxCNC .var path (work offsets, G28/G30), in ``units`` like the tool table.
     ``max_loop``: passes of one o-word loop before it is refused (None: the default).
+    ``block_delete``: the block delete switch (on: '/' lines are skipped).
     """
     from sim.gcode import Limits
     from sim.gcode import load_program as sim_load_program
@@ -217,7 +219,8 @@ def load_program(path: str, dialect: str = "linuxcnc", tool_table=None, var_file
         raise InputError(f"must be a positive whole number, got {max_loop}", where="--max-loop")
     limits = Limits() if max_loop is None else Limits(max_loop=max_loop)
     return sim_load_program(path, dialect=dialect, tool_table=tool_table, var_file=var_file,
-                            machine_units=units, subroutine_path=subroutine_path or None, limits=limits)
+                            machine_units=units, subroutine_path=subroutine_path or None, limits=limits,
+                            block_delete=block_delete)
 
 
 def _cutting_rows(moves: np.ndarray) -> np.ndarray:
@@ -278,7 +281,7 @@ def run(args) -> int:
     else:
         raise InputError("give the stock as --stock box:X0,Y0,Z0,X1,Y1,Z1 (or a mesh), or --resume RUN:STAGE")
     program = load_program(args.program, args.dialect or "linuxcnc", table, args.var, units, sub_dirs,
-                           args.max_loop)
+                           args.max_loop, bool(args.block_delete))
     moves = _from_start(program.moves, grid, getattr(args, "limits", None))
     checker = None
     if not args.no_checks:
@@ -357,7 +360,8 @@ def _run_job(args) -> int:
     table = read_tool_table(job.tool_table, job.machine_units) if job.tool_table else None
     # one frame: the job's work system; rows in other systems land at their offsets from it
     program = load_program(job.program, job.dialect, table, job.var_file, job.machine_units,
-                           [str(d) for d in job.subroutine_path], args.max_loop or job.max_loop)
+                           [str(d) for d in job.subroutine_path], args.max_loop or job.max_loop,
+                           bool(args.block_delete) or job.block_delete)
     # from where the machine starts, as a dry run does (monitor.start)
     moves = work_moves(start_at(program.moves, job_start(job, program.moves)), reference_wco(job))
     est = DexelGrid_estimate(job)

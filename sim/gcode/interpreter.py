@@ -21,7 +21,7 @@ from sim.gcode.errors import GCodeError, LineError
 from sim.gcode.expr import evaluate
 from sim.gcode.limits import DEFAULT_LIMITS, MAX_LINEAR_MM, MAX_ROTARY_DEG, Limits
 from sim.gcode.moves import COOLANT_FLOOD, COOLANT_MIST, MOVE_DTYPE, MoveKind
-from sim.gcode.parser import AXES, Block, parse_line
+from sim.gcode.parser import AXES, Block, is_deleted, parse_line
 from sim.gcode.state import ModalState
 
 INCH = 25.4
@@ -197,7 +197,7 @@ class Interpreter:
     """
 
     def __init__(self, dialect: str = "linuxcnc", machine_units: str = "mm", tool_table=None,
-                 var_params: dict | None = None, filename: str = "<string>", block_delete: bool = True,
+                 var_params: dict | None = None, filename: str = "<string>", block_delete: bool = False,
                  limits: Limits | None = None):
         if dialect not in ("linuxcnc", "grbl"):
             raise GCodeError(f"unknown dialect {dialect!r}: expected 'linuxcnc' or 'grbl'", filename, 0)
@@ -412,6 +412,8 @@ class Interpreter:
         try:
             if self.grbl and text.lstrip().startswith("%"):
                 raise LineError("'%' is not a G-code command", 1, grbl_code=1)
+            if self.block_delete and is_deleted(text):
+                return self.take_rows()  # dropped unread, as LinuxCNC with the switch on
             block = parse_line(text, self.dialect)
             if block.oword is not None:
                 raise LineError("o-word control flow needs the whole program (use load_program/interpret)",

@@ -56,6 +56,12 @@ class Block:
     empty: bool = True
 
 
+def is_deleted(text: str) -> bool:
+    """True when ``text`` starts with the block delete character '/' (after blanks): the
+    line a controller with its block delete switch on drops before reading it."""
+    return text.lstrip(" \t")[:1] == "/"
+
+
 def strip_line(text: str, dialect: str = "linuxcnc") -> tuple[str, list[int], str | None, bool]:
     """Remove comments and whitespace; upper-case the rest.
 
@@ -293,7 +299,7 @@ def _parse_line(text: str, dialect: str) -> Block:
     s, cols, message, deleted = strip_line(text, dialect)
     block.message = message
     block.deleted = deleted
-    if deleted or not s:
+    if not s:
         return block
     block.empty = False
     r = _Reader(s, cols, grbl)

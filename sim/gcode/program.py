@@ -18,7 +18,7 @@ from sim.gcode.errors import GCodeError, LineError, ProgramFileError
 from sim.gcode.expr import evaluate
 from sim.gcode.interpreter import Interpreter
 from sim.gcode.limits import Limits
-from sim.gcode.parser import parse_line
+from sim.gcode.parser import Block, is_deleted, parse_line
 from sim.gcode.source_file import check_text, read_program
 from sim.gcode.state import ModalState
 
@@ -47,19 +47,26 @@ class _Source:
     percent_end: int | None = None
     has_long_lines: bool = False  # lines over the limit: refused one by one, so no bulk fast path
     cached: object = None  # (n,) bool: lines whose parsed block is kept (loop/sub bodies); None = all
+    block_delete: bool = False  # the switch is on: '/' lines are dropped unread
 
     def block(self, i: int, dialect: str):
         """Line ``i`` parsed (a Block, or the LineError it raised); kept only where it will be read again."""
         b = self.blocks.get(i)
         if b is None:
+            text = self.lines[i]
+            if self.block_delete and is_deleted(text):
+                return _DROPPED
             try:
-                b = parse_line(self.lines[i], dialect)
+                b = parse_line(text, dialect)
             except LineError as exc:
                 b = exc
             if self.cached is None or self.cached[i]:
                 self.blocks[i] = b
         return b
 
+
+#: what a line dropped by the block delete switch reads as (rs274 -b reads nothing of it)
+_DROPPED = Block(deleted=True)
 
 _OWORD_LINE = re.compile(r"[ \t]*(?:/[ \t]*)?(?:[Nn][ \t]*\d+[ \t]*)?[Oo]")
 
@@ -77,13 +84,15 @@ def _percent_end(lines) -> int | None:
     return None
 
 
-def _prepare(name: str, index: int, text, dialect: str, max_line_chars: int = Limits.max_line_chars) -> _Source:
-    """Split ``text`` (str or UTF-8 bytes) into lines and find its o-word structure."""
+def _prepare(name: str, index: int, text, dialect: str, max_line_chars: int = Limits.max_line_chars,
+             block_delete: bool = False) -> _Source:
+    """Split ``text`` (str or UTF-8 bytes) into lines and find its o-word structure
+    (with ``block_delete``, '/' lines are none of it)."""
     from sim.gcode.fastpath import split_lines
 
     lines = split_lines(text)
     del text  # the lines hold the only copy from here on
-    src = _Source(name, index, lines)
+    src = _Source(name, index, lines, block_delete=block_delete)
     # lines are parsed when first executed; only o-word lines are needed up front
     blocks = src.blocks
     # an overlong line is refused where it runs (its bytes are never parsed)
@@ -97,7 +106,7 @@ def _prepare(name: str, index: int, text, dialect: str, max_line_chars: int = Li
         if i in blocks:
             continue
         raw = lines[i]
-        if _OWORD_LINE.match(raw):
+        if _OWORD_LINE.match(raw) and not (block_delete and is_deleted(raw)):
             try:
                 blocks[i] = parse_line(raw, dialect)
             except LineError as exc:
@@ -277,7 +286,8 @@ class _Runner:
             self.snap_lines.append(self.it.main_line)
 
     def add_source(self, name: str, text: str) -> _Source:
-        src = _prepare(name, len(self.sources), text, self.it.dialect, self.limits.max_line_chars)
+        src = _prepare(name, len(self.sources), text, self.it.dialect, self.limits.max_line_chars,
+                       self.it.block_delete)
         self.sources.append(src)
         if src.index >= len(self.it.files):
             self.it.files.append(name)
@@ -563,13 +573,15 @@ def _read_var(var_file):
 
 def interpret(text: str | bytes, filename: str = "<string>", dialect: str = "linuxcnc", tool_table=None,
               var_file=None, machine_units: str = "mm", keep_going: bool = False,
-              subroutine_path=None, limits: Limits | None = None, block_delete: bool = True,
+              subroutine_path=None, limits: Limits | None = None, block_delete: bool = False,
               fast: bool = True) -> Program:
     """Interpret G-code ``text`` (str, or bytes decoded as UTF-8); return a :class:`Program`.
 
     ``tool_table`` is a path (LinuxCNC format, in ``machine_units``) or ``{n: ToolEntry}``;
     ``var_file`` a LinuxCNC .var path or ``{param: value}`` (in ``machine_units``).
     ``limits`` bounds loops, repeats, coordinates and the like (:class:`~sim.gcode.limits.Limits`).
+    ``block_delete`` is the controller's block delete switch: off (the default, as LinuxCNC
+    starts), '/' lines run; on, they are dropped unread.
     Raises :class:`GCodeError` at the first error unless ``keep_going``; bytes that are
     not text raise its subclass :class:`~sim.gcode.errors.ProgramFileError` whatever
     ``keep_going`` says. A program with no motion gets the warning "no motion in program".

@@ -210,13 +210,22 @@ def test_url_passes_var_file_and_units_to_the_interpreter(tmp_path):
     assert plain.moves["end"][-1][:3] == pytest.approx((1, 2, 3))
 
 
+def test_url_block_delete_switch(tmp_path):
+    """'/' lines run on the virtual machine unless its block delete switch is on."""
+    nc = tmp_path / "p.ngc"
+    nc.write_text("G21 G90\n/G0 X5\nG0 Y1\nM2\n")
+    assert open_controller(f"virtual://{nc}?clock=sim").moves["end"][0][:2] == pytest.approx((5, 0))
+    assert open_controller(f"virtual://{nc}?clock=sim&block_delete=on").moves["end"][0][:2] == pytest.approx((0, 1))
+
+
 def test_url_interpreter_options_named_in_errors(tmp_path):
     nc = tmp_path / "p.ngc"
     nc.write_text("G0 X1\nM2\n")
     for query, words in ((f"var={tmp_path / 'nope.var'}", ["var file", "not found"]),
                          ("machine_units=cm", ["machine_units='cm'", "mm or inch"]),
                          ("dialect=fanuc", ["dialect='fanuc'"]),
-                         (f"subroutine_path={tmp_path / 'nodir'}", ["subroutine_path", "not found"])):
+                         (f"subroutine_path={tmp_path / 'nodir'}", ["subroutine_path", "not found"]),
+                         ("block_delete=maybe", ["block_delete='maybe'", "on or off"])):
         with pytest.raises(DriverError) as e:
             open_controller(f"virtual://{nc}?{query}")
         assert all(w in str(e.value) for w in words), str(e.value)

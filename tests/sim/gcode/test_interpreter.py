@@ -42,7 +42,8 @@ def test_incremental_and_absolute():
 
 
 def test_comments_block_delete_percent_and_messages():
-    p = interpret("%\n(MSG, hello there)\n/G0 X99\nG0 X1 ; trailing\nG0 (inline) Y2\n%\nG0 X50\n")
+    p = interpret("%\n(MSG, hello there)\n/G0 X99\nG0 X1 ; trailing\nG0 (inline) Y2\n%\nG0 X50\n",
+                  block_delete=True)
     np.testing.assert_allclose(p.moves["end"][:, :2], [[1, 0], [1, 2]])
     assert p.messages == [(2, "hello there")]
 

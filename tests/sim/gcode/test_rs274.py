@@ -88,7 +88,6 @@ KNOWN: dict[str, str] = {
     "package/ncfiles__toplevel.ngc": MCODE,
     "package/ncfiles__useful-subroutines.ngc": COMP,
     "package/ncfiles__x-trim.ngc": TLO,
-    "tests/block_delete.ngc": BLOCK,
     "tests/comp_entry.ngc": COMP,
     "tests/comp_g18.ngc": COMP,
     "tests/cycles_g91_repeat.ngc": CYCLE,
