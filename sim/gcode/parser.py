@@ -269,8 +269,11 @@ class _Reader:
             if self.s.startswith(name, self.i):
                 kw = name
                 break
-        if kw is None:
-            self.fail(f"unknown o-word command {self._found()} (expected sub, call, if, while, ...)")
+        word = re.match(r"[A-Z]*", self.s[self.i:]).group()
+        if kw is None or word != kw:
+            # rs274 reads the keyword and refuses what follows it ("callsub": call, then 'S')
+            found = f"'{word.lower()}'" if word else self._found()
+            self.fail(f"unknown o-word command {found} (expected sub, call, if, while, ...)")
         self.i += len(kw)
         args = []
         while self.i < len(self.s):

@@ -44,6 +44,7 @@ class _Source:
     kind: dict = field(default_factory=dict)     # line -> structural keyword (DOWHILE for do's end)
     subs: dict = field(default_factory=dict)     # label -> sub line
     struct_errors: list = field(default_factory=list)  # (line index, LineError)
+    warnings: list = field(default_factory=list)       # what LinuxCNC takes but a user should hear
     percent_end: int | None = None
     has_long_lines: bool = False  # lines over the limit: refused one by one, so no bulk fast path
     cached: object = None  # (n,) bool: lines whose parsed block is kept (loop/sub bodies); None = all
@@ -69,6 +70,11 @@ class _Source:
 _DROPPED = Block(deleted=True)
 
 _OWORD_LINE = re.compile(r"[ \t]*(?:/[ \t]*)?(?:[Nn][ \t]*\d+[ \t]*)?[Oo]")
+
+
+def oname(label: str) -> str:
+    """An o-word label as a program spells it: ``o100``, ``o<probe_rect_pocket>``."""
+    return f"o{label}" if label.isdigit() else f"o<{label}>"
 
 
 def _percent_end(lines) -> int | None:
@@ -133,30 +139,42 @@ def _prepare(name: str, index: int, text, dialect: str, max_line_chars: int = Li
         if kw in _STRUCT_OPEN:
             if kw == "SUB":
                 if stack:
-                    src.struct_errors.append((i, LineError(f"o{label} sub inside o{stack[-1][1]} {stack[-1][0].lower()}"
-                                                           " (subroutines cannot nest)", col)))
+                    src.struct_errors.append((i, LineError(f"{oname(label)} sub inside {oname(stack[-1][1])} "
+                                                           f"{stack[-1][0].lower()} (subroutines cannot nest)", col)))
                 if label in src.subs:
-                    src.struct_errors.append((i, LineError(f"o{label} sub is defined twice (first on line "
+                    src.struct_errors.append((i, LineError(f"{oname(label)} sub is defined twice (first on line "
                                                            f"{src.subs[label] + 1})", col)))
                 src.subs.setdefault(label, i)
             stack.append((kw, label, i))
             if kw == "IF":
                 src.branches[i] = []
             continue
+        if kw in ("ENDSUB", "RETURN"):
+            sub = next((s for s in stack if s[0] == "SUB"), None)
+            if sub is None:
+                src.struct_errors.append((i, LineError(f"{oname(label)} {kw.lower()} outside any o-word sub", col)))
+                continue
+            if kw == "RETURN" or label != sub[1]:
+                # LinuxCNC skips a definition up to the endsub of its own label; a sub being
+                # run returns at the first return or endsub it meets, whatever its label
+                src.kind[i] = "RETURN"
+                continue
         closers = {"ENDSUB": "SUB", "ENDIF": "IF", "ENDWHILE": "WHILE", "ENDREPEAT": "REPEAT"}
         if kw in closers or kw in ("ELSE", "ELSEIF"):
             want = closers.get(kw, "IF")
             if not stack or stack[-1][0] != want or stack[-1][1] != label:
-                opened = f" (o{stack[-1][1]} {stack[-1][0].lower()} on line {stack[-1][2] + 1} is still open)" if stack else ""
-                src.struct_errors.append((i, LineError(f"o{label} {kw.lower()} without a matching "
-                                                       f"o{label} {want.lower()}{opened}", col)))
+                opened = (f" ({oname(stack[-1][1])} {stack[-1][0].lower()} on line {stack[-1][2] + 1} is still open)"
+                          if stack else "")
+                src.struct_errors.append((i, LineError(f"{oname(label)} {kw.lower()} without a matching "
+                                                       f"{oname(label)} {want.lower()}{opened}", col)))
                 continue
             opener = stack[-1][2]
             src.owner[i] = opener
             if kw in ("ELSE", "ELSEIF"):
                 br = src.branches[opener]
                 if br and src.kind[br[-1]] == "ELSE":
-                    src.struct_errors.append((i, LineError(f"o{label} {kw.lower()} after o{label} else", col)))
+                    src.struct_errors.append((i, LineError(f"{oname(label)} {kw.lower()} after {oname(label)} else",
+                                                           col)))
                 br.append(i)
             else:
                 stack.pop()
@@ -165,17 +183,19 @@ def _prepare(name: str, index: int, text, dialect: str, max_line_chars: int = Li
         if kw in ("BREAK", "CONTINUE"):
             loop = next((s for s in reversed(stack) if s[1] == label and s[0] in _LOOPS), None)
             if loop is None:
-                src.struct_errors.append((i, LineError(f"o{label} {kw.lower()} outside an o{label} loop", col)))
+                src.struct_errors.append((i, LineError(f"{oname(label)} {kw.lower()} outside an {oname(label)} loop",
+                                                       col)))
                 continue
             src.owner[i] = loop[2]
-        elif kw == "RETURN":
-            sub = next((s for s in reversed(stack) if s[0] == "SUB"), None)
-            if sub is None or sub[1] != label:
-                src.struct_errors.append((i, LineError(f"o{label} return outside o{label} sub", col)))
     for kw, label, i in stack:
         close = {"SUB": "endsub", "IF": "endif", "WHILE": "endwhile", "DO": "while", "REPEAT": "endrepeat"}[kw]
-        col = blocks[i].oword[3]
-        src.struct_errors.append((i, LineError(f"o{label} {kw.lower()} is never closed (no o{label} {close})", col)))
+        said = f"{oname(label)} {kw.lower()} is never closed (no {oname(label)} {close})"
+        if kw == "SUB":
+            # LinuxCNC skips the definition to the end of the file (and refuses nothing)
+            src.end_of[i] = len(lines) - 1
+            src.warnings.append(f"{name}:{i + 1}: {said}: the rest of the file is its body")
+            continue
+        src.struct_errors.append((i, LineError(said, blocks[i].oword[3])))
     src.struct_errors.sort(key=lambda e: e[0])
     if index == 0:
         # the main program runs top to bottom: only lines inside loops and subs run twice
@@ -293,6 +313,7 @@ class _Runner:
             self.it.files.append(name)
         for i, exc in src.struct_errors:
             self.fail(src, i, exc)
+        self.warnings.extend(src.warnings)
         return src
 
     def find_sub(self, label: str, src: _Source, col: int):
@@ -306,11 +327,11 @@ class _Runner:
                     try:
                         text = read_program(cand)
                     except ProgramFileError as exc:
-                        raise LineError(f"o{label} call: {exc}", col) from None
+                        raise LineError(f"{oname(label)} call: {exc}", col) from None
                     s = self.add_source(str(cand), text)
                     if label in s.subs:
                         return s, s.subs[label]
-        raise LineError(f"o{label} call: no o{label} sub in this program or the subroutine path", col)
+        raise LineError(f"{oname(label)} call: no {oname(label)} sub in this program or the subroutine path", col)
 
     def run(self, main: _Source):
         it = self.it
@@ -426,12 +447,23 @@ class _Runner:
                     depth -= 1
                     p.numbered.update(saved)
                     p.frames.pop()
-                    if value is not None:
-                        p.globals["_value"] = value
-                        p.globals["_value_returned"] = 1.0
-                    else:
-                        p.globals["_value_returned"] = 0.0
+                    set_value(p, value)
         return self
+
+    def define(self, src: _Source, end: int) -> None:
+        """A sub definition skipped up to its endsub on line index ``end``: LinuxCNC reads
+        that endsub, so its [value] becomes #<_value> (named parameters not yet defined
+        read as 0 in a definition)."""
+        if src.kind.get(end) != "ENDSUB":
+            return  # a sub never closed: the file ended first
+        args = src.block(end, self.it.dialect).oword[2]
+        value = None
+        if args:
+            try:
+                value = evaluate(args[0], self.it.params)
+            except LineError:
+                value = 0.0
+        set_value(self.it.params, value)
 
     def count_pass(self, src: _Source, opener: int, depth: int) -> None:
         """One more pass of the loop opened on line index ``opener``; LineError (naming
@@ -441,7 +473,7 @@ class _Runner:
         if n > self.limits.max_loop:
             self.passes.pop(key, None)
             label, kw, _args, col = src.block(opener, self.it.dialect).oword
-            exc = LineError(f"o{label} {kw.lower()} ran more than {self.limits.max_loop} times: an endless loop? "
+            exc = LineError(f"{oname(label)} {kw.lower()} ran more than {self.limits.max_loop} times: an endless loop? "
                             "(--max-loop raises the limit)", col)
             exc.line_index = opener
             raise exc
@@ -457,17 +489,20 @@ class _Runner:
 
         def cond():
             if not args:
-                raise LineError(f"o{label} {kw.lower()} needs a [condition]", col)
+                raise LineError(f"{oname(label)} {kw.lower()} needs a [condition]", col)
             return evaluate(args[0], p) != 0.0
 
         if i in {e[0] for e in src.struct_errors}:
             return None
         if kw == "SUB":
-            return ("jump", src.end_of[i] + 1) if i in src.end_of else None
+            if i not in src.end_of:
+                return None
+            self.define(src, src.end_of[i])
+            return ("jump", src.end_of[i] + 1)
         if kw in ("ENDSUB", "RETURN"):
             if not calls:
                 if kw == "RETURN":
-                    raise LineError(f"o{label} return outside a subroutine call", col)
+                    raise LineError(f"{oname(label)} return outside a subroutine call", col)
                 return None
             value = evaluate(args[0], p) if args else None
             return ("return", value)
@@ -491,7 +526,7 @@ class _Runner:
                     return ("jump", br + 1)
                 _l, _k, bargs, bcol = bb.oword
                 if not bargs:
-                    raise LineError(f"o{label} elseif needs a [condition]", bcol)
+                    raise LineError(f"{oname(label)} elseif needs a [condition]", bcol)
                 if evaluate(bargs[0], p) != 0.0:
                     return ("jump", br + 1)
             return ("jump", src.end_of[i] + 1)
@@ -518,14 +553,14 @@ class _Runner:
             return None
         if kw == "REPEAT":
             if not args:
-                raise LineError(f"o{label} repeat needs a [count]", col)
+                raise LineError(f"{oname(label)} repeat needs a [count]", col)
             n = evaluate(args[0], p)
             key = (len(calls), src.index, i)
             if n < 1:
                 repeats.pop(key, None)
                 return ("jump", src.end_of[i] + 1)
             if n > self.limits.max_loop:
-                raise LineError(f"o{label} repeat count {n:.0f} is beyond the loop limit of {self.limits.max_loop} "
+                raise LineError(f"{oname(label)} repeat count {n:.0f} is beyond the loop limit of {self.limits.max_loop} "
                                 "(--max-loop raises it)", col)
             repeats[key] = int(n)
             return None
@@ -553,6 +588,12 @@ class _Runner:
             end = src.end_of.get(loop)
             return None if end is None else ("jump", end)
         raise LineError(f"unknown o-word command {kw.lower()}", col)  # pragma: no cover
+
+
+def set_value(params, value: float | None) -> None:
+    """#<_value> and #<_value_returned> after a return or endsub with ``value`` (None: none given)."""
+    params.globals["_value"] = 0.0 if value is None else value
+    params.globals["_value_returned"] = 0.0 if value is None else 1.0
 
 
 def _read_tool_table(tool_table, machine_units: str):

@@ -1,0 +1,61 @@
+"""o-word subroutines as LinuxCNC runs them (issue 13).
+
+rs274 reads a program line by line: ``o<x> sub`` skips to the first ``o<x> endsub``; a
+sub being run returns at the first ``return`` or ``endsub`` it executes, whatever its
+label (LinuxCNC's own probe and remap macros return with another label). The whole-program
+comparisons are tests/data/rs274/programs/owords_*.ngc in test_rs274.py; these tests name
+the behaviour and the messages.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim.gcode import GCodeError, interpret, work_end
+
+
+def ends(text, **kw):
+    return work_end(interpret(text, **kw).moves)[:, :3]
+
+
+def test_return_with_another_label_returns_from_the_sub():
+    text = "o<probe> sub\nG0 X1\no100 if [1]\no<other> return [5]\no100 endif\nG0 X9\no<probe> endsub\n" \
+           "o<probe> call\nG0 Y#<_value>\nM2"
+    np.testing.assert_allclose(ends(text)[:2], [[1, 0, 0], [1, 5, 0]])
+
+
+def test_endsub_with_another_label_returns_when_run():
+    text = "o<a> sub\nG0 X1\no<b> endsub\nG0 X2\no<a> endsub\no<a> call\nG0 Y5\nM2"
+    np.testing.assert_allclose(ends(text)[:2], [[1, 0, 0], [1, 5, 0]])
+
+
+def test_bare_return_sets_value_to_zero():
+    text = "o1 sub\no1 endsub [7]\no2 sub\no2 return\no2 endsub\no1 call\nG0 X#<_value>\no2 call\n" \
+           "G0 Y#<_value> Z#<_value_returned>\nM2"
+    np.testing.assert_allclose(ends(text)[:2], [[7, 0, 0], [7, 0, 0]])
+
+
+def test_sub_never_closed_runs_to_the_end_of_the_file():
+    p = interpret("G0 X1\no<m106> sub\nG0 X5\no<m103> endsub\nG0 Y3\nM2\n")
+    np.testing.assert_allclose(work_end(p.moves)[:, :3], [[1, 0, 0]])
+    assert any("o<m106> sub" in w and "never closed" in w for w in p.warnings), p.warnings
+
+
+def test_return_outside_any_sub_is_refused_where_it_runs():
+    with pytest.raises(GCodeError) as info:
+        interpret("G0 X1\no<x> return\nM2\n", filename="p.ngc")
+    assert info.value.line == 2 and "o<x> return" in info.value.message
+
+
+@pytest.mark.parametrize("text,needle", [
+    ("o<probe_rect_pocket> call\nM2\n", "o<probe_rect_pocket> call: no o<probe_rect_pocket> sub"),
+    ("o<a> sub\nG0 X1\n", "o<a> sub is never closed"),
+    ("o<a> endif\nM2\n", "o<a> endif without a matching o<a> if"),
+    ("o100 endif\nM2\n", "o100 endif without a matching o100 if"),
+    ("o<g20sub> callsub\nM2\n", "unknown o-word command 'callsub'"),
+])
+def test_messages_keep_the_angle_brackets(text, needle):
+    p = interpret(text, keep_going=True)
+    said = [e.message for e in p.errors] + p.warnings
+    assert any(needle in m for m in said), said
