@@ -16,10 +16,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from sim.gcode import arcs
+from sim.gcode import arcs, mcodes
 from sim.gcode.errors import GCodeError, LineError
 from sim.gcode.expr import evaluate
 from sim.gcode.limits import DEFAULT_LIMITS, MAX_LINEAR_MM, MAX_ROTARY_DEG, Limits
+from sim.gcode.mcodes import M_GROUP
 from sim.gcode.moves import COOLANT_FLOOD, COOLANT_MIST, MOVE_DTYPE, MoveKind
 from sim.gcode.parser import AXES, Block, is_deleted, parse_line
 from sim.gcode.state import ModalState
@@ -46,8 +47,6 @@ G_GROUP = {
 }
 GRBL_G = {0, 10, 20, 30, 382, 383, 384, 385, 40, 100, 170, 180, 190, 200, 210, 280, 281, 300, 301,
           400, 431, 490, 530, 540, 550, 560, 570, 580, 590, 610, 800, 900, 910, 911, 920, 921, 930, 940}
-M_GROUP = {0: 4, 1: 4, 2: 4, 30: 4, 60: 4, 6: 6, 61: 6, 3: 7, 4: 7, 5: 7, 7: 8, 8: 8, 9: 8,
-           48: 9, 49: 9, 50: 9, 51: 9, 52: 9, 53: 9}
 GRBL_M = {0, 1, 2, 30, 3, 4, 5, 8, 9, 56}
 CYCLES = {730, 810, 820, 830, 850, 860, 890}
 MOTION_AXES = {0, 10, 20, 30, 50, 51, 382, 383, 384, 385} | CYCLES
@@ -142,7 +141,7 @@ class _Params:
                 return self.globals[name]
             v = self._predefined(name)
             if v is None:
-                raise LineError(f"named parameter #<{name}> is not defined")
+                raise LineError(f"named parameter #<{name}> is not defined" + mcodes.live_only(name))
             return v
         frame = self.frames[-1]
         if name not in frame:
@@ -261,6 +260,7 @@ class Interpreter:
         self.main_line = 0
         self.params = _Params(self)
         self.comp_engine = None
+        self.contexts = mcodes.Contexts()   # M70-M73 saved modal states, per call level
         if var_params:
             self._load_var(var_params)
 
@@ -559,7 +559,7 @@ class Interpreter:
             if abs(v - c) > 1e-6 or c not in M_GROUP:
                 if grbl:
                     raise LineError(f"M{v:g} is not a GRBL command", col, 23 if abs(v - c) > 1e-6 else 20)
-                raise LineError(f"unknown M code M{v:g}", col)
+                raise LineError(mcodes.unknown_message(v), col)
             if grbl and c not in GRBL_M:
                 raise LineError(f"GRBL does not support M{c}", col, 20)
             grp = M_GROUP[c]
@@ -625,7 +625,9 @@ class Interpreter:
             if not grbl and self.has_tool_table and t != 0 and t not in self.tool_table:
                 raise LineError(f"unknown tool T{t}: it is not in the tool table", cols["T"])
             self.selected_tool = t
-        # ---- 2. M6 / M61
+        # ---- 2. I/O (M62-M68), M6 / M61
+        if 5 in mmodes:
+            mcodes.convert_io(self, mmodes[5], words, cols, used)
         m6 = mmodes.get(6)
         if m6:
             if m6[0] == 6:
@@ -642,10 +644,12 @@ class Interpreter:
                 if self.has_tool_table and int(q) != 0 and int(q) not in self.tool_table:
                     raise LineError(f"unknown tool T{int(q)}: it is not in the tool table", cols["Q"])
                 self.tool = self.selected_tool = int(q)
-        # ---- 3. spindle, coolant
+        # ---- 3. spindle (M19, M70-M73 too), coolant, overrides, user M codes
         sp = mmodes.get(7)
-        if sp:
+        if sp and sp[0] in (3, 4, 5):
             self.spindle_dir = {3: 1, 4: -1, 5: 0}[sp[0]]
+        elif sp:
+            mcodes.convert_state(self, sp, words, cols, used)
         cool = mmodes.get(8)
         if cool:
             if both_coolants:
@@ -656,6 +660,10 @@ class Interpreter:
                 self.coolant |= COOLANT_FLOOD
             else:
                 self.coolant = 0
+        if 9 in mmodes:
+            mcodes.convert_overrides(self, mmodes[9], words, used)
+        if 10 in mmodes:
+            mcodes.convert_user(mmodes[10])
         # ---- 4. dwell
         if g0code == 40:
             if "P" not in words:
@@ -744,7 +752,8 @@ class Interpreter:
         if letter in AXES:
             return f"{letter} word with no command that uses it"
         uses = {"I": "G2/G3", "J": "G2/G3", "K": "G2/G3", "R": "G2/G3, G10 or a canned cycle",
-                "P": "G4, G10, G2/G3, G64 or G82/G86/G89", "Q": "G73/G83 or M61", "L": "G10 or a canned cycle",
+                "P": "G4, G10, G2/G3, G64, G82/G86/G89, M50-M53 or M62-M66", "Q": "G73/G83, M61 or M66-M68",
+                "L": "G10, a canned cycle or M66", "E": "M66, M67 or M68",
                 "H": "G43", "D": "G41/G42", "@": "a motion", "^": "a motion"}
         return f"{letter} word with no {uses.get(letter, 'command')} to use it"
 
@@ -894,8 +903,10 @@ class Interpreter:
             self.g92_enabled = False
         elif code == 922:
             self.g92 = [0.0] * 6
+            self.g92_enabled = False  # #5210 = 0, as LinuxCNC (the saved #5211.. stay for G92.3)
         elif code == 923:
             self.g92 = list(self.g92_saved)
+            self.g92_enabled = True
 
     def _g10(self, col, words, cols, used) -> None:
         f = self.factor

@@ -329,10 +329,9 @@ def _parse_line(text: str, dialect: str) -> Block:
             r.fail(f"expected a word letter, found {c!r}")
         if grbl and c not in "FGIJKLMNPRSTXYZ":
             r.fail(f"GRBL does not support the {c} word", 20)
-        if c in "DEUVW" and not grbl:
-            if c != "D":
-                r.fail(f"{c} axis words are not supported by this machine (XYZABC)")
-        if c not in "ABCDFGHIJKLMNPQRSTXYZ@^":
+        if c in "UVW" and not grbl:
+            r.fail(f"{c} axis words are not supported by this machine (XYZABC)")
+        if c not in "ABCDEFGHIJKLMNPQRSTXYZ@^":
             r.fail(f"unknown word letter {c!r}")
         r.i += 1
         if r.i >= n:

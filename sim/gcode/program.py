@@ -363,6 +363,7 @@ class _Runner:
                         self.warnings.append(f"{main.name}: program ends with no M2, M30 or '%'")
                     break
                 # a subroutine file that runs off its end returns
+                self.leave(src, pc - 1)
                 src, pc, saved = calls.pop()
                 depth -= 1
                 p.numbered.update(saved)
@@ -437,18 +438,28 @@ class _Runner:
                     for k in range(1, 31):
                         p.numbered[k] = args[k - 1] if k - 1 < len(args) else 0.0
                     p.frames.append({})
+                    it.contexts.enter()
                     depth += 1
                     src, pc = new_src, new_pc + 1
                 elif kind == "return":
                     if not calls:
                         pc += 1
                         continue
+                    self.leave(src, pc)
                     src, pc, saved = calls.pop()
                     depth -= 1
                     p.numbered.update(saved)
                     p.frames.pop()
                     set_value(p, value)
         return self
+
+    def leave(self, src: _Source, i: int) -> None:
+        """The subroutine return on line index ``i``: an M73 in the sub restores the
+        caller's modal state now."""
+        try:
+            self.it.contexts.leave(self.it)
+        except LineError as exc:
+            self.fail(src, i, exc)
 
     def define(self, src: _Source, end: int) -> None:
         """A sub definition skipped up to its endsub on line index ``end``: LinuxCNC reads

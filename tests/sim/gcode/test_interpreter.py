@@ -324,7 +324,8 @@ def test_subroutine_from_file(data):
     ("G0 X[1/0]\n", "division by zero"),
     ("G0 Q5 Xl\n", "value"),
     ("G0 G1 X1\n", "same modal group"),
-    ("G1 X1 F100 E3\n", "not supported"),
+    ("G1 X1 F100 E3\n", "E word with no"),
+    ("G1 X1 F100 U3\n", "not supported"),
 ])
 def test_errors_name_line_and_column(text, needle):
     with pytest.raises(GCodeError) as info:
