@@ -19,6 +19,7 @@ import numpy as np
 from sim.gcode import arcs, mcodes
 from sim.gcode.errors import GCodeError, LineError
 from sim.gcode.expr import evaluate
+from sim.gcode.lathe import lathe_message
 from sim.gcode.limits import DEFAULT_LIMITS, MAX_LINEAR_MM, MAX_ROTARY_DEG, Limits
 from sim.gcode.mcodes import M_GROUP
 from sim.gcode.moves import COOLANT_FLOOD, COOLANT_MIST, MOVE_DTYPE, MoveKind
@@ -545,7 +546,7 @@ class Interpreter:
             if abs(v * 10.0 - c) > 1e-6 or c not in G_GROUP:
                 if grbl:
                     raise LineError(f"G{v:g} is not a GRBL command", col, 23 if (c // 10 * 10) in GRBL_G and c % 10 else 20)
-                raise LineError(f"unknown G code G{v:g}", col)
+                raise LineError(lathe_message(c) or f"unknown G code G{v:g}", col)
             if grbl and c not in GRBL_G:
                 raise LineError(f"GRBL does not support G{v:g}", col, 20)
             grp = G_GROUP[c]
@@ -881,6 +882,8 @@ class Interpreter:
                         end[i] = home[i]
                 self._rapid_to(end)
             else:
+                if not self.grbl:  # LinuxCNC's waypoint: where the tool is (GRBL goes home at once)
+                    self._rapid_to(list(self.pos))
                 self._rapid_to(list(home))
         elif code in (281, 301):
             target = self.g28 if code == 281 else self.g30

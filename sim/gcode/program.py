@@ -214,15 +214,18 @@ class Program:
     moves : MOVE_DTYPE array, one row per motion/dwell/tool change/stop.
     files : list[str], index = ``moves["file"]`` (0 = main program).
     errors : list[GCodeError], all errors when ``keep_going`` (else at most one, raised).
+    error_rows : list[int | None], per error the rows made before it was met (None: found
+        in the main file before the run, e.g. an o-word never closed)
     messages : list[(line, text)] from ``(MSG, ...)`` comments.
     warnings : list[str], e.g. a program that ends with no M2/M30/%.
     """
 
     def __init__(self, moves, files, errors, messages, warnings, snapshots, snapshot_lines, row_main_line,
-                 dialect, machine_units):
+                 dialect, machine_units, error_rows=None):
         self.moves = moves
         self.files = files
         self.errors = errors
+        self.error_rows = error_rows if error_rows is not None else [None] * len(errors)
         self.messages = messages
         self.warnings = warnings
         self.dialect = dialect
@@ -279,6 +282,7 @@ class _Runner:
         self.fast = fast
         self.keep_going = keep_going
         self.errors: list[GCodeError] = []
+        self.error_rows: list[int | None] = []   # rows made before each error (None: before the run)
         self.sources: list[_Source] = []
         self.sub_path = [Path(p) for p in (subroutine_path or [])]
         self.limits = it.limits
@@ -288,7 +292,7 @@ class _Runner:
         self.last_key = None
         self.warnings: list[str] = []
 
-    def fail(self, src: _Source, i: int, exc: LineError):
+    def fail(self, src: _Source, i: int, exc: LineError, ahead: bool = False):
         i = getattr(exc, "line_index", i)  # a loop limit names the loop's opening line
         err = GCodeError(exc.message, src.name, i + 1, exc.column, src.lines[i] if i < len(src.lines) else "",
                          exc.grbl_code if self.it.grbl else None)
@@ -297,6 +301,7 @@ class _Runner:
         if not self.keep_going:
             raise err
         self.errors.append(err)
+        self.error_rows.append(None if ahead else self.it._n + len(self.it._rows))
 
     def snapshot(self):
         key = self.it.modal_key()
@@ -312,7 +317,7 @@ class _Runner:
         if src.index >= len(self.it.files):
             self.it.files.append(name)
         for i, exc in src.struct_errors:
-            self.fail(src, i, exc)
+            self.fail(src, i, exc, ahead=src.index == 0)
         self.warnings.extend(src.warnings)
         return src
 
@@ -664,7 +669,7 @@ def interpret(text: str | bytes, filename: str = "<string>", dialect: str = "lin
         else:
             runner.warnings.insert(0, f"{filename}: no motion in program")
     return Program(moves, list(it.files), runner.errors, list(it.messages), runner.warnings,
-                   runner.snapshots, runner.snap_lines, row_lines, dialect, machine_units)
+                   runner.snapshots, runner.snap_lines, row_lines, dialect, machine_units, runner.error_rows)
 
 
 def load_program(path, dialect: str = "linuxcnc", tool_table=None, var_file=None, machine_units: str = "mm",

@@ -205,16 +205,19 @@ def dexmon_run(program: Path, tool_table: Path, var_file: Path, block_delete: bo
         prog = load_program(program, tool_table=tool_table, var_file=var_file, machine_units="inch",
                             subroutine_path=[Path(program).parent], block_delete=block_delete,
                             keep_going=True, **kw)
-        return Run(dexmon_motions(prog, upto=(err.file, err.line)), error=err.message,
-                   error_text=err.source_line, error_line=err.line)
+        rows = prog.error_rows[0] if prog.error_rows else None
+        upto = (err.file, err.line) if rows is None else rows
+        return Run(dexmon_motions(prog, upto=upto), error=err.message, error_text=err.source_line,
+                   error_line=err.line)
     return Run(dexmon_motions(prog))
 
 
-def dexmon_motions(prog, upto: tuple[str, int] | None = None) -> list[Motion]:
+def dexmon_motions(prog, upto: tuple[str, int] | int | None = None) -> list[Motion]:
     """The motion rows of ``prog``'s move table as :class:`Motion` (work coordinates, mm).
 
     The rows of one spline block become one ``"S"`` motion (rs274 prints no spline points).
-    ``upto`` (file name, line) stops at the first row of that line or a later one of that file.
+    ``upto`` (file name, line) stops at the first row of that line or a later one of that file;
+    ``upto`` an int (the rows made before the error, in a loop too) stops at that row.
     """
     from sim.gcode import MoveKind
     from sim.gcode.moves import work_end
@@ -227,7 +230,9 @@ def dexmon_motions(prog, upto: tuple[str, int] | None = None) -> list[Motion]:
              MoveKind.PROBE: "P"}
     for i in range(len(moves)):
         key = (int(moves["file"][i]), int(moves["line"][i]))
-        if upto is not None and prog.files[key[0]] == upto[0] and key[1] >= upto[1]:
+        if isinstance(upto, int) and i >= upto:
+            break
+        if isinstance(upto, tuple) and prog.files[key[0]] == upto[0] and key[1] >= upto[1]:
             break
         kind = kinds.get(int(moves["kind"][i]))
         if kind is None:

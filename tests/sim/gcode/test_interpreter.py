@@ -156,8 +156,10 @@ def test_g53_g28_g30_and_store():
     # G28 Z5: traverse to Z5 (work), then Z to the stored home (0 in machine)
     np.testing.assert_allclose(m["end"][3, :3], [1, 2, 5])
     np.testing.assert_allclose(m["end"][4, :3], [1, 2, 0])
-    np.testing.assert_allclose(m["end"][5, :3], [15, 10, 0])  # all axes to stored G28
-    np.testing.assert_allclose(m["end"][6, :3], [0, 0, 0])    # G30 default home
+    # no axis words: first to the waypoint, where the tool is (as LinuxCNC), then all axes home
+    np.testing.assert_allclose(m["end"][5, :3], [1, 2, 0])
+    np.testing.assert_allclose(m["end"][6, :3], [15, 10, 0])  # all axes to stored G28
+    np.testing.assert_allclose(m["end"][8, :3], [0, 0, 0])    # G30 default home
 
 
 def test_g10_l20_makes_current_point_the_value():
