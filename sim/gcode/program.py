@@ -138,7 +138,9 @@ def _prepare(name: str, index: int, text, dialect: str, max_line_chars: int = Li
             continue
         if kw in _STRUCT_OPEN:
             if kw == "SUB":
-                if stack:
+                # LinuxCNC reads sub lines as definitions only in the main file; in a sub
+                # file it skips to the one called, and runs on through any other
+                if stack and index == 0:
                     src.struct_errors.append((i, LineError(f"{oname(label)} sub inside {oname(stack[-1][1])} "
                                                            f"{stack[-1][0].lower()} (subroutines cannot nest)", col)))
                 if label in src.subs:
@@ -150,7 +152,7 @@ def _prepare(name: str, index: int, text, dialect: str, max_line_chars: int = Li
                 src.branches[i] = []
             continue
         if kw in ("ENDSUB", "RETURN"):
-            sub = next((s for s in stack if s[0] == "SUB"), None)
+            sub = next((s for s in reversed(stack) if s[0] == "SUB"), None)
             if sub is None:
                 src.struct_errors.append((i, LineError(f"{oname(label)} {kw.lower()} outside any o-word sub", col)))
                 continue
@@ -283,6 +285,7 @@ class _Runner:
         self.keep_going = keep_going
         self.errors: list[GCodeError] = []
         self.error_rows: list[int | None] = []   # rows made before each error (None: before the run)
+        self.defined: dict[str, tuple[int, int]] = {}  # sub label -> (source index, line index)
         self.sources: list[_Source] = []
         self.sub_path = [Path(p) for p in (subroutine_path or [])]
         self.limits = it.limits
@@ -321,22 +324,40 @@ class _Runner:
         self.warnings.extend(src.warnings)
         return src
 
-    def find_sub(self, label: str, src: _Source, col: int):
-        for s in (src, *self.sources):
-            if label in s.subs:
-                return s, s.subs[label]
+    def find_sub(self, label: str, src: _Source, col: int, pc: int):
+        """(source, line index) of the sub a call on line index ``pc`` of ``src`` runs, found
+        as LinuxCNC finds it: a sub already defined (its definition read, or an earlier call
+        found it), else the file ``<label>.ngc`` of the subroutine path or the program's
+        folder, else a definition further on in this file."""
+        hit = self.defined.get(label)
+        if hit is not None:
+            return self.sources[hit[0]], hit[1]
+        found = self.sub_file(label, col)
+        if found is None and src.subs.get(label, -1) > pc:
+            found = src, src.subs[label]
+        if found is None:
+            raise LineError(f"{oname(label)} call: no {oname(label)} sub in this program or the subroutine path",
+                            col)
+        self.defined[label] = (found[0].index, found[1])
+        return found
+
+    def sub_file(self, label: str, col: int):
+        """(source, line index) of sub ``label`` in its file ``<label>.ngc``; None without one."""
         dirs = list(self.sub_path) + [Path(self.sources[0].name).parent]
         for d in dirs:
             for cand in (d / f"{label}.ngc", d / f"{label}.NGC"):
                 if cand.is_file():
-                    try:
-                        text = read_program(cand)
-                    except ProgramFileError as exc:
-                        raise LineError(f"{oname(label)} call: {exc}", col) from None
-                    s = self.add_source(str(cand), text)
-                    if label in s.subs:
-                        return s, s.subs[label]
-        raise LineError(f"{oname(label)} call: no {oname(label)} sub in this program or the subroutine path", col)
+                    loaded = next((s for s in self.sources if s.name == str(cand)), None)
+                    if loaded is None:
+                        try:
+                            text = read_program(cand)
+                        except ProgramFileError as exc:
+                            raise LineError(f"{oname(label)} call: {exc}", col) from None
+                        loaded = self.add_source(str(cand), text)
+                    if label not in loaded.subs:
+                        raise LineError(f"{oname(label)} call: {cand} has no {oname(label)} sub", col)
+                    return loaded, loaded.subs[label]
+        return None
 
     def run(self, main: _Source):
         it = self.it
@@ -473,13 +494,7 @@ class _Runner:
         if src.kind.get(end) != "ENDSUB":
             return  # a sub never closed: the file ended first
         args = src.block(end, self.it.dialect).oword[2]
-        value = None
-        if args:
-            try:
-                value = evaluate(args[0], self.it.params)
-            except LineError:
-                value = 0.0
-        set_value(self.it.params, value)
+        set_value(self.it.params, evaluate(args[0], _Lenient(self.it.params)) if args else None)
 
     def count_pass(self, src: _Source, opener: int, depth: int) -> None:
         """One more pass of the loop opened on line index ``opener``; LineError (naming
@@ -511,6 +526,15 @@ class _Runner:
         if i in {e[0] for e in src.struct_errors}:
             return None
         if kw == "SUB":
+            if depth > 0:
+                return None  # LinuxCNC runs on into it: only at the top level is a sub line a definition
+            hit = self.defined.get(label)
+            if hit == (src.index, i):
+                raise LineError(f"{oname(label)} sub is read here after a call already ran it: LinuxCNC "
+                                "refuses a definition after its first call", col)
+            if hit is not None:
+                raise LineError(f"{oname(label)} sub is already defined in {self.sources[hit[0]].name}", col)
+            self.defined[label] = (src.index, i)
             if i not in src.end_of:
                 return None
             self.define(src, src.end_of[i])
@@ -528,7 +552,7 @@ class _Runner:
                 label = str(int(v)) if v == int(v) else f"{v:g}"
             if depth >= 100:
                 raise LineError("subroutine calls nested more than 100 deep", col)
-            s, line = self.find_sub(label, src, col)
+            s, line = self.find_sub(label, src, col, i)
             values = [evaluate(a, p) for a in args]
             if len(values) > 30:
                 raise LineError("more than 30 subroutine arguments", col)
@@ -604,6 +628,22 @@ class _Runner:
             end = src.end_of.get(loop)
             return None if end is None else ("jump", end)
         raise LineError(f"unknown o-word command {kw.lower()}", col)  # pragma: no cover
+
+
+class _Lenient:
+    """Parameters as a sub definition reads them: a named parameter not yet defined is 0."""
+
+    def __init__(self, params):
+        self.params = params
+
+    def get_numbered(self, idx):
+        return self.params.get_numbered(idx)
+
+    def get_named(self, name):
+        return self.params.get_named(name) if self.params.exists(name) else 0.0
+
+    def exists(self, name):
+        return self.params.exists(name)
 
 
 def set_value(params, value: float | None) -> None:

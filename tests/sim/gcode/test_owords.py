@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim.gcode import GCodeError, interpret, work_end
+from sim.gcode import GCodeError, interpret, load_program, work_end
 
 
 def ends(text, **kw):
@@ -59,3 +59,38 @@ def test_messages_keep_the_angle_brackets(text, needle):
     p = interpret(text, keep_going=True)
     said = [e.message for e in p.errors] + p.warnings
     assert any(needle in m for m in said), said
+
+
+def test_a_call_runs_a_sub_defined_further_on():
+    np.testing.assert_allclose(ends("G21\no<b> call [2]\nG0 Z1\nM2\no<b> sub\nG0 X#1\no<b> endsub\n")[:2],
+                               [[2, 0, 0], [2, 0, 1]])
+
+
+def test_reading_a_definition_after_its_call_is_refused():
+    with pytest.raises(GCodeError) as info:
+        interpret("G21\no<b> call [2]\nG0 Z1\no<b> sub\nG0 X#1\no<b> endsub\nM2\n")
+    assert info.value.line == 4 and "after a call already ran it" in info.value.message
+
+
+def _files(tmp_path, **files):
+    for name, text in files.items():
+        (tmp_path / f"{name}.ngc").write_text(text)
+    return tmp_path / "main.ngc"
+
+
+def test_a_sub_file_knows_only_the_sub_called_and_those_after_the_call(tmp_path):
+    lib = "o<h1> sub\nG0 Z#1\no<h1> endsub\no<lib> sub\nG0 X#1\no<h2> call [7]\no<lib> endsub\n" \
+          "o<h2> sub\nG0 Y#1\no<h2> endsub\n"
+    main = _files(tmp_path, lib=lib, main="G21\no<lib> call [3]\nM2\n")
+    np.testing.assert_allclose(work_end(load_program(main).moves)[:2, :3], [[3, 0, 0], [3, 7, 0]])
+    main = _files(tmp_path, main="G21\no<lib> call [3]\no<h1> call [5]\nM2\n")
+    with pytest.raises(GCodeError, match="no o<h1> sub") as info:
+        load_program(main)
+    assert info.value.line == 3
+
+
+def test_a_sub_line_met_while_running_a_sub_runs_on(tmp_path):
+    # LinuxCNC's craftsman m106.ngc: a sub file without its endsub, another sub line in it
+    main = _files(tmp_path, m106="o<m106> sub\nG0 X1\no<next> sub\nG0 Y2\no<m103> endsub\nG0 X5\n",
+                  main="G21\no<m106> call\nG0 Z7\nM2\n")
+    np.testing.assert_allclose(work_end(load_program(main).moves)[:3, :3], [[1, 0, 0], [1, 2, 0], [1, 2, 7]])
