@@ -554,7 +554,6 @@ class Interpreter:
                 raise LineError(f"G{v:g} and G{gmodes[grp][0] / 10:g} are in the same modal group", col, 21)
             gmodes[grp] = (c, col)
         mmodes: dict[int, tuple[int, int]] = {}
-        both_coolants = False
         for v, col in mlist:
             c = int(round(v))
             if abs(v - c) > 1e-6 or c not in M_GROUP:
@@ -564,10 +563,7 @@ class Interpreter:
             if grbl and c not in GRBL_M:
                 raise LineError(f"GRBL does not support M{c}", col, 20)
             grp = M_GROUP[c]
-            if grp in mmodes:
-                if grp == 8 and {c, mmodes[grp][0]} == {7, 8} and not grbl:
-                    both_coolants = True
-                    continue
+            if grp in mmodes:  # M7 M8 too: rs274 2.9 and GRBL 1.1 refuse both on one line
                 raise LineError(f"M{c} and M{mmodes[grp][0]} are in the same modal group", col, 21)
             mmodes[grp] = (c, col)
         if len(mlist) > 4:
@@ -599,6 +595,8 @@ class Interpreter:
         # ---- 1. feed mode, F, S, T
         if 5 in gmodes:
             self.feed_mode = gmodes[5][0]
+            if self.feed_mode != 930 and not grbl:
+                self.feed_word = 0.0  # LinuxCNC's G94/G95 clear F (this line's F word comes next)
         if "F" in words:
             f = words["F"]
             if f < 0:
@@ -653,9 +651,7 @@ class Interpreter:
             mcodes.convert_state(self, sp, words, cols, used)
         cool = mmodes.get(8)
         if cool:
-            if both_coolants:
-                self.coolant = COOLANT_MIST | COOLANT_FLOOD
-            elif cool[0] == 7:
+            if cool[0] == 7:
                 self.coolant |= COOLANT_MIST
             elif cool[0] == 8:
                 self.coolant |= COOLANT_FLOOD

@@ -368,7 +368,7 @@ def test_inverse_time_feed():
 
 
 def test_tool_change_spindle_coolant_columns():
-    m = run("T3 M6\nS8000 M4 M7 M8\nG0 X1\nM9 M5\nG0 X2\nM30")
+    m = run("T3 M6\nS8000 M4 M7\nM8\nG0 X1\nM9 M5\nG0 X2\nM30")
     assert m["kind"][0] == MoveKind.TOOL_CHANGE and m["tool"][0] == 3
     r1, r2 = m[m["kind"] == MoveKind.RAPID]
     assert (r1["spindle_dir"], r1["coolant"], r1["spindle"]) == (-1, 3, 8000)

@@ -96,3 +96,21 @@ def test_hal_pin_parameters_are_refused_where_they_are_read():
     with pytest.raises(GCodeError) as info:
         interpret("G21\nG64 P0.005\nM52 P1\nF#<_hal[plasmac.cut-feed-rate]>\nG0 X1\nM2")
     assert info.value.line == 4 and "HAL pin" in info.value.message
+
+
+def test_m7_and_m8_on_one_line_are_one_modal_group():
+    # rs274 2.9: "Two m codes used from same modal group"
+    with pytest.raises(GCodeError, match="same modal group"):
+        interpret("G21\nM7 M8\nG0 X1\nM2")
+    assert interpret("G21\nM7\nM8\nG0 X1\nM2").moves["coolant"][0] == 3
+
+
+def test_g94_and_g95_clear_the_feed_rate():
+    # LinuxCNC's convert_feed_mode: a G94 or G95 block sets F to 0 (before its own F word)
+    with pytest.raises(GCodeError, match="zero feed"):
+        interpret("G21 G1 X1 F100\nG94 G1 X2\nM2")
+    assert interpret("G21 G1 X1 F100\nG94 G1 X2 F50\nM2").moves["feed"][1] == 50
+    # M72 restoring G94 from G93 clears F likewise: the next G1 has no feed
+    with pytest.raises(GCodeError, match="zero feed") as info:
+        interpret("G21 G1 F1 X1\nM70\nG93 G1 X2 F1\nM72\nG1 X3\nM2")
+    assert info.value.line == 5
