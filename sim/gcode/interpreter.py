@@ -730,7 +730,7 @@ class Interpreter:
         # ---- 12. stops
         stop = mmodes.get(4)
         if stop:
-            c = stop[0]
+            c = mcodes.m99_as_end(self, stop)
             if c in (2, 30) and self.comp_engine is not None:
                 self._flush_comp()
             here = list(self.pos)

@@ -2,8 +2,9 @@
 
 Digital and analog I/O (M62-M68: M66 waits on an input, which a simulation takes as
 already there), overrides (M48-M53), spindle orientation (M19), modal state save and
-restore (M70-M73) and user M codes (M100-M199, refused: LinuxCNC runs a program file for
-each, which dexmon cannot). The words each one takes (P, Q, E, L, R) are marked used and
+restore (M70-M73), M99 (in the main program: its end, as M2) and user M codes (M100-M199,
+refused: LinuxCNC runs a program file for each, which dexmon cannot; M98 Fanuc-style calls
+too). The words each one takes (P, Q, E, L, R) are marked used and
 checked as LinuxCNC checks them (interp_check.cc, interp_convert.cc ``convert_m``).
 
 M70 saves the modal state in the current call level's context, M73 too and marks it to be
@@ -23,13 +24,15 @@ from sim.gcode.moves import COOLANT_FLOOD, COOLANT_MIST
 
 #: LinuxCNC's modal group of each M code it knows (interp_array.cc ``_ems``): 4 stopping,
 #: 5 I/O, 6 tool change, 7 spindle and modal state, 8 coolant, 9 overrides, 10 user codes
-M_GROUP = {0: 4, 1: 4, 2: 4, 30: 4, 60: 4, 6: 6, 61: 6, 3: 7, 4: 7, 5: 7, 19: 7, 70: 7, 71: 7, 72: 7, 73: 7,
+M_GROUP = {0: 4, 1: 4, 2: 4, 30: 4, 60: 4, 99: 4, 6: 6, 61: 6, 3: 7, 4: 7, 5: 7, 19: 7, 70: 7, 71: 7, 72: 7, 73: 7,
            7: 8, 8: 8, 9: 8, **{m: 9 for m in range(48, 54)}, **{m: 5 for m in range(62, 69)},
            **{m: 10 for m in range(100, 200)}}
 
 
 def unknown_message(value: float) -> str:
     """Why ``M<value>`` is refused (it is in no group of :data:`M_GROUP`)."""
+    if value == 98:
+        return "M98 calls a Fanuc-style subprogram, which dexmon does not run: use o<name> call"
     if value > 199 and value == int(value):
         return f"unknown M code M{value:g}: LinuxCNC has none above M199 but those a remap defines"
     return f"unknown M code M{value:g}"
@@ -43,6 +46,17 @@ def live_only(name: str) -> str:
     if name.startswith("_ini["):
         return " (it reads the machine's INI file, which dexmon does not have)"
     return ""
+
+
+def m99_as_end(it, mode) -> int:
+    """The stop code M0 M1 M2 M30 M60 as which ``mode`` (code, column) runs: M99 ends the
+    main program as M2 does (rs274 with no loop_on_main_m99); in an o-word sub it is refused."""
+    code, col = mode
+    if code != 99:
+        return code
+    if len(it.contexts.frames) > 1:
+        raise LineError("M99 returns from a Fanuc-style subprogram: end an o-word sub with endsub or return", col)
+    return 2
 
 
 def _comp_off(it, what: str, col: int) -> None:

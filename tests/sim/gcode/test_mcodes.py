@@ -114,3 +114,18 @@ def test_g94_and_g95_clear_the_feed_rate():
     with pytest.raises(GCodeError, match="zero feed") as info:
         interpret("G21 G1 F1 X1\nM70\nG93 G1 X2 F1\nM72\nG1 X3\nM2")
     assert info.value.line == 5
+
+
+def test_m99_in_the_main_program_ends_it_as_m2():
+    # rs274 (no loop_on_main_m99 in an INI) ends the program at a top-level M99
+    p = interpret("G21\nG0 X1\nM99\nG0 X2\n")
+    assert p.moves["kind"].tolist() == [MoveKind.RAPID, MoveKind.END]
+    assert not any("no M2" in w for w in p.warnings)
+
+
+def test_m99_in_an_o_word_sub_and_m98_are_refused_clearly():
+    with pytest.raises(GCodeError, match="endsub or return") as info:
+        interpret("G21\no1 sub\nG0 X1\nM99\no1 endsub\no1 call\nM2\n")
+    assert info.value.line == 4
+    with pytest.raises(GCodeError, match="M98"):
+        interpret("G21\nM98 P100\nM2\n")
