@@ -286,6 +286,8 @@ class _Runner:
         self.errors: list[GCodeError] = []
         self.error_rows: list[int | None] = []   # rows made before each error (None: before the run)
         self.defined: dict[str, tuple[int, int]] = {}  # sub label -> (source index, line index)
+        self.scopes: list[str] = [""]   # the sub each call level runs ("" the program): o-word label scopes
+        self.labels: dict[tuple[str, str], tuple[int, int]] = {}  # (scope, label) -> first (source, line) run
         self.sources: list[_Source] = []
         self.sub_path = [Path(p) for p in (subroutine_path or [])]
         self.limits = it.limits
@@ -390,6 +392,7 @@ class _Runner:
                     break
                 # a subroutine file that runs off its end returns
                 self.leave(src, pc - 1)
+                self.scopes.pop()
                 src, pc, saved = calls.pop()
                 depth -= 1
                 p.numbered.update(saved)
@@ -458,7 +461,8 @@ class _Runner:
                 if kind == "jump":
                     pc = value
                 elif kind == "call":
-                    new_src, new_pc, args = value
+                    new_src, new_pc, args, label = value
+                    self.scopes.append(label)
                     saved = {k: p.numbered.get(k, 0.0) for k in range(1, 31)}
                     calls.append((src, pc + 1, saved))
                     for k in range(1, 31):
@@ -472,12 +476,22 @@ class _Runner:
                         pc += 1
                         continue
                     self.leave(src, pc)
+                    self.scopes.pop()
                     src, pc, saved = calls.pop()
                     depth -= 1
                     p.numbered.update(saved)
                     p.frames.pop()
                     set_value(p, value)
         return self
+
+    def first_use(self, src: _Source, i: int, label: str, kw: str, col: int) -> None:
+        """LinuxCNC keeps the label of each if/while/repeat/do it runs, per program or called
+        sub; one label run from two lines is refused at the second."""
+        key = (self.scopes[-1], label)
+        first = self.labels.setdefault(key, (src.index, i))
+        if first != (src.index, i) and kw != "DO":
+            raise LineError(f"{oname(label)} {kw.lower()}: label {oname(label)} was already used on line "
+                            f"{first[1] + 1}; LinuxCNC refuses a label used twice in one program or sub", col)
 
     def leave(self, src: _Source, i: int) -> None:
         """The subroutine return on line index ``i``: an M73 in the sub restores the
@@ -525,6 +539,8 @@ class _Runner:
 
         if i in {e[0] for e in src.struct_errors}:
             return None
+        if kw in ("IF", "WHILE", "REPEAT", "DO"):
+            self.first_use(src, i, label, kw, col)
         if kw == "SUB":
             if depth > 0:
                 return None  # LinuxCNC runs on into it: only at the top level is a sub line a definition
@@ -556,7 +572,7 @@ class _Runner:
             values = [evaluate(a, p) for a in args]
             if len(values) > 30:
                 raise LineError("more than 30 subroutine arguments", col)
-            return ("call", (s, line, values))
+            return ("call", (s, line, values, label))
         if kw == "IF":
             if cond():
                 return None

@@ -94,3 +94,21 @@ def test_a_sub_line_met_while_running_a_sub_runs_on(tmp_path):
     main = _files(tmp_path, m106="o<m106> sub\nG0 X1\no<next> sub\nG0 Y2\no<m103> endsub\nG0 X5\n",
                   main="G21\no<m106> call\nG0 Z7\nM2\n")
     np.testing.assert_allclose(work_end(load_program(main).moves)[:3, :3], [[1, 0, 0], [1, 2, 0], [1, 2, 7]])
+
+
+@pytest.mark.parametrize("text,line", [
+    ("G21\no1 if [1]\nG0 X1\no1 endif\no1 if [1]\nG0 X2\no1 endif\nM2\n", 5),
+    ("G21\n#1=0\no1 while [#1 LT 2]\n#1=[#1+1]\no1 endwhile\no1 while [#1 LT 4]\n#1=[#1+1]\no1 endwhile\nM2\n", 6),
+])
+def test_a_label_run_from_two_lines_is_refused_at_the_second(text, line):
+    # rs274: "duplicate O-word label"
+    with pytest.raises(GCodeError, match="already used on line") as info:
+        interpret(text)
+    assert info.value.line == line
+
+
+def test_labels_are_per_program_and_per_called_sub():
+    # the same o1 in a sub (called twice) and in the program is no duplicate
+    text = "G21\no2 sub\no1 if [#1]\nG0 X#1\no1 endif\no2 endsub\no2 call [1]\no2 call [2]\n" \
+           "o1 if [1]\nG0 Y3\no1 endif\nM2\n"
+    np.testing.assert_allclose(ends(text)[:3], [[1, 0, 0], [2, 0, 0], [2, 3, 0]])
