@@ -19,12 +19,7 @@ from tests.sim.gcode import rs274_harness as h
 TLO = "tool length offset: after G43/G43.1/G49 the program position is LinuxCNC's"
 CYCLE = "canned cycles: retract mode when neither G98 nor G99; G91 repeats measure R from the first height"
 COMP = "cutter compensation: entry moves and corner joins are LinuxCNC's"
-LATHE = "lathe-only codes (G7/G8, G70-G72, G76) are refused with a clear message"
-OWORD = "o-words: return/endsub with another label than its sub, as LinuxCNC's macros use them"
-MCODE = "M codes LinuxCNC accepts (M70-M73, M66, M52/M53 ...) are accepted"
 PROBE = "probing: #5061-#5070 set as rs274 sets them; start too close to the target refused"
-BLOCK = "block delete: / lines run by default"
-AXES = "U V W axes are refused with a clear message"
 
 #: programs whose difference from rs274 is known, with its cause; each is a strict xfail,
 #: so fixing one fails here until it leaves this list
@@ -37,8 +32,8 @@ KNOWN: dict[str, str] = {
     "package/ncfiles__comp-g1.ngc": COMP,
     "package/ncfiles__comp.ngc": COMP,
     "package/ncfiles__comp311.ngc": COMP,
-    "package/ncfiles__g76.ngc": LATHE,
-    "package/ncfiles__lathe-g76.ngc": LATHE,
+    "package/ncfiles__g76.ngc": COMP,
+    "package/ncfiles__lathe-g76.ngc": COMP,
     "package/ncfiles__lathecomp.ngc": COMP,
     "package/ncfiles__mmount.ngc": TLO,
     "package/ncfiles__polar.ngc": CYCLE,
