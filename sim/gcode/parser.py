@@ -74,6 +74,7 @@ def strip_line(text: str, dialect: str = "linuxcnc") -> tuple[str, list[int], st
     message = None
     i, n = 0, len(text)
     deleted = False
+    commented = False  # a comment came first: a '/' after it is no block delete
     while i < n:
         c = text[i]
         if c == "(":
@@ -87,13 +88,14 @@ def strip_line(text: str, dialect: str = "linuxcnc") -> tuple[str, list[int], st
             if squeezed[:4].upper() == "MSG," or re.match(r"(?i)msg\s*,", squeezed):
                 message = squeezed.split(",", 1)[1].strip()
             i = j + 1
+            commented = True
             continue
         if c == ";":
             break
         if c in " \t\r\n\f\v":
             i += 1
             continue
-        if c == "/" and not out:
+        if c == "/" and not out and not commented and not deleted:
             deleted = True
             i += 1
             continue

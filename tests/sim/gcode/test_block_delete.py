@@ -50,3 +50,10 @@ def test_equals_rs274(block_delete):
     got = h.dexmon_run(PROGRAM, h.DATA / "tools.tbl", h.DATA / "params.var", block_delete=block_delete)
     result = h.compare(ref, got)
     assert result.status == "match", result.detail
+
+
+def test_slash_after_a_comment_is_no_block_delete():
+    # rs274: "Bad character '/' used" (only a line's first character deletes it)
+    with pytest.raises(GCodeError, match="'/'") as info:
+        interpret("G21\n(c) /G0 Y1\nM2")
+    assert info.value.line == 2
