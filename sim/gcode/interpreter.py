@@ -592,6 +592,8 @@ class Interpreter:
             col = min(cols.get(a, 10**6) for a in AXES + "@^" if a in words)
             raise LineError("axis words with no command to use them (G80 is active)", col, 31)
 
+        if "$" in words:
+            mcodes.spindle_select(words, cols, mmodes, gmodes, motion, used)
         # ---- 1. feed mode, F, S, T
         if 5 in gmodes:
             self.feed_mode = gmodes[5][0]

@@ -2,7 +2,7 @@
 
 Digital and analog I/O (M62-M68: M66 waits on an input, which a simulation takes as
 already there), overrides (M48-M53), spindle orientation (M19), modal state save and
-restore (M70-M73), M99 (in the main program: its end, as M2) and user M codes (M100-M199,
+restore (M70-M73), the ``$`` spindle number (one spindle), M99 (in the main program: its end, as M2) and user M codes (M100-M199,
 refused: LinuxCNC runs a program file for each, which dexmon cannot; M98 Fanuc-style calls
 too). The words each one takes (P, Q, E, L, R) are marked used and
 checked as LinuxCNC checks them (interp_check.cc, interp_convert.cc ``convert_m``).
@@ -57,6 +57,29 @@ def m99_as_end(it, mode) -> int:
     if len(it.contexts.frames) > 1:
         raise LineError("M99 returns from a Fanuc-style subprogram: end an o-word sub with endsub or return", col)
     return 2
+
+
+#: the spindles rs274 has (num_spindles without an INI file)
+SPINDLES = 1
+
+
+def spindle_select(words, cols, mmodes, gmodes, motion, used) -> None:
+    """LinuxCNC's ``$`` word (spindle number, -1: all) checked as rs274 checks it; dexmon
+    has the one spindle, so the word changes nothing."""
+    n = words["$"]
+    col = cols["$"]
+    code7 = mmodes.get(7, (None,))[0]
+    code9 = mmodes.get(9, (None,))[0]
+    spindle_mode = 14 in gmodes or gmodes.get(5, (None,))[0] == 950
+    if not ("S" in words or code7 in (3, 4, 5, 19) or code9 == 51 or spindle_mode or motion in (330, 331)):
+        raise LineError("$ word with no M3, M4, M5, M19, M51, G33, G33.1, G95 or G97 to use it", col)
+    lowest = -1 if "S" in words or code7 in (3, 4, 5) else 1 if code9 == 51 else 0
+    if not (n == int(n) and lowest <= n < SPINDLES):
+        if lowest == 1:
+            raise LineError(f"M51 ${n:g}: LinuxCNC's M51 takes spindle $1 or above, and rs274 has spindle $0 only",
+                            col)
+        raise LineError(f"there is no spindle ${n:g}: rs274 has spindle $0 only ($-1: all)", col)
+    used.add("$")
 
 
 def _comp_off(it, what: str, col: int) -> None:

@@ -325,7 +325,7 @@ def _parse_line(text: str, dialect: str) -> Block:
                 r.fail("an o-word must be the only command on its line")
             block.oword = r.oword()
             continue
-        if not ("A" <= c <= "Z") and not (c in "@^" and not grbl):
+        if not ("A" <= c <= "Z") and not (c in "@^$" and not grbl):
             if grbl:
                 r.fail(f"expected a command letter, found {c!r}", 1)
             r.fail(f"expected a word letter, found {c!r}")
@@ -333,7 +333,7 @@ def _parse_line(text: str, dialect: str) -> Block:
             r.fail(f"GRBL does not support the {c} word", 20)
         if c in "UVW" and not grbl:
             r.fail(f"{c} axis words are not supported by this machine (XYZABC)")
-        if c not in "ABCDEFGHIJKLMNPQRSTXYZ@^":
+        if c not in "ABCDEFGHIJKLMNPQRSTXYZ@^$":
             r.fail(f"unknown word letter {c!r}")
         r.i += 1
         if r.i >= n:

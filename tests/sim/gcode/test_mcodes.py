@@ -129,3 +129,20 @@ def test_m99_in_an_o_word_sub_and_m98_are_refused_clearly():
     assert info.value.line == 4
     with pytest.raises(GCodeError, match="M98"):
         interpret("G21\nM98 P100\nM2\n")
+
+
+@pytest.mark.parametrize("line", ["M3 $0 S1", "S100 $-1", "M5 $-1", "M19 $0", "G97 $0 S5"])
+def test_spindle_select_word_on_the_one_spindle(line):
+    # LinuxCNC's $ (spindle number); rs274 has one spindle, $0 (or $-1: all of them)
+    assert len(interpret(f"G21\n{line}\nG0 X2\nM2").moves) == 2
+
+
+@pytest.mark.parametrize("line,needle", [
+    ("M3 $1 S1", "spindle $1"),
+    ("M51 P1 $0", "spindle $0"),
+    ("G0 X1 $0", "$ word with no"),
+])
+def test_spindle_select_word_refused_as_rs274(line, needle):
+    with pytest.raises(GCodeError) as info:
+        interpret(f"G21\n{line}\nM2")
+    assert needle in info.value.message and info.value.line == 2
