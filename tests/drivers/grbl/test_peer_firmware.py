@@ -204,7 +204,7 @@ def test_r_arc_radius_error_is_34_and_same_point_is_33(wire):
 
 
 def test_spindle_and_coolant_in_fs_and_a_fields(wire):
-    peer, w = wire(vm=make_vm(max_rate=(600.0,) * 3, accel=(100.0,) * 3), speed=1.0)
+    peer, w = wire(vm=make_vm(max_rate=(600.0,) * 3, accel=(100.0,) * 3), run=False)
     settle_cadence(w)
     assert w.reply(b"M3 S500\n") == ["ok"]
     # spindle_set_state resets report_ovr_counter: Ov (with A:) comes on the next report
@@ -214,9 +214,11 @@ def test_spindle_and_coolant_in_fs_and_a_fields(wire):
     assert w.status().endswith("|A:SF>")
     assert field(w.status(), "A") is None  # A: comes only with Ov
     assert w.reply(b"G1 X5 F300\n") == ["ok"]
-    s = w.status_until(lambda s: s.startswith("<Run|"))
-    assert field(s, "FS").endswith(",500")
-    w.status_until(lambda s: s.startswith("<Idle|MPos:5.000,"))
+    advance(peer, 0.5)
+    s = w.status()
+    assert s.startswith("<Run|") and field(s, "FS") == "300,500"
+    advance(peer, 5.0)
+    assert w.status().startswith("<Idle|MPos:5.000,")
     fresh_wco(w)
     w.send(b"\x9a")  # spindle +10 %: reported at once, rpm scaled
     s = after_change(w, "|Ov:100,100,110|")
@@ -231,12 +233,16 @@ def test_spindle_and_coolant_in_fs_and_a_fields(wire):
 
 def test_spindle_change_waits_for_the_motion_before_it(wire):
     # gcode.c: spindle_sync() empties the planner before the spindle changes
-    peer, w = wire(vm=make_vm(max_rate=(600.0,) * 3, accel=(100.0,) * 3), speed=1.0)
+    peer, w = wire(vm=make_vm(max_rate=(600.0,) * 3, accel=(100.0,) * 3), run=False)
     assert w.reply(b"G1 X3 F600\n") == ["ok"]
-    w.status_until(lambda s: s.startswith("<Run|"))
-    assert w.reply(b"M3 S800 G1 X0\n") == ["ok"]
-    s = w.status_until(lambda s: s.startswith("<Run|") and field(s, "MPos").startswith("2.") or s.startswith("<Idle"))
-    assert s.startswith("<Run|MPos:2.") and field(s, "FS").endswith(",800")
+    advance(peer, 0.2)
+    w.send(b"M3 S800 G1 X0\n")  # its ok waits until the X3 move is done
+    s = w.status()
+    assert s.startswith("<Run|") and field(s, "FS").endswith(",0")
+    advance(peer, 5.0)  # X3 reached: the spindle turns on, then X0 is planned (not run)
+    assert w.line() == "ok"
+    s = w.status()
+    assert s.startswith("<Run|MPos:3.000,") and field(s, "FS") == "0,800"
 
 
 def test_flood_toggle_byte_and_program_end(wire):
@@ -339,10 +345,10 @@ def test_wco_reported_whenever_the_firmware_flags_an_offset_change(wire):
 
 
 def test_wco_and_ov_cadence_while_jogging(wire):
-    peer, w = wire(speed=1.0)
+    peer, w = wire(run=False)  # the jog lasts as long as the test needs
     settle_cadence(w)
     assert w.reply(b"$J=G91 X-150 F600\n") == ["ok"]
-    w.status_until(lambda s: s.startswith("<Jog|"))
+    advance(peer, 0.5)
     reports = [w.status() for _ in range(95)]
     assert all(r.startswith("<Jog|") for r in reports), reports[-1]
     wco, ov = wco_ov_indices(reports)
@@ -351,4 +357,6 @@ def test_wco_and_ov_cadence_while_jogging(wire):
     assert set(b - a for a, b in zip(ov, ov[1:])) <= {20, 21} and len(ov) >= 4
     assert not set(wco) & set(ov)
     w.send(b"\x85")
-    w.status_until(lambda s: s.startswith("<Idle|"))
+    assert w.status().startswith("<Jog|")  # answered after the cancel byte was taken
+    advance(peer, 5.0)
+    assert w.status().startswith("<Idle|")
