@@ -396,6 +396,7 @@ class GrblPeer(GcodeExecution, SystemCommands):
             self._send(f"ALARM:{code}")
             if code in _CRITICAL_ALARMS:
                 self._critical = True
+                self.accessories.killed = True  # limits.c calls mc_reset: pins off
                 self._send("[MSG:Reset to continue]")
                 with self._cond:
                     self._cond.notify_all()

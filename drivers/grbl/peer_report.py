@@ -67,12 +67,15 @@ class Accessories:
 
     ``direction``: 1 CW (M3), -1 CCW (M4), 0 off; ``rpm``: programmed S, rev/min;
     ``coolant``: COOLANT_FLOOD / COOLANT_MIST bits; ``stopped``: the spindle stop override
-    (0x9E) holds the spindle off during a feed hold."""
+    (0x9E) holds the spindle off during a feed hold; ``killed``: a limit alarm's mc_reset
+    turned the pins off (``A:`` empty) but left ``sys.spindle_speed`` (``FS:``) until the
+    reset re-initialises."""
 
     direction: int = 0
     rpm: float = 0.0
     coolant: int = 0
     stopped: bool = False
+    killed: bool = False
 
     def outputs(self) -> tuple[int, float, int]:
         """(direction, rpm, coolant) as :func:`~drivers.grbl.peer._accessory_outputs` gives them."""
@@ -95,6 +98,8 @@ class Accessories:
         """The ``A:`` letters: S (CW) or C (CCW) while the spindle output is on, F flood,
         M mist; "" when all are off (S0 turns the PWM output off, and with it S/C)."""
         out = ""
+        if self.killed:
+            return out
         no_pwm_range = float(settings.get(31, 0.0)) >= float(settings.get(30, 1000.0))
         if self.direction and not self.stopped and (self.rpm > 0.0 or no_pwm_range):
             out += "S" if self.direction > 0 else "C"

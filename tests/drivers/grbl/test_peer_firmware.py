@@ -261,6 +261,20 @@ def test_flood_toggle_byte_and_program_end(wire):
     assert w.status().endswith("|FS:0,0|Ov:100,100,100>")
 
 
+def test_a_limit_alarm_kills_spindle_and_coolant_outputs(wire):
+    # limits.c: a soft limit calls mc_reset(), which turns the spindle and coolant pins
+    # off (A: empty) but leaves sys.spindle_speed (FS) until the reset re-initialises
+    peer, w = wire(vm=make_vm(travel_min=(-10.0,) * 3, travel_max=(0.0,) * 3))
+    assert w.reply(b"M3 S500 M8\n") == ["ok"]
+    w.send(b"G0 X-20\n")
+    assert w.until(lambda s: s.startswith("[MSG:")) == ["ALARM:2", "[MSG:Reset to continue]"]
+    s = w.status_until(lambda s: "|Ov:" in s, limit=11)
+    assert s.startswith("<Alarm|") and field(s, "FS") == "0,500" and field(s, "A") is None
+    w.send(b"\x18")
+    assert w.until(lambda s: s.startswith("[MSG:"))[-2:] == [BANNER, "[MSG:'$H'|'$X' to unlock]"]
+    assert field(w.status(), "FS") == "0,0"
+
+
 # ------------------------------------------------------------------ 6. check mode
 
 
