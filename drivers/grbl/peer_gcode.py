@@ -55,10 +55,13 @@ class GcodeExecution:
             self._reply(f"[MSG:dexmon peer: {exc}]")
             return "error:20"
         rows = np.atleast_1d(np.asarray(rows)) if rows is not None else np.zeros(0)
-        if self._check_mode:
-            return "ok"  # spindle_sync, coolant_sync and mc_line do nothing in check mode
         words = _words(clean)
-        wco_flag = _flags_wco_change(words, coord_before, tlo_before, interp)
+        wco_flag = _flags_wco_change(words, coord_before, tlo_before, interp, self._check_mode)
+        if self._check_mode:
+            # spindle_sync, coolant_sync and mc_line do nothing in check mode, but the parser's
+            # offsets change (and G10 / G28.1 / G30.1 write the EEPROM)
+            self._sync_offsets_from_interpreter(wco_flag)
+            return "ok"
         outputs = _accessory_outputs(interp)
         if _sync_key(interp) != before or wco_flag or outputs != self.accessories.outputs():
             # spindle, coolant and offset changes wait for the motion before them
@@ -201,11 +204,14 @@ def _words(clean: str) -> set[tuple[str, float]]:
     return out
 
 
-def _flags_wco_change(words: set[tuple[str, float]], coord_before: int, tlo_before: tuple, interp) -> bool:
+def _flags_wco_change(words: set[tuple[str, float]], coord_before: int, tlo_before: tuple, interp,
+                      check_mode: bool) -> bool:
     """Whether GRBL calls system_flag_wco_change for this line (gcode.c): G92 / G92.1,
     another G54..G59, a changed tool length offset, G10 L2/L20 on the system in use
-    (P0 or its number), M2 / M30."""
-    if ("G", 92.0) in words or ("G", 92.1) in words or ("M", 2.0) in words or ("M", 30.0) in words:
+    (P0 or its number), M2 / M30 (not in check mode)."""
+    if ("G", 92.0) in words or ("G", 92.1) in words:
+        return True
+    if not check_mode and (("M", 2.0) in words or ("M", 30.0) in words):
         return True
     coord = getattr(interp, "coord", 0)
     if coord != coord_before or tuple(getattr(interp, "tlo", ())) != tlo_before:

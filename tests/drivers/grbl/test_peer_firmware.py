@@ -295,6 +295,24 @@ def test_leaving_check_mode_answers_ok_then_resets(wire):
     assert "[G92:0.000,0.000,0.000]" in w.reply(b"$#\n")
 
 
+def test_offsets_in_check_mode_are_reported_and_g10_outlives_the_reset(wire):
+    # gcode.c changes offsets in check mode too (status WCO comes from the parser state),
+    # and G10 writes the EEPROM: G54 survives the reset that ends check mode, G92 does not
+    peer, w = wire()
+    assert w.reply(b"G0 X2\n") == ["ok"]
+    w.status_until(lambda s: s.startswith("<Idle|MPos:2.000,"))
+    assert w.reply(b"$C\n") == ["[MSG:Enabled]", "ok"]
+    assert w.reply(b"G10 L20 P1 X5\n") == ["ok"]
+    assert field(w.status(), "WCO") == "-3.000,0.000,0.000"
+    assert w.reply(b"G92 Y3\n") == ["ok"]
+    assert field(w.status(), "WCO") == "-3.000,-3.000,0.000"
+    w.send(b"$C\n")
+    assert w.until(lambda s: s == BANNER)[:2] == ["[MSG:Disabled]", "ok"]
+    assert field(w.status(), "WCO") == "-3.000,0.000,0.000"
+    offsets = w.reply(b"$#\n")
+    assert offsets[0] == "[G54:-3.000,0.000,0.000]" and "[G92:0.000,0.000,0.000]" in offsets
+
+
 # ------------------------------------------------------------------ 7. override bytes
 
 
