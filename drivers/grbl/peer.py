@@ -245,8 +245,10 @@ class GrblPeer(GcodeExecution, SystemCommands):
         accessory: set[int] = set()
         for b in data:
             if b in _MOTION_OVERRIDES:
+                self.realtime_log.append(b)
                 motion.add(b)
             elif b in _ACCESSORY_OVERRIDES:
+                self.realtime_log.append(b)
                 accessory.add(b)
             elif b in p.REALTIME_BYTES:
                 if b == 0x18:
@@ -262,7 +264,6 @@ class GrblPeer(GcodeExecution, SystemCommands):
         if plain:
             self._buffer(plain)
         if motion or accessory:
-            self.realtime_log.extend(sorted(motion | accessory))
             self._apply_overrides(motion, accessory)
 
     def _buffer(self, plain: bytes) -> None:
