@@ -70,6 +70,8 @@ class GcodeExecution:
                 return None
             self._set_accessories(outputs)
             self._sync_offsets_from_interpreter(wco_flag)
+        # M0 / M1 are program flow here, not planner blocks: M0 pauses below, M1 is ignored
+        rows = rows[rows["kind"] != MoveKind.PAUSE] if len(rows) else rows
         reply = "ok"
         if len(rows):
             reply = self._queue(rows, gen)
@@ -77,11 +79,30 @@ class GcodeExecution:
                 # G4 syncs: its ok comes when the dwell is over (senders use G4 P0 to sync)
                 if not self._wait_motion_done(gen):
                     return None
+        if reply == "ok" and ("M", 0.0) in words:
+            return self._program_pause(gen)
         if reply == "ok" and (("M", 2.0) in words or ("M", 30.0) in words):
             if not self._wait_motion_done(gen):
                 return None
             self._program_end()
         return reply
+
+    def _program_pause(self, gen: int) -> str | None:
+        """M0 (gcode.c): the planner empties, then a feed hold suspends the main loop inside
+        this line; its ok comes after cycle start (``~``). None on a reset."""
+        if not self._wait_motion_done(gen):
+            return None
+        vm = self.vm
+        with vm.lock:
+            if vm.state == RunState.ALARM:
+                return None if self._critical else "ok"
+            vm.feed_hold()  # from Idle: Hold:0 at once
+        while gen == self._reset_gen and not self._stop.is_set():
+            with vm.lock:
+                if vm.state != RunState.HOLD:
+                    return "ok"
+            self._stop.wait(0.002)  # '~' comes through the real-time path
+        return None
 
     def _set_accessories(self, outputs: tuple[int, float, int]) -> None:
         """Spindle and coolant outputs to the parser's M3/M4/M5, S, M7/M8/M9; a change is

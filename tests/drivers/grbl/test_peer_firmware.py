@@ -189,6 +189,21 @@ def test_dollar_commands_during_a_hold_that_decelerates_answer_error_8(wire):
     w.until(lambda s: s == BANNER)
 
 
+def test_m0_holds_after_the_motion_and_answers_after_cycle_start(wire):
+    # gcode.c: M0 syncs the planner, then a feed hold suspends the main loop inside the
+    # line: its ok comes after '~', and the lines behind it wait in the RX buffer
+    peer, w = wire(settings={10: 3})
+    assert w.reply(b"G0 X1\n") == ["ok"]
+    w.send(b"M0\nG0 X2\n")
+    s = w.status_until(lambda s: s.startswith("<Hold:0|") and "|Bf:15,122|" in s)
+    assert s.startswith("<Hold:0|MPos:1.000,0.000,0.000|") and w.buf == b""
+    w.send(b"~")
+    assert [w.line(), w.line()] == ["ok", "ok"]
+    w.status_until(lambda s: s.startswith("<Idle|MPos:2.000,"))
+    assert w.reply(b"M1\n") == ["ok"]  # optional stop: not supported, ignored
+    assert w.status().startswith("<Idle|")
+
+
 # ------------------------------------------------------------------ 4. arcs
 
 
