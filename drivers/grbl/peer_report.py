@@ -78,7 +78,7 @@ class Accessories:
     killed: bool = False
 
     def outputs(self) -> tuple[int, float, int]:
-        """(direction, rpm, coolant) as :func:`~drivers.grbl.peer._accessory_outputs` gives them."""
+        """(direction, rpm, coolant), as the parser asks them of the outputs (rpm 0 when off)."""
         return self.direction, self.rpm if self.direction else 0.0, self.coolant
 
     def speed(self, override_pct: int, settings: dict[int, float]) -> float:

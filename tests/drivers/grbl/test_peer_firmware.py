@@ -276,6 +276,27 @@ def test_flood_toggle_byte_and_program_end(wire):
     assert w.status().endswith("|FS:0,0|Ov:100,100,100>")
 
 
+def test_spindle_stop_override_works_only_in_a_hold(wire):
+    # protocol.c: 0x9E stops the spindle only in a hold; again (or '~') restores it
+    peer, w = wire(vm=make_vm(max_rate=(600.0,) * 3, accel=(100.0,) * 3), run=False)
+    settle_cadence(w)
+    assert w.reply(b"M3 S500\n") == ["ok"]
+    w.send(b"\x9e")  # Idle: ignored
+    assert w.status().endswith("|FS:0,500|Ov:100,100,100|A:S>")
+    assert w.reply(b"G1 X20 F600\n") == ["ok"]
+    advance(peer, 0.5)
+    w.send(b"!")
+    assert w.status().startswith("<Hold:1|")
+    advance(peer, 0.5)
+    w.send(b"\x9e")
+    s = after_change(w, "|Ov:")
+    assert s.startswith("<Hold:0|") and field(s, "FS") == "0,0" and field(s, "A") is None
+    w.send(b"~")  # cycle start restores the spindle first
+    assert w.line() == "[MSG:Restoring spindle]"
+    s = after_change(w, "|Ov:")
+    assert s.startswith("<Run|") and field(s, "FS") == "0,500" and field(s, "A") == "S"
+
+
 def test_a_limit_alarm_kills_spindle_and_coolant_outputs(wire):
     # limits.c: a soft limit calls mc_reset(), which turns the spindle and coolant pins
     # off (A: empty) but leaves sys.spindle_speed (FS) until the reset re-initialises
