@@ -113,11 +113,12 @@ def arc_motion(it, cw: bool, explicit: bool, words, cols, used, has_axes: bool) 
             x, y = e1 - s1, e2 - s2
             if x == 0.0 and y == 0.0:
                 raise LineError("R arc with the same start and end point", cols["R"], 33)
+            # gcode.c: 4 R^2 < d^2 (R0 included) is "arc radius error" (34), not 33
             if R == 0.0:
-                raise LineError("arc radius is zero", cols["R"], 33)
+                raise LineError("arc radius is zero", cols["R"], 34)
             h = 4.0 * R * R - x * x - y * y
             if h < 0.0:
-                raise LineError(f"arc radius R{words['R']:g} is too small to reach the end point", cols["R"], 33)
+                raise LineError(f"arc radius R{words['R']:g} is too small to reach the end point", cols["R"], 34)
             h = -math.sqrt(h) / math.hypot(x, y)
             if not cw:
                 h = -h
