@@ -40,7 +40,7 @@ G_GROUP = {
     930: 5, 940: 5, 950: 5,
     200: 6, 210: 6,
     400: 7, 410: 7, 420: 7,
-    430: 8, 431: 8, 490: 8,
+    430: 8, 431: 8, 432: 8, 490: 8,
     980: 10, 990: 10,
     540: 12, 550: 12, 560: 12, 570: 12, 580: 12, 590: 12, 591: 12, 592: 12, 593: 12,
     610: 13, 611: 13, 640: 13,
@@ -633,6 +633,8 @@ class Interpreter:
         m6 = mmodes.get(6)
         if m6:
             if m6[0] == 6:
+                if self.comp != 400 and not grbl:
+                    raise LineError("cannot change tools with cutter radius compensation on (G40 first)", m6[1])
                 old = list(self.pos)
                 self.tool = self.selected_tool
                 self.emit(MoveKind.TOOL_CHANGE, old, old)
@@ -914,6 +916,8 @@ class Interpreter:
         # tool table edits
         if P < 1 and L != 1 or P < 0:
             raise LineError("G10 L1/L10/L11 P must be a tool number", cols["P"])
+        if not any(k in words for k in AXES + "RQIJ"):
+            raise LineError(f"G10 L{L} without offsets has no effect: give an axis or R word", col)
         from sim.tooltable import ToolEntry
 
         entry = self.tool_table.get(P) or ToolEntry(number=P, pocket=P)

@@ -1,4 +1,4 @@
-"""Tool length offsets (G43, G43.1, G49) and the loaded tool's parameters, as LinuxCNC's rs274.
+"""Tool length offsets (G43, G43.1, G43.2, G49) and the loaded tool's parameters, as LinuxCNC's rs274.
 
 Where the program position goes when the offset changes. G43/G43.1/G49 keep the machine
 position and shift the program position by the change (rs274's convert_tool_length_offset:
@@ -31,25 +31,28 @@ CANON_MOTIONS = frozenset((0, 1, 2, 3, 6))
 
 
 def set_tool_length(it, mode, words, cols, used) -> None:
-    """Execute G43 / G43.1 / G49 (``mode`` = (code in tenths, column)) on interpreter ``it``.
+    """Execute G43 / G43.1 / G43.2 / G49 (``mode`` = (code in tenths, column)) on ``it``.
 
     ``G43 H0`` and ``G43`` without H take the loaded tool's offsets (LinuxCNC's index 0,
-    the spindle); ``G43 Hn`` tool n's.
+    the spindle); ``G43 Hn`` tool n's; ``G43.2 Hn`` adds tool n's to those in force.
     """
     code, col = mode
+    if it.comp != 400 and not it.grbl:
+        raise LineError("cannot change the tool length offset with cutter radius compensation on (G40 first)", col)
     if code == 490:
         it.tlo = [0.0] * 6
     elif code == 430:
-        if words.get("H") == 0.0:
-            used.add("H")
-            words = {k: v for k, v in words.items() if k != "H"}   # H0: the loaded tool
-        entry = it._tool_word_entry("H", words, cols, used, col)
-        new = [0.0] * 6
-        if entry is not None:
-            for k, v in entry.offsets.items():
-                if k in AXES:
-                    new[AXES.index(k)] = v
-        it.tlo = new
+        it.tlo = _table_offsets(it, words, cols, used, col)
+    elif code == 432:  # G43.2 Hn: add tool n's offsets to those in force
+        if not any(a in words for a in AXES) and "H" not in words:
+            raise LineError("G43.2 needs an H word (the tool whose offsets it adds)", col)
+        if "H" not in words:
+            # rs274 2.9.0 looks up tool H-1 here and refuses the block
+            raise LineError("G43.2 with axis words is not supported by LinuxCNC 2.9: use G43.2 H", col)
+        if any(a in words for a in AXES):
+            raise LineError("G43.2 cannot have both an H word and axis words", cols["H"])
+        add = _table_offsets(it, words, cols, used, col)
+        it.tlo = [it.tlo[i] + add[i] for i in range(6)]
     else:  # G43.1: dynamic offsets from the axis words
         new = list(it.tlo)
         for i, a in enumerate(AXES):
@@ -62,6 +65,21 @@ def set_tool_length(it, mode, words, cols, used) -> None:
             raise LineError("G43.1 needs a Z word", col, 37)
         it.tlo = new
     it.tlo_mode = code
+
+
+def _table_offsets(it, words, cols, used, col) -> list:
+    """X Y Z A B C offsets (mm/deg) of the tool the H word names; the loaded tool without
+    one or for H0 (LinuxCNC's index 0, the spindle)."""
+    if words.get("H") == 0.0:
+        used.add("H")
+        words = {k: v for k, v in words.items() if k != "H"}
+    entry = it._tool_word_entry("H", words, cols, used, col)
+    new = [0.0] * 6
+    if entry is not None:
+        for k, v in entry.offsets.items():
+            if k in AXES:
+                new[AXES.index(k)] = v
+    return new
 
 
 def refresh_after_tool_change(it) -> None:

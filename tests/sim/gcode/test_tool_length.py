@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim.gcode import MoveKind, interpret, work_end
+from sim.gcode import GCodeError, MoveKind, interpret, work_end
 from sim.tooltable import ToolEntry
 
 TABLE = {
@@ -71,3 +71,21 @@ def test_stored_offsets_read_in_machine_units():
     # #5221 (G54 X) and #5161 (G28 X) are in machine units, as LinuxCNC keeps them
     r = rapids("G21 G10 L2 P1 X25.4\nG0 X0\nG28.1\nG0 X[#5221] Y[#5161]\nM2", machine_units="inch")
     np.testing.assert_allclose(work_end(r)[1, :2], [1.0, 1.0])
+
+
+def test_g43_2_adds_a_tools_offsets_to_those_in_force():
+    r = rapids("G21 G0 Z50\nT1 M6\nG43\nG43.2 H2\nG0 X1\nM2")
+    assert r["tool_length"][1] == 35.0 and work_end(r)[1, 2] == pytest.approx(15.0)
+
+
+@pytest.mark.parametrize("text,what", [
+    ("G21 F100 G41 D1 G1 X5\nG43 H1\nM2", "tool length offset with cutter radius compensation"),
+    ("G21 F100 G41 D1 G1 X5\nT1 M6\nM2", "cannot change tools with cutter radius compensation"),
+    ("G21\nG10 L1 P1\nM2", "G10 L1 without offsets"),
+    ("G21\nG43.2\nM2", "G43.2 needs an H word"),
+    ("G21\nG43.2 Z1\nM2", "G43.2 with axis words"),
+])
+def test_refused_where_rs274_refuses(text, what):
+    with pytest.raises(GCodeError, match=what) as info:
+        interpret(text, tool_table=TABLE)
+    assert info.value.line == 2
