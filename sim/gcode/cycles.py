@@ -10,7 +10,8 @@ bottom to R, and the plane words are increments applied at each of the L repeats
 Per repeat (CYCLE_MACRO): the first repeat starting above R traverses at its height, then
 down to R; any other traverses at the clear height, then down to R if that is higher.
 Then the cycle's own moves (see :data:`BODIES`). The block ends at the hole's position
-at the clear height (for G88 after the operator's manual retract: no row moves there).
+at the clear height (for G88 after the operator's manual retract: the PAUSE row moves
+there).
 
 Words: R and the bottom are needed unless the same cycle ran in the block before, as are
 Q (G73/G83), P (G82 G86 G88 G89) and I J K (G87); the last values are remembered.
@@ -135,7 +136,6 @@ def canned_cycle(it, motion: int, words, cols, used) -> None:
             if clear > r:
                 path.rapid(aa, bb, r)
         BODIES[motion](path, aa, bb, r, clear, cc, q, p, ijk, it)
-    path.jump(aa, bb, clear)   # where rs274 leaves its position (G88: retracted by hand)
     mem.r, mem.cc = r_word, cc_word
     if motion in NEEDS_Q:
         mem.q = q
@@ -214,9 +214,7 @@ class _Path:
     def _go(self, kind: int, aa: float, bb: float, cc: float, feed: float = 0.0) -> None:
         it = self.it
         end = self._machine(aa, bb, cc)
-        if end == it.pos:
-            return   # rs274 prints a zero-length move; it moves nothing
-        it.emit(kind, list(it.pos), end, feed=feed)
+        it.emit(kind, list(it.pos), end, feed=feed)   # zero-length too, as rs274 prints it
         it.pos = end
 
     def rapid(self, aa: float, bb: float, cc: float) -> None:
@@ -229,16 +227,15 @@ class _Path:
         here = list(self.it.pos)
         self.it.emit(MoveKind.DWELL, here, here, dwell=seconds)
 
-    def pause(self) -> None:
-        here = list(self.it.pos)
-        self.it.emit(MoveKind.PAUSE, here, here)
+    def pause(self, aa: float, bb: float, cc: float) -> None:
+        """A program stop during which the operator moves the machine to ``aa bb cc``."""
+        it = self.it
+        end = self._machine(aa, bb, cc)
+        it.emit(MoveKind.PAUSE, list(it.pos), end)
+        it.pos = end
 
     def spindle(self, direction: int) -> None:
         self.it.spindle_dir = direction
-
-    def jump(self, aa: float, bb: float, cc: float) -> None:
-        """Set the position without a row (where rs274's interpreter believes it is)."""
-        self.it.pos = self._machine(aa, bb, cc)
 
 
 def _g81(p: _Path, x, y, r, clear, bottom, q, dwell, ijk, it):
@@ -320,12 +317,13 @@ def _g87(p: _Path, x, y, r, clear, bottom, q, dwell, ijk, it):
 
 
 def _g88(p: _Path, x, y, r, clear, bottom, q, dwell, ijk, it):
-    """Bore, dwell, stop the spindle and the program: the operator retracts by hand."""
+    """Bore, dwell, stop the spindle and the program: the operator retracts by hand, to
+    the clear height as rs274 assumes (the PAUSE row moves there)."""
     turning = it.spindle_dir
     p.feed_to(x, y, bottom)
     p.dwell(dwell)
     p.spindle(0)
-    p.pause()
+    p.pause(x, y, clear)
     p.spindle(turning)
 
 

@@ -582,10 +582,10 @@ class Interpreter:
         g0code = g0[0] if g0 else None
         explicit_motion = gmodes.get(1)
         axis_owner = None  # which code takes the axis words
-        if g0code in G0_AXIS_USERS and has_axes:
+        if g0code in G0_AXIS_USERS and (has_axes or not grbl):   # LinuxCNC: even without axes
             if explicit_motion and explicit_motion[0] not in (800,):
                 raise LineError("two G codes that both use axis words on one line", explicit_motion[1], 24)
-            axis_owner = g0code
+            axis_owner = g0code if has_axes else None
         if gmodes.get(8, (0,))[0] == 431 and has_axes:
             if explicit_motion:
                 raise LineError("G43.1 and a motion both use the axis words", explicit_motion[1], 24)
@@ -598,15 +598,21 @@ class Interpreter:
         if motion == 800 and has_axes and axis_owner is None:
             col = min(cols.get(a, 10**6) for a in AXES + "@^" if a in words)
             raise LineError("axis words with no command to use them (G80 is active)", col, 31)
+        if explicit_motion and not has_axes and not grbl and motion not in (0, 10, 20, 30, 800):
+            raise LineError(f"G{motion / 10:g} needs axis words (LinuxCNC: all axes missing with motion code)",
+                            explicit_motion[1])
 
         # ---- 1. feed mode, F, S, T
         if 5 in gmodes:
             self.feed_mode = gmodes[5][0]
+            if not grbl and self.feed_mode != 930:
+                self.feed_word = 0.0   # LinuxCNC: G94 and G95 reset the feed rate
         if "F" in words:
             f = words["F"]
             if f < 0:
                 raise LineError("F must not be negative", cols["F"], 4)
-            self.feed_word = f
+            if grbl or self.feed_mode != 930:   # LinuxCNC: a G93 F is the move's, not the feed rate
+                self.feed_word = f
             self.feed_set = True
             used.add("F")
         if "S" in words:
@@ -635,6 +641,8 @@ class Interpreter:
             if m6[0] == 6:
                 if self.comp != 400 and not grbl:
                     raise LineError("cannot change tools with cutter radius compensation on (G40 first)", m6[1])
+                if not grbl:
+                    self.spindle_dir = 0   # LinuxCNC stops the spindle for a tool change
                 old = list(self.pos)
                 self.tool = self.selected_tool
                 self.emit(MoveKind.TOOL_CHANGE, old, old)
@@ -949,7 +957,7 @@ class Interpreter:
         if self.feed_mode == 930:
             if "F" not in words:
                 raise LineError("inverse time mode (G93) needs an F word on every feed move", col, 22)
-            inv = self.feed_word
+            inv = words["F"]
             if inv <= 0:
                 raise LineError("F must be positive in inverse time mode", col, 22)
             return length * inv, inv

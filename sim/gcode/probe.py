@@ -16,8 +16,8 @@ What rs274 leaves behind, which dexmon reproduces here:
   (U V W) = 0; #5070 = 0 (not tripped), so ``while [#5070 NE 0]`` search loops end.
 
 The move is refused as rs274 refuses it: with cutter compensation on, in G95 (feed per
-revolution), without a feed rate (G93 included: inverse time sets none), and for G38.2 or
-G38.4 when the target is the start point.
+revolution), without a feed rate (probing uses the units-per-minute rate of the last F
+given outside G93, in G93 too), and for G38.2 or G38.4 when the target is the start point.
 """
 
 from __future__ import annotations
@@ -47,18 +47,21 @@ def straight_probe(it, motion: int, end: list, words, col: int) -> None:
         raise LineError(f"{name} cannot probe with cutter radius compensation on (G40 first)", col)
     if it.feed_mode == 950:
         raise LineError(f"{name} cannot probe in feed per revolution mode (G95)", col)
-    if it.feed_mode == 930 or it.feed_word <= 0.0:
-        # G93 sets no feed rate in LinuxCNC: its F words are per move, and probing needs one
+    if it.feed_word <= 0.0:
+        # the feed rate of the last F given in G94 (a G93 F is the move's; G94/G95 reset it)
         raise LineError(f"{name} cannot probe with a zero feed rate: give an F word in G94 mode", col)
     start = list(it.pos)
     if motion in MUST_MOVE and all(_same(a, b) for a, b in zip(start, end)):
         raise LineError(f"{name} start point is the probe target: nothing to probe "
                         "(LinuxCNC: start point too close to probe point)", col)
+    # rs274's canon backs off towards where *it* believes the probe started: an offset
+    # change no motion has carried yet (tool_length) is not in its position
+    canon_start = [start[i] + it.tlo[i] - it.canon_tlo[i] for i in range(6)]
     feed = it.feed_word * it.factor
     it.emit(MoveKind.PROBE, start, end, feed=feed)
     _set_results(it, it.work_of(end))
     it.pos = list(end)
-    back = _backed_off(start, end)
+    back = _backed_off(canon_start, end)
     if back != it.pos:
         it.emit(MoveKind.PROBE, it.pos, back)   # feed 0: the retract, not a probing move
         it.pos = back

@@ -73,3 +73,17 @@ def test_cycle_words_are_needed_unless_the_same_cycle_ran_before():
 def test_g80_on_a_line_with_another_motion_code_gives_way_to_it():
     m = moves("G21 G0 Z5\nG80 G1 X3 F100\nG0 G80 X4\nM2")
     assert m["kind"][1:3].tolist() == [MoveKind.FEED, MoveKind.RAPID]
+
+
+def test_g88_pause_row_carries_the_manual_retract():
+    m = moves("G21 G0 X0 Y0 Z20 S500 M3\nG88 X5 Z-3 R2 P1 F100\nG0 X10\nM2")
+    pause = m[m["kind"] == MoveKind.PAUSE][0]
+    assert pause["start"][2] == -3.0 and pause["end"][2] == 2.0
+    np.testing.assert_array_equal(m["start"][1:], m["end"][:-1])   # the rows chain
+
+
+@pytest.mark.parametrize("text", ["G21 G0 Z5 F100\nG81\nM2", "G21 G0 Z5 F100\nG38.3\nM2"])
+def test_a_cycle_or_probe_code_without_axis_words_is_refused(text):
+    with pytest.raises(GCodeError, match="needs axis words") as info:
+        interpret(text)
+    assert info.value.line == 2

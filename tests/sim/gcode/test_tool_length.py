@@ -89,3 +89,8 @@ def test_refused_where_rs274_refuses(text, what):
     with pytest.raises(GCodeError, match=what) as info:
         interpret(text, tool_table=TABLE)
     assert info.value.line == 2
+
+
+def test_a_tool_change_stops_the_spindle():
+    m = interpret("G21 S1000 M3\nG0 X1\nT1 M6\nG0 X2\nM2", tool_table=TABLE).moves
+    assert m["spindle_dir"][m["kind"] == MoveKind.RAPID].tolist() == [1, 0]

@@ -1,0 +1,31 @@
+"""The feed rate as LinuxCNC's rs274 keeps it: G94/G95 reset it, a G93 F is the move's."""
+
+from __future__ import annotations
+
+import pytest
+
+from sim.gcode import GCodeError, MoveKind, interpret
+
+
+@pytest.mark.parametrize("text", ["G21 F100\nG94\nG1 X1\nM2", "G21 F100\nG95 S100 G1 X1\nM2",
+                                  "G21 F100\nG93 G1 X1 F2\nG94 G1 X2\nM2"])
+def test_g94_and_g95_reset_the_feed_rate(text):
+    with pytest.raises(GCodeError, match="zero feed rate"):
+        interpret(text)
+
+
+def test_g94_with_its_f_word_on_the_line_keeps_it():
+    m = interpret("G21 G94 F100\nG1 X1\nM2").moves
+    assert m["feed"][0] == 100.0
+
+
+def test_a_g93_f_word_leaves_the_feed_rate_for_probing():
+    # the probe in G93 feeds at the last units-per-minute F (rs274 accepts it)
+    m = interpret("G21 G94 F100\nG93 G1 X1 F2\nG38.2 Z-1\nM2").moves
+    probe = m[m["kind"] == MoveKind.PROBE][0]
+    assert probe["feed"] == 100.0
+
+
+def test_two_codes_that_use_axis_words_are_refused_even_without_axes():
+    with pytest.raises(GCodeError, match="both use axis words"):
+        interpret("G21\nG0 G28\nM2")
