@@ -20,7 +20,7 @@ Q (G73/G83), P (G82 G86 G88 G89) and I J K (G87); the last values are remembered
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from sim.gcode.errors import LineError
 from sim.gcode.moves import MoveKind
@@ -39,94 +39,63 @@ SPINDLE_NEEDED = (860, 870, 880)
 @dataclass
 class CycleMemory:
     """What LinuxCNC keeps between cycle blocks, as the words were given (program units):
-    R, the bottom (``cc``), Q, P, I J K, and the initial level ``il`` (None: no sequence)."""
+    R, the bottom (``cc``), Q, P, G87's I J K, and the initial level ``il`` (None: no
+    sequence of cycles is running)."""
 
     r: float = 0.0
     cc: float = 0.0
     q: float = 0.0
     p: float = 0.0
-    i: float = 0.0
-    j: float = 0.0
-    k: float = 0.0
+    ijk: dict = field(default_factory=lambda: {"I": 0.0, "J": 0.0, "K": 0.0})
     il: float | None = None
+
+
+@dataclass
+class _Words:
+    """One cycle block's words, the remembered ones filled in (program units)."""
+
+    r: float
+    cc: float
+    q: float
+    p: float
+    ijk: list | None     # G87: offsets along the plane's first and second axes, top height
+    repeats: int
 
 
 def canned_cycle(it, motion: int, words, cols, used) -> None:
     """Execute canned cycle ``motion`` (tenths) with the block's ``words`` on interpreter ``it``.
 
     ``it.prev_motion`` is the motion mode before this block: the same cycle there lets the
-    block omit R, the bottom, Q and P. Raises LineError where rs274 refuses the block.
+    block omit R, the bottom, Q, P and I J K. Raises LineError where rs274 refuses the block.
     """
-    from sim.gcode.interpreter import PLANE_AXES, PLANE_OFFSET_WORDS
+    from sim.gcode.interpreter import PLANE_AXES
 
-    mem: CycleMemory = it.cycle
     name = NAMES[motion]
     gcol = min([cols[k] for k in cols if k != "N"] or [1])
-    same = it.prev_motion == motion
-    a, b, c = PLANE_AXES[it.plane]
-    la, lb, lc = LETTERS[a], LETTERS[b], LETTERS[c]
     _check_modes(it, name, gcol)
-    r_word = _word(words, cols, used, "R", mem.r if same else None,
-                   f"{name} needs an R word (retract plane)", gcol)
-    cc_word = _word(words, cols, used, lc, mem.cc if same else None,
-                    f"{name} in this plane needs a {lc} word (bottom of the hole)", gcol)
-    repeats = _repeats(it, words, cols, used)
-    q = 0.0
-    if motion in NEEDS_Q:
-        q = _word(words, cols, used, "Q", mem.q if same else None, f"{name} needs a Q word (peck depth)", gcol)
-        if q <= 0.0:
-            raise LineError(f"{name} Q (peck depth) must be positive, got {q:g}", cols.get("Q", gcol))
-    p = 0.0
-    if motion in USES_P:
-        p = _word(words, cols, used, "P", mem.p if same or motion not in NEEDS_P else None,
-                  f"{name} needs a P word (dwell seconds)", gcol)
-    elif "P" in words:
-        raise LineError(f"P word with no G4, G82, G86, G88 or G89 to use it ({name})", cols["P"])
-    ijk = None
-    if motion == 870:
-        off = PLANE_OFFSET_WORDS[it.plane]
-        ijk = [_word(words, cols, used, w, getattr(mem, w.lower()) if same else None,
-                     f"G87 needs I, J and K words (back boring offsets and top)", gcol) for w in off]
+    w = _read_words(it, motion, name, words, cols, used, gcol)
     _check_spindle(it, motion, name, gcol)
-
+    a, b, c = PLANE_AXES[it.plane]
     f = it.factor
-    work = it.work()
-    prog = [v / f if i < 3 else v for i, v in enumerate(work)]
+    prog = [v / f if i < 3 else v for i, v in enumerate(it.work())]   # program units
     current_cc = prog[c]
-    if mem.il is None:
-        mem.il = current_cc
-    old_cc = mem.il
-    polar = "@" in words or "^" in words
-    if polar and it.plane != 170:
-        raise LineError("polar words @ ^ need G17", cols.get("@", cols.get("^", gcol)))
-    inc = [0.0, 0.0, 0.0, 0.0]   # plane increments a, b; polar radius, angle (rad)
-    if it.distance == 900:
-        r, cc = r_word, cc_word
-        target = it._axis_values(words, cols, used)   # X Y (or @ ^) of the hole, work mm
-        aa, bb = target[a] / f, target[b] / f
-    else:
-        inc[0] = words.get(la, 0.0)
-        inc[1] = words.get(lb, 0.0)
-        inc[2] = words.get("@", 0.0)
-        inc[3] = math.radians(words.get("^", 0.0))
-        used.update(k for k in (la, lb, "@", "^") if k in words)
-        r = r_word + old_cc
-        cc = r + cc_word
-        aa, bb = prog[a], prog[b]
+    if it.cycle.il is None:
+        it.cycle.il = current_cc
+    old_cc = it.cycle.il
+    r, cc, aa, bb, inc = _hole_geometry(it, w, words, cols, used, prog, old_cc, gcol)
     if r < cc:
         raise LineError(f"{name}: R plane ({r:g}) is below the bottom of the hole ({cc:g})", cols.get("R", gcol))
     if motion in NEEDS_Q:
-        pecks = repeats * math.ceil((r - cc) / q)
+        pecks = w.repeats * math.ceil((r - cc) / w.q)
         if pecks > it.limits.max_pecks:
-            raise LineError(f"{name} Q{q:g} makes {pecks} pecks; at most {it.limits.max_pecks} "
+            raise LineError(f"{name} Q{w.q:g} makes {pecks} pecks; at most {it.limits.max_pecks} "
                             "in one block (a larger Q)", cols.get("Q", gcol))
-    feed, _ = it._feed_rate(gcol, words, 0.0)
-    path = _Path(it, a, b, c, feed)
-    if old_cc < r:
+    path = _Path(it, a, b, c, it._feed_rate(gcol, words, 0.0)[0])
+    if old_cc < r:   # below the R plane: straight up to it first
         path.rapid(prog[a], prog[b], r)
         old_cc = current_cc = r
     clear = r if it.retract == 990 else old_cc
-    for n in range(repeats):
+    for n in range(w.repeats):   # rs274's CYCLE_MACRO
         aa, bb = _next_hole(aa + inc[0], bb + inc[1], inc[2], inc[3], gcol)
         if n == 0 and current_cc > r:
             path.rapid(aa, bb, current_cc)
@@ -135,14 +104,67 @@ def canned_cycle(it, motion: int, words, cols, used) -> None:
             path.rapid(aa, bb, clear)
             if clear > r:
                 path.rapid(aa, bb, r)
-        BODIES[motion](path, aa, bb, r, clear, cc, q, p, ijk, it)
-    mem.r, mem.cc = r_word, cc_word
+        BODIES[motion](path, aa, bb, r, clear, cc, w.q, w.p, w.ijk, it)
+    _remember(it, motion, w)
+
+
+def _read_words(it, motion: int, name: str, words, cols, used, gcol: int) -> _Words:
+    from sim.gcode.interpreter import PLANE_AXES, PLANE_OFFSET_WORDS
+
+    mem: CycleMemory = it.cycle
+    same = it.prev_motion == motion
+    lc = LETTERS[PLANE_AXES[it.plane][2]]
+    r = _word(words, used, "R", mem.r if same else None, f"{name} needs an R word (retract plane)", gcol)
+    cc = _word(words, used, lc, mem.cc if same else None,
+               f"{name} in this plane needs a {lc} word (bottom of the hole)", gcol)
+    repeats = _repeats(it, words, cols, used)
+    q = p = 0.0
     if motion in NEEDS_Q:
-        mem.q = q
+        q = _word(words, used, "Q", mem.q if same else None, f"{name} needs a Q word (peck depth)", gcol)
+        if q <= 0.0:
+            raise LineError(f"{name} Q (peck depth) must be positive, got {q:g}", cols.get("Q", gcol))
     if motion in USES_P:
-        mem.p = p
-    if ijk is not None:
-        mem.i, mem.j, mem.k = (ijk[list(PLANE_OFFSET_WORDS[it.plane]).index(w)] for w in "IJK")
+        p = _word(words, used, "P", mem.p if same or motion not in NEEDS_P else None,
+                  f"{name} needs a P word (dwell seconds)", gcol)
+    ijk = None
+    if motion == 870:
+        ijk = [_word(words, used, k, mem.ijk[k] if same else None,
+                     "G87 needs I, J and K words (back boring offsets and top)", gcol)
+               for k in PLANE_OFFSET_WORDS[it.plane]]
+    return _Words(r, cc, q, p, ijk, repeats)
+
+
+def _hole_geometry(it, w: _Words, words, cols, used, prog: list, old_cc: float, gcol: int):
+    """(R, bottom, first hole a, b, increments) in program units. G90: the words are
+    absolute; G91: R from the initial level ``old_cc``, the bottom from R, and the plane
+    words (or polar @ ^) are increments applied at each repeat."""
+    from sim.gcode.interpreter import PLANE_AXES
+
+    a, b, _ = PLANE_AXES[it.plane]
+    if ("@" in words or "^" in words) and it.plane != 170:
+        raise LineError("polar words @ ^ need G17", cols.get("@", cols.get("^", gcol)))
+    if it.distance == 900:
+        target = it._axis_values(words, cols, used)   # the hole's X Y (or @ ^), work mm
+        return w.r, w.cc, target[a] / it.factor, target[b] / it.factor, (0.0, 0.0, 0.0, 0.0)
+    la, lb = LETTERS[a], LETTERS[b]
+    inc = (words.get(la, 0.0), words.get(lb, 0.0), words.get("@", 0.0), math.radians(words.get("^", 0.0)))
+    used.update(k for k in (la, lb, "@", "^") if k in words)
+    r = w.r + old_cc
+    return r, r + w.cc, prog[a], prog[b], inc
+
+
+def _remember(it, motion: int, w: _Words) -> None:
+    """Keep the words for the blocks after (rs274's cycle_r, cycle_cc, cycle_q ...)."""
+    from sim.gcode.interpreter import PLANE_OFFSET_WORDS
+
+    mem: CycleMemory = it.cycle
+    mem.r, mem.cc = w.r, w.cc
+    if motion in NEEDS_Q:
+        mem.q = w.q
+    if motion in USES_P:
+        mem.p = w.p
+    if w.ijk is not None:
+        mem.ijk = dict(zip(PLANE_OFFSET_WORDS[it.plane], w.ijk))
 
 
 def _check_modes(it, name: str, col: int) -> None:
@@ -163,7 +185,7 @@ def _check_spindle(it, motion: int, name: str, col: int) -> None:
         raise LineError("G74 (left-hand tapping) needs the spindle turning counterclockwise (M4)", col)
 
 
-def _word(words, cols, used, letter: str, remembered, missing: str, col: int) -> float:
+def _word(words, used, letter: str, remembered, missing: str, col: int) -> float:
     """The block's ``letter`` word, else ``remembered``; LineError ``missing`` if neither."""
     if letter in words:
         used.add(letter)
