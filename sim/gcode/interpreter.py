@@ -760,7 +760,8 @@ class Interpreter:
         if letter in AXES:
             return f"{letter} word with no command that uses it"
         uses = {"I": "G2/G3", "J": "G2/G3", "K": "G2/G3", "R": "G2/G3, G10 or a canned cycle",
-                "P": "G4, G10, G2/G3, G64 or a dwelling canned cycle", "Q": "G73/G83 or M61", "L": "G10 or a canned cycle",
+                "P": "G4, G10, G2/G3, G64 or a dwelling canned cycle", "Q": "G73/G83 or M61",
+                "L": "G10 or a canned cycle",
                 "H": "G43", "D": "G41/G42", "@": "a motion", "^": "a motion"}
         return f"{letter} word with no {uses.get(letter, 'command')} to use it"
 

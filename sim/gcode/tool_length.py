@@ -12,8 +12,9 @@ in rs274's stand-alone canon (saicanon.cc) or in AXIS's preview (gcodemodule.cc)
 ``G43`` on the tool change line (``T1 M6 G43 H1``), or one since the last motion, is undone
 in program coordinates: the next move keeps the program position the last motion had,
 and the machine position takes up the offset change. :func:`refresh_after_tool_change`
-does that, with a TOOL_CHANGE row from the old to the new machine position. (LinuxCNC driving a machine re-reads the machine position instead, with the
-new offset: there the program position does shift. dexmon follows rs274, the oracle.)
+does that, with a TOOL_CHANGE row from the old to the new machine position. (LinuxCNC
+driving a machine, emccanon.cc, re-reads the machine position with the new offset
+instead: there the program position does shift. dexmon follows rs274, the oracle.)
 
 The loaded tool's parameters #5400-#5413 are its tool table entry in machine units (what
 LinuxCNC calls user units), whatever G20/G21 says: rs274's set_tool_parameters.
