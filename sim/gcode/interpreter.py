@@ -716,10 +716,11 @@ class Interpreter:
         if g0code in (100, 280, 281, 300, 301, 920, 921, 922, 923):
             self._non_modal(g0code, g0[1], words, cols, used)
         if g53:
-            eff = motion if motion is not None else self.motion
-            if eff not in (0, 10) or motion is None and has_axes is False:
-                if eff not in (0, 10):
-                    raise LineError("G53 needs G0 or G1 motion", g0[1], 30)
+            # GRBL checks the motion mode in force; LinuxCNC the block's motion: no axis
+            # words and no G0/G1 on the line is none
+            eff = motion if motion is not None or not grbl else self.motion
+            if eff not in (0, 10):
+                raise LineError("G53 needs G0 or G1 motion", g0[1], 30)
             if self.distance == 910 and not grbl:
                 raise LineError("G53 cannot be used in incremental (G91) mode", g0[1])
             if self.comp != 400:

@@ -29,3 +29,10 @@ def test_a_g93_f_word_leaves_the_feed_rate_for_probing():
 def test_two_codes_that_use_axis_words_are_refused_even_without_axes():
     with pytest.raises(GCodeError, match="both use axis words"):
         interpret("G21\nG0 G28\nM2")
+
+
+def test_g53_without_a_motion_on_its_line_is_refused():
+    with pytest.raises(GCodeError, match="G53 needs G0 or G1") as info:
+        interpret("G21 G0 X1\nG53 M8\nM2")
+    assert info.value.line == 2
+    interpret("G21 G0 X1\nG53 G0\nG53 Z0\nM2")   # an explicit G0, or axis words with G0 in force
