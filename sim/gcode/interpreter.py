@@ -45,7 +45,8 @@ G_GROUP = {
     540: 12, 550: 12, 560: 12, 570: 12, 580: 12, 590: 12, 591: 12, 592: 12, 593: 12,
     610: 13, 611: 13, 640: 13,
     970: 14,
-    40: 0, 100: 0, 280: 0, 281: 0, 300: 0, 301: 0, 530: 0, 920: 0, 921: 0, 922: 0, 923: 0,
+    40: 0, 100: 0, 280: 0, 281: 0, 300: 0, 301: 0, 530: 0, 920: 0,
+    921: 16, 922: 16, 923: 16,   # LinuxCNC's own group, run after G10/G28/G30/G92 (GRBL: group 0)
 }
 GRBL_G = {0, 10, 20, 30, 382, 383, 384, 385, 40, 100, 170, 180, 190, 200, 210, 280, 281, 300, 301,
           400, 431, 490, 530, 540, 550, 560, 570, 580, 590, 610, 800, 900, 910, 911, 920, 921, 930, 940}
@@ -548,7 +549,7 @@ class Interpreter:
                 raise LineError(f"unknown G code G{v:g}", col)
             if grbl and c not in GRBL_G:
                 raise LineError(f"GRBL does not support G{v:g}", col, 20)
-            grp = G_GROUP[c]
+            grp = 0 if grbl and G_GROUP[c] == 16 else G_GROUP[c]
             if grp in gmodes and not grbl and 800 in (c, gmodes[grp][0]):
                 if c != 800:
                     gmodes[grp] = (c, col)   # LinuxCNC: G80 gives way to another motion code
@@ -715,6 +716,8 @@ class Interpreter:
         g53 = g0code == 530
         if g0code in (100, 280, 281, 300, 301, 920, 921, 922, 923):
             self._non_modal(g0code, g0[1], words, cols, used)
+        if 16 in gmodes:
+            self._non_modal(gmodes[16][0], gmodes[16][1], words, cols, used)
         if g53:
             # GRBL checks the motion mode in force; LinuxCNC the block's motion: no axis
             # words and no G0/G1 on the line is none

@@ -94,3 +94,11 @@ def test_refused_where_rs274_refuses(text, what):
 def test_a_tool_change_stops_the_spindle():
     m = interpret("G21 S1000 M3\nG0 X1\nT1 M6\nG0 X2\nM2", tool_table=TABLE).moves
     assert m["spindle_dir"][m["kind"] == MoveKind.RAPID].tolist() == [1, 0]
+
+
+def test_g92_1_shares_a_line_with_g92_or_g10_and_runs_after_them():
+    # LinuxCNC: G92.1/G92.2/G92.3 are a group of their own, run after G10/G28/G30/G92
+    r = rapids("G21 G0 X10\nG92 X0 G92.1\nG0 Y1\nM2")
+    assert work_end(r)[1, 0] == pytest.approx(10.0)
+    with pytest.raises(GCodeError, match="same modal group"):
+        interpret("G92 X0 G92.1", dialect="grbl")

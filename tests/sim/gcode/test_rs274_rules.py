@@ -1,4 +1,6 @@
-"""The feed rate as LinuxCNC's rs274 keeps it: G94/G95 reset it, a G93 F is the move's."""
+"""Rules of LinuxCNC's rs274 outside cycles, probing and tool lengths: the feed rate (G94/G95 reset it,
+a G93 F is the move's), and blocks it refuses (G53 with no motion, G10/G28/G30/G92 with a motion code,
+absolute-centre arcs missing a centre word)."""
 
 from __future__ import annotations
 
@@ -36,3 +38,9 @@ def test_g53_without_a_motion_on_its_line_is_refused():
         interpret("G21 G0 X1\nG53 M8\nM2")
     assert info.value.line == 2
     interpret("G21 G0 X1\nG53 G0\nG53 Z0\nM2")   # an explicit G0, or axis words with G0 in force
+
+
+def test_an_absolute_centre_arc_needs_both_centre_words():
+    with pytest.raises(GCodeError, match="J word missing in absolute center arc") as info:
+        interpret("G21 G90.1 G0 X0 Y0\nG2 X10 I5 F100\nM2")
+    assert info.value.line == 2
