@@ -150,6 +150,9 @@ def arc_motion(it, cw: bool, explicit: bool, words, cols, used, has_axes: bool) 
         o1 = words.get(n1, 0.0) * f
         o2 = words.get(n2, 0.0) * f
         used.update(k for k in (n1, n2) if k in words)
+        if it.arc_distance == 901 and not grbl and not (n1 in words and n2 in words):
+            # G90.1: a missing centre word is not 0 but an error (rs274)
+            raise LineError(f"{n1 if n1 not in words else n2} word missing in absolute center arc (G90.1)", col)
         if it.arc_distance == 901:
             c1, c2 = o1, o2
         else:

@@ -371,6 +371,9 @@ def run_simple(it, vals: np.ndarray, first: int, snapshot) -> bool:
         snapshot()
     if n:
         it.pos = [float(v) for v in end[-1]]
+        it.canon_tlo = it.tlo   # a motion carries the offsets in force (tool_length)
+    if n or has_g.any():
+        it.cycle.il = None      # a G0/G1 motion ends a sequence of canned cycles
     it.motion = int(motion[-1])
     it.feed_word = float(feed_word[-1])
     it.feed_set = bool(feed_set[-1])

@@ -230,8 +230,8 @@ def dexmon_motions(prog, upto: tuple[str, int] | None = None) -> list[Motion]:
         if upto is not None and prog.files[key[0]] == upto[0] and key[1] >= upto[1]:
             break
         kind = kinds.get(int(moves["kind"][i]))
-        if kind is None:
-            continue
+        if kind is None or kind == "P" and moves["feed"][i] == 0.0:
+            continue   # a probe's retract (feed 0) is part of rs274's STRAIGHT_PROBE
         where = f"{Path(prog.files[key[0]]).name}:{key[1]}"
         out.append(Motion(kind, ends[i].copy(), centers[i].copy() if kind == "A" else None, where=where, key=key))
     return out

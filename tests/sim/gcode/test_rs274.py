@@ -16,13 +16,10 @@ import pytest
 
 from tests.sim.gcode import rs274_harness as h
 
-TLO = "tool length offset: after G43/G43.1/G49 the program position is LinuxCNC's"
-CYCLE = "canned cycles: retract mode when neither G98 nor G99; G91 repeats measure R from the first height"
 COMP = "cutter compensation: entry moves and corner joins are LinuxCNC's"
 LATHE = "lathe-only codes (G7/G8, G70-G72, G76) are refused with a clear message"
 OWORD = "o-words: return/endsub with another label than its sub, as LinuxCNC's macros use them"
 MCODE = "M codes LinuxCNC accepts (M70-M73, M66, M52/M53 ...) are accepted"
-PROBE = "probing: #5061-#5070 set as rs274 sets them; start too close to the target refused"
 BLOCK = "block delete: / lines run by default"
 AXES = "U V W axes are refused with a clear message"
 
@@ -31,9 +28,7 @@ AXES = "U V W axes are refused with a clear message"
 KNOWN: dict[str, str] = {
     "corpus/cncjs_helical_thread_milling.gcode": COMP,
     "corpus/linuxcnc_cam_nisley.ngc": COMP,
-    "corpus/linuxcnc_mmount.ngc": TLO,
-    "corpus/linuxcnc_polar.ngc": CYCLE,
-    "corpus/linuxcnc_skeleton.ngc": TLO,
+    "corpus/linuxcnc_mmount.ngc": COMP,
     "package/examples__sample-configs__sim__axis__remap__manual-toolchange-with-tool-length-switch__nc_subroutines__manual_change.ngc": OWORD,
     "package/examples__sample-configs__sim__craftsman__macros__m106.ngc": OWORD,
     "package/examples__sample-configs__sim__gmoccapy__macros__change.ngc": OWORD,
@@ -53,7 +48,7 @@ KNOWN: dict[str, str] = {
     "package/ncfiles__lathecomp.ngc": COMP,
     "package/ncfiles__m70m72-demo.ngc": MCODE,
     "package/ncfiles__m73-demo.ngc": OWORD,
-    "package/ncfiles__mmount.ngc": TLO,
+    "package/ncfiles__mmount.ngc": COMP,
     "package/ncfiles__plasmac__imperial_air_scribe.ngc": MCODE,
     "package/ncfiles__plasmac__imperial_circles.ngc": MCODE,
     "package/ncfiles__plasmac__imperial_ihs_skip_thc_off.ngc": MCODE,
@@ -72,7 +67,6 @@ KNOWN: dict[str, str] = {
     "package/ncfiles__plasmac__metric_squares.ngc": MCODE,
     "package/ncfiles__plasmac__metric_temporary_materials.ngc": MCODE,
     "package/ncfiles__plasmac__metric_wrench.ngc": MCODE,
-    "package/ncfiles__polar.ngc": CYCLE,
     "package/ncfiles__probe__basic_probe__macros__probe_back_left_inside.ngc": OWORD,
     "package/ncfiles__probe__basic_probe__macros__probe_cal_round_boss.ngc": OWORD,
     "package/ncfiles__probe__basic_probe__macros__probe_front_left_inside.ngc": OWORD,
@@ -82,21 +76,14 @@ KNOWN: dict[str, str] = {
     "package/ncfiles__remap-subroutines__prepare.ngc": OWORD,
     "package/ncfiles__remap-subroutines__qt_auto_probe_tool.ngc": OWORD,
     "package/ncfiles__retval.ngc": OWORD,
-    "package/ncfiles__skeleton.ngc": TLO,
-    "package/ncfiles__smartprobe.ngc": PROBE,
-    "package/ncfiles__tool-length-probe.ngc": TLO,
     "package/ncfiles__toplevel.ngc": MCODE,
     "package/ncfiles__useful-subroutines.ngc": COMP,
-    "package/ncfiles__x-trim.ngc": TLO,
+    "package/ncfiles__x-trim.ngc": MCODE,
     "tests/block_delete.ngc": BLOCK,
     "tests/comp_entry.ngc": COMP,
     "tests/comp_g18.ngc": COMP,
-    "tests/cycles_g91_repeat.ngc": CYCLE,
-    "tests/cycles_retract.ngc": CYCLE,
     "tests/modal_state.ngc": MCODE,
     "tests/owords_labels.ngc": OWORD,
-    "tests/probe_params.ngc": PROBE,
-    "tests/probe_too_close.ngc": PROBE,
 }
 
 
