@@ -201,13 +201,16 @@ class Interpreter:
 
     def __init__(self, dialect: str = "linuxcnc", machine_units: str = "mm", tool_table=None,
                  var_params: dict | None = None, filename: str = "<string>", block_delete: bool = True,
-                 limits: Limits | None = None):
+                 limits: Limits | None = None, after_tool_change: str = "machine"):
         if dialect not in ("linuxcnc", "grbl"):
             raise GCodeError(f"unknown dialect {dialect!r}: expected 'linuxcnc' or 'grbl'", filename, 0)
         if machine_units not in ("mm", "inch"):
             raise GCodeError(f"machine units must be 'mm' or 'inch', got {machine_units!r}", filename, 0)
+        if after_tool_change not in ("machine", "rs274"):
+            raise GCodeError(f"after_tool_change must be 'machine' or 'rs274', got {after_tool_change!r}", filename, 0)
         self.dialect = dialect
         self.grbl = dialect == "grbl"
+        self.after_tool_change = after_tool_change   # see tool_length.refresh_after_tool_change
         self.machine_units = machine_units
         self.tool_table = dict(tool_table) if tool_table else {}
         self.has_tool_table = tool_table is not None

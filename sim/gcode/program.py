@@ -564,12 +564,15 @@ def _read_var(var_file):
 def interpret(text: str | bytes, filename: str = "<string>", dialect: str = "linuxcnc", tool_table=None,
               var_file=None, machine_units: str = "mm", keep_going: bool = False,
               subroutine_path=None, limits: Limits | None = None, block_delete: bool = True,
-              fast: bool = True) -> Program:
+              fast: bool = True, after_tool_change: str = "machine") -> Program:
     """Interpret G-code ``text`` (str, or bytes decoded as UTF-8); return a :class:`Program`.
 
     ``tool_table`` is a path (LinuxCNC format, in ``machine_units``) or ``{n: ToolEntry}``;
     ``var_file`` a LinuxCNC .var path or ``{param: value}`` (in ``machine_units``).
     ``limits`` bounds loops, repeats, coordinates and the like (:class:`~sim.gcode.limits.Limits`).
+    ``after_tool_change`` is where the program position is after an M6/M61 block:
+    ``"machine"`` as LinuxCNC driving a machine, ``"rs274"`` as its stand-alone interpreter
+    (see :func:`sim.gcode.tool_length.refresh_after_tool_change`).
     Raises :class:`GCodeError` at the first error unless ``keep_going``; bytes that are
     not text raise its subclass :class:`~sim.gcode.errors.ProgramFileError` whatever
     ``keep_going`` says. A program with no motion gets the warning "no motion in program".
@@ -581,7 +584,8 @@ def interpret(text: str | bytes, filename: str = "<string>", dialect: str = "lin
     table = _read_tool_table(tool_table, machine_units)
     var = _read_var(var_file)
     it = Interpreter(dialect=dialect, machine_units=machine_units, tool_table=table, var_params=var,
-                     filename=filename, block_delete=block_delete, limits=limits)
+                     filename=filename, block_delete=block_delete, limits=limits,
+                     after_tool_change=after_tool_change)
     runner = _Runner(it, keep_going, subroutine_path, fast)
     main = runner.add_source(filename, text)
     runner.run(main)

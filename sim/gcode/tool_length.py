@@ -5,16 +5,18 @@ position and shift the program position by the change (rs274's convert_tool_leng
 ``current_z += old - new``), so a move after ``G43 H1`` on a line of its own ends one tool
 length lower in program Z than before, at the same machine height.
 
-A tool change (M6, M61) is different: after its block rs274 reads its position back from
-the canon (read_inputs -> refresh_actual_position). The canon's program position is that
-of the last motion it was sent; an offset change (USE_TOOL_LENGTH_OFFSET) does not move it
-in rs274's stand-alone canon (saicanon.cc) or in AXIS's preview (gcodemodule.cc). So a
-``G43`` on the tool change line (``T1 M6 G43 H1``), or one since the last motion, is undone
-in program coordinates: the next move keeps the program position the last motion had,
-and the machine position takes up the offset change. :func:`refresh_after_tool_change`
-does that, with a TOOL_CHANGE row from the old to the new machine position. (LinuxCNC
-driving a machine, emccanon.cc, re-reads the machine position with the new offset
-instead: there the program position does shift. dexmon follows rs274, the oracle.)
+A tool change (M6, M61) ends with the interpreter reading its position back from the
+canon (rs274's read_inputs -> refresh_actual_position), and there the two LinuxCNC canons
+differ. LinuxCNC driving a machine (emccanon.cc GET_EXTERNAL_POSITION) takes the machine
+position less the offsets in force, new tool length included: the machine stays where it
+is and the program position shifts, as for any G43. rs274's stand-alone canon
+(saicanon.cc), like AXIS's preview, gives back the program position of the last motion it
+was sent, which an offset change (USE_TOOL_LENGTH_OFFSET) does not move: a ``G43`` on the
+tool change line (``T1 M6 G43 H1``), or one since the last motion, is undone in program
+coordinates, and the next move without Z lifts or lowers the machine by the change.
+dexmon watches machines, so it follows the machine canon by default; the differential
+tests against rs274 ask for the stand-alone one (``after_tool_change="rs274"``). The two
+differ only in moves after a tool change that do not name the axis whose offset changed.
 
 The loaded tool's parameters #5400-#5413 are its tool table entry in machine units (what
 LinuxCNC calls user units), whatever G20/G21 says: rs274's set_tool_parameters.
@@ -84,10 +86,16 @@ def _table_offsets(it, words, cols, used, col) -> list:
 
 
 def refresh_after_tool_change(it) -> None:
-    """rs274 re-reads its position from the canon after an M6/M61 block (see the module
-    docstring): offset changes no motion has carried since (``it.canon_tlo``, the offsets
-    of the last motion row) move the machine position, not the program position."""
+    """The interpreter re-reads its position after an M6/M61 block (see the module docstring).
+
+    With ``it.after_tool_change == "machine"`` the machine position stays. With ``"rs274"``
+    offset changes no motion has carried since (``it.canon_tlo``, the offsets of the last
+    motion row) move the machine position, not the program position.
+    """
     if it.canon_tlo is it.tlo:
+        return
+    if it.after_tool_change == "machine":
+        it.canon_tlo = it.tlo
         return
     old = list(it.pos)
     new = [old[i] + it.tlo[i] - it.canon_tlo[i] for i in range(6)]

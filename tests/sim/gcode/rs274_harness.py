@@ -194,7 +194,13 @@ def parse_canon(text: str) -> Run:
 
 
 def dexmon_run(program: Path, tool_table: Path, var_file: Path, block_delete: bool = False, **kw) -> Run:
-    """dexmon's motions for ``program`` with the same inputs as :func:`run_rs274`."""
+    """dexmon's motions for ``program`` with the same inputs as :func:`run_rs274`.
+
+    dexmon reads its position back after a tool change as rs274's stand-alone canon does
+    (``after_tool_change="rs274"``), not as a machine does (its default): see
+    sim/gcode/tool_length.py.
+    """
+    kw.setdefault("after_tool_change", "rs274")
     from sim.gcode import GCodeError, load_program
 
     try:

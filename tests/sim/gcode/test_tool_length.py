@@ -26,9 +26,10 @@ def test_g43_on_its_own_line_shifts_the_program_position():
     assert work_end(r)[1, 2] == pytest.approx(10.0)
 
 
-def test_g43_on_the_tool_change_line_keeps_the_program_position():
-    # rs274 re-reads its position after M6; its canon never moved for G43: program Z stays 20
-    p = interpret("G21 G0 Z20\nT1 M6 G43 H1\nG0 X1\nM2", tool_table=TABLE)
+def test_g43_on_the_tool_change_line_keeps_the_program_position_in_rs274():
+    # rs274 stand-alone re-reads its position after M6; its canon never moved for G43:
+    # program Z stays 20 and the machine lifts by the tool length
+    p = interpret("G21 G0 Z20\nT1 M6 G43 H1\nG0 X1\nM2", tool_table=TABLE, after_tool_change="rs274")
     m = p.moves
     r = m[m["kind"] == MoveKind.RAPID]
     assert work_end(r)[1, 2] == pytest.approx(20.0)
@@ -39,13 +40,33 @@ def test_g43_on_the_tool_change_line_keeps_the_program_position():
     assert shift["start"][:, 2].tolist() == [20.0] and shift["end"][:, 2].tolist() == [30.0]
 
 
-def test_a_tool_change_undoes_an_offset_change_no_motion_carried():
+def test_g43_on_the_tool_change_line_keeps_the_machine_still_on_a_machine():
+    # LinuxCNC driving a machine re-reads the machine position less the new offset: the
+    # machine stays at Z20, no row moves it, the program Z is one tool length lower
+    m = interpret("G21 G0 Z20\nT1 M6 G43 H1\nG0 X1\nM2", tool_table=TABLE).moves
+    r = m[m["kind"] == MoveKind.RAPID]
+    assert r["end"][1, 2] == pytest.approx(20.0)
+    assert work_end(r)[1, 2] == pytest.approx(10.0)
+    np.testing.assert_array_equal(m["start"][1:], m["end"][:-1])
+    changes = m[m["kind"] == MoveKind.TOOL_CHANGE]
+    np.testing.assert_array_equal(changes["start"], changes["end"])
+
+
+def test_a_tool_change_undoes_an_offset_change_no_motion_carried_in_rs274():
     # G43 H2 then M6 with no motion between: the next move is at the old program height
-    r = rapids("G21 G0 Z20\nG43 H2\nT1 M6\nG0 X1\nM2")
+    r = rapids("G21 G0 Z20\nG43 H2\nT1 M6\nG0 X1\nM2", after_tool_change="rs274")
     assert work_end(r)[1, 2] == pytest.approx(20.0)
     # M61 re-reads the position too
-    r = rapids("G21 G0 Z20\nM61 Q2 G43\nG0 X1\nM2")
+    r = rapids("G21 G0 Z20\nM61 Q2 G43\nG0 X1\nM2", after_tool_change="rs274")
     assert work_end(r)[1, 2] == pytest.approx(20.0)
+    # on a machine the machine stays: program Z is 20 less tool 2's 25 mm
+    r = rapids("G21 G0 Z20\nG43 H2\nT1 M6\nG0 X1\nM2")
+    assert r["end"][1, 2] == pytest.approx(20.0) and work_end(r)[1, 2] == pytest.approx(-5.0)
+
+
+def test_after_tool_change_is_checked():
+    with pytest.raises(GCodeError, match="after_tool_change"):
+        interpret("G0 X1", after_tool_change="sometimes")
 
 
 def test_a_motion_on_the_tool_change_line_carries_the_offset():
