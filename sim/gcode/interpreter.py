@@ -36,7 +36,7 @@ G_GROUP = {
     901: 4, 911: 4,
     930: 5, 940: 5, 950: 5,
     200: 6, 210: 6,
-    400: 7, 410: 7, 420: 7,
+    400: 7, 410: 7, 411: 7, 420: 7, 421: 7,
     430: 8, 431: 8, 490: 8,
     980: 10, 990: 10,
     540: 12, 550: 12, 560: 12, 570: 12, 580: 12, 590: 12, 591: 12, 592: 12, 593: 12,
@@ -260,7 +260,9 @@ class Interpreter:
         self._n = 0
         self.main_line = 0
         self.params = _Params(self)
-        self.comp_engine = None
+        self.comp_engine = None    # sim.gcode.comp.CompEngine while compensation offsets moves
+        self.tool_pos = None       # machine position of the tool when it is not at pos (after G40)
+        self.arc_not_allowed = False  # just after G40: the next move must be straight
         if var_params:
             self._load_var(var_params)
 
@@ -492,6 +494,11 @@ class Interpreter:
             if not abs(v) <= top:  # also catches NaN
                 raise LineError(coordinate_message(axis, v))
         m = meta or self.meta()
+        if self.tool_pos is not None:  # the tool is not where the program is (just after G40)
+            if kind in (MoveKind.DWELL, MoveKind.TOOL_CHANGE, MoveKind.PAUSE, MoveKind.END):
+                start = end = self.tool_pos
+            else:
+                start, self.tool_pos = self.tool_pos, None
         self._rows.append((
             m[0], m[1], kind, tuple(start), tuple(end), tuple(self.offsets()), center,
             m[7], turns, feed, inverse, m[2], m[3], m[4], m[5], m[6], dwell,
@@ -626,6 +633,8 @@ class Interpreter:
         # ---- 2. M6 / M61
         m6 = mmodes.get(6)
         if m6:
+            if self.tool_pos is not None:  # LinuxCNC re-reads where the machine is after a tool change
+                self.pos, self.tool_pos = list(self.tool_pos), None
             if m6[0] == 6:
                 old = list(self.pos)
                 self.tool = self.selected_tool
@@ -663,7 +672,10 @@ class Interpreter:
                 raise LineError("G4 P must not be negative", cols["P"], 4)
             used.add("P")
             here = list(self.pos)
-            self.emit(MoveKind.DWELL, here, here, dwell=p)
+            if self.comp_engine is not None:
+                self.comp_engine.dwell(p)
+            else:
+                self.emit(MoveKind.DWELL, here, here, dwell=p)
         # ---- 5. plane, units
         if 2 in gmodes:
             if self.comp != 400 and gmodes[2][0] != self.plane:
@@ -724,9 +736,10 @@ class Interpreter:
         stop = mmodes.get(4)
         if stop:
             c = stop[0]
-            if c in (2, 30) and self.comp_engine is not None:
-                self._flush_comp()
             here = list(self.pos)
+            if self.comp_engine is not None:  # LinuxCNC emits what compensation holds at every stop
+                self.comp_engine.stop()
+                here = list(self.comp_engine.tool)
             if c in (2, 30):
                 self.emit(MoveKind.END, here, here)
                 self.reset_modes()
@@ -752,26 +765,14 @@ class Interpreter:
 
         c, col = mode
         if c == 400:
-            if self.comp_engine is not None:
-                self._flush_comp()
-            self.comp = 400
-            self.comp_radius = 0.0
-            return
-        if self.comp != 400:
-            raise LineError("cannot turn cutter compensation on when it is already on", col)
-        if self.plane != 170:
-            raise LineError("cutter compensation is only supported in the XY plane (G17)", col)
-        entry = self._tool_word_entry("D", words, cols, used, col)
-        radius = 0.0 if entry is None else entry.diameter / 2.0
-        self.comp = c
-        self.comp_radius = radius
-        self.comp_engine = compmod.CompEngine(self, left=(c == 410), radius=radius)
+            compmod.turn_off(self)
+        else:
+            self.comp_engine = compmod.turn_on(self, c, words, cols, used, col)
 
     def _flush_comp(self) -> None:
-        eng = self.comp_engine
-        self.comp_engine = None
-        if eng is not None:
-            eng.flush()
+        from sim.gcode import comp as compmod
+
+        compmod.turn_off(self)
 
     def _tool_word_entry(self, letter: str, words, cols, used, col: int):
         """The tool table entry a D (G41/G42) or H (G43) word names (``letter``), the
@@ -987,6 +988,8 @@ class Interpreter:
     def _motion(self, motion, explicit, words, cols, used, g53, has_axes) -> None:
         col = cols.get("G", 1)
         first_axis_col = min([cols[a] for a in AXES + "@^" if a in cols] or [1])
+        if motion in (0, 10, 330, 331):
+            self.arc_not_allowed = False
         if motion in CYCLES:
             from sim.gcode.cycles import canned_cycle
 
@@ -1053,7 +1056,7 @@ class Interpreter:
         """
         if self.plane != 170:
             raise LineError(f"G{motion / 10:g} splines need the XY plane (G17)", col)
-        if self.comp_engine is not None:
+        if self.comp != 400:
             raise LineError("splines cannot be used with cutter compensation on", col)
         f = self.factor
         p0 = np.array(self.work()[:2])

@@ -585,11 +585,10 @@ def interpret(text: str | bytes, filename: str = "<string>", dialect: str = "lin
     runner = _Runner(it, keep_going, subroutine_path, fast)
     main = runner.add_source(filename, text)
     runner.run(main)
-    if it.comp_engine is not None:
-        try:
-            it._flush_comp()
-        except LineError as exc:
-            runner.fail(main, max(len(main.lines) - 1, 0), exc)
+    if it.comp_engine is not None and it.comp_engine.holds_moves():
+        # LinuxCNC makes a compensated move only once the next one is known (or at G40/M2)
+        runner.warnings.append(f"{filename}: the last move under cutter compensation is not made: "
+                               "the program ends with compensation on and no M2/M30")
     moves, row_lines = it.assemble()
     kind = moves["kind"]
     if not ((kind <= 3) | (kind == 6)).any():  # MOTION_KINDS
