@@ -258,6 +258,7 @@ class _Runner:
         self.snap_lines: list[int] = []
         self.last_key = None
         self.warnings: list[str] = []
+        self.running = False
 
     def fail(self, src: _Source, i: int, exc: LineError):
         i = getattr(exc, "line_index", i)  # a loop limit names the loop's opening line
@@ -265,6 +266,9 @@ class _Runner:
                          exc.grbl_code if self.it.grbl else None)
         if self.it.grbl and err.grbl_code is None:
             err.grbl_code = 20
+        # the rows made before the error (what a controller made before it stopped); None for an
+        # error found before the program runs
+        err.rows_before = self.it._n + len(self.it._rows) if self.running else None
         if not self.keep_going:
             raise err
         self.errors.append(err)
@@ -314,6 +318,7 @@ class _Runner:
         # straight-line code is bounded by the file; loops and calls by the limit
         max_steps = self.limits.max_steps + len(main.lines)
         max_rows = self.limits.max_steps + 2 * len(main.lines)
+        self.running = True
         self.snapshot()
         end_index = main.percent_end
         fl = None

@@ -23,7 +23,6 @@ OWORD = "o-words: return/endsub with another label than its sub, as LinuxCNC's m
 MCODE = "M codes LinuxCNC accepts (M70-M73, M66, M52/M53 ...) are accepted"
 PROBE = "probing: #5061-#5070 set as rs274 sets them; start too close to the target refused"
 BLOCK = "block delete: / lines run by default"
-AXES = "U V W axes are refused with a clear message"
 
 #: programs whose difference from rs274 is known, with its cause; each is a strict xfail,
 #: so fixing one fails here until it leaves this list
@@ -37,9 +36,6 @@ KNOWN: dict[str, str] = {
     "package/examples__sample-configs__sim__gscreen__silverdragon__macros__auto_zref.ngc": OWORD,
     "package/examples__sample-configs__sim__qtdragon__qtdragon_tool_probe__python__qt_auto_probe_tool.ngc": OWORD,
     "package/examples__sample-configs__sim__qtvcp_screens__qtdragon__python__qt_auto_probe_tool.ngc": OWORD,
-    "package/ncfiles__cone.ngc": AXES,
-    "package/ncfiles__g76.ngc": LATHE,
-    "package/ncfiles__lathe-g76.ngc": LATHE,
     "package/ncfiles__lathe_g70_71_demo.ngc": LATHE,
     "package/ncfiles__lathe_g7x_face_boring.ngc": LATHE,
     "package/ncfiles__lathe_g7x_quadrants.ngc": LATHE,
