@@ -83,6 +83,13 @@ def turn_on(it, code: int, words, cols, used, col: int):
     return CompEngine(it, left, radius, orientation) if radius > 0.0 else None
 
 
+def refuse_while_on(it, action: str, col: int) -> None:
+    """LinuxCNC refuses to ``action`` (tool change, offsets, probing ...) while
+    compensation is on, whatever the radius."""
+    if it.comp != 400:
+        raise LineError(f"cannot {action} with cutter radius compensation on", col)
+
+
 def turn_off(it) -> None:
     """G40: emit what the engine holds; the tool stays where compensation left it."""
     eng = it.comp_engine

@@ -16,7 +16,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from sim.gcode import arcs
+from sim.gcode import arcs, comp
 from sim.gcode.errors import GCodeError, LineError
 from sim.gcode.expr import evaluate
 from sim.gcode.limits import DEFAULT_LIMITS, MAX_LINEAR_MM, MAX_ROTARY_DEG, Limits
@@ -106,6 +106,8 @@ class _Params:
         if i == 5410:
             e = it.tool_table.get(it.tool) if it.tool_table else None
             return (e.diameter / f) if e else 0.0
+        if 5420 <= i <= 5428 and it.comp != 400:
+            raise LineError(f"cannot read the current position (#{i}) with cutter radius compensation on")
         if 5420 <= i <= 5425:
             w = it.work()
             return self._out(w[i - 5420], i - 5420)
@@ -633,6 +635,8 @@ class Interpreter:
         # ---- 2. M6 / M61
         m6 = mmodes.get(6)
         if m6:
+            if m6[0] == 6:
+                comp.refuse_while_on(self, "change tools", m6[1])
             if self.tool_pos is not None:  # LinuxCNC re-reads where the machine is after a tool change
                 self.pos, self.tool_pos = list(self.tool_pos), None
             if m6[0] == 6:
@@ -649,6 +653,8 @@ class Interpreter:
                 if self.has_tool_table and int(q) != 0 and int(q) not in self.tool_table:
                     raise LineError(f"unknown tool T{int(q)}: it is not in the tool table", cols["Q"])
                 self.tool = self.selected_tool = int(q)
+        if 9 in mmodes:
+            comp.refuse_while_on(self, "change the overrides (M48-M53)", mmodes[9][1])
         # ---- 3. spindle, coolant
         sp = mmodes.get(7)
         if sp:
@@ -761,18 +767,14 @@ class Interpreter:
 
     # ----------------------------------------------------------------- modal helpers
     def _set_comp(self, mode, words, cols, used) -> None:
-        from sim.gcode import comp as compmod
-
         c, col = mode
         if c == 400:
-            compmod.turn_off(self)
+            comp.turn_off(self)
         else:
-            self.comp_engine = compmod.turn_on(self, c, words, cols, used, col)
+            self.comp_engine = comp.turn_on(self, c, words, cols, used, col)
 
     def _flush_comp(self) -> None:
-        from sim.gcode import comp as compmod
-
-        compmod.turn_off(self)
+        comp.turn_off(self)
 
     def _tool_word_entry(self, letter: str, words, cols, used, col: int):
         """The tool table entry a D (G41/G42) or H (G43) word names (``letter``), the
@@ -796,8 +798,7 @@ class Interpreter:
 
     def _set_tool_length(self, mode, words, cols, used) -> None:
         c, col = mode
-        if self.comp != 400 and not self.grbl:
-            pass  # LinuxCNC allows G43 with comp on
+        comp.refuse_while_on(self, "change the tool length offset", col)
         if c == 490:
             self.tlo = [0.0] * 6
         elif c == 430:
@@ -876,6 +877,8 @@ class Interpreter:
             target = self.g28 if code == 281 else self.g30
             target[:] = list(self.pos)
             used.update(a for a in AXES if a in words)  # LinuxCNC ignores axis words here
+        elif code in (920, 921, 922, 923) and self.comp != 400:
+            comp.refuse_while_on(self, "change the G92 offsets", col)
         elif code == 920:
             if not any(a in words for a in AXES):
                 raise LineError("G92 needs at least one axis word", col, 26)
@@ -914,6 +917,8 @@ class Interpreter:
             if not 0 <= P <= (6 if self.grbl else 9):
                 raise LineError(f"G10 L{L} P must be 0..{6 if self.grbl else 9}", cols["P"], 29)
             k = self.coord if P == 0 else P - 1
+            if k == self.coord:
+                comp.refuse_while_on(self, "change the active coordinate system", col)
             if "R" in words:
                 used.add("R")
                 if words["R"] != 0.0:
@@ -1029,6 +1034,7 @@ class Interpreter:
         elif motion in (330, 331):
             self._synced(motion, end, words, cols, used, first_axis_col)
         else:  # probe G38.x: the table assumes the probe travels to the target
+            comp.refuse_while_on(self, "probe", first_axis_col)
             feed, inv = self._feed_rate(first_axis_col, words, math.dist(self.pos[:3], end[:3]))
             self._line_to(end, MoveKind.PROBE, feed, inv)
 
