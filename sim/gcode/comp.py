@@ -29,7 +29,7 @@ Positions are work coordinates in mm; angles in radians.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from sim.gcode.arcs import PLANE_AXES_BY_CODE
 from sim.gcode.errors import LineError
@@ -93,10 +93,11 @@ def refuse_while_on(it, action: str, col: int) -> None:
 def turn_off(it) -> None:
     """G40: emit what the engine holds; the tool stays where compensation left it."""
     eng = it.comp_engine
+    made = eng is not None and eng.finish()   # may refuse (a gouge): compensation then stays on
     it.comp_engine = None
     it.comp = 400
     it.comp_radius = 0.0
-    if eng is not None and eng.finish():
+    if made:
         it.tool_pos = eng.tool
         it.arc_not_allowed = True
 
@@ -163,10 +164,15 @@ class CompEngine:
         length = math.dist(prog[:3], target[:3])
         feed, inv = (0.0, 0.0) if rapid else it._feed_rate(col, words or {}, length)
         kind = MoveKind.RAPID if rapid else MoveKind.FEED
-        if self.first:
-            self._entry_line(kind, prog, target, feed, inv)
-        else:
-            self._line(kind, prog, target, feed, inv)
+        saved = self._saved()
+        try:
+            if self.first:
+                self._entry_line(kind, prog, target, feed, inv)
+            else:
+                self._line(kind, prog, target, feed, inv)
+        except LineError:
+            self._restore(saved)
+            raise
         it.pos = it.to_machine(target)
 
     def arc(self, cw: bool, target, center, turns: int, col: int, words) -> None:
@@ -180,10 +186,15 @@ class CompEngine:
         sweep = find_turn(start, center, turn, (target[self.i1], target[self.i2]))
         r0 = math.dist(start, center)
         feed, inv = it._feed_rate(col, words, math.hypot(r0 * sweep, target[self.i3] - prog[self.i3]))
-        if self.first:
-            self._entry_arc(prog, target, center, turn, feed, inv)
-        else:
-            self._arc(prog, target, center, turn, feed, inv)
+        saved = self._saved()
+        try:
+            if self.first:
+                self._entry_arc(prog, target, center, turn, feed, inv)
+            else:
+                self._arc(prog, target, center, turn, feed, inv)
+        except LineError:
+            self._restore(saved)
+            raise
         it.pos = it.to_machine(target)
 
     def dwell(self, seconds: float) -> None:
@@ -439,6 +450,14 @@ class CompEngine:
         self.endpoint = point
 
     # ------------------------------------------------------------------ the held queue
+    def _saved(self) -> tuple:
+        """The engine's state before a line: a refused line leaves it as it was (the
+        interpreter drops the rows the line made, and may go on with the next line)."""
+        return (self.first, self.cur, self.endpoint, self.tool, [replace(h, end=list(h.end)) for h in self._held])
+
+    def _restore(self, saved: tuple) -> None:
+        self.first, self.cur, self.endpoint, self.tool, self._held = saved
+
     def _inside(self, turn: int) -> bool:
         """The tool is on the centre side of an arc turning ``turn`` (LinuxCNC TOOL_INSIDE_ARC)."""
         return (self.left and turn > 0) or (not self.left and turn < 0)
