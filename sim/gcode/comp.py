@@ -156,10 +156,13 @@ class CompEngine:
         self.col = 1               # column of the line being converted (for errors)
 
     # ------------------------------------------------------------------ programmed moves
-    def straight(self, target, rapid: bool, col: int, words=None) -> None:
-        """A programmed G0 (``rapid``) or G1 to work position ``target`` (6)."""
+    def straight(self, target, rapid: bool, col: int, words=None, entry_allowed: bool = True) -> None:
+        """A programmed G0 (``rapid``) or G1 to work position ``target`` (6); G33/G33.1 come
+        here as G1 too (``entry_allowed`` False: LinuxCNC refuses them as the entry move)."""
         it = self.it
         self.col = col
+        if self.first and not entry_allowed:
+            raise LineError("the cutter compensation entry move must be G0 or G1", col)
         prog = it.work()
         length = math.dist(prog[:3], target[:3])
         feed, inv = (0.0, 0.0) if rapid else it._feed_rate(col, words or {}, length)

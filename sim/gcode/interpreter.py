@@ -1032,6 +1032,11 @@ class Interpreter:
         elif motion in (50, 51):
             self._spline(motion, end, words, cols, used, first_axis_col)
         elif motion in (330, 331):
+            if self.comp_engine is not None:  # LinuxCNC compensates G33/G33.1 as plain feeds, unsynchronised
+                used.update(k for k in ("K", "I") if k in words)
+                self.comp_engine.straight(self.work_of(end), rapid=False, col=first_axis_col, words=words,
+                                          entry_allowed=False)
+                return
             self._synced(motion, end, words, cols, used, first_axis_col)
         else:  # probe G38.x: the table assumes the probe travels to the target
             comp.refuse_while_on(self, "probe", first_axis_col)
