@@ -70,7 +70,11 @@ def turn_on(it, code: int, words, cols, used, col: int):
     else:
         if "D" in words and abs(words["D"] - round(words["D"])) > 1e-4:
             raise LineError(f"{name} needs a whole D word (a tool number), got D{words['D']:g}", cols["D"])
-        entry = it._tool_word_entry("D", words, cols, used, col)
+        if words.get("D") == 0:  # D0 names the tool in the spindle, like no D word (LinuxCNC)
+            used.add("D")
+            entry = it.tool_table.get(it.tool) if it.tool else None
+        else:
+            entry = it._tool_word_entry("D", words, cols, used, col)
         radius = 0.0 if entry is None else entry.diameter / 2.0
         orientation = (entry.orientation or 0) if entry is not None else 0
         if orientation not in (0, 9) and it.plane != 180:
