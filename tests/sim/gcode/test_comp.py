@@ -89,3 +89,9 @@ def test_compensated_tool_path_is_continuous(name):
                         keep_going=True)
     m = prog.moves[:prog.errors[0].rows_before] if prog.errors else prog.moves
     np.testing.assert_allclose(m["start"][1:], m["end"][:-1], atol=1e-9)
+
+
+def test_compensated_arcs_keep_their_turns():
+    prog = load_program(RS274 / "programs" / "comp_turns.ngc", tool_table=RS274 / "tools.tbl", machine_units="inch")
+    arcs = prog.moves[(prog.moves["kind"] == MoveKind.ARC_CW) | (prog.moves["kind"] == MoveKind.ARC_CCW)]
+    assert arcs["turns"].tolist() == [2, 1, 1]   # rs274: ARC_FEED rotation 2, 1 and -1
