@@ -45,6 +45,58 @@ LATHE_SHIFTS = {  # tool orientation -> (X, Z) shift of the controlled point, in
     1: (-1, 1), 2: (-1, -1), 3: (1, -1), 4: (1, 1), 5: (0, 1), 6: (-1, 0), 7: (0, -1), 8: (1, 0)}
 
 
+# ---------------------------------------------------------------------- interpreter hooks
+def set_mode(it, mode, words, cols, used) -> None:
+    """G40 / G41 / G42 / G41.1 / G42.1: ``mode`` is (code in tenths, column)."""
+    code, col = mode
+    if code == 400:
+        turn_off(it)
+    else:
+        it.comp_engine = turn_on(it, code, words, cols, used, col)
+
+
+def refuse_while_on(it, action: str, col: int) -> None:
+    """LinuxCNC refuses to ``action`` (tool change, offsets, probing ...) while
+    compensation is on, whatever the radius."""
+    if it.comp != 400:
+        raise LineError(f"cannot {action} with cutter radius compensation on", col)
+
+
+def tool_change(it, code: int, col: int) -> None:
+    """Before M6 (``code`` 6) / M61: M6 is refused under compensation; LinuxCNC re-reads
+    where the machine is after a tool change (where G40 left the tool)."""
+    if code == 6:
+        refuse_while_on(it, "change tools", col)
+    if it.tool_pos is not None:
+        it.pos, it.tool_pos = list(it.tool_pos), None
+
+
+def dwell(it, seconds: float) -> None:
+    """G4: a dwell under compensation waits behind the held moves."""
+    if it.comp_engine is not None:
+        it.comp_engine.dwell(seconds)
+    else:
+        it.emit(MoveKind.DWELL, it.pos, it.pos, dwell=seconds)
+
+
+def stop(it) -> list:
+    """M0 M1 M2 M30 M60: LinuxCNC emits what compensation holds at every stop.
+    Returns the machine position of the tool."""
+    if it.comp_engine is None:
+        return list(it.pos)
+    it.comp_engine.stop()
+    return list(it.comp_engine.tool)
+
+
+def row_ends(it, kind: int, start, end) -> tuple:
+    """(start, end) of a row made while the tool is not at the program position (``it.tool_pos``,
+    just after G40): the first motion starts from the tool; a dwell or stop happens there."""
+    if kind in (MoveKind.DWELL, MoveKind.TOOL_CHANGE, MoveKind.PAUSE, MoveKind.END):
+        return it.tool_pos, it.tool_pos
+    start, it.tool_pos = it.tool_pos, None
+    return start, end
+
+
 def turn_on(it, code: int, words, cols, used, col: int):
     """G41 / G42 / G41.1 / G42.1 (``code`` in tenths) for interpreter ``it``.
 
@@ -85,13 +137,6 @@ def turn_on(it, code: int, words, cols, used, col: int):
     it.comp = 410 if left else 420
     it.comp_radius = radius
     return CompEngine(it, left, radius, orientation) if radius > 0.0 else None
-
-
-def refuse_while_on(it, action: str, col: int) -> None:
-    """LinuxCNC refuses to ``action`` (tool change, offsets, probing ...) while
-    compensation is on, whatever the radius."""
-    if it.comp != 400:
-        raise LineError(f"cannot {action} with cutter radius compensation on", col)
 
 
 def turn_off(it) -> None:

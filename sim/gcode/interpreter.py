@@ -496,11 +496,8 @@ class Interpreter:
             if not abs(v) <= top:  # also catches NaN
                 raise LineError(coordinate_message(axis, v))
         m = meta or self.meta()
-        if self.tool_pos is not None:  # the tool is not where the program is (just after G40)
-            if kind in (MoveKind.DWELL, MoveKind.TOOL_CHANGE, MoveKind.PAUSE, MoveKind.END):
-                start = end = self.tool_pos
-            else:
-                start, self.tool_pos = self.tool_pos, None
+        if self.tool_pos is not None:  # just after G40 the tool is not where the program is
+            start, end = comp.row_ends(self, kind, start, end)
         self._rows.append((
             m[0], m[1], kind, tuple(start), tuple(end), tuple(self.offsets()), center,
             m[7], turns, feed, inverse, m[2], m[3], m[4], m[5], m[6], dwell,
@@ -635,10 +632,7 @@ class Interpreter:
         # ---- 2. M6 / M61
         m6 = mmodes.get(6)
         if m6:
-            if m6[0] == 6:
-                comp.refuse_while_on(self, "change tools", m6[1])
-            if self.tool_pos is not None:  # LinuxCNC re-reads where the machine is after a tool change
-                self.pos, self.tool_pos = list(self.tool_pos), None
+            comp.tool_change(self, m6[0], m6[1])
             if m6[0] == 6:
                 old = list(self.pos)
                 self.tool = self.selected_tool
@@ -677,11 +671,7 @@ class Interpreter:
             if p < 0:
                 raise LineError("G4 P must not be negative", cols["P"], 4)
             used.add("P")
-            here = list(self.pos)
-            if self.comp_engine is not None:
-                self.comp_engine.dwell(p)
-            else:
-                self.emit(MoveKind.DWELL, here, here, dwell=p)
+            comp.dwell(self, p)
         # ---- 5. plane, units
         if 2 in gmodes:
             if self.comp != 400 and gmodes[2][0] != self.plane:
@@ -692,7 +682,7 @@ class Interpreter:
             self.factor = INCH if self.units == 200 else 1.0
         # ---- 6. cutter compensation
         if 7 in gmodes:
-            self._set_comp(gmodes[7], words, cols, used)
+            comp.set_mode(self, gmodes[7], words, cols, used)
         # ---- 7. tool length
         if 8 in gmodes:
             self._set_tool_length(gmodes[8], words, cols, used)
@@ -742,10 +732,7 @@ class Interpreter:
         stop = mmodes.get(4)
         if stop:
             c = stop[0]
-            here = list(self.pos)
-            if self.comp_engine is not None:  # LinuxCNC emits what compensation holds at every stop
-                self.comp_engine.stop()
-                here = list(self.comp_engine.tool)
+            here = comp.stop(self)
             if c in (2, 30):
                 self.emit(MoveKind.END, here, here)
                 self.reset_modes()
@@ -766,16 +753,6 @@ class Interpreter:
         return f"{letter} word with no {uses.get(letter, 'command')} to use it"
 
     # ----------------------------------------------------------------- modal helpers
-    def _set_comp(self, mode, words, cols, used) -> None:
-        c, col = mode
-        if c == 400:
-            comp.turn_off(self)
-        else:
-            self.comp_engine = comp.turn_on(self, c, words, cols, used, col)
-
-    def _flush_comp(self) -> None:
-        comp.turn_off(self)
-
     def _tool_word_entry(self, letter: str, words, cols, used, col: int):
         """The tool table entry a D (G41/G42) or H (G43) word names (``letter``), the
         current tool without the word; None for tool 0, or for a tool not in the table
