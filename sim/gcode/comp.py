@@ -28,6 +28,7 @@ Positions are work coordinates in mm; angles in radians.
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, replace
 
@@ -203,6 +204,13 @@ class CompEngine:
         self.endpoint = None       # plane point where the first held move starts (None: unknown)
         self.tool = list(it.pos)   # machine position at the end of the last emitted row
         self.col = 1               # column of the line being converted (for errors)
+
+    def __deepcopy__(self, memo):
+        """A copy for the interpreter's checkpoint of a streamed line: its own held moves,
+        the same interpreter."""
+        twin = copy.copy(self)
+        twin._restore(self._saved())
+        return twin
 
     # ------------------------------------------------------------------ programmed moves
     def straight(self, target, rapid: bool, col: int, words=None, entry_allowed: bool = True) -> None:

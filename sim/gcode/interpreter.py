@@ -431,7 +431,7 @@ class Interpreter:
             raise self.error(LineError(f"cannot compute this line: {exc}"), text, line_no) from None
         return self.take_rows()
 
-    _NOT_SAVED = ("_rows", "_row_line", "_table", "_table_lines", "params", "messages", "files", "comp_engine")
+    _NOT_SAVED = ("_rows", "_row_line", "_table", "_table_lines", "params", "messages", "files")
 
     def _checkpoint(self) -> dict:
         """The state a refused streamed line must not change (a controller refuses the whole line)."""

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim.gcode import GCodeError, MoveKind, interpret, load_program
+from sim.gcode import GCodeError, Interpreter, MoveKind, interpret, load_program
 from sim.tooltable import ToolEntry
 
 RS274 = Path(__file__).resolve().parents[2] / "data" / "rs274"
@@ -95,3 +95,17 @@ def test_compensated_arcs_keep_their_turns():
     prog = load_program(RS274 / "programs" / "comp_turns.ngc", tool_table=RS274 / "tools.tbl", machine_units="inch")
     arcs = prog.moves[(prog.moves["kind"] == MoveKind.ARC_CW) | (prog.moves["kind"] == MoveKind.ARC_CCW)]
     assert arcs["turns"].tolist() == [2, 1, 1]   # rs274: ARC_FEED rotation 2, 1 and -1
+
+
+def test_refused_streamed_line_leaves_compensation_as_it_was():
+    it = Interpreter(tool_table=TOOLS)
+    it.execute_line("G21 T1 M6 G0 X-10 Y-10")
+    with pytest.raises(GCodeError):
+        it.execute_line("G41 D1 G1 X0 Y0 F100 Q5")   # Q has no use: the whole line is refused
+    assert it.comp == 400 and it.comp_engine is None
+    it.execute_line("G41 D1 G1 X0 Y0 F100")
+    with pytest.raises(GCodeError):
+        it.execute_line("G1 X20 Q5")
+    rows = it.execute_line("G1 X20 Y20")   # the X20 line never happened: the entry is cut back here
+    assert rows["line"].tolist() == [3]
+    np.testing.assert_allclose(rows["end"][0, :2], [-1.4142, 1.4142], atol=1e-4)
