@@ -109,3 +109,12 @@ def test_refused_streamed_line_leaves_compensation_as_it_was():
     rows = it.execute_line("G1 X20 Y20")   # the X20 line never happened: the entry is cut back here
     assert rows["line"].tolist() == [3]
     np.testing.assert_allclose(rows["end"][0, :2], [-1.4142, 1.4142], atol=1e-4)
+
+
+@pytest.mark.parametrize("fast", [True, False])
+def test_simple_lines_after_g40_start_where_the_tool_is(fast):
+    # runs of plain G1 lines may run in bulk (sim.gcode.fastpath): the first still starts at the tool
+    simple = "".join(f"G1 X{30 + i}\n" for i in range(10))
+    m = interpret(SQUARE + "G1 Y20\nG40\n" + simple + "M2", tool_table=TOOLS, fast=fast).moves
+    np.testing.assert_allclose(m["start"][1:], m["end"][:-1], atol=1e-9)
+    np.testing.assert_allclose(m["end"][-2, :2], [39, 20])
