@@ -118,3 +118,12 @@ def test_simple_lines_after_g40_start_where_the_tool_is(fast):
     m = interpret(SQUARE + "G1 Y20\nG40\n" + simple + "M2", tool_table=TOOLS, fast=fast).moves
     np.testing.assert_allclose(m["start"][1:], m["end"][:-1], atol=1e-9)
     np.testing.assert_allclose(m["end"][-2, :2], [39, 20])
+
+
+def test_inverse_time_feeds_are_linuxcncs():
+    """G93 under compensation: every row of a block (corner arc, cut-back line) takes the feed
+    of the programmed length, as rs274's SET_FEED_RATE calls say."""
+    prog = load_program(RS274 / "programs" / "comp_inverse_time.ngc", tool_table=RS274 / "tools.tbl",
+                        machine_units="inch")
+    m = prog.moves[np.isin(prog.moves["line"], [7, 8, 9, 10, 11])]
+    np.testing.assert_allclose(m["feed"], [56.5685, 80, 80, 80, 94.2478, 1.0], atol=1e-4)
