@@ -19,9 +19,12 @@ Z, X in G18, so "left" is a +90 degree turn from the direction of travel in that
   - tangent: they simply join.
   So a move is held back until the next one is known (``_held``, LinuxCNC's queue) and
   emitted when its end can no longer move.
-* A stop (M0 M1 M2 M30 M60), G40 and the end of the program emit what is held. After G40
-  the program position is the programmed one again, the tool stays where compensation
-  left it, and the next move must be straight.
+* A stop (M0 M1 M2 M30 M60) and G40 emit what is held; a program that ends without M2
+  never makes its held moves (rs274 does not either). After G40 the program position is
+  the programmed one again (G91 counts from it), the tool stays where compensation left it
+  (``it.tool_pos``: the next row starts there) and the next move must be straight.
+* While compensation is on LinuxCNC refuses tool changes, offset changes, probing and
+  the like (:func:`refuse_while_on`).
 
 Positions are work coordinates in mm; angles in radians.
 """
@@ -275,8 +278,8 @@ class CompEngine:
         return self._front() is not None
 
     def finish(self) -> bool:
-        """G40 / end of program: emit what is held. True when a compensated move was made
-        (then the next move must be straight)."""
+        """G40: emit what is held. True when a compensated move was made (then the tool is
+        off the program position and the next move must be straight)."""
         self.stop()
         return self.cur is not None
 
