@@ -69,6 +69,9 @@ def arc_motion(it, cw: bool, explicit: bool, words, cols, used, has_axes: bool) 
     from sim.gcode.interpreter import ARC_TOL_INCH, ARC_TOL_MM, INCH, PLANE_AXES, PLANE_OFFSET_WORDS
 
     grbl = it.grbl
+    if it.arc_not_allowed:
+        raise LineError("the move just after G40 (cutter compensation off) must be straight, not an arc",
+                        cols.get("G", 1))
     a1, a2, ax = PLANE_AXES[it.plane]
     n1, n2, nn = PLANE_OFFSET_WORDS[it.plane]
     plane_name = {170: "XY", 180: "XZ", 190: "YZ"}[it.plane]

@@ -16,7 +16,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from sim.gcode import arcs
+from sim.gcode import arcs, comp
 from sim.gcode.errors import GCodeError, LineError
 from sim.gcode.expr import evaluate
 from sim.gcode.limits import DEFAULT_LIMITS, MAX_LINEAR_MM, MAX_ROTARY_DEG, Limits
@@ -39,7 +39,7 @@ G_GROUP = {
     901: 4, 911: 4,
     930: 5, 940: 5, 950: 5,
     200: 6, 210: 6,
-    400: 7, 410: 7, 420: 7,
+    400: 7, 410: 7, 411: 7, 420: 7, 421: 7,
     430: 8, 431: 8, 432: 8, 490: 8,
     980: 10, 990: 10,
     540: 12, 550: 12, 560: 12, 570: 12, 580: 12, 590: 12, 591: 12, 592: 12, 593: 12,
@@ -104,6 +104,8 @@ class _Params:
         tool = tool_parameter(it, i)
         if tool is not None:
             return tool
+        if 5420 <= i <= 5428 and it.comp != 400:
+            raise LineError(f"cannot read the current position (#{i}) with cutter radius compensation on")
         if 5420 <= i <= 5425:
             w = it.work()
             return self._out(w[i - 5420], i - 5420)
@@ -264,7 +266,9 @@ class Interpreter:
         self._n = 0
         self.main_line = 0
         self.params = _Params(self)
-        self.comp_engine = None
+        self.comp_engine = None    # sim.gcode.comp.CompEngine while compensation offsets moves
+        self.tool_pos = None       # machine position of the tool when it is not at pos (after G40)
+        self.arc_not_allowed = False  # just after G40: the next move must be straight
         if var_params:
             self._load_var(var_params)
 
@@ -431,7 +435,7 @@ class Interpreter:
             raise self.error(LineError(f"cannot compute this line: {exc}"), text, line_no) from None
         return self.take_rows()
 
-    _NOT_SAVED = ("_rows", "_row_line", "_table", "_table_lines", "params", "messages", "files", "comp_engine")
+    _NOT_SAVED = ("_rows", "_row_line", "_table", "_table_lines", "params", "messages", "files")
 
     def _checkpoint(self) -> dict:
         """The state a refused streamed line must not change (a controller refuses the whole line)."""
@@ -498,6 +502,8 @@ class Interpreter:
         m = meta or self.meta()
         if kind in CANON_MOTIONS:
             self.canon_tlo = self.tlo
+        if self.tool_pos is not None:  # just after G40 the tool is not where the program is
+            start, end = comp.row_ends(self, kind, start, end)
         self._rows.append((
             m[0], m[1], kind, tuple(start), tuple(end), tuple(self.offsets()), center,
             m[7], turns, feed, inverse, m[2], m[3], m[4], m[5], m[6], dwell,
@@ -642,6 +648,7 @@ class Interpreter:
         # ---- 2. M6 / M61
         m6 = mmodes.get(6)
         if m6:
+            comp.tool_change(self, m6[0], m6[1])
             if m6[0] == 6:
                 if self.comp != 400 and not grbl:
                     raise LineError("cannot change tools with cutter radius compensation on (G40 first)", m6[1])
@@ -660,6 +667,8 @@ class Interpreter:
                 if self.has_tool_table and int(q) != 0 and int(q) not in self.tool_table:
                     raise LineError(f"unknown tool T{int(q)}: it is not in the tool table", cols["Q"])
                 self.tool = self.selected_tool = int(q)
+        if 9 in mmodes:
+            comp.refuse_while_on(self, "change the overrides (M48-M53)", mmodes[9][1])
         # ---- 3. spindle, coolant
         sp = mmodes.get(7)
         if sp:
@@ -682,8 +691,7 @@ class Interpreter:
             if p < 0:
                 raise LineError("G4 P must not be negative", cols["P"], 4)
             used.add("P")
-            here = list(self.pos)
-            self.emit(MoveKind.DWELL, here, here, dwell=p)
+            comp.dwell(self, p)
         # ---- 5. plane, units
         if 2 in gmodes:
             if self.comp != 400 and gmodes[2][0] != self.plane:
@@ -694,7 +702,7 @@ class Interpreter:
             self.factor = INCH if self.units == 200 else 1.0
         # ---- 6. cutter compensation
         if 7 in gmodes:
-            self._set_comp(gmodes[7], words, cols, used)
+            comp.set_mode(self, gmodes[7], words, cols, used)
         # ---- 7. tool length
         if 8 in gmodes:
             self._set_tool_length(gmodes[8], words, cols, used)
@@ -747,9 +755,7 @@ class Interpreter:
         stop = mmodes.get(4)
         if stop:
             c = stop[0]
-            if c in (2, 30) and self.comp_engine is not None:
-                self._flush_comp()
-            here = list(self.pos)
+            here = comp.stop(self)
             if c in (2, 30):
                 self.emit(MoveKind.END, here, here)
                 self.reset_modes()
@@ -773,32 +779,6 @@ class Interpreter:
         return f"{letter} word with no {uses.get(letter, 'command')} to use it"
 
     # ----------------------------------------------------------------- modal helpers
-    def _set_comp(self, mode, words, cols, used) -> None:
-        from sim.gcode import comp as compmod
-
-        c, col = mode
-        if c == 400:
-            if self.comp_engine is not None:
-                self._flush_comp()
-            self.comp = 400
-            self.comp_radius = 0.0
-            return
-        if self.comp != 400:
-            raise LineError("cannot turn cutter compensation on when it is already on", col)
-        if self.plane != 170:
-            raise LineError("cutter compensation is only supported in the XY plane (G17)", col)
-        entry = self._tool_word_entry("D", words, cols, used, col)
-        radius = 0.0 if entry is None else entry.diameter / 2.0
-        self.comp = c
-        self.comp_radius = radius
-        self.comp_engine = compmod.CompEngine(self, left=(c == 410), radius=radius)
-
-    def _flush_comp(self) -> None:
-        eng = self.comp_engine
-        self.comp_engine = None
-        if eng is not None:
-            eng.flush()
-
     def _tool_word_entry(self, letter: str, words, cols, used, col: int):
         """The tool table entry a D (G41/G42) or H (G43) word names (``letter``), the
         current tool without the word; None for tool 0, or for a tool not in the table
@@ -877,6 +857,8 @@ class Interpreter:
             target = self.g28 if code == 281 else self.g30
             target[:] = list(self.pos)
             used.update(a for a in AXES if a in words)  # LinuxCNC ignores axis words here
+        elif code in (920, 921, 922, 923) and self.comp != 400:
+            comp.refuse_while_on(self, "change the G92 offsets", col)
         elif code == 920:
             if not any(a in words for a in AXES):
                 raise LineError("G92 needs at least one axis word", col, 26)
@@ -915,6 +897,8 @@ class Interpreter:
             if not 0 <= P <= (6 if self.grbl else 9):
                 raise LineError(f"G10 L{L} P must be 0..{6 if self.grbl else 9}", cols["P"], 29)
             k = self.coord if P == 0 else P - 1
+            if k == self.coord:
+                comp.refuse_while_on(self, "change the active coordinate system", col)
             if "R" in words:
                 used.add("R")
                 if words["R"] != 0.0:
@@ -989,8 +973,9 @@ class Interpreter:
         self.pos = list(end)
 
     def _motion(self, motion, explicit, words, cols, used, g53, has_axes) -> None:
-        col = cols.get("G", 1)
         first_axis_col = min([cols[a] for a in AXES + "@^" if a in cols] or [1])
+        if motion in (0, 10, 330, 331):
+            self.arc_not_allowed = False
         if motion in CYCLES:
             from sim.gcode.cycles import canned_cycle
 
@@ -1028,8 +1013,14 @@ class Interpreter:
         elif motion in (50, 51):
             self._spline(motion, end, words, cols, used, first_axis_col)
         elif motion in (330, 331):
+            if self.comp_engine is not None:  # LinuxCNC compensates G33/G33.1 as plain feeds, unsynchronised
+                used.update(k for k in ("K", "I") if k in words)
+                self.comp_engine.straight(self.work_of(end), rapid=False, col=first_axis_col, words=words,
+                                          entry_allowed=False)
+                return
             self._synced(motion, end, words, cols, used, first_axis_col)
         elif not self.grbl:  # probe G38.x as rs274 simulates it
+            comp.refuse_while_on(self, "probe", first_axis_col)
             straight_probe(self, motion, end, words, first_axis_col)
         else:  # GRBL: the table assumes the probe travels to the target
             feed, inv = self._feed_rate(first_axis_col, words, math.dist(self.pos[:3], end[:3]))
@@ -1059,7 +1050,7 @@ class Interpreter:
         """
         if self.plane != 170:
             raise LineError(f"G{motion / 10:g} splines need the XY plane (G17)", col)
-        if self.comp_engine is not None:
+        if self.comp != 400:
             raise LineError("splines cannot be used with cutter compensation on", col)
         f = self.factor
         p0 = np.array(self.work()[:2])

@@ -258,6 +258,7 @@ class _Runner:
         self.snap_lines: list[int] = []
         self.last_key = None
         self.warnings: list[str] = []
+        self.running = False
 
     def fail(self, src: _Source, i: int, exc: LineError):
         i = getattr(exc, "line_index", i)  # a loop limit names the loop's opening line
@@ -265,6 +266,9 @@ class _Runner:
                          exc.grbl_code if self.it.grbl else None)
         if self.it.grbl and err.grbl_code is None:
             err.grbl_code = 20
+        # the rows made before the error (what a controller made before it stopped); None for an
+        # error found before the program runs
+        err.rows_before = self.it._n + len(self.it._rows) if self.running else None
         if not self.keep_going:
             raise err
         self.errors.append(err)
@@ -314,6 +318,7 @@ class _Runner:
         # straight-line code is bounded by the file; loops and calls by the limit
         max_steps = self.limits.max_steps + len(main.lines)
         max_rows = self.limits.max_steps + 2 * len(main.lines)
+        self.running = True
         self.snapshot()
         end_index = main.percent_end
         fl = None
@@ -589,11 +594,10 @@ def interpret(text: str | bytes, filename: str = "<string>", dialect: str = "lin
     runner = _Runner(it, keep_going, subroutine_path, fast)
     main = runner.add_source(filename, text)
     runner.run(main)
-    if it.comp_engine is not None:
-        try:
-            it._flush_comp()
-        except LineError as exc:
-            runner.fail(main, max(len(main.lines) - 1, 0), exc)
+    if it.comp_engine is not None and it.comp_engine.holds_moves():
+        # LinuxCNC makes a compensated move only once the next one is known (or at G40/M2)
+        runner.warnings.append(f"{filename}: the last move under cutter compensation is not made: "
+                               "the program ends with compensation on and no M2/M30")
     moves, row_lines = it.assemble()
     kind = moves["kind"]
     if not ((kind <= 3) | (kind == 6)).any():  # MOTION_KINDS

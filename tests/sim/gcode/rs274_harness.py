@@ -211,16 +211,20 @@ def dexmon_run(program: Path, tool_table: Path, var_file: Path, block_delete: bo
         prog = load_program(program, tool_table=tool_table, var_file=var_file, machine_units="inch",
                             subroutine_path=[Path(program).parent], block_delete=block_delete,
                             keep_going=True, **kw)
-        return Run(dexmon_motions(prog, upto=(err.file, err.line)), error=err.message,
+        first = prog.errors[0] if prog.errors else None
+        rows = getattr(first, "rows_before", None)
+        return Run(dexmon_motions(prog, upto=(err.file, err.line), rows=rows), error=err.message,
                    error_text=err.source_line, error_line=err.line)
     return Run(dexmon_motions(prog))
 
 
-def dexmon_motions(prog, upto: tuple[str, int] | None = None) -> list[Motion]:
+def dexmon_motions(prog, upto: tuple[str, int] | None = None, rows: int | None = None) -> list[Motion]:
     """The motion rows of ``prog``'s move table as :class:`Motion` (work coordinates, mm).
 
     The rows of one spline block become one ``"S"`` motion (rs274 prints no spline points).
-    ``upto`` (file name, line) stops at the first row of that line or a later one of that file.
+    ``upto`` (file name, line) stops at the first row of that line or a later one of that file;
+    ``rows``, the number of rows made before the error when it is known, stops there instead
+    (an error in a subroutine, a move held by cutter compensation that was never made).
     """
     from sim.gcode import MoveKind
     from sim.gcode.moves import work_end
@@ -231,9 +235,9 @@ def dexmon_motions(prog, upto: tuple[str, int] | None = None) -> list[Motion]:
     out: list[Motion] = []
     kinds = {MoveKind.RAPID: "T", MoveKind.FEED: "F", MoveKind.ARC_CW: "A", MoveKind.ARC_CCW: "A",
              MoveKind.PROBE: "P"}
-    for i in range(len(moves)):
+    for i in range(len(moves) if rows is None else min(rows, len(moves))):
         key = (int(moves["file"][i]), int(moves["line"][i]))
-        if upto is not None and prog.files[key[0]] == upto[0] and key[1] >= upto[1]:
+        if rows is None and upto is not None and prog.files[key[0]] == upto[0] and key[1] >= upto[1]:
             break
         kind = kinds.get(int(moves["kind"][i]))
         if kind is None or kind == "P" and moves["feed"][i] == 0.0:

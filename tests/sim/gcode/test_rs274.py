@@ -16,39 +16,26 @@ import pytest
 
 from tests.sim.gcode import rs274_harness as h
 
-COMP = "cutter compensation: entry moves and corner joins are LinuxCNC's"
 LATHE = "lathe-only codes (G7/G8, G70-G72, G76) are refused with a clear message"
 OWORD = "o-words: return/endsub with another label than its sub, as LinuxCNC's macros use them"
 MCODE = "M codes LinuxCNC accepts (M70-M73, M66, M52/M53 ...) are accepted"
 BLOCK = "block delete: / lines run by default"
-AXES = "U V W axes are refused with a clear message"
 
 #: programs whose difference from rs274 is known, with its cause; each is a strict xfail,
 #: so fixing one fails here until it leaves this list
 KNOWN: dict[str, str] = {
-    "corpus/cncjs_helical_thread_milling.gcode": COMP,
-    "corpus/linuxcnc_cam_nisley.ngc": COMP,
-    "corpus/linuxcnc_mmount.ngc": COMP,
     "package/examples__sample-configs__sim__axis__remap__manual-toolchange-with-tool-length-switch__nc_subroutines__manual_change.ngc": OWORD,
     "package/examples__sample-configs__sim__craftsman__macros__m106.ngc": OWORD,
     "package/examples__sample-configs__sim__gmoccapy__macros__change.ngc": OWORD,
     "package/examples__sample-configs__sim__gscreen__silverdragon__macros__auto_zref.ngc": OWORD,
     "package/examples__sample-configs__sim__qtdragon__qtdragon_tool_probe__python__qt_auto_probe_tool.ngc": OWORD,
     "package/examples__sample-configs__sim__qtvcp_screens__qtdragon__python__qt_auto_probe_tool.ngc": OWORD,
-    "package/ncfiles__comp-g1.ngc": COMP,
-    "package/ncfiles__comp.ngc": COMP,
-    "package/ncfiles__comp311.ngc": COMP,
-    "package/ncfiles__cone.ngc": AXES,
-    "package/ncfiles__g76.ngc": LATHE,
-    "package/ncfiles__lathe-g76.ngc": LATHE,
     "package/ncfiles__lathe_g70_71_demo.ngc": LATHE,
     "package/ncfiles__lathe_g7x_face_boring.ngc": LATHE,
     "package/ncfiles__lathe_g7x_quadrants.ngc": LATHE,
     "package/ncfiles__lathe_pawn.ngc": LATHE,
-    "package/ncfiles__lathecomp.ngc": COMP,
     "package/ncfiles__m70m72-demo.ngc": MCODE,
     "package/ncfiles__m73-demo.ngc": OWORD,
-    "package/ncfiles__mmount.ngc": COMP,
     "package/ncfiles__plasmac__imperial_air_scribe.ngc": MCODE,
     "package/ncfiles__plasmac__imperial_circles.ngc": MCODE,
     "package/ncfiles__plasmac__imperial_ihs_skip_thc_off.ngc": MCODE,
@@ -77,11 +64,8 @@ KNOWN: dict[str, str] = {
     "package/ncfiles__remap-subroutines__qt_auto_probe_tool.ngc": OWORD,
     "package/ncfiles__retval.ngc": OWORD,
     "package/ncfiles__toplevel.ngc": MCODE,
-    "package/ncfiles__useful-subroutines.ngc": COMP,
     "package/ncfiles__x-trim.ngc": MCODE,
     "tests/block_delete.ngc": BLOCK,
-    "tests/comp_entry.ngc": COMP,
-    "tests/comp_g18.ngc": COMP,
     "tests/modal_state.ngc": MCODE,
     "tests/owords_labels.ngc": OWORD,
 }
