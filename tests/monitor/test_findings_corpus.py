@@ -1,0 +1,59 @@
+"""Findings worth reading on the corpus parts (../shared/corpus/parts/README.md) through
+``dexmon simulate --json`` at its defaults: the OpenCAMLib finishing paths with their
+6 mm ball raise no scallop crest and report only what the ball cannot reach, each region
+once (before: 75 findings on the sphere, 74 of them scallop crests); an 8 mm ball on the
+carpet path is one gouge region (before: hundreds)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from monitor.cli import main
+
+STOCK = {"sphere_on_plate": "box:0,0,-1,76.4923,76.4923,30.8718", "carpet1": "box:0,-82,-10,152,66,5.197857"}
+
+
+def simulate(capsys, shared, part, tool, *extra):
+    parts = shared / "corpus" / "parts"
+    rc = main(["simulate", str(parts / f"{part}_ball6_finish.ngc"), "--stock", STOCK[part], "--tool", tool,
+               "--resolution", "0.4", "--design", str(parts / f"{part}.stl"), "--json", *extra])
+    out, err = capsys.readouterr()
+    return rc, json.loads(out)
+
+
+def test_sphere_ball6_reports_only_the_corner_the_ball_cannot_reach_once(capsys, shared):
+    rc, doc = simulate(capsys, shared, "sphere_on_plate", "ball:6")
+    (f,) = doc["findings"]
+    assert f["kind"] == "undercut" and 0.5 < f["depth"] <= 1.0
+    x, y, z = f["contact"]  # in the concave corner where the dome (r 19.1) meets the block
+    assert abs(((x - 38.2461) ** 2 + (y - 38.2461) ** 2) ** 0.5 - 19.10) < 3.0 and 14.93 < z < 17.94
+    assert f["line_range"] == [f["lines"][0], f["lines"][-1]] and f["line"] == f["lines"][0] or f["lines_total"]
+    assert len(f["programmed"]) == 3 and f["time_s"] > 0 and f["worst_line"] >= f["line"]
+
+
+def test_sphere_ball6_scallops_are_findings_only_when_asked_for(capsys, shared):
+    _, default = simulate(capsys, shared, "sphere_on_plate", "ball:6")
+    rc, asked = simulate(capsys, shared, "sphere_on_plate", "ball:6", "--undercut-tolerance", "0.05")
+    # the crests on the steep flanks, within a tool radius of the corner: one region with it
+    assert rc == 1 and sum(f["area"] for f in asked["findings"]) > sum(f["area"] for f in default["findings"])
+
+
+def test_carpet_ball6_reports_only_its_unreachable_edges_once_each(capsys, shared):
+    rc, doc = simulate(capsys, shared, "carpet1", "ball:6")
+    found = doc["findings"]
+    assert {f["kind"] for f in found} == {"undercut"}
+    # the ball centre never leaves Y -82..66: a strip along each end is out of its reach
+    ys = sorted(f["contact"][1] for f in found)
+    assert len(found) == 2 and ys[0] < -82 + 3 and ys[1] > 66 - 3
+
+
+def test_carpet_with_an_8mm_ball_is_one_gouge_region(capsys, shared):
+    rc, doc = simulate(capsys, shared, "carpet1", "ball:8")
+    gouges = [f for f in doc["findings"] if f["kind"] == "gouge"]
+    assert rc == 1 and len(gouges) == 1
+    g = gouges[0]
+    assert g["depth"] == pytest.approx(0.34, abs=0.03)
+    assert g["line"] == g["lines"][0] and g["line_range"][0] == g["line"]
+    assert f"lines {g['line_range'][0]}-{g['line_range'][1]}" in g["message"]
