@@ -414,8 +414,13 @@ class ErrorMap:
                 mi, mj = members % f.nu, members // f.nu
                 # the region's ray box: hits of later batches merge with it only when they
                 # are next to it (see findings._touch), never just for being consecutive
+                lo = f.to_world(np.array([mi.min() * f.spacing, mj.min() * f.spacing, 0.0]))
+                hi = f.to_world(np.array([mi.max() * f.spacing, mj.max() * f.spacing, 0.0]))
                 detail = {"rays": int(members.size),
-                          "ray_box": (int(mi.min()), int(mj.min()), int(mi.max()), int(mj.max()))}
+                          "ray_box": (int(mi.min()), int(mj.min()), int(mi.max()), int(mj.max())),
+                          # the region's XY box (world mm): frames of look-ahead windows differ
+                          "box": tuple(round(float(v), 4) for v in (min(lo[0], hi[0]), min(lo[1], hi[1]),
+                                                                   max(lo[0], hi[0]), max(lo[1], hi[1])))}
                 if not fin.all():
                     detail["rays_outside_design"] = int((~fin).sum())
                 out.append(Finding(

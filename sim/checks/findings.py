@@ -224,6 +224,9 @@ def _merge_two(a: Finding, b: Finding) -> Finding:
         ba, bb = a.detail["ray_box"], b.detail["ray_box"]
         detail["ray_box"] = (min(ba[0], bb[0]), min(ba[1], bb[1]), max(ba[2], bb[2]), max(ba[3], bb[3]))
         detail["rays"] = a.detail.get("rays", 0) + b.detail.get("rays", 0)
+    if "box" in a.detail and "box" in b.detail:
+        ba, bb = a.detail["box"], b.detail["box"]
+        detail["box"] = (min(ba[0], bb[0]), min(ba[1], bb[1]), max(ba[2], bb[2]), max(ba[3], bb[3]))
     return replace(
         w,
         line=first.line or w.line,
