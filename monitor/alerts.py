@@ -42,9 +42,9 @@ HOLD_CONFIRM_S = 2.0
 
 #: points remembered per alerted finding to follow it along (a long gouge)
 MAX_TRACK_POINTS = 4096
-#: what a ``finding_update`` JSON line carries of the grown / happened record (its lines
-#: as what changed: ``lines_added``, with ``line_range`` and ``lines_total``, never the
-#: whole list again)
+#: what a ``finding_update`` JSON line may carry of the grown / happened record: only the
+#: keys that changed (and ``kind``, ``status``), its new lines as ``lines_added`` with
+#: ``line_range``, never the whole list again
 UPDATE_KEYS = ("kind", "line", "worst_line", "move", "position", "depth", "area", "volume", "message", "status",
                "stage", "time_s", "happened_t", "happened_position", "happened_line")
 
@@ -69,6 +69,13 @@ def grow_record(rec: dict, f: dict, merged: set) -> bool:
                     | {rec.get("line") or 0, f.get("line") or 0}) - {0})
     changed = lines != list(rec.get("lines") or ())
     rec["lines"] = lines
+    # the first and last line of all (a record's list may be cut to its first lines)
+    ends = [x for g in (rec, f) for x in (g.get("line_range") or ())] + lines[:1] + lines[-1:]
+    if ends:
+        rec["line_range"] = [min(ends), max(ends)]
+    rec["lines_total"] = max(len(lines), int(rec.get("lines_total") or 0), int(f.get("lines_total") or 0))
+    if rec["lines_total"] == len(lines):
+        rec.pop("lines_total")
     same_source = bool(f.get("predicted", True)) == bool(rec.get("predicted", True))
     ids = _stages(f)
     # a predicted repeat is new material only for moves not merged yet (the look-ahead
@@ -93,7 +100,8 @@ def grow_record(rec: dict, f: dict, merged: set) -> bool:
                 changed = True
     if changed:
         try:
-            fnd = Finding(kind=rec.get("kind", ""), line=int(rec.get("line") or 0), lines=tuple(lines),
+            fnd = Finding(kind=rec.get("kind", ""), line=int(rec.get("line") or 0),
+                          lines=tuple(lines) + tuple(rec.get("line_range") or ()),
                           worst_line=int(rec.get("worst_line") or 0),
                           position=tuple(rec.get("position") or (math.nan,) * 3), depth=_nan(rec.get("depth")),
                           area=_nan(rec.get("area")), volume=_nan(rec.get("volume")),
@@ -261,6 +269,7 @@ class Alerter:
                 break
         rec = self.findings[idx]
         lines_before = set(rec.get("lines") or ())
+        before = {k: rec.get(k) for k in UPDATE_KEYS + ("line_range", "lines_total")}
         grew = grow_record(rec, f, self._merged.setdefault(idx, set(_stages(rec))))
         box, new_box = (rec.get("detail") or {}).get("box"), (f.get("detail") or {}).get("box")
         if box is not None and new_box is not None:  # the region's box grows with it
@@ -283,12 +292,13 @@ class Alerter:
             self.console.print(f"[dim]{_escape(rec.get('kind', '?').upper().replace('_', ' '))} "
                                f"{_escape(_where(rec))}: happened as predicted[/dim]", highlight=False)
         if self.json_stream is not None:
-            lines = rec.get("lines") or []
-            upd = {"event": "finding_update", "id": idx + 1,
-                   **{k: rec[k] for k in UPDATE_KEYS if k in rec},
-                   "lines_added": sorted(set(lines) - lines_before), "lines_total": len(lines), "t": t}
-            if lines:
-                upd["line_range"] = [lines[0], lines[-1]]
+            # what changed (with the kind and status to read it by), never the whole record
+            upd = {"event": "finding_update", "id": idx + 1, "kind": rec.get("kind"), "status": rec.get("status"),
+                   **{k: rec[k] for k in before if k in rec and rec[k] != before[k]}}
+            added = sorted(set(rec.get("lines") or ()) - lines_before)
+            if added:
+                upd["lines_added"] = added
+            upd["t"] = t
             self.json_stream.write(json.dumps(upd, default=json_default) + "\n")
             self.json_stream.flush()
 
