@@ -57,3 +57,29 @@ def test_carpet_with_an_8mm_ball_is_one_gouge_region(capsys, shared):
     assert g["depth"] == pytest.approx(0.34, abs=0.03)
     assert g["line"] == g["lines"][0] and g["line_range"][0] == g["line"]
     assert f"lines {g['line_range'][0]}-{g['line_range'][1]}" in g["message"]
+
+
+def test_dry_run_of_the_carpet_with_an_8mm_ball_finds_simulates_regions_with_small_updates(tmp_path, capsys,
+                                                                                           shared):
+    """The start of the carpet path (its first passes, as in test_start_and_setup): the
+    dry run alerts the gouge regions simulate finds (on these few passes the flanks along
+    the part's edge are still apart: 4), one alert each (before: one per look-ahead
+    batch), grown by updates that carry what changed, never the whole line list."""
+    from tests.monitor.test_start_and_setup import corpus_job
+
+    job = corpus_job(tmp_path, shared, "carpet1", "ball:8")
+    main(["simulate", str(job), "--json"])
+    sim = [f for f in json.loads(capsys.readouterr().out)["findings"] if f["kind"] == "gouge"]
+    rc = main(["dry-run", str(job), "--clock", "sim", "--speed", "50", "--json", "--run", str(tmp_path / "r.sqlite")])
+    events = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    found = [e for e in events if e["event"] == "finding"]
+    assert rc == 1 and {f["kind"] for f in found} == {"gouge"}
+    assert sorted(f["line"] for f in found) == sorted(f["line"] for f in sim), ([f["line"] for f in found], sim)
+    g = found[0]
+    assert g["line"] == g["lines"][0] and "time_s" in g and len(g["programmed"]) == 3
+    updates = [e for e in events if e["event"] == "finding_update" and e["id"] == 1]
+    assert updates and all("lines" not in u for u in updates)
+    # the lines of the alert and its updates are every line the gouge covers
+    seen = set(g["lines"]) | {ln for u in updates for ln in u.get("lines_added", ())}
+    last_range = [u["line_range"] for u in updates if "line_range" in u][-1]
+    assert min(seen) == last_range[0] and max(seen) == last_range[1]
