@@ -406,6 +406,7 @@ class Lookahead:
             # checker (its design casts, error map and bounds stay valid: the live model
             # only loses material, and findings only read the rays each batch updates)
             _copy_into(c.grid, live)
+            c.forget_contacts()
             c.limits = limits_in_work(self.limits, self.wco)
         self.next_row = int(row)
 

@@ -81,6 +81,7 @@ class Checker:
         self._move_t0 = None  # move id - 1 -> machine time at its start (s), when told
         self._spindle_off = None  # (move id, line) the last batch ended with the spindle off since
         self._fixture_left: dict = {}  # fixture index -> {part: what it has not touched yet}
+        self._touched: dict = {}  # contact kind -> Cutter on the model less what that body touched
         self._bodies: dict = {}
         self.findings: list[Finding] = []
 
@@ -149,7 +150,7 @@ class Checker:
         self._remember_lines(moves, ids)
         found = self._check_batch(self.grid, self.cutter, moves, ids, self.error_map, self.engagement,
                                   design_rays=None, top_bound=self._top_bound, spindle_off=self._spindle_off,
-                                  fixture_left=self._fixture_left)
+                                  fixture_left=self._fixture_left, touched=self._touched)
         span = motion.spindle_off_from(moves, ids, self._spindle_off)
         if len(moves):
             self._spindle_off = tuple(int(v) for v in span[-1]) if span[-1, 0] else None
@@ -174,11 +175,17 @@ class Checker:
             removed[a:b] = res.removed
         return removed
 
+    def forget_contacts(self) -> None:
+        """Forget what bodies touched (the model was replaced: a look-ahead re-anchored)."""
+        self._touched = {}
+
     def _check_batch(self, grid, cutter, moves, ids, error_map, engagement, design_rays, top_bound,
-                     spindle_off=None, fixture_left=None):
+                     spindle_off=None, fixture_left=None, touched=None):
         """Cut and check one batch. ``spindle_off``: the stopped-spindle span the batch
-        starts in; ``fixture_left``: {fixture index: {part: untouched fixture}} kept across
-        batches (a fresh one: volumes of this batch only)."""
+        starts in; ``fixture_left``: {fixture index: {part: untouched fixture}} and
+        ``touched``: {contact kind: cutter on the model less what that body touched}, kept
+        across batches (fresh ones: volumes of this batch only)."""
+        touched = {} if touched is None else touched
         out: list[Finding] = []
         fixture_left = {} if fixture_left is None else fixture_left
         if self.limits:
@@ -201,7 +208,10 @@ class Checker:
         out += collisions.rapid_into_stock(moves, res.removed, ids, self.min_volume, cut=res, grid=grid)
         out += motion.spindle_stopped_cutting(moves, res.removed, ids, self.min_volume, carry=spindle_off)
         if pre:
-            out += self._replay_contacts(snapshot, moves, ids, pre)
+            out += self._replay_contacts(snapshot, moves, ids, pre, touched)
+        else:
+            for mine in touched.values():  # they follow the flutes too
+                mine.cut_moves(moves, move_ids=ids.astype(np.int32), record_changes=False)
         if error_map is not None and res.changed_rays.size:
             rays = error_map.update(grid, self.design, res.changed_rays, self.tol, design_rays=design_rays)
             if rays.size and np.nanmin(error_map.gouge[rays]) < -self.tol.gouge:
@@ -233,17 +243,16 @@ class Checker:
                     cand.setdefault(int(k), []).append((kind, body))
         return cand
 
-    def _replay_contacts(self, snapshot, moves, ids, cand) -> list[Finding]:
+    def _replay_contacts(self, snapshot, moves, ids, cand, touched) -> list[Finding]:
         """A body meets material at move k if the material is still there when the flutes
         of move k have passed: replay the batch on the snapshot through each candidate and
         probe the candidate's body then (so a shank following its flutes down a hole they
         cut is clear, while a holder landing on the stock is not). Bodies leading the
         flutes (moving up into material above the tool) are not seen this way."""
         scratch = Cutter(snapshot, self.tool, self.tol, tools=self.tools or None)
-        # the same replay with what each body touched taken away (made at the first
-        # contact): a move's volume is what its body touches first, so the volumes of one
-        # contact's moves add up to the union of what they touched
-        touched: dict = {}
+        # the same replay with what each body touched taken away (``touched``, made at its
+        # first contact and kept across batches): a move's volume is what its body touches
+        # first, so the volumes of one contact's moves add up to the union of what they touched
         out: list[Finding] = []
         done = 0
         for k in sorted(cand):
@@ -263,6 +272,8 @@ class Checker:
                     vol = mine.cut_moves(moves[k:k + 1], record_changes=False, body=body).removed
                 out += collisions.body_findings(moves[k:k + 1], kind, vol, ids[k:k + 1], self.min_volume,
                                                 present=present)
+        for mine in touched.values():  # the rest of the batch's flutes
+            mine.cut_moves(moves[done:], move_ids=ids[done:].astype(np.int32), record_changes=False)
         return out
 
     # --- look-ahead -------------------------------------------------------------------------

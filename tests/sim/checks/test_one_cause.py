@@ -185,3 +185,13 @@ def test_gouge_strips_of_one_raster_are_one_region(tmp_path):
     assert g.depth == pytest.approx(0.05, abs=0.005)
     assert g.line == min(g.lines) and g.worst_line in g.lines
     assert f"lines {g.lines[0]}-{g.lines[-1]}" in g.to_json()["message"]
+
+
+def test_a_holder_rubbing_a_wall_batch_after_batch_weighs_the_union():
+    # the live monitor cuts what the tool travelled a poll at a time: one move a batch
+    ch = Checker(stock(), parse_tool_spec(TOOL))
+    m = rub(70, -35, passes=6)
+    for k in range(len(m)):
+        ch.cut_and_check(m[k:k + 1], move_ids=[k + 1])
+    (f,) = [f for f in final_findings(ch) if f.kind == "holder_contact"]
+    assert len(f.stages) >= 6 and 0 < f.volume <= 5.5 * 40.5 * 5 + 1e-6
