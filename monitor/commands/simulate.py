@@ -451,6 +451,10 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
         # in batches: one batch's changed-ray log alive at a time, whatever the length
         per_move = checker.check_program(moves, batch=SIM_BATCH)
         findings = setup + final_findings(checker)
+        if checker.undercut_basis is not None:
+            from sim.checks.scallop import note
+
+            notes = [*notes, note(*checker.undercut_basis, checker.tol.undercut)]
     else:
         per_move = Cutter(grid, tool, tools=tools or None).cut_moves(moves, record_changes=False).removed
         findings = []

@@ -74,6 +74,8 @@ class Checker:
         self.engagement = (motion.Engagement(self.frame, stock.top(), tool, chord=tol.chord)
                            if needs_engagement and self.frame.is_top else None)
         self.undercut_from_path = bool(undercut_from_path)
+        #: (scallop.Raster, Tool) the undercut tolerance followed (set by assess_model)
+        self.undercut_basis = None
         self._lines = np.zeros(1, np.int64)  # move id -> program line
         self._tips = np.full((1, 6), np.nan)  # move id -> programmed tip at start, end (mm)
         self._tool_nums = np.zeros(1, np.int64)  # move id -> tool number
@@ -370,7 +372,10 @@ class Checker:
         raster = scallop.raster_of(self._tips[:n][sel])
         if raster is None:
             return None
-        return scallop.allowance(self.design, tool, raster, self.tol.undercut)
+        got = scallop.allowance(self.design, tool, raster, self.tol.undercut)
+        if got is not None:
+            self.undercut_basis = (raster, tool)
+        return got
 
     def all_findings(self) -> list[Finding]:
         """Everything found while cutting, merged."""

@@ -110,3 +110,12 @@ def allowance(design, tool, raster: Raster, floor: float, margin: float = MARGIN
     h = margin * cusp(rc, np.maximum(spacing - flat, 0.0))
     out[has] = np.maximum(h, floor)
     return out
+
+
+def note(raster: Raster, tool, floor: float) -> str:
+    """One line saying what the undercut tolerance followed (for a command's notes)."""
+    rc = float(tool.corner_radius)
+    flat = float(cusp(rc, max(raster.stepover - 2.0 * max(float(tool.cutting_radius) - rc, 0.0), 0.0)))
+    return (f"undercut: the path's scallops are not findings ({raster.passes} passes {raster.stepover:.4g} mm "
+            f"apart with a {rc:g} mm corner radius leave {flat:.3f} mm on flat ground, more on slopes across "
+            f"the passes; at least {floor:g} mm); give --undercut-tolerance to see them")
