@@ -61,9 +61,11 @@ def test_cli_dry_run_bundled_example(tmp_path, capsys):
     updates = [x for x in out if x["event"] == "finding_update"]
     assert sorted(u["kind"] for u in updates if u["status"] == "happened") == ["gouge", "rapid_into_stock"]
     # the gouge's second row (line 23) grew the alerted finding rather than being dropped
-    assert [u["line_range"] for u in updates if u["kind"] == "gouge"][-1] == [22, 23]
-    # an update carries the lines it added: with the alert's, every line of the gouge
+    # (an update carries what changed: its line_range when that grew)
     first = next(f for f in findings if f["kind"] == "gouge")
+    assert [first["line_range"], *(u["line_range"] for u in updates if u["kind"] == "gouge" and "line_range" in u)][
+        -1] == [22, 23]
+    # an update carries the lines it added: with the alert's, every line of the gouge
     assert set(first["lines"]) | {ln for u in updates if u["kind"] == "gouge" for ln in u["lines_added"]} == {22, 23}
     r = RunReader(run)
     assert [f["kind"] for f in r.findings()] == [f["kind"] for f in findings]
