@@ -66,7 +66,7 @@ def test_cli_dry_run_bundled_example(tmp_path, capsys):
     assert [first["line_range"], *(u["line_range"] for u in updates if u["kind"] == "gouge" and "line_range" in u)][
         -1] == [22, 23]
     # an update carries the lines it added: with the alert's, every line of the gouge
-    assert set(first["lines"]) | {ln for u in updates if u["kind"] == "gouge" for ln in u["lines_added"]} == {22, 23}
+    assert set(first["lines"]) | {ln for u in updates if u["kind"] == "gouge" for ln in u.get("lines_added", ())} == {22, 23}
     r = RunReader(run)
     assert [f["kind"] for f in r.findings()] == [f["kind"] for f in findings]
     assert all(f["status"] == "happened" for f in r.findings())
