@@ -42,9 +42,11 @@ HOLD_CONFIRM_S = 2.0
 
 #: points remembered per alerted finding to follow it along (a long gouge)
 MAX_TRACK_POINTS = 4096
-#: what a ``finding_update`` JSON line carries of the grown / happened record
-UPDATE_KEYS = ("kind", "line", "lines", "move", "position", "depth", "area", "volume", "message", "status",
-               "stage", "happened_t", "happened_position", "happened_line")
+#: what a ``finding_update`` JSON line may carry of the grown / happened record: only the
+#: keys that changed (and ``kind``, ``status``), its new lines as ``lines_added`` with
+#: ``line_range``, never the whole list again
+UPDATE_KEYS = ("kind", "line", "worst_line", "move", "position", "depth", "area", "volume", "message", "status",
+               "stage", "time_s", "happened_t", "happened_position", "happened_line")
 
 
 def _nan(v) -> float:
@@ -67,6 +69,13 @@ def grow_record(rec: dict, f: dict, merged: set) -> bool:
                     | {rec.get("line") or 0, f.get("line") or 0}) - {0})
     changed = lines != list(rec.get("lines") or ())
     rec["lines"] = lines
+    # the first and last line of all (a record's list may be cut to its first lines)
+    ends = [x for g in (rec, f) for x in (g.get("line_range") or ())] + lines[:1] + lines[-1:]
+    if ends:
+        rec["line_range"] = [min(ends), max(ends)]
+    rec["lines_total"] = max(len(lines), int(rec.get("lines_total") or 0), int(f.get("lines_total") or 0))
+    if rec["lines_total"] == len(lines):
+        rec.pop("lines_total")
     same_source = bool(f.get("predicted", True)) == bool(rec.get("predicted", True))
     ids = _stages(f)
     # a predicted repeat is new material only for moves not merged yet (the look-ahead
@@ -75,9 +84,12 @@ def grow_record(rec: dict, f: dict, merged: set) -> bool:
     if same_source:
         d0, d1 = _nan(rec.get("depth")), _nan(f.get("depth"))
         if not math.isnan(d1) and (math.isnan(d0) or d1 > d0):
-            rec["depth"], rec["line"], rec["position"] = d1, f.get("line", rec.get("line")), f.get("position")
-            if f.get("move"):
-                rec["move"] = f["move"]
+            # ``line`` stays where the finding started; the worst hit moves
+            rec["depth"], rec["position"] = d1, f.get("position")
+            rec["worst_line"] = f.get("worst_line", f.get("line", rec.get("worst_line")))
+            for key in ("move", "contact", "programmed", "time_s"):
+                if f.get(key) is not None:
+                    rec[key] = f[key]
             changed = True
     if new_material:
         merged |= ids
@@ -88,7 +100,9 @@ def grow_record(rec: dict, f: dict, merged: set) -> bool:
                 changed = True
     if changed:
         try:
-            fnd = Finding(kind=rec.get("kind", ""), line=int(rec.get("line") or 0), lines=tuple(lines),
+            fnd = Finding(kind=rec.get("kind", ""), line=int(rec.get("line") or 0),
+                          lines=tuple(lines) + tuple(rec.get("line_range") or ()),
+                          worst_line=int(rec.get("worst_line") or 0),
                           position=tuple(rec.get("position") or (math.nan,) * 3), depth=_nan(rec.get("depth")),
                           area=_nan(rec.get("area")), volume=_nan(rec.get("volume")),
                           detail=dict(rec.get("detail") or {}))
@@ -189,7 +203,9 @@ class Alerter:
     def match(self, f: dict) -> int | None:
         """Index in :attr:`findings` of the alerted finding ``f`` repeats, or None when new.
 
-        Same kind and: made by the same move (a shared ``stages`` id), or within
+        Same kind and: made by the same move (a shared ``stages`` id), or naming the same
+        cause (``detail["cause"]``: the spindle off since one line), or a region whose XY
+        box (``detail["box"]``) comes within ``radius`` mm of that finding's, or within
         ``radius`` mm of any point where that finding was seen, or within ``line_radius``
         mm while sharing a program line. A finding that keeps being seen as the tool moves
         (a long gouge) is followed along: every repeat adds its point, lines and moves.
@@ -198,8 +214,14 @@ class Alerter:
         stages = _stages(f)
         pos = _pos(f)
         known = bool(np.all(np.isfinite(pos)))
+        detail = f.get("detail") or {}
         for seen_lines, seen_pos, idx, seen_stages in self._by_kind.get(f.get("kind", ""), ()):
             if stages & seen_stages:
+                return idx
+            seen = self.findings[idx].get("detail") or {}
+            if detail.get("cause") is not None and detail.get("cause") == seen.get("cause"):
+                return idx
+            if _boxes_near(detail.get("box"), seen.get("box"), self.radius):
                 return idx
             pts = seen_pos[np.all(np.isfinite(seen_pos), axis=1)] if known else seen_pos[:0]
             dist = float(np.min(np.linalg.norm(pts - pos, axis=1))) if pts.shape[0] else 0.0
@@ -246,7 +268,13 @@ class Alerter:
                 entry[3] = entry[3] | _stages(f)
                 break
         rec = self.findings[idx]
+        lines_before = set(rec.get("lines") or ())
+        before = {k: rec.get(k) for k in UPDATE_KEYS + ("line_range", "lines_total")}
         grew = grow_record(rec, f, self._merged.setdefault(idx, set(_stages(rec))))
+        box, new_box = (rec.get("detail") or {}).get("box"), (f.get("detail") or {}).get("box")
+        if box is not None and new_box is not None:  # the region's box grows with it
+            rec["detail"] = {**rec["detail"], "box": [min(box[0], new_box[0]), min(box[1], new_box[1]),
+                                                      max(box[2], new_box[2]), max(box[3], new_box[3])]}
         happened = not f.get("predicted", True) and rec.get("status", "predicted") == "predicted"
         if happened:
             rec["status"] = "happened"
@@ -264,8 +292,13 @@ class Alerter:
             self.console.print(f"[dim]{_escape(rec.get('kind', '?').upper().replace('_', ' '))} "
                                f"{_escape(_where(rec))}: happened as predicted[/dim]", highlight=False)
         if self.json_stream is not None:
-            upd = {"event": "finding_update", "id": idx + 1,
-                   **{k: rec[k] for k in UPDATE_KEYS if k in rec}, "t": t}
+            # what changed (with the kind and status to read it by), never the whole record
+            upd = {"event": "finding_update", "id": idx + 1, "kind": rec.get("kind"), "status": rec.get("status"),
+                   **{k: rec[k] for k in before if k in rec and rec[k] != before[k]}}
+            added = sorted(set(rec.get("lines") or ()) - lines_before)
+            if added:
+                upd["lines_added"] = added
+            upd["t"] = t
             self.json_stream.write(json.dumps(upd, default=json_default) + "\n")
             self.json_stream.flush()
 
@@ -356,6 +389,14 @@ def _stages(f: dict) -> frozenset:
     else:
         got = f.get("stages") or ([f["stage"]] if f.get("stage") else [])
     return frozenset(int(x) for x in got if x)
+
+
+def _boxes_near(a, b, gap: float) -> bool:
+    """XY boxes ``[x0, y0, x1, y1]`` (mm) ``a`` and ``b`` within ``gap`` mm of each other
+    (False when either is missing)."""
+    if a is None or b is None:
+        return False
+    return (b[0] <= a[2] + gap and a[0] <= b[2] + gap and b[1] <= a[3] + gap and a[1] <= b[3] + gap)
 
 
 def _pos(f: dict) -> np.ndarray:

@@ -161,6 +161,9 @@ class Job:
     design: Solid | None = None
     resolution: float = 0.5
     tolerance: Tolerance = field(default_factory=Tolerance)
+    #: the job (or the command line) gave the undercut tolerance; else it is at least the
+    #: scallop of the path's stepover (sim.checks.scallop)
+    undercut_given: bool = False
     limits: dict[str, tuple[float, float]] = field(default_factory=dict)
     horizon_s: float = 5.0
     horizon_mm: float | None = None
@@ -445,6 +448,7 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
         ctx.no_unknown(t, {"gouge", "undercut", "interest"}, "[tolerance]")
         job.tolerance = dataclasses.replace(
             job.tolerance, **{k: ctx.positive(v, f"[tolerance] {k}") for k, v in t.items()})
+        job.undercut_given = "undercut" in t
 
     if "limits" in doc:
         t = ctx.table(doc["limits"], "[limits]")

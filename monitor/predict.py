@@ -406,6 +406,7 @@ class Lookahead:
             # checker (its design casts, error map and bounds stay valid: the live model
             # only loses material, and findings only read the rays each batch updates)
             _copy_into(c.grid, live)
+            c.forget_contacts()
             c.limits = limits_in_work(self.limits, self.wco)
         self.next_row = int(row)
 
@@ -629,16 +630,28 @@ def lead_time(finding: Finding, path: ProgramPath, progress: float, feed_overrid
 
 
 def finding_record(f: Finding, lead: float, t: float | None = None, predicted: bool = True,
-                   stage: int | None = None) -> dict:
+                   stage: int | None = None, path: ProgramPath | None = None, moves=None) -> dict:
     """The JSON object of one finding: ``Finding.to_json()`` + ``lead_time_s``, ``predicted``
     and ``status`` (``"predicted"`` ahead of the spindle, ``"happened"`` on the real motion)
     (+ ``t``).
+
+    With ``path`` its ``time_s`` is the program time at which its worst move starts
+    (the move table's timing); with ``moves`` (the program in work coordinates) its
+    ``programmed`` point is where that move was programmed to take the tip (the live
+    checks cut the travelled path, whose pieces end elsewhere).
 
     The checker's ``stage`` is a move id (row + 1): it is told as ``move``, so that
     ``stage`` means one thing in a run, the live stage (the model after the n-th recorded
     cut, 0 = the stock), given only where the finding happened (``stage``)."""
     d = f.to_json()
     d["move"] = int(d.pop("stage", 0) or 0)
+    row = d["move"] - 1
+    if path is not None and 0 <= row < path.row_t0.size:
+        d["time_s"] = round(float(path.row_t0[row]), 3)
+    if moves is not None and 0 <= row < len(moves):
+        tip = np.array(moves["end"][row, :3], np.float64)
+        tip[2] -= float(moves["tool_length"][row])
+        d["programmed"] = [round(float(v), 4) for v in tip]
     if stage is not None:
         d["stage"] = int(stage)
     d["lead_time_s"] = round(float(lead), 3) if math.isfinite(lead) else None

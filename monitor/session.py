@@ -529,7 +529,8 @@ class Session:
             self.run.append_cut(self.stage, {"points": pts}, t=state.t, move_id=s.row + 1, line=s.line)
             if removed > 0 and rays.size:
                 self._record_trace(rays)
-        out = [finding_record(f, 0.0, state.t, predicted=False, stage=self.stage) for f in found]
+        out = [finding_record(f, 0.0, state.t, predicted=False, stage=self.stage, path=self.path, moves=self.moves)
+               for f in found]
         for rec, f in zip(out, found):
             rec["lead_note"] = self._unpredicted_note(f)
         return out, removed
@@ -596,7 +597,8 @@ class Session:
         ovr = state.overrides[0] if state.overrides else 100
         out = []
         for f in found:
-            rec = finding_record(f, lead_time(f, self.path, s.progress, ovr), state.t)
+            rec = finding_record(f, lead_time(f, self.path, s.progress, ovr), state.t, path=self.path,
+                                 moves=self.moves)
             late = self.lookahead.late_s(f, s.progress)
             if late > 0:
                 rec["late_s"] = round(late, 3)

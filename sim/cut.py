@@ -249,8 +249,11 @@ class Cutter:
 
     # --- public API ---------------------------------------------------------------------
     def cut_moves(self, moves: np.ndarray, move_ids=None, record_changes: bool = True,
-                  journal: bool = False, trace=None, stages=None) -> CutResult:
+                  journal: bool = False, trace=None, stages=None, body: Body | None = None) -> CutResult:
         """Cut every row of ``moves`` (MOVE_DTYPE) in order.
+
+        body: sweep this body (a shank, a holder) instead of each row's cutting tool
+        (checks use it to take away what a body touched, so that it is counted once).
 
         move_ids: int (n,) face ids to write (default row index + 1; 0 is the stock).
         record_changes: False skips the changed-ray lists (saves memory on long programs).
@@ -275,8 +278,9 @@ class Cutter:
         for lo, hi, tool in self._tool_runs(moves):
             sub = moves[lo:hi]
             rows = np.arange(lo, hi)
-            work = self._plan(sub, rows, ids[lo:hi], self._body(tool), multi)
-            self._execute(work, self._body(tool), removed, probe=False, log=log, sink=sink)
+            swept = self._body(tool) if body is None else body
+            work = self._plan(sub, rows, ids[lo:hi], swept, multi)
+            self._execute(work, swept, removed, probe=False, log=log, sink=sink)
         if sink is not None:
             sink.end()
         res = self._result(n, log)

@@ -5,7 +5,10 @@
 * :mod:`drivers.grbl.driver` — :class:`GrblController` on any pyserial port
   (``grbl://``, ``grbl+pty://``, ``grbl+socket://`` URLs).
 * :mod:`drivers.grbl.peer` — :class:`GrblPeer`, the virtual machine speaking GRBL 1.1 on
-  a pseudo-terminal or TCP socket.
+  a pseudo-terminal or TCP socket, as the Grbl 1.1h firmware does; its ``$`` commands
+  are in :mod:`drivers.grbl.peer_system`, its reports in :mod:`drivers.grbl.peer_report`,
+  its G-code execution (planner feeding, spindle/coolant/offset syncs) in
+  :mod:`drivers.grbl.peer_gcode`.
 * :mod:`drivers.grbl.passthrough` — the machine's port offered to the user's sender,
   watched as bytes pass.
 * :mod:`drivers.grbl.endpoints` — the pty/TCP byte pipes the last two share.

@@ -821,7 +821,8 @@ def override_steps(current: int, target: int, kind: str = "feed") -> list[bytes]
 
 
 def apply_override(current: int, byte: int, kind: str) -> int:
-    """Override percent after GRBL applies one real-time byte (what the peer does)."""
+    """Override percent after GRBL applies one real-time byte on its own (identical bytes
+    that reach GRBL together count once: see ``drivers.grbl.peer``)."""
     if kind == "feed":
         base, lo, hi = 0x90, FEED_OV_MIN, FEED_OV_MAX
     else:

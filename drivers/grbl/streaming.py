@@ -17,6 +17,7 @@ from typing import Callable, Iterable
 
 from drivers.errors import ConnectionLost, DriverError
 from drivers.grbl import protocol as p
+from drivers.state import RunState
 
 
 class GrblError(DriverError):
@@ -134,16 +135,25 @@ class Streaming:
         """Send a line, wait for its ``ok`` and return the replies before it (raises GrblError).
 
         With no reply in time the line is taken as lost (its ``ok`` will not acknowledge
-        the next line): DriverError."""
+        the next line): DriverError. Not so while the machine is held (``Hold``, ``Door``,
+        ``Sleep``): GRBL keeps the line unread in its RX buffer and answers it after cycle
+        start, so it stays pending (its late reply is consumed, not given to the next line)."""
         cmd = self.send(line)
+        wait = self.timeout if timeout is None else timeout
         try:
-            return cmd.wait(self.timeout if timeout is None else timeout)
+            return cmd.wait(wait)
         except DriverError:
+            if cmd.failure is not None or cmd.done:
+                raise
             with self._cond:
-                if not cmd.done and cmd in self._pending:
+                held = _held_state(self.last_state)
+                if held is None and cmd in self._pending:
                     self._pending.remove(cmd)
                     self._in_flight -= cmd.nbytes
-            raise
+            if held is None:
+                raise
+            raise DriverError(f"GRBL {self.port}: no reply to {cmd.text!r} within {wait:g} s: the machine is in "
+                              f"{held}; GRBL answers the line after cycle start (~) or drops it on a reset") from None
 
     def stream(self, lines: Iterable[str], mode: str = "counting", timeout: float | None = None,
                on_ack: Callable[[Command], None] | None = None) -> StreamResult:
@@ -229,6 +239,16 @@ class Streaming:
         collect(len(sent))
         res.t_end = time.monotonic()
         return res
+
+
+def _held_state(state) -> str | None:
+    """``Hold:0`` / ``Door:1`` / ``Sleep`` when ``state`` (a MachineState or None) is one in
+    which GRBL's main loop reads no line; else None."""
+    if state is None or state.state not in (RunState.HOLD, RunState.DOOR, RunState.SLEEP):
+        return None
+    if state.substate is None:
+        return state.state.value
+    return f"{state.state.value}:{state.substate}"
 
 
 def clean_line(raw: str) -> str:

@@ -667,12 +667,22 @@ class VirtualMachine:
         start = self._planned_end.copy()
         if kind == MoveKind.DWELL:
             return [self._action_block(row, "dwell", dwell=float(row["dwell"]))]
-        if kind == MoveKind.PAUSE:
-            return [self._action_block(row, "pause")]
         if kind == MoveKind.END:
             return [self._action_block(row, "end")]
-        if kind == MoveKind.TOOL_CHANGE:
-            return [self._action_block(row, "sync")]
+        if kind in (MoveKind.PAUSE, MoveKind.TOOL_CHANGE):
+            action = self._action_block(row, "pause" if kind == MoveKind.PAUSE else "sync")
+            # one that moves (rs274 re-reading its position after a tool change, G88's manual
+            # retract): the stop, then a traverse to the row's end
+            end = np.asarray(row["end"], dtype=np.float64)
+            move = self._motion_block(row, start, end, float(np.linalg.norm(end - start)), jog)
+            if move is None:
+                return [action]
+            if self.config.out_of_travel(end):
+                self._soft_limit()
+                return None
+            action.last_of_row = False
+            self._planned_end = end.copy()
+            return [action, move]
         if kind in (MoveKind.ARC_CW, MoveKind.ARC_CCW):
             points = arc_points(start, np.asarray(row["end"], dtype=np.float64), np.asarray(row["center"]),
                                 int(row["plane"]), kind == MoveKind.ARC_CW, max(int(row["turns"]), 1),

@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from monitor.job import BLOCK_DELETE_HELP, MAX_LOOP_HELP
+from monitor.job import BLOCK_DELETE_HELP, DEFAULT_MACHINE, MAX_LOOP_HELP
 from sim.errors import InputError
 
 HELP = "cut and check a whole program (or a JOB.toml) without a machine; findings table or --json"
@@ -128,7 +128,7 @@ def build_stock(spec: str, resolution: float, memory_limit_mb: float = 4096.0):
         return DexelGrid.from_intervals(frame, np.full(frame.shape, lo[2]), np.full(frame.shape, hi[2]))
     path = Path(spec)
     if not path.is_file():
-        raise InputError(f"no such stock mesh file, and not box:X0,Y0,Z0,X1,Y1,Z1", where=f"--stock {spec}")
+        raise InputError("no such stock mesh file, and not box:X0,Y0,Z0,X1,Y1,Z1", where=f"--stock {spec}")
     from sim.solids import load_mesh, mesh_grid
 
     mesh, _ = load_mesh(path)
@@ -379,7 +379,7 @@ def _run_job(args) -> int:
         checker = Checker(wp.stock, wp.default_tool, design=wp.design, fixtures=wp.fixtures,
                           limits=limits_in_work(job.limits, wco), tol=job.tolerance, tools=wp.tools,
                           max_depth_of_cut=_positive(args.max_depth_of_cut, "--max-depth-of-cut"),
-                          min_volume=MIN_VOLUME)
+                          min_volume=MIN_VOLUME, undercut_from_path=not (job.undercut_given or t_h))
     out = {"job": str(path)}
     notes = []
     used = set(int(t) for t in moves["tool"])
@@ -391,7 +391,8 @@ def _run_job(args) -> int:
                                 job.default_tool.spec, wp.default_tool))
     notes.append(design_note(checker, job.design.stl if job.design is not None else None))
     return _simulate(args, str(job.program), moves, wp.stock, wp.default_tool, wp.tools, checker, out,
-                     true_volume=stock_true_volume(solid=job.stock), notes=[n for n in notes if n], inch=program.inch)
+                     true_volume=stock_true_volume(solid=job.stock), notes=[n for n in notes if n], inch=program.inch,
+                     machine={**DEFAULT_MACHINE, **(job.machine or {})})
 
 
 def _setup_findings(moves, grid, tool, tools, checker, inch: bool) -> list:
@@ -417,8 +418,18 @@ def DexelGrid_estimate(job) -> int:
     return DexelGrid.estimate_bytes(n)
 
 
+def move_start_times(moves: np.ndarray, machine=None) -> np.ndarray:
+    """Machine time (s from the program start) at which each row starts, float64 (n,):
+    the GRBL-like planner of ``sim.gcode.timing`` with ``machine`` (default
+    :data:`monitor.job.DEFAULT_MACHINE`)."""
+    from sim.gcode.timing import cycle_time
+
+    _, per_row = cycle_time(moves, machine or DEFAULT_MACHINE)
+    return np.concatenate([[0.0], np.cumsum(per_row)[:-1]]) if len(per_row) else np.zeros(0)
+
+
 def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, true_volume=None,
-              notes=(), inch: bool = False) -> int:
+              notes=(), inch: bool = False, machine=None) -> int:
     """Cut (and check) ``moves`` into ``grid``; print the report; return the exit status.
 
     With checks, a setup that cannot be meant (:mod:`sim.checks.setup`: the path never
@@ -440,9 +451,14 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
     stock_volume = grid_before if true_volume is None else float(true_volume)
     t0 = time.perf_counter()
     if checker is not None:
+        checker.set_move_times(move_start_times(moves, machine))
         # in batches: one batch's changed-ray log alive at a time, whatever the length
         per_move = checker.check_program(moves, batch=SIM_BATCH)
         findings = setup + final_findings(checker)
+        if checker.undercut_basis is not None:
+            from sim.checks.scallop import note
+
+            notes = [*notes, note(*checker.undercut_basis, checker.tol.undercut)]
     else:
         per_move = Cutter(grid, tool, tools=tools or None).cut_moves(moves, record_changes=False).removed
         findings = []

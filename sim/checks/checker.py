@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from sim.checks import collisions, motion
@@ -10,6 +12,7 @@ from sim.checks.error_map import DesignModel, ErrorMap
 from sim.checks.findings import Finding, merge_findings
 from sim.cut import CutResult, Cutter
 from sim.errors import InputError
+from sim.gcode.moves import MoveKind
 from sim.grid import DexelGrid
 from sim.tolerance import DEFAULT, Tolerance
 from sim.tools import Tool
@@ -38,11 +41,15 @@ class Checker:
     min_volume : float, optional
         Contacts and removals smaller than this (mm^3) are noise; default a tenth of a
         grid column one spacing high.
+    undercut_from_path : bool
+        The undercut tolerance is at least the scallop a ball leaves at the path's
+        stepover (:mod:`.scallop`), so that a clean finishing raster raises no scallop
+        crests as undercut. False when the user asked for an undercut tolerance.
     """
 
     def __init__(self, stock: DexelGrid, tool: Tool, design=None, fixtures=(), limits=None,
                  tol: Tolerance = DEFAULT, tools: dict | None = None, max_depth_of_cut: float | None = None,
-                 max_ramp_deg: float = 10.0, min_volume: float | None = None):
+                 max_ramp_deg: float = 10.0, min_volume: float | None = None, undercut_from_path: bool = True):
         if not isinstance(stock, DexelGrid):
             raise InputError(f"Checker needs a DexelGrid stock, got {type(stock).__name__}")
         self.grid = stock
@@ -66,20 +73,63 @@ class Checker:
         needs_engagement = any(not t.center_cutting for t in [tool, *self.tools.values()])
         self.engagement = (motion.Engagement(self.frame, stock.top(), tool, chord=tol.chord)
                            if needs_engagement and self.frame.is_top else None)
+        self.undercut_from_path = bool(undercut_from_path)
+        #: (scallop.Raster, Tool) the undercut tolerance followed (set by assess_model)
+        self.undercut_basis = None
         self._lines = np.zeros(1, np.int64)  # move id -> program line
+        self._tips = np.full((1, 6), np.nan)  # move id -> programmed tip at start, end (mm)
+        self._tool_nums = np.zeros(1, np.int64)  # move id -> tool number
+        self._feed = np.zeros(1, bool)  # move id -> a feed (G1) row
+        self._move_t0 = None  # move id - 1 -> machine time at its start (s), when told
+        self._spindle_off = None  # (move id, line) the last batch ended with the spindle off since
+        self._fixture_left: dict = {}  # fixture index -> {part: what it has not touched yet}
+        self._touched: dict = {}  # contact kind -> Cutter on the model less what that body touched
         self._bodies: dict = {}
         self.findings: list[Finding] = []
 
     # --- bookkeeping --------------------------------------------------------------------
     def _remember_lines(self, moves, ids):
+        """Keep each move's line, programmed tip, tool and kind by move id."""
         if len(ids) == 0:
             return
         top = int(ids.max())
         if top >= self._lines.size:
-            grown = np.zeros(max(top + 1, 2 * self._lines.size), np.int64)
-            grown[: self._lines.size] = self._lines
-            self._lines = grown
+            size = max(top + 1, 2 * self._lines.size)
+            self._lines = _grown(self._lines, size, 0)
+            self._tips = _grown(self._tips, size, np.nan)
+            self._tool_nums = _grown(self._tool_nums, size, 0)
+            self._feed = _grown(self._feed, size, False)
         self._lines[ids] = moves["line"]
+        length = np.asarray(moves["tool_length"], np.float64)
+        self._tips[ids, :3] = moves["start"][:, :3]
+        self._tips[ids, 3:] = moves["end"][:, :3]
+        self._tips[ids, 2] -= length
+        self._tips[ids, 5] -= length
+        self._tool_nums[ids] = moves["tool"]
+        self._feed[ids] = motion.is_motion(moves) & (moves["kind"] != int(MoveKind.RAPID))
+
+    def set_move_times(self, t0) -> None:
+        """Machine time (s from the program start) at which each move starts, float (n,)
+        indexed by move id - 1 (``sim.gcode.timing.cycle_time``'s per-row seconds summed):
+        findings then tell when they happen (``Finding.time_s``)."""
+        self._move_t0 = np.asarray(t0, np.float64).reshape(-1)
+
+    def annotate(self, findings) -> list[Finding]:
+        """``findings`` with the programmed tip of their worst move (its end, the
+        controlled point's table coordinates less the tool length) and the machine time
+        it starts, where known and not already set."""
+        out = []
+        for f in findings:
+            k = int(f.stage)
+            changes = {}
+            if 0 < k < self._tips.shape[0] and not np.isfinite(f.programmed).all() and np.isfinite(
+                    self._tips[k, 3:]).all():
+                changes["programmed"] = tuple(float(v) for v in self._tips[k, 3:])
+            t0 = self._move_t0
+            if t0 is not None and 0 < k <= t0.size and not np.isfinite(f.time_s):
+                changes["time_s"] = float(t0[k - 1])
+            out.append(replace(f, **changes) if changes else f)
+        return out
 
     def _tool_of_rows(self, moves) -> list[tuple[Tool, np.ndarray]]:
         if not self.tools:
@@ -101,7 +151,11 @@ class Checker:
         ids = motion.move_ids_of(moves, move_ids)
         self._remember_lines(moves, ids)
         found = self._check_batch(self.grid, self.cutter, moves, ids, self.error_map, self.engagement,
-                                  design_rays=None, top_bound=self._top_bound)
+                                  design_rays=None, top_bound=self._top_bound, spindle_off=self._spindle_off,
+                                  fixture_left=self._fixture_left, touched=self._touched)
+        span = motion.spindle_off_from(moves, ids, self._spindle_off)
+        if len(moves):
+            self._spindle_off = tuple(int(v) for v in span[-1]) if span[-1, 0] else None
         res, batch = found
         self.findings.extend(batch)
         return res, batch
@@ -123,13 +177,24 @@ class Checker:
             removed[a:b] = res.removed
         return removed
 
-    def _check_batch(self, grid, cutter, moves, ids, error_map, engagement, design_rays, top_bound):
+    def forget_contacts(self) -> None:
+        """Forget what bodies touched (the model was replaced: a look-ahead re-anchored)."""
+        self._touched = {}
+
+    def _check_batch(self, grid, cutter, moves, ids, error_map, engagement, design_rays, top_bound,
+                     spindle_off=None, fixture_left=None, touched=None):
+        """Cut and check one batch. ``spindle_off``: the stopped-spindle span the batch
+        starts in; ``fixture_left``: {fixture index: {part: untouched fixture}} and
+        ``touched``: {contact kind: cutter on the model less what that body touched}, kept
+        across batches (fresh ones: volumes of this batch only)."""
+        touched = {} if touched is None else touched
         out: list[Finding] = []
+        fixture_left = {} if fixture_left is None else fixture_left
         if self.limits:
             out += motion.travel_limits(moves, self.limits, ids)
-        for fx in self.fixtures:
+        for k, fx in enumerate(self.fixtures):
             for tool, rows in self._tool_of_rows(moves):
-                out += fx.check(moves[rows], tool, ids[rows], self.min_volume)
+                out += fx.check(moves[rows], tool, ids[rows], self.min_volume, left=fixture_left.setdefault(k, {}))
         # non-cutting bodies: probe before the cut; only candidates are verified in order
         pre = self._body_candidates(grid, cutter, moves, top_bound)
         snapshot = grid.copy() if pre else None
@@ -143,14 +208,21 @@ class Checker:
             for tool, rows in self._tool_of_rows(moves):
                 out += motion.plunges(moves[rows], core[rows], tool, self.max_ramp_deg, move_ids=ids[rows])
         out += collisions.rapid_into_stock(moves, res.removed, ids, self.min_volume, cut=res, grid=grid)
-        out += motion.spindle_stopped_cutting(moves, res.removed, ids, self.min_volume)
+        out += motion.spindle_stopped_cutting(moves, res.removed, ids, self.min_volume, carry=spindle_off)
         if pre:
-            out += self._replay_contacts(snapshot, moves, ids, pre)
+            out += self._replay_contacts(snapshot, moves, ids, pre, touched)
+        else:
+            for mine in touched.values():  # they follow the flutes too
+                mine.cut_moves(moves, move_ids=ids.astype(np.int32), record_changes=False)
         if error_map is not None and res.changed_rays.size:
             rays = error_map.update(grid, self.design, res.changed_rays, self.tol, design_rays=design_rays)
             if rays.size and np.nanmin(error_map.gouge[rays]) < -self.tol.gouge:
-                out += error_map.findings(self.tol, self._lines, rays=rays, undercut=False)
-        return res, merge_findings(out)
+                out += error_map.findings(self.tol, self._lines, rays=rays, undercut=False, join=self.reach())
+        return res, self.annotate(merge_findings(out))
+
+    def reach(self) -> float:
+        """Largest cutting radius of the tools (mm): error regions closer than this are one."""
+        return max([self.tool.cutting_radius] + [t.cutting_radius for t in self.tools.values()])
 
     def _contact_bodies(self, tool):
         """:func:`collisions.contact_bodies` of ``tool``, made once per tool."""
@@ -173,23 +245,37 @@ class Checker:
                     cand.setdefault(int(k), []).append((kind, body))
         return cand
 
-    def _replay_contacts(self, snapshot, moves, ids, cand) -> list[Finding]:
+    def _replay_contacts(self, snapshot, moves, ids, cand, touched) -> list[Finding]:
         """A body meets material at move k if the material is still there when the flutes
         of move k have passed: replay the batch on the snapshot through each candidate and
         probe the candidate's body then (so a shank following its flutes down a hole they
         cut is clear, while a holder landing on the stock is not). Bodies leading the
         flutes (moving up into material above the tool) are not seen this way."""
         scratch = Cutter(snapshot, self.tool, self.tol, tools=self.tools or None)
+        # the same replay with what each body touched taken away (``touched``, made at its
+        # first contact and kept across batches): a move's volume is what its body touches
+        # first, so the volumes of one contact's moves add up to the union of what they touched
         out: list[Finding] = []
         done = 0
         for k in sorted(cand):
             if k + 1 > done:
-                scratch.cut_moves(moves[done:k + 1], move_ids=ids[done:k + 1].astype(np.int32),
-                                  record_changes=False)
+                for cutter in [scratch, *touched.values()]:
+                    cutter.cut_moves(moves[done:k + 1], move_ids=ids[done:k + 1].astype(np.int32),
+                                     record_changes=False)
                 done = k + 1
             for kind, body in cand[k]:
-                vol = scratch.probe_moves(moves[k:k + 1], body=body)
-                out += collisions.body_findings(moves[k:k + 1], kind, vol, ids[k:k + 1], self.min_volume)
+                present = scratch.probe_moves(moves[k:k + 1], body=body)
+                vol = present
+                if present[0] > self.min_volume:
+                    mine = touched.get(kind)
+                    if mine is None:
+                        mine = touched[kind] = Cutter(scratch.grid.copy(), self.tool, self.tol,
+                                                      tools=self.tools or None)
+                    vol = mine.cut_moves(moves[k:k + 1], record_changes=False, body=body).removed
+                out += collisions.body_findings(moves[k:k + 1], kind, vol, ids[k:k + 1], self.min_volume,
+                                                present=present)
+        for mine in touched.values():  # the rest of the batch's flutes
+            mine.cut_moves(moves[done:], move_ids=ids[done:].astype(np.int32), record_changes=False)
         return out
 
     # --- look-ahead -------------------------------------------------------------------------
@@ -256,8 +342,48 @@ class Checker:
             return []
         self.error_map = ErrorMap(self.frame)
         self.error_map.update(self.grid, self.design, np.arange(self.frame.n_rays), self.tol, faces=faces)
-        return self.error_map.findings(self.tol, self._lines, undercut=undercut, min_rays=min_rays)
+        allowance = self.undercut_allowance() if undercut else None
+        return self.annotate(self.error_map.findings(self.tol, self._lines, undercut=undercut, min_rays=min_rays,
+                                                     join=self.reach(), undercut_limit=allowance))
+
+    def undercut_allowance(self):
+        """Per-ray undercut tolerance (float64 (n_rays,) mm) from the path, or None: the
+        scallop the path's ball leaves at its stepover on the design's local slope
+        (:func:`scallop.allowance`), never below ``tol.undercut``. None when the user asked
+        for an undercut tolerance, or the path is no ball raster."""
+        if not self.undercut_from_path or self.design is None:
+            return None
+        from sim.checks import scallop
+
+        n = self._lines.size
+        feed = self._feed[:n] & np.isfinite(self._tips[:n]).all(axis=1)
+        if not feed.any():
+            return None
+        nums = self._tool_nums[:n][feed]
+        # the tool that cut the longest feed path finishes the part
+        lengths = np.linalg.norm(self._tips[:n][feed, 3:5] - self._tips[:n][feed, :2], axis=1)
+        best = {}
+        for num, ln in zip(nums.tolist(), lengths.tolist()):
+            best[num] = best.get(num, 0.0) + ln
+        num = max(best, key=best.get)
+        tool = self.tools.get(int(num), self.tool)
+        sel = feed.copy()
+        sel[feed] = nums == num
+        raster = scallop.raster_of(self._tips[:n][sel])
+        if raster is None:
+            return None
+        got = scallop.allowance(self.design, tool, raster, self.tol.undercut)
+        if got is not None:
+            self.undercut_basis = (raster, tool)
+        return got
 
     def all_findings(self) -> list[Finding]:
         """Everything found while cutting, merged."""
         return merge_findings(self.findings)
+
+
+def _grown(a: np.ndarray, size: int, fill) -> np.ndarray:
+    """``a`` grown along its first axis to ``size`` rows, new rows ``fill``."""
+    out = np.full((size,) + a.shape[1:], fill, a.dtype)
+    out[: a.shape[0]] = a
+    return out

@@ -118,12 +118,14 @@ def contact_bodies(tool: Tool, clearance: float = CONTACT_CLEARANCE) -> list[tup
 
 
 def body_findings(moves: np.ndarray, kind: str, volumes, move_ids=None, min_volume: float = 1e-6,
-                  what: str = "") -> list[Finding]:
-    """One finding per motion row whose body met more than ``min_volume`` mm^3."""
+                  what: str = "", present=None) -> list[Finding]:
+    """One finding per motion row whose body met more than ``min_volume`` mm^3
+    (``present``, default ``volumes``); its volume is ``volumes`` (what it met first)."""
     moves = np.asarray(moves)
     ids = move_ids_of(moves, move_ids)
     volumes = np.asarray(volumes, np.float64)
-    bad = np.nonzero((volumes > min_volume) & is_motion(moves))[0]
+    present = volumes if present is None else np.asarray(present, np.float64)
+    bad = np.nonzero((present > min_volume) & is_motion(moves))[0]
     label = what or kind.replace("_", " ")
     return [Finding(kind=kind, line=int(moves["line"][k]), stage=int(ids[k]), position=tuple(_tip(moves, k)),
                     volume=float(volumes[k]),
@@ -169,16 +171,22 @@ class Fixture:
         frame = Frame.top(lo[0], lo[1], hi[0], hi[1], spacing)
         return cls(name or f"box {lo.tolist()}..{hi.tolist()}", box_grid(frame, lo, hi))
 
-    def check(self, moves: np.ndarray, tool: Tool, move_ids=None, min_volume: float = 1e-6) -> list[Finding]:
+    def check(self, moves: np.ndarray, tool: Tool, move_ids=None, min_volume: float = 1e-6,
+              left: dict | None = None) -> list[Finding]:
         """Moves whose tool (cutting part, shank, holder, body above the flutes) meets the
-        fixture; one finding per move and part, volume = what the part would sweep."""
+        fixture; one finding per move and part.
+
+        ``left``: {part name: the fixture grid with what that part already touched taken
+        away}, kept by the caller across batches (filled here on first use). With it each
+        move's volume is what it touches first, so the volumes of a finding's moves add up
+        to the union of what they touched (a holder rubbing a clamp over many moves never
+        weighs more than the clamp); without it, what each move's part would sweep."""
         from sim.cut import Cutter
 
         moves = np.asarray(moves)
         if len(moves) == 0:
             return []
         ids = move_ids_of(moves, move_ids)
-        cutter = Cutter(self.grid, tool)
         out: list[Finding] = []
         parts = [("tool", tool, 0.0)] + [(b.name, b, b.bottom) for _, b in contact_bodies(tool)]
         for name, body, bottom in parts:
@@ -186,9 +194,14 @@ class Fixture:
             rows = rows[_near_xy(moves[rows], self.grid, _radius(body))]
             if rows.size == 0:
                 continue
-            vol = cutter.probe_moves(moves[rows], body=body)
+            vol = present = Cutter(self.grid, tool).probe_moves(moves[rows], body=body)
+            if left is not None and (present > min_volume).any():
+                grid = left.get(name)
+                if grid is None:
+                    grid = left[name] = self.grid.copy()
+                vol = Cutter(grid, tool).cut_moves(moves[rows], record_changes=False, body=body).removed
             for f in body_findings(moves[rows], "fixture_collision", vol, ids[rows], min_volume,
-                                   what=f"{name} in fixture {self.name}"):
+                                   what=f"{name} in fixture {self.name}", present=present):
                 out.append(f)
         return out
 

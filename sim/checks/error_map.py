@@ -333,21 +333,24 @@ class ErrorMap:
         return rays[~np.isnan(self.gouge[rays])]
 
     def findings(self, tol: Tolerance, move_lines=None, rays=None, undercut: bool = True,
-                 min_rays: int = 1) -> list[Finding]:
-        """Gouge and undercut findings: one per 8-connected region of rays whose worst
-        point is past the tolerance (restricted to ``rays`` when given). Undercut counts
-        only within the range of interest (``t_h < e <= tol.interest``): material left
-        further from the design (a stock margin around a smaller part, stock no pass came
-        near) is not assessed, as in Huang & Oliver's error map.
+                 min_rays: int = 1, join: float = 0.0, undercut_limit=None) -> list[Finding]:
+        """Gouge and undercut findings: one per region of rays whose worst point is past
+        the tolerance (restricted to ``rays`` when given); rays closer than ``join`` mm
+        (the tool radius: one cause, like the strips one too-deep raster leaves under its
+        passes) are one region, else 8-connected ones. Undercut counts only within the
+        range of interest (``t_h < e <= tol.interest``): material left further from the
+        design (a stock margin around a smaller part, stock no pass came near) is not
+        assessed, as in Huang & Oliver's error map. ``undercut_limit``: per-ray t_h
+        (float64 (n_rays,) mm, e.g. the path's scallop, :mod:`.scallop`) instead of
+        ``tol.undercut``.
 
         ``move_lines``: int array indexed by move id giving its program line (0 = stock).
-        Depth: the largest error magnitude (mm). Area: rays x spacing^2 (projected along
-        the rays, mm^2). Volume: sum over the region's rays of the length along the ray
-        beyond the design surface x spacing^2 (mm^3). Position: the worst point (world).
-        Regions of fewer than ``min_rays`` rays are dropped.
+        Line: the first move's line (where the region starts); worst_line: the worst
+        point's. Depth: the largest error magnitude (mm). Area: rays x spacing^2
+        (projected along the rays, mm^2). Volume: sum over the region's rays of the length
+        along the ray beyond the design surface x spacing^2 (mm^3). Position: the worst
+        point (world). Regions of fewer than ``min_rays`` rays are dropped.
         """
-        from scipy import ndimage
-
         f = self.frame
         out: list[Finding] = []
         sel = None
@@ -359,7 +362,8 @@ class ErrorMap:
             # material left beyond the range of interest is not assessed (Huang & Oliver:
             # shown in the tool colour): stock margins outside the design's footprint, or
             # stock no pass came near, are not undercuts of the part
-            kinds.append(("undercut", self.excess, self.excess_id, self.excess_s, self.excess_len, tol.undercut,
+            limit = tol.undercut if undercut_limit is None else np.asarray(undercut_limit, np.float64)
+            kinds.append(("undercut", self.excess, self.excess_id, self.excess_s, self.excess_len, limit,
                           tol.interest))
         for kind, mag, ids, ss, lens, limit, ceiling in kinds:
             m_all = np.nan_to_num(mag, nan=-1.0)
@@ -368,7 +372,7 @@ class ErrorMap:
                 bad &= sel
             if not bad.any():
                 continue
-            labels, n = ndimage.label(bad.reshape(f.shape), structure=np.ones((3, 3), bool))
+            labels, n = _regions(bad.reshape(f.shape), join / f.spacing)
             labels = labels.reshape(-1)
             idx = np.nonzero(labels)[0]
             lab = labels[idx]
@@ -386,13 +390,17 @@ class ErrorMap:
                 pos = f.to_world(np.array([i * f.spacing, j * f.spacing, ss[w]]))
                 mids = distinct(ids[members])
                 lines = ()
-                line = 0
+                line = worst_line = 0
                 if move_lines is not None:
                     ml = np.asarray(move_lines)
-                    ok = (mids >= 0) & (mids < ml.size)
+                    ok = (mids > 0) & (mids < ml.size)
                     lines = tuple(int(x) for x in distinct(ml[mids[ok]]) if x > 0)
                     if 0 <= ids[w] < ml.size:
-                        line = int(ml[ids[w]])
+                        worst_line = int(ml[ids[w]])
+                    made = ml[mids[ok]]
+                    if (made > 0).any():  # the first move that made the region
+                        line = int(made[made > 0][0])
+                    line = line or worst_line
                 depth = float(mag[w])
                 if not math.isfinite(depth):
                     depth = float(lens[w])
@@ -406,12 +414,17 @@ class ErrorMap:
                 mi, mj = members % f.nu, members // f.nu
                 # the region's ray box: hits of later batches merge with it only when they
                 # are next to it (see findings._touch), never just for being consecutive
+                lo = f.to_world(np.array([mi.min() * f.spacing, mj.min() * f.spacing, 0.0]))
+                hi = f.to_world(np.array([mi.max() * f.spacing, mj.max() * f.spacing, 0.0]))
                 detail = {"rays": int(members.size),
-                          "ray_box": (int(mi.min()), int(mj.min()), int(mi.max()), int(mj.max()))}
+                          "ray_box": (int(mi.min()), int(mj.min()), int(mi.max()), int(mj.max())),
+                          # the region's XY box (world mm): frames of look-ahead windows differ
+                          "box": tuple(round(float(v), 4) for v in (min(lo[0], hi[0]), min(lo[1], hi[1]),
+                                                                   max(lo[0], hi[0]), max(lo[1], hi[1])))}
                 if not fin.all():
                     detail["rays_outside_design"] = int((~fin).sum())
                 out.append(Finding(
-                    kind=kind, line=line, lines=lines, stage=int(ids[w]), position=tuple(pos),
+                    kind=kind, line=line, worst_line=worst_line, lines=lines, stage=int(ids[w]), position=tuple(pos),
                     depth=depth,
                     area=members.size * f.spacing**2,
                     volume=float(ml_len[fin].sum()) * f.spacing**2 if fin.any() else math.nan,
@@ -419,3 +432,29 @@ class ErrorMap:
                     detail=detail,
                 ))
         return out
+
+
+def _regions(bad: np.ndarray, join_rays: float):
+    """``(labels int (nv, nu), count)`` of the regions of ``bad``: 8-connected, and
+    joined where they come within ``join_rays`` ray spacings of each other (each grown by
+    half of it, on the crop around them)."""
+    from scipy import ndimage
+
+    eight = np.ones((3, 3), bool)
+    if join_rays <= 1.0:
+        return ndimage.label(bad, structure=eight)
+    jj, ii = np.nonzero(bad)
+    pad = int(math.ceil(join_rays)) + 1
+    j0, j1 = max(jj.min() - pad, 0), min(jj.max() + pad + 1, bad.shape[0])
+    i0, i1 = max(ii.min() - pad, 0), min(ii.max() + pad + 1, bad.shape[1])
+    crop = bad[j0:j1, i0:i1]
+    grown = ndimage.distance_transform_edt(~crop) <= 0.5 * join_rays
+    lab, n = ndimage.label(grown, structure=eight)
+    lab[~crop] = 0
+    # renumber 1..m in the order of the labels still present
+    present = np.unique(lab[lab > 0])
+    remap = np.zeros(n + 1, np.int64)
+    remap[present] = np.arange(1, present.size + 1)
+    out = np.zeros(bad.shape, np.int64)
+    out[j0:j1, i0:i1] = remap[lab]
+    return out, int(present.size)

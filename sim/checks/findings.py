@@ -42,14 +42,15 @@ class Finding:
     kind : str
         One of :data:`KINDS`.
     line : int
-        The program line most responsible (the deepest point's or the first offending
-        move's line); 0 when unknown.
+        The program line where the finding starts (the line of its first move); 0 when
+        unknown.
     lines : tuple of int
         Every program line involved, sorted, distinct (includes ``line``).
     stage : int
         Move id (row index + 1 of the move table; 0 = stock) of the worst hit.
     position : tuple of 3 float
-        Machine coordinates X Y Z of the worst hit, mm.
+        Machine coordinates X Y Z of the worst hit, mm: the contact point (where the tool
+        met what it should not, the deepest point of a region).
     depth : float
         mm: gouge depth / undercut height / axial depth of cut / distance past a travel
         limit / penetration of a collision along the dexel direction; NaN if not measured.
@@ -64,6 +65,16 @@ class Finding:
         Every move id involved (used to merge hits of consecutive moves).
     detail : dict
         Extra facts of the kind (axis and limit for travel limits, body for contacts ...).
+        ``detail["cause"]``: hits naming the same cause (the spindle off since one move)
+        are one finding however far apart their moves are (:func:`merge_findings`).
+    worst_line : int
+        The line of the worst hit (the move ``stage``); defaults to ``line``.
+    programmed : tuple of 3 float
+        The programmed tool tip at the end of the worst hit's move (mm, the move table's
+        coordinates); NaN when not known (see ``Checker.annotate``).
+    time_s : float
+        Machine time (s from the program start, the move table's timing) at which the
+        worst hit's move starts; NaN when not known.
     """
 
     kind: str
@@ -77,6 +88,9 @@ class Finding:
     message: str = ""
     stages: tuple = ()
     detail: dict = field(default_factory=dict, compare=False, hash=False)
+    worst_line: int = 0
+    programmed: tuple = (math.nan, math.nan, math.nan)
+    time_s: float = math.nan
 
     def __post_init__(self):
         if self.kind not in KINDS:
@@ -87,8 +101,10 @@ class Finding:
         stages = tuple(sorted({int(x) for x in self.stages} | ({int(self.stage)} if self.stage else set())))
         object.__setattr__(self, "stages", stages)
         object.__setattr__(self, "stage", int(self.stage))
+        object.__setattr__(self, "worst_line", int(self.worst_line) if self.worst_line else self.line)
         object.__setattr__(self, "position", tuple(float(v) for v in self.position))
-        for name in ("depth", "area", "volume"):
+        object.__setattr__(self, "programmed", tuple(float(v) for v in self.programmed))
+        for name in ("depth", "area", "volume", "time_s"):
             object.__setattr__(self, name, float(getattr(self, name)))
 
     @property
@@ -96,16 +112,27 @@ class Finding:
         return self.kind in COLLISION_KINDS
 
     def to_json(self, max_lines: int = 200) -> dict:
-        """A JSON-ready dict: kind, line, lines, stage, position, the measured sizes, message.
+        """A JSON-ready dict: kind, line (where it starts), worst_line, lines, stage,
+        position (= contact, the worst point), programmed (the tip its move was programmed
+        to) and time_s when known, the measured sizes, message.
 
         Sizes that were not measured (NaN) are left out. ``lines`` longer than
-        ``max_lines`` is cut to its first ``max_lines`` and ``lines_total`` says how many.
+        ``max_lines`` is cut to its first ``max_lines`` and ``lines_total`` says how many;
+        ``line_range`` is always the first and last line.
         """
-        out = {"kind": self.kind, "line": self.line, "lines": list(self.lines[:max_lines])}
+        out = {"kind": self.kind, "line": self.line, "worst_line": self.worst_line,
+               "lines": list(self.lines[:max_lines])}
         if len(self.lines) > max_lines:
             out["lines_total"] = len(self.lines)
+        if self.lines:
+            out["line_range"] = [self.lines[0], self.lines[-1]]
         out["stage"] = self.stage
         out["position"] = [round(v, 4) for v in self.position]
+        out["contact"] = out["position"]
+        if all(math.isfinite(v) for v in self.programmed):
+            out["programmed"] = [round(v, 4) for v in self.programmed]
+        if math.isfinite(self.time_s):
+            out["time_s"] = round(self.time_s, 3)
         for name in ("depth", "area", "volume"):
             v = getattr(self, name)
             if not math.isnan(v):
@@ -144,6 +171,10 @@ def describe(f: Finding) -> str:
     what = f.kind.replace("_", " ")
     if f.detail.get("group"):
         what += f" ({f.detail['group']})"
+    if f.detail.get("cause"):
+        what += f" ({f.detail['cause']})"
+    if len(f.lines) > 1 and f.worst_line:
+        where += f", worst at line {f.worst_line}"
     return f"{what} at {where} ({pos})" + (": " + ", ".join(sizes) if sizes else "")
 
 
@@ -177,8 +208,15 @@ def _nanmax(a: float, b: float) -> float:
     return max(a, b)
 
 
+def _first(f: Finding) -> int:
+    """The move id where a hit starts (its stage when it has no list)."""
+    return f.stages[0] if f.stages else f.stage
+
+
 def _merge_two(a: Finding, b: Finding) -> Finding:
     w = _worse(a, b)
+    # the finding starts where the earlier of the two starts; it is worst where w is
+    first = a if (_first(a), a.line or 1 << 62) <= (_first(b), b.line or 1 << 62) else b
     detail = dict(a.detail)
     for k, v in b.detail.items():
         detail.setdefault(k, v)
@@ -186,8 +224,13 @@ def _merge_two(a: Finding, b: Finding) -> Finding:
         ba, bb = a.detail["ray_box"], b.detail["ray_box"]
         detail["ray_box"] = (min(ba[0], bb[0]), min(ba[1], bb[1]), max(ba[2], bb[2]), max(ba[3], bb[3]))
         detail["rays"] = a.detail.get("rays", 0) + b.detail.get("rays", 0)
+    if "box" in a.detail and "box" in b.detail:
+        ba, bb = a.detail["box"], b.detail["box"]
+        detail["box"] = (min(ba[0], bb[0]), min(ba[1], bb[1]), max(ba[2], bb[2]), max(ba[3], bb[3]))
     return replace(
         w,
+        line=first.line or w.line,
+        worst_line=w.worst_line,
         lines=a.lines + b.lines,
         stages=a.stages + b.stages,
         depth=_nanmax(a.depth, b.depth),
@@ -204,7 +247,11 @@ def _touch(a: Finding, b: Finding) -> bool:
     Hits without stages (e.g. whole-model error regions) never merge here: those are
     merged by ray adjacency when they are found.
     """
-    if a.kind != b.kind or not a.stages or not b.stages:
+    if a.kind != b.kind:
+        return False
+    if a.detail.get("cause") is not None and a.detail.get("cause") == b.detail.get("cause"):
+        return True  # one cause: one finding, however far apart its moves
+    if not a.stages or not b.stages:
         return False
     if a.detail.get("group") != b.detail.get("group"):
         return False
@@ -222,16 +269,18 @@ def merge_findings(findings) -> list[Finding]:
 
     Two hits touch when they are of the same kind (and the same ``detail["group"]``,
     e.g. the axis and side of a travel limit, or the body of a contact) and their move
-    ids (``stages``) are equal or consecutive. The merged finding keeps all lines and
-    stages, the worst hit's line, stage and position, the maximum depth and the summed
-    area and volume.
+    ids (``stages``) are equal or consecutive, or when they name the same
+    ``detail["cause"]``. The merged finding keeps all lines and stages, the first hit's
+    line as ``line``, the worst hit's line (``worst_line``), stage and position, the
+    maximum depth and the summed area and volume (the checks measure hits that do not
+    overlap, so the sum is the union's).
 
     Returns the merged findings ordered by first stage, then kind.
     """
     by_kind: dict[tuple, list[Finding]] = {}
     order = []
     for f in findings:
-        key = (f.kind, f.detail.get("group"))
+        key = (f.kind, f.detail.get("group"), f.detail.get("cause"))
         if key not in by_kind:
             by_kind[key] = []
             order.append(key)

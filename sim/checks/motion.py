@@ -223,7 +223,8 @@ def travel_limits(moves: np.ndarray, limits: dict, move_ids=None, chord: float =
                 if ks.size > 1:
                     msg += f" ({_where(lines)}, {ks.size} moves)"
                 out.append(Finding(
-                    kind="travel_limit", line=int(moves["line"][k]), lines=tuple(lines), stage=int(ids[k]),
+                    kind="travel_limit", line=int(moves["line"][ks[0]]), worst_line=int(moves["line"][k]),
+                    lines=tuple(lines), stage=int(ids[k]),
                     stages=tuple(ids[ks].tolist()), position=tuple(pos), depth=float(past[q]),
                     message=msg, detail={"group": f"{axis}{side}", "axis": axis, "limit": lim},
                 ))
@@ -232,24 +233,58 @@ def travel_limits(moves: np.ndarray, limits: dict, move_ids=None, chord: float =
 
 # --- spindle --------------------------------------------------------------------------------
 
-def spindle_stopped_cutting(moves: np.ndarray, removed, move_ids=None, min_volume: float = 1e-6) -> list[Finding]:
+def _stopped(moves: np.ndarray) -> np.ndarray:
+    """bool (n,): rows run with the spindle stopped."""
+    return (moves["spindle_dir"] == 0) | (moves["spindle"] <= 0)
+
+
+def spindle_off_from(moves: np.ndarray, move_ids=None, carry=None):
+    """Per row, ``(move id, line)`` of the first row of the stopped-spindle span it is in,
+    as an int64 (n, 2) array (0, 0 where the spindle runs). ``carry``: the span the
+    previous batch ended in (None: the spindle ran, or no batch before)."""
+    moves = np.asarray(moves)
+    ids = move_ids_of(moves, move_ids)
+    stopped = _stopped(moves)
+    out = np.zeros((len(moves), 2), np.int64)
+    cur = carry
+    for k in range(len(moves)):  # spans are few; rows are walked once
+        if not stopped[k]:
+            cur = None
+            continue
+        if cur is None:
+            cur = (int(ids[k]), int(moves["line"][k]))
+        out[k] = cur
+    return out
+
+
+def spindle_stopped_cutting(moves: np.ndarray, removed, move_ids=None, min_volume: float = 1e-6,
+                            carry=None) -> list[Finding]:
     """Moves that removed (or would remove) material with the spindle stopped.
 
     ``removed``: float64 (n,) mm^3 per row (from ``Cutter.cut_moves`` or
-    ``probe_moves``). Rapids are left to the rapid check.
+    ``probe_moves``). Rapids are left to the rapid check. Every hit names its cause, the
+    span of rows run with the spindle stopped (``detail["cause"]``, from the row where it
+    stopped; ``carry``: the span the previous batch ended in, see
+    :func:`spindle_off_from`), so that :func:`merge_findings` makes one finding of a
+    program that never starts the spindle, not one per move.
     """
     moves = np.asarray(moves)
     ids = move_ids_of(moves, move_ids)
     removed = np.asarray(removed, np.float64)
-    stopped = (moves["spindle_dir"] == 0) | (moves["spindle"] <= 0)
-    bad = np.nonzero(stopped & (removed > min_volume) & is_motion(moves)
+    bad = np.nonzero(_stopped(moves) & (removed > min_volume) & is_motion(moves)
                      & (moves["kind"] != int(MoveKind.RAPID)))[0]
+    if bad.size == 0:
+        return []
+    span = spindle_off_from(moves, ids, carry)
     out = []
     for k in bad:
         tip = np.array(moves["end"][k, :3], np.float64)
         tip[2] -= moves["tool_length"][k]
+        first_id, first_line = (int(v) for v in span[k])
+        since = f"spindle off from line {first_line}" if first_line > 0 else "spindle off from the start"
         out.append(Finding(kind="spindle_stopped_cutting", line=int(moves["line"][k]), stage=int(ids[k]),
-                           position=tuple(tip), volume=float(removed[k])))
+                           position=tuple(tip), volume=float(removed[k]),
+                           detail={"cause": since, "off_from_move": first_id}))
     return out
 
 
@@ -644,7 +679,8 @@ def depth_of_cut(moves: np.ndarray, doc, limit: float, move_ids=None) -> list[Fi
         msg = f"depth of cut {float(doc[k]):.3f} mm over the {limit:g} mm limit at line {int(moves['line'][k])}"
         if ks.size > 1:
             msg += f" ({_where(lines)}, {ks.size} moves)"
-        out.append(Finding(kind="depth_of_cut", line=int(moves["line"][k]), lines=tuple(lines), stage=int(ids[k]),
+        out.append(Finding(kind="depth_of_cut", line=int(moves["line"][ks[0]]), worst_line=int(moves["line"][k]),
+                           lines=tuple(lines), stage=int(ids[k]),
                            stages=tuple(ids[ks].tolist()), position=tuple(tip), depth=float(doc[k]),
                            message=msg, detail={"limit": limit}))
     return out

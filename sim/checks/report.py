@@ -16,8 +16,9 @@ def add_check_arguments(parser) -> None:
     g.add_argument("--tolerance", type=float, default=None, metavar="MM",
                    help=f"gouge tolerance t_l in mm (default {DEFAULT.gouge:g})")
     g.add_argument("--undercut-tolerance", type=float, default=None, metavar="MM",
-                   help=f"undercut tolerance t_h in mm (default {DEFAULT.undercut:g}, about a ball-end "
-                        f"finishing scallop; not tied to --tolerance); material left more than the range "
+                   help=f"undercut tolerance t_h in mm (default: {DEFAULT.undercut:g}, or the scallop a "
+                        f"ball-end finishing raster leaves at its stepover on the part's slope where that "
+                        f"is higher; not tied to --tolerance); material left more than the range "
                         f"of interest ({DEFAULT.interest:g} mm) from the part is not an undercut")
     g.add_argument("--fixture", action="append", default=[], metavar="box:X0,Y0,Z0,X1,Y1,Z1",
                    help="a fixture the tool must never enter (repeatable)")
@@ -57,7 +58,7 @@ def checker_from_args(args, grid, tool, tools=None):
         fixtures.append(Fixture.box(vals[:3], vals[3:], grid.frame.spacing, name=f"#{k + 1}"))
     limits = parse_limits(args.limits) if getattr(args, "limits", None) else None
     return Checker(grid, tool, design=getattr(args, "design", None), fixtures=fixtures, limits=limits,
-                   tol=tol, tools=tools or None,
+                   tol=tol, tools=tools or None, undercut_from_path=t_h is None,
                    max_depth_of_cut=_positive(getattr(args, "max_depth_of_cut", None), "--max-depth-of-cut"))
 
 

@@ -69,6 +69,9 @@ def arc_motion(it, cw: bool, explicit: bool, words, cols, used, has_axes: bool) 
     from sim.gcode.interpreter import ARC_TOL_INCH, ARC_TOL_MM, INCH, PLANE_AXES, PLANE_OFFSET_WORDS
 
     grbl = it.grbl
+    if it.arc_not_allowed:
+        raise LineError("the move just after G40 (cutter compensation off) must be straight, not an arc",
+                        cols.get("G", 1))
     a1, a2, ax = PLANE_AXES[it.plane]
     n1, n2, nn = PLANE_OFFSET_WORDS[it.plane]
     plane_name = {170: "XY", 180: "XZ", 190: "YZ"}[it.plane]
@@ -113,11 +116,12 @@ def arc_motion(it, cw: bool, explicit: bool, words, cols, used, has_axes: bool) 
             x, y = e1 - s1, e2 - s2
             if x == 0.0 and y == 0.0:
                 raise LineError("R arc with the same start and end point", cols["R"], 33)
+            # gcode.c: 4 R^2 < d^2 (R0 included) is "arc radius error" (34), not 33
             if R == 0.0:
-                raise LineError("arc radius is zero", cols["R"], 33)
+                raise LineError("arc radius is zero", cols["R"], 34)
             h = 4.0 * R * R - x * x - y * y
             if h < 0.0:
-                raise LineError(f"arc radius R{words['R']:g} is too small to reach the end point", cols["R"], 33)
+                raise LineError(f"arc radius R{words['R']:g} is too small to reach the end point", cols["R"], 34)
             h = -math.sqrt(h) / math.hypot(x, y)
             if not cw:
                 h = -h
@@ -149,6 +153,9 @@ def arc_motion(it, cw: bool, explicit: bool, words, cols, used, has_axes: bool) 
         o1 = words.get(n1, 0.0) * f
         o2 = words.get(n2, 0.0) * f
         used.update(k for k in (n1, n2) if k in words)
+        if it.arc_distance == 901 and not grbl and not (n1 in words and n2 in words):
+            # G90.1: a missing centre word is not 0 but an error (rs274)
+            raise LineError(f"{n1 if n1 not in words else n2} word missing in absolute center arc (G90.1)", col)
         if it.arc_distance == 901:
             c1, c2 = o1, o2
         else:

@@ -284,10 +284,10 @@ def run_simple(it, vals: np.ndarray, first: int, snapshot) -> bool:
 
     ``vals`` (k, 5) G X Y Z F values of lines ``first .. first + k - 1`` (0-based) from
     :func:`scan`. Returns False (having done nothing) when the state or the lines need
-    the full interpreter: not absolute mode, comp on, inverse time or feed per rev, a
-    feed move with no feed rate, a negative F.
+    the full interpreter: not absolute mode, comp on or the tool left off the program position
+    by G40, inverse time or feed per rev, a feed move with no feed rate, a negative F.
     """
-    if it.distance != 900 or it.comp != 400 or it.feed_mode != 940 or it.ended or it.comp_engine is not None:
+    if it.distance != 900 or it.comp != 400 or it.feed_mode != 940 or it.ended or it.tool_pos is not None:
         return False
     k = len(vals)
     gcol, fcol = vals[:, 0], vals[:, 4]
@@ -371,6 +371,9 @@ def run_simple(it, vals: np.ndarray, first: int, snapshot) -> bool:
         snapshot()
     if n:
         it.pos = [float(v) for v in end[-1]]
+        it.canon_tlo = it.tlo   # a motion carries the offsets in force (tool_length)
+    if n or has_g.any():
+        it.cycle.il = None      # a G0/G1 motion ends a sequence of canned cycles
     it.motion = int(motion[-1])
     it.feed_word = float(feed_word[-1])
     it.feed_set = bool(feed_set[-1])

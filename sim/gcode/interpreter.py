@@ -16,7 +16,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from sim.gcode import arcs, mcodes
+from sim.gcode import arcs, comp, mcodes
 from sim.gcode.errors import GCodeError, LineError
 from sim.gcode.expr import evaluate
 from sim.gcode.lathe import lathe_message
@@ -24,7 +24,10 @@ from sim.gcode.limits import DEFAULT_LIMITS, MAX_LINEAR_MM, MAX_ROTARY_DEG, Limi
 from sim.gcode.mcodes import M_GROUP
 from sim.gcode.moves import COOLANT_FLOOD, COOLANT_MIST, MOVE_DTYPE, MoveKind
 from sim.gcode.parser import AXES, Block, is_deleted, parse_line
+from sim.gcode.cycles import CycleMemory
+from sim.gcode.probe import straight_probe
 from sim.gcode.state import ModalState
+from sim.gcode.tool_length import CANON_MOTIONS, refresh_after_tool_change, set_tool_length, tool_parameter
 
 INCH = 25.4
 NAN3 = (math.nan, math.nan, math.nan)
@@ -32,24 +35,25 @@ NAN3 = (math.nan, math.nan, math.nan)
 # modal group of each G code (in tenths); 0 = non-modal
 G_GROUP = {
     0: 1, 10: 1, 20: 1, 30: 1, 382: 1, 383: 1, 384: 1, 385: 1, 730: 1, 800: 1, 810: 1, 820: 1,
-    830: 1, 850: 1, 860: 1, 890: 1, 50: 1, 51: 1, 330: 1, 331: 1,
+    830: 1, 850: 1, 860: 1, 890: 1, 740: 1, 840: 1, 870: 1, 880: 1, 50: 1, 51: 1, 330: 1, 331: 1,
     170: 2, 180: 2, 190: 2,
     900: 3, 910: 3,
     901: 4, 911: 4,
     930: 5, 940: 5, 950: 5,
     200: 6, 210: 6,
-    400: 7, 410: 7, 420: 7,
-    430: 8, 431: 8, 490: 8,
+    400: 7, 410: 7, 411: 7, 420: 7, 421: 7,
+    430: 8, 431: 8, 432: 8, 490: 8,
     980: 10, 990: 10,
     540: 12, 550: 12, 560: 12, 570: 12, 580: 12, 590: 12, 591: 12, 592: 12, 593: 12,
     610: 13, 611: 13, 640: 13,
     970: 14,
-    40: 0, 100: 0, 280: 0, 281: 0, 300: 0, 301: 0, 530: 0, 920: 0, 921: 0, 922: 0, 923: 0,
+    40: 0, 100: 0, 280: 0, 281: 0, 300: 0, 301: 0, 530: 0, 920: 0,
+    921: 16, 922: 16, 923: 16,   # LinuxCNC's own group, run after G10/G28/G30/G92 (GRBL: group 0)
 }
 GRBL_G = {0, 10, 20, 30, 382, 383, 384, 385, 40, 100, 170, 180, 190, 200, 210, 280, 281, 300, 301,
           400, 431, 490, 530, 540, 550, 560, 570, 580, 590, 610, 800, 900, 910, 911, 920, 921, 930, 940}
 GRBL_M = {0, 1, 2, 30, 3, 4, 5, 8, 9, 56}
-CYCLES = {730, 810, 820, 830, 850, 860, 890}
+CYCLES = {730, 740, 810, 820, 830, 840, 850, 860, 870, 880, 890}
 MOTION_AXES = {0, 10, 20, 30, 50, 51, 382, 383, 384, 385} | CYCLES
 G0_AXIS_USERS = {100, 280, 300, 920}
 PLANE_AXES = {170: (0, 1, 2), 180: (2, 0, 1), 190: (1, 2, 0)}  # first, second, normal axis
@@ -58,7 +62,6 @@ PLANE_OFFSET_WORDS = {170: ("I", "J", "K"), 180: ("K", "I", "J"), 190: ("J", "K"
 COORD_INDEX = {540: 0, 550: 1, 560: 2, 570: 3, 580: 4, 590: 5, 591: 6, 592: 7, 593: 8}
 ARC_TOL_INCH = 0.0005  # LinuxCNC TOLERANCE_INCH (program inch)
 ARC_TOL_MM = 0.005     # LinuxCNC TOLERANCE_MM
-G83_RAPID_DELTA_INCH = 0.010
 _AXIS_BOUND = (MAX_LINEAR_MM,) * 3 + (MAX_ROTARY_DEG,) * 3
 SPLINE_CHORD = 0.001  # mm: G5/G5.1 chords stay this close to the curve
 
@@ -82,13 +85,12 @@ class _Params:
         if abs(idx - i) > 1e-6 or not 1 <= i <= 5602:
             raise LineError(f"parameter number #{idx:g} out of range 1..5602")
         it = self.it
-        f = it.factor
         if 5161 <= i <= 5166:
-            return self._out(it.g28[i - 5161], i - 5161)
+            return self._user_out(it.g28[i - 5161], i - 5161)
         if 5181 <= i <= 5186:
-            return self._out(it.g30[i - 5181], i - 5181)
+            return self._user_out(it.g30[i - 5181], i - 5181)
         if 5211 <= i <= 5216:
-            return self._out(it.g92_saved[i - 5211], i - 5211)
+            return self._user_out(it.g92_saved[i - 5211], i - 5211)
         if i == 5210:
             return 1.0 if it.g92_enabled else 0.0
         if i == 5220:
@@ -96,16 +98,14 @@ class _Params:
         if 5221 <= i <= 5390:
             k, a = divmod(i - 5221, 20)
             if k < 9 and a < 6:
-                return self._out(it.g5x[k][a], a)
+                return self._user_out(it.g5x[k][a], a)
             if k < 9 and a == 9:
                 return 0.0  # rotation
-        if i == 5400:
-            return float(it.tool)
-        if 5401 <= i <= 5406:
-            return self._out(it.tlo[i - 5401], i - 5401)
-        if i == 5410:
-            e = it.tool_table.get(it.tool) if it.tool_table else None
-            return (e.diameter / f) if e else 0.0
+        tool = tool_parameter(it, i)
+        if tool is not None:
+            return tool
+        if 5420 <= i <= 5428 and it.comp != 400:
+            raise LineError(f"cannot read the current position (#{i}) with cutter radius compensation on")
         if 5420 <= i <= 5425:
             w = it.work()
             return self._out(w[i - 5420], i - 5420)
@@ -114,26 +114,31 @@ class _Params:
     def _out(self, v: float, axis: int) -> float:
         return v / self.it.factor if axis < 3 else v
 
-    def _in(self, v: float, axis: int) -> float:
-        return v * self.it.factor if axis < 3 else v
+    # stored positions and offsets (#5161.. #5181.. #5211.. #5221..) are in machine units,
+    # LinuxCNC's "user units", whatever G20/G21 says
+    def _user_out(self, v: float, axis: int) -> float:
+        return v / INCH if axis < 3 and self.it.machine_units == "inch" else v
+
+    def _user_in(self, v: float, axis: int) -> float:
+        return v * INCH if axis < 3 and self.it.machine_units == "inch" else v
 
     def set_numbered(self, idx: float, v: float) -> None:
         i = int(round(idx))
         if abs(idx - i) > 1e-6 or not 1 <= i <= 5602:
             raise LineError(f"parameter number #{idx:g} out of range 1..5602")
-        if 5381 <= i <= 5390 or 5420 <= i <= 5428 or i in (5400, 5410) or 5401 <= i <= 5409:
+        if 5381 <= i <= 5390 or 5400 <= i <= 5413 or 5420 <= i <= 5428:
             raise LineError(f"parameter #{i} is read-only")
         it = self.it
         if 5161 <= i <= 5166:
-            it.g28[i - 5161] = self._in(v, i - 5161)
+            it.g28[i - 5161] = self._user_in(v, i - 5161)
         elif 5181 <= i <= 5186:
-            it.g30[i - 5181] = self._in(v, i - 5181)
+            it.g30[i - 5181] = self._user_in(v, i - 5181)
         elif 5211 <= i <= 5216:
-            it.g92_saved[i - 5211] = self._in(v, i - 5211)
+            it.g92_saved[i - 5211] = self._user_in(v, i - 5211)
         elif 5221 <= i <= 5380:
             k, a = divmod(i - 5221, 20)
             if a < 6:
-                it.g5x[k][a] = self._in(v, a)
+                it.g5x[k][a] = self._user_in(v, a)
         self.numbered[i] = v
 
     def get_named(self, name: str) -> float:
@@ -198,13 +203,16 @@ class Interpreter:
 
     def __init__(self, dialect: str = "linuxcnc", machine_units: str = "mm", tool_table=None,
                  var_params: dict | None = None, filename: str = "<string>", block_delete: bool = False,
-                 limits: Limits | None = None):
+                 limits: Limits | None = None, after_tool_change: str = "machine"):
         if dialect not in ("linuxcnc", "grbl"):
             raise GCodeError(f"unknown dialect {dialect!r}: expected 'linuxcnc' or 'grbl'", filename, 0)
         if machine_units not in ("mm", "inch"):
             raise GCodeError(f"machine units must be 'mm' or 'inch', got {machine_units!r}", filename, 0)
+        if after_tool_change not in ("machine", "rs274"):
+            raise GCodeError(f"after_tool_change must be 'machine' or 'rs274', got {after_tool_change!r}", filename, 0)
         self.dialect = dialect
         self.grbl = dialect == "grbl"
+        self.after_tool_change = after_tool_change   # see tool_length.refresh_after_tool_change
         self.machine_units = machine_units
         self.tool_table = dict(tool_table) if tool_table else {}
         self.has_tool_table = tool_table is not None
@@ -220,6 +228,7 @@ class Interpreter:
         self.g92_saved = [0.0] * 6
         self.g92_enabled = False
         self.tlo = [0.0] * 6
+        self.canon_tlo = self.tlo   # the offsets of the last motion (see tool_length)
         self.g28 = [0.0] * 6
         self.g30 = [0.0] * 6
         # modal codes (tenths)
@@ -234,7 +243,7 @@ class Interpreter:
         self.comp_radius = 0.0
         self.tlo_mode = 490
         self.path_mode = 610
-        self.retract = 980
+        self.retract = 990          # LinuxCNC's initial retract mode is R_PLANE
         self.feed_word = 0.0
         self.feed_set = False
         self.spindle = 0.0
@@ -242,11 +251,8 @@ class Interpreter:
         self.tool = 0
         self.selected_tool = 0
         self.coolant = 0
-        self.cycle_r = None
-        self.cycle_z = None
-        self.cycle_q = None
-        self.cycle_p = 0.0
-        self.cycle_motion = None
+        self.cycle = CycleMemory()
+        self.prev_motion = 0        # the motion mode before the block being executed
         self.last_spline_ctrl = None
         self.file_index = 0
         self.line = 0
@@ -260,7 +266,9 @@ class Interpreter:
         self._n = 0
         self.main_line = 0
         self.params = _Params(self)
-        self.comp_engine = None
+        self.comp_engine = None    # sim.gcode.comp.CompEngine while compensation offsets moves
+        self.tool_pos = None       # machine position of the tool when it is not at pos (after G40)
+        self.arc_not_allowed = False  # just after G40: the next move must be straight
         self.contexts = mcodes.Contexts()   # M70-M73 saved modal states, per call level
         if var_params:
             self._load_var(var_params)
@@ -430,7 +438,7 @@ class Interpreter:
             raise self.error(LineError(f"cannot compute this line: {exc}"), text, line_no) from None
         return self.take_rows()
 
-    _NOT_SAVED = ("_rows", "_row_line", "_table", "_table_lines", "params", "messages", "files", "comp_engine")
+    _NOT_SAVED = ("_rows", "_row_line", "_table", "_table_lines", "params", "messages", "files")
 
     def _checkpoint(self) -> dict:
         """The state a refused streamed line must not change (a controller refuses the whole line)."""
@@ -495,6 +503,10 @@ class Interpreter:
             if not abs(v) <= top:  # also catches NaN
                 raise LineError(coordinate_message(axis, v))
         m = meta or self.meta()
+        if kind in CANON_MOTIONS:
+            self.canon_tlo = self.tlo
+        if self.tool_pos is not None:  # just after G40 the tool is not where the program is
+            start, end = comp.row_ends(self, kind, start, end)
         self._rows.append((
             m[0], m[1], kind, tuple(start), tuple(end), tuple(self.offsets()), center,
             m[7], turns, feed, inverse, m[2], m[3], m[4], m[5], m[6], dwell,
@@ -549,7 +561,11 @@ class Interpreter:
                 raise LineError(lathe_message(c) or f"unknown G code G{v:g}", col)
             if grbl and c not in GRBL_G:
                 raise LineError(f"GRBL does not support G{v:g}", col, 20)
-            grp = G_GROUP[c]
+            grp = 0 if grbl and G_GROUP[c] == 16 else G_GROUP[c]
+            if grp in gmodes and not grbl and 800 in (c, gmodes[grp][0]):
+                if c != 800:
+                    gmodes[grp] = (c, col)   # LinuxCNC: G80 gives way to another motion code
+                continue
             if grp in gmodes:
                 raise LineError(f"G{v:g} and G{gmodes[grp][0] / 10:g} are in the same modal group", col, 21)
             gmodes[grp] = (c, col)
@@ -575,10 +591,10 @@ class Interpreter:
         g0code = g0[0] if g0 else None
         explicit_motion = gmodes.get(1)
         axis_owner = None  # which code takes the axis words
-        if g0code in G0_AXIS_USERS and has_axes:
+        if g0code in G0_AXIS_USERS and (has_axes or not grbl):   # LinuxCNC: even without axes
             if explicit_motion and explicit_motion[0] not in (800,):
                 raise LineError("two G codes that both use axis words on one line", explicit_motion[1], 24)
-            axis_owner = g0code
+            axis_owner = g0code if has_axes else None
         if gmodes.get(8, (0,))[0] == 431 and has_axes:
             if explicit_motion:
                 raise LineError("G43.1 and a motion both use the axis words", explicit_motion[1], 24)
@@ -591,19 +607,23 @@ class Interpreter:
         if motion == 800 and has_axes and axis_owner is None:
             col = min(cols.get(a, 10**6) for a in AXES + "@^" if a in words)
             raise LineError("axis words with no command to use them (G80 is active)", col, 31)
+        if explicit_motion and not has_axes and not grbl and motion not in (0, 10, 20, 30, 800):
+            raise LineError(f"G{motion / 10:g} needs axis words (LinuxCNC: all axes missing with motion code)",
+                            explicit_motion[1])
 
         if "$" in words:
             mcodes.spindle_select(words, cols, mmodes, gmodes, motion, used)
         # ---- 1. feed mode, F, S, T
         if 5 in gmodes:
             self.feed_mode = gmodes[5][0]
-            if self.feed_mode != 930 and not grbl:
-                self.feed_word = 0.0  # LinuxCNC's G94/G95 clear F (this line's F word comes next)
+            if not grbl and self.feed_mode != 930:
+                self.feed_word = 0.0   # LinuxCNC: G94 and G95 reset the feed rate
         if "F" in words:
             f = words["F"]
             if f < 0:
                 raise LineError("F must not be negative", cols["F"], 4)
-            self.feed_word = f
+            if grbl or self.feed_mode != 930:   # LinuxCNC: a G93 F is the move's, not the feed rate
+                self.feed_word = f
             self.feed_set = True
             used.add("F")
         if "S" in words:
@@ -631,7 +651,12 @@ class Interpreter:
             mcodes.convert_io(self, mmodes[5], words, cols, used)
         m6 = mmodes.get(6)
         if m6:
+            comp.tool_change(self, m6[0], m6[1])
             if m6[0] == 6:
+                if self.comp != 400 and not grbl:
+                    raise LineError("cannot change tools with cutter radius compensation on (G40 first)", m6[1])
+                if not grbl:
+                    self.spindle_dir = 0   # LinuxCNC stops the spindle for a tool change
                 old = list(self.pos)
                 self.tool = self.selected_tool
                 self.emit(MoveKind.TOOL_CHANGE, old, old)
@@ -645,6 +670,8 @@ class Interpreter:
                 if self.has_tool_table and int(q) != 0 and int(q) not in self.tool_table:
                     raise LineError(f"unknown tool T{int(q)}: it is not in the tool table", cols["Q"])
                 self.tool = self.selected_tool = int(q)
+        if 9 in mmodes:
+            comp.refuse_while_on(self, "change the overrides (M48-M53)", mmodes[9][1])
         # ---- 3. spindle (M19, M70-M73 too), coolant, overrides, user M codes
         sp = mmodes.get(7)
         if sp and sp[0] in (3, 4, 5):
@@ -671,8 +698,7 @@ class Interpreter:
             if p < 0:
                 raise LineError("G4 P must not be negative", cols["P"], 4)
             used.add("P")
-            here = list(self.pos)
-            self.emit(MoveKind.DWELL, here, here, dwell=p)
+            comp.dwell(self, p)
         # ---- 5. plane, units
         if 2 in gmodes:
             if self.comp != 400 and gmodes[2][0] != self.plane:
@@ -683,7 +709,7 @@ class Interpreter:
             self.factor = INCH if self.units == 200 else 1.0
         # ---- 6. cutter compensation
         if 7 in gmodes:
-            self._set_comp(gmodes[7], words, cols, used)
+            comp.set_mode(self, gmodes[7], words, cols, used)
         # ---- 7. tool length
         if 8 in gmodes:
             self._set_tool_length(gmodes[8], words, cols, used)
@@ -708,23 +734,26 @@ class Interpreter:
         g53 = g0code == 530
         if g0code in (100, 280, 281, 300, 301, 920, 921, 922, 923):
             self._non_modal(g0code, g0[1], words, cols, used)
+        if 16 in gmodes:
+            self._non_modal(gmodes[16][0], gmodes[16][1], words, cols, used)
         if g53:
-            eff = motion if motion is not None else self.motion
-            if eff not in (0, 10) or motion is None and has_axes is False:
-                if eff not in (0, 10):
-                    raise LineError("G53 needs G0 or G1 motion", g0[1], 30)
+            # GRBL checks the motion mode in force; LinuxCNC the block's motion: no axis
+            # words and no G0/G1 on the line is none
+            eff = motion if motion is not None or not grbl else self.motion
+            if eff not in (0, 10):
+                raise LineError("G53 needs G0 or G1 motion", g0[1], 30)
             if self.distance == 910 and not grbl:
                 raise LineError("G53 cannot be used in incremental (G91) mode", g0[1])
             if self.comp != 400:
                 raise LineError("G53 cannot be used with cutter compensation on", g0[1])
         # ---- 11. motion
+        if motion is not None and motion not in CYCLES:
+            self.cycle.il = None    # any other motion ends a sequence of canned cycles
+        self.prev_motion = self.motion
         if explicit_motion:
             self.motion = explicit_motion[0]
             if motion in CYCLES and grbl:
                 raise LineError("GRBL has no canned cycles", explicit_motion[1], 20)
-            if motion != 800 and motion not in CYCLES:
-                self.cycle_r = self.cycle_z = None
-                self.cycle_motion = None
             if motion != 50:
                 self.last_spline_ctrl = None
         if motion is not None and motion != 800 and (has_axes or explicit_motion):
@@ -733,9 +762,7 @@ class Interpreter:
         stop = mmodes.get(4)
         if stop:
             c = mcodes.m99_as_end(self, stop)
-            if c in (2, 30) and self.comp_engine is not None:
-                self._flush_comp()
-            here = list(self.pos)
+            here = comp.stop(self)
             if c in (2, 30):
                 self.emit(MoveKind.END, here, here)
                 self.reset_modes()
@@ -746,43 +773,19 @@ class Interpreter:
         for letter in words:
             if letter not in used:
                 raise LineError(self._unused_message(letter), cols.get(letter, 1), 36 if letter not in AXES else 31)
+        if m6 and not grbl:
+            refresh_after_tool_change(self)
 
     def _unused_message(self, letter: str) -> str:
         if letter in AXES:
             return f"{letter} word with no command that uses it"
         uses = {"I": "G2/G3", "J": "G2/G3", "K": "G2/G3", "R": "G2/G3, G10 or a canned cycle",
-                "P": "G4, G10, G2/G3, G64, G82/G86/G89, M50-M53 or M62-M66", "Q": "G73/G83, M61 or M66-M68",
+                "P": "G4, G10, G2/G3, G64, a dwelling canned cycle, M50-M53 or M62-M66", "Q": "G73/G83, M61 or M66-M68",
                 "L": "G10, a canned cycle or M66", "E": "M66, M67 or M68",
                 "H": "G43", "D": "G41/G42", "@": "a motion", "^": "a motion"}
         return f"{letter} word with no {uses.get(letter, 'command')} to use it"
 
     # ----------------------------------------------------------------- modal helpers
-    def _set_comp(self, mode, words, cols, used) -> None:
-        from sim.gcode import comp as compmod
-
-        c, col = mode
-        if c == 400:
-            if self.comp_engine is not None:
-                self._flush_comp()
-            self.comp = 400
-            self.comp_radius = 0.0
-            return
-        if self.comp != 400:
-            raise LineError("cannot turn cutter compensation on when it is already on", col)
-        if self.plane != 170:
-            raise LineError("cutter compensation is only supported in the XY plane (G17)", col)
-        entry = self._tool_word_entry("D", words, cols, used, col)
-        radius = 0.0 if entry is None else entry.diameter / 2.0
-        self.comp = c
-        self.comp_radius = radius
-        self.comp_engine = compmod.CompEngine(self, left=(c == 410), radius=radius)
-
-    def _flush_comp(self) -> None:
-        eng = self.comp_engine
-        self.comp_engine = None
-        if eng is not None:
-            eng.flush()
-
     def _tool_word_entry(self, letter: str, words, cols, used, col: int):
         """The tool table entry a D (G41/G42) or H (G43) word names (``letter``), the
         current tool without the word; None for tool 0, or for a tool not in the table
@@ -804,31 +807,7 @@ class Interpreter:
         return entry
 
     def _set_tool_length(self, mode, words, cols, used) -> None:
-        c, col = mode
-        if self.comp != 400 and not self.grbl:
-            pass  # LinuxCNC allows G43 with comp on
-        if c == 490:
-            self.tlo = [0.0] * 6
-        elif c == 430:
-            entry = self._tool_word_entry("H", words, cols, used, col)
-            new = [0.0] * 6
-            if entry is not None:
-                for k, v in entry.offsets.items():
-                    if k in AXES:
-                        new[AXES.index(k)] = v
-            self.tlo = new
-        else:  # G43.1 dynamic
-            new = list(self.tlo)
-            for i, a in enumerate(AXES):
-                if a in words:
-                    if self.grbl and a != "Z":
-                        raise LineError("G43.1 takes only a Z word", cols[a], 37)
-                    new[i] = words[a] * (self.factor if i < 3 else 1.0)
-                    used.add(a)
-            if self.grbl and "Z" not in words:
-                raise LineError("G43.1 needs a Z word", col, 37)
-            self.tlo = new
-        self.tlo_mode = c
+        set_tool_length(self, mode, words, cols, used)
 
     def _axis_values(self, words, cols, used, absolute_machine: bool = False) -> list:
         """Target work position (6) from the axis words of this line (G90/G91, polar)."""
@@ -887,6 +866,8 @@ class Interpreter:
             target = self.g28 if code == 281 else self.g30
             target[:] = list(self.pos)
             used.update(a for a in AXES if a in words)  # LinuxCNC ignores axis words here
+        elif code in (920, 921, 922, 923) and self.comp != 400:
+            comp.refuse_while_on(self, "change the G92 offsets", col)
         elif code == 920:
             if not any(a in words for a in AXES):
                 raise LineError("G92 needs at least one axis word", col, 26)
@@ -927,6 +908,8 @@ class Interpreter:
             if not 0 <= P <= (6 if self.grbl else 9):
                 raise LineError(f"G10 L{L} P must be 0..{6 if self.grbl else 9}", cols["P"], 29)
             k = self.coord if P == 0 else P - 1
+            if k == self.coord:
+                comp.refuse_while_on(self, "change the active coordinate system", col)
             if "R" in words:
                 used.add("R")
                 if words["R"] != 0.0:
@@ -944,6 +927,8 @@ class Interpreter:
         # tool table edits
         if P < 1 and L != 1 or P < 0:
             raise LineError("G10 L1/L10/L11 P must be a tool number", cols["P"])
+        if not any(k in words for k in AXES + "RQIJ"):
+            raise LineError(f"G10 L{L} without offsets has no effect: give an axis or R word", col)
         from sim.tooltable import ToolEntry
 
         entry = self.tool_table.get(P) or ToolEntry(number=P, pocket=P)
@@ -975,7 +960,7 @@ class Interpreter:
         if self.feed_mode == 930:
             if "F" not in words:
                 raise LineError("inverse time mode (G93) needs an F word on every feed move", col, 22)
-            inv = self.feed_word
+            inv = words["F"]
             if inv <= 0:
                 raise LineError("F must be positive in inverse time mode", col, 22)
             return length * inv, inv
@@ -999,8 +984,9 @@ class Interpreter:
         self.pos = list(end)
 
     def _motion(self, motion, explicit, words, cols, used, g53, has_axes) -> None:
-        col = cols.get("G", 1)
         first_axis_col = min([cols[a] for a in AXES + "@^" if a in cols] or [1])
+        if motion in (0, 10, 330, 331):
+            self.arc_not_allowed = False
         if motion in CYCLES:
             from sim.gcode.cycles import canned_cycle
 
@@ -1038,8 +1024,16 @@ class Interpreter:
         elif motion in (50, 51):
             self._spline(motion, end, words, cols, used, first_axis_col)
         elif motion in (330, 331):
+            if self.comp_engine is not None:  # LinuxCNC compensates G33/G33.1 as plain feeds, unsynchronised
+                used.update(k for k in ("K", "I") if k in words)
+                self.comp_engine.straight(self.work_of(end), rapid=False, col=first_axis_col, words=words,
+                                          entry_allowed=False)
+                return
             self._synced(motion, end, words, cols, used, first_axis_col)
-        else:  # probe G38.x: the table assumes the probe travels to the target
+        elif not self.grbl:  # probe G38.x as rs274 simulates it
+            comp.refuse_while_on(self, "probe", first_axis_col)
+            straight_probe(self, motion, end, words, first_axis_col)
+        else:  # GRBL: the table assumes the probe travels to the target
             feed, inv = self._feed_rate(first_axis_col, words, math.dist(self.pos[:3], end[:3]))
             self._line_to(end, MoveKind.PROBE, feed, inv)
 
@@ -1067,7 +1061,7 @@ class Interpreter:
         """
         if self.plane != 170:
             raise LineError(f"G{motion / 10:g} splines need the XY plane (G17)", col)
-        if self.comp_engine is not None:
+        if self.comp != 400:
             raise LineError("splines cannot be used with cutter compensation on", col)
         f = self.factor
         p0 = np.array(self.work()[:2])

@@ -25,9 +25,10 @@ class MoveKind(enum.IntEnum):
     ARC_CW = 2       # G2 (helix when the axis coordinate changes)
     ARC_CCW = 3      # G3
     DWELL = 4        # G4; duration in ``dwell``
-    TOOL_CHANGE = 5  # M6; ``tool`` is the new tool
-    PROBE = 6        # G38.x
-    PAUSE = 7        # M0 / M1 / M60
+    TOOL_CHANGE = 5  # M6; ``tool`` is the new tool. One that moves (start != end) is
+                     # rs274 re-reading its position after M6/M61 (sim.gcode.tool_length)
+    PROBE = 6        # G38.x; with feed 0 the 0.254 mm retract after it (sim.gcode.probe)
+    PAUSE = 7        # M0 / M1 / M60; G88's moves: the operator's manual retract
     END = 8          # M2 / M30
 
 

@@ -216,18 +216,17 @@ class Program:
     moves : MOVE_DTYPE array, one row per motion/dwell/tool change/stop.
     files : list[str], index = ``moves["file"]`` (0 = main program).
     errors : list[GCodeError], all errors when ``keep_going`` (else at most one, raised).
-    error_rows : list[int | None], per error the rows made before it was met (None: found
-        in the main file before the run, e.g. an o-word never closed)
+        Each error's ``rows_before`` is the number of rows made before it was met (None:
+        found before the run, e.g. an o-word never closed).
     messages : list[(line, text)] from ``(MSG, ...)`` comments.
     warnings : list[str], e.g. a program that ends with no M2/M30/%.
     """
 
     def __init__(self, moves, files, errors, messages, warnings, snapshots, snapshot_lines, row_main_line,
-                 dialect, machine_units, error_rows=None):
+                 dialect, machine_units):
         self.moves = moves
         self.files = files
         self.errors = errors
-        self.error_rows = error_rows if error_rows is not None else [None] * len(errors)
         self.messages = messages
         self.warnings = warnings
         self.dialect = dialect
@@ -284,7 +283,6 @@ class _Runner:
         self.fast = fast
         self.keep_going = keep_going
         self.errors: list[GCodeError] = []
-        self.error_rows: list[int | None] = []   # rows made before each error (None: before the run)
         self.defined: dict[str, tuple[int, int]] = {}  # sub label -> (source index, line index)
         self.scopes: list[str] = [""]   # the sub each call level runs ("" the program): o-word label scopes
         self.labels: dict[tuple[str, str], tuple[int, int]] = {}  # (scope, label) -> first (source, line) run
@@ -296,6 +294,7 @@ class _Runner:
         self.snap_lines: list[int] = []
         self.last_key = None
         self.warnings: list[str] = []
+        self.running = False
 
     def fail(self, src: _Source, i: int, exc: LineError, ahead: bool = False):
         i = getattr(exc, "line_index", i)  # a loop limit names the loop's opening line
@@ -303,10 +302,12 @@ class _Runner:
                          exc.grbl_code if self.it.grbl else None)
         if self.it.grbl and err.grbl_code is None:
             err.grbl_code = 20
+        # the rows made before the error (what a controller made before it stopped); None for an
+        # error found before the program runs
+        err.rows_before = self.it._n + len(self.it._rows) if self.running and not ahead else None
         if not self.keep_going:
             raise err
         self.errors.append(err)
-        self.error_rows.append(None if ahead else self.it._n + len(self.it._rows))
 
     def snapshot(self):
         key = self.it.modal_key()
@@ -373,6 +374,7 @@ class _Runner:
         # straight-line code is bounded by the file; loops and calls by the limit
         max_steps = self.limits.max_steps + len(main.lines)
         max_rows = self.limits.max_steps + 2 * len(main.lines)
+        self.running = True
         self.snapshot()
         end_index = main.percent_end
         fl = None
@@ -687,7 +689,7 @@ def _read_var(var_file):
 def interpret(text: str | bytes, filename: str = "<string>", dialect: str = "linuxcnc", tool_table=None,
               var_file=None, machine_units: str = "mm", keep_going: bool = False,
               subroutine_path=None, limits: Limits | None = None, block_delete: bool = False,
-              fast: bool = True) -> Program:
+              fast: bool = True, after_tool_change: str = "machine") -> Program:
     """Interpret G-code ``text`` (str, or bytes decoded as UTF-8); return a :class:`Program`.
 
     ``tool_table`` is a path (LinuxCNC format, in ``machine_units``) or ``{n: ToolEntry}``;
@@ -695,6 +697,9 @@ def interpret(text: str | bytes, filename: str = "<string>", dialect: str = "lin
     ``limits`` bounds loops, repeats, coordinates and the like (:class:`~sim.gcode.limits.Limits`).
     ``block_delete`` is the controller's block delete switch: off (the default, as LinuxCNC
     starts), '/' lines run; on, they are dropped unread.
+    ``after_tool_change`` is where the program position is after an M6/M61 block:
+    ``"machine"`` as LinuxCNC driving a machine, ``"rs274"`` as its stand-alone interpreter
+    (see :func:`sim.gcode.tool_length.refresh_after_tool_change`).
     Raises :class:`GCodeError` at the first error unless ``keep_going``; bytes that are
     not text raise its subclass :class:`~sim.gcode.errors.ProgramFileError` whatever
     ``keep_going`` says. A program with no motion gets the warning "no motion in program".
@@ -706,15 +711,15 @@ def interpret(text: str | bytes, filename: str = "<string>", dialect: str = "lin
     table = _read_tool_table(tool_table, machine_units)
     var = _read_var(var_file)
     it = Interpreter(dialect=dialect, machine_units=machine_units, tool_table=table, var_params=var,
-                     filename=filename, block_delete=block_delete, limits=limits)
+                     filename=filename, block_delete=block_delete, limits=limits,
+                     after_tool_change=after_tool_change)
     runner = _Runner(it, keep_going, subroutine_path, fast)
     main = runner.add_source(filename, text)
     runner.run(main)
-    if it.comp_engine is not None:
-        try:
-            it._flush_comp()
-        except LineError as exc:
-            runner.fail(main, max(len(main.lines) - 1, 0), exc)
+    if it.comp_engine is not None and it.comp_engine.holds_moves():
+        # LinuxCNC makes a compensated move only once the next one is known (or at G40/M2)
+        runner.warnings.append(f"{filename}: the last move under cutter compensation is not made: "
+                               "the program ends with compensation on and no M2/M30")
     moves, row_lines = it.assemble()
     kind = moves["kind"]
     if not ((kind <= 3) | (kind == 6)).any():  # MOTION_KINDS
@@ -725,7 +730,7 @@ def interpret(text: str | bytes, filename: str = "<string>", dialect: str = "lin
         else:
             runner.warnings.insert(0, f"{filename}: no motion in program")
     return Program(moves, list(it.files), runner.errors, list(it.messages), runner.warnings,
-                   runner.snapshots, runner.snap_lines, row_lines, dialect, machine_units, runner.error_rows)
+                   runner.snapshots, runner.snap_lines, row_lines, dialect, machine_units)
 
 
 def load_program(path, dialect: str = "linuxcnc", tool_table=None, var_file=None, machine_units: str = "mm",

@@ -35,7 +35,9 @@ def test_each_finding_alerted_once_across_polls(tmp_path):
     assert [x["kind"] for x in lines] == ["gouge", "rapid_into_stock"]
     # the gouge that grew onto line 13 is updated, not alerted again
     updates = [x for x in events if x["event"] == "finding_update"]
-    assert [(u["id"], u["lines"]) for u in updates] == [(1, [12, 13])]
+    # what changed, not the whole list again
+    assert [(u["id"], u["lines_added"], u["line_range"]) for u in updates] == [(1, [13], [12, 13])]
+    assert all("lines" not in u for u in updates)
     assert all({"kind", "line", "position", "lead_time_s"} <= set(x) for x in lines)
     assert term.getvalue().count("GOUGE line 12") == 1 and "in 3.0 s" in term.getvalue()
     # same kind and line but far away is a different finding
@@ -124,8 +126,10 @@ def test_a_gouge_predicted_in_two_batches_is_one_finding_of_full_size(tmp_path):
     assert rec["status"] == "happened" and "lines 22-23" in rec["message"] and "73.562" in rec["message"]
     updates = [json.loads(x) for x in out.getvalue().splitlines()][1:]
     assert [u["event"] for u in updates] == ["finding_update", "finding_update"]
-    assert updates[0]["lines"] == [22, 23] and abs(updates[0]["area"] - 73.5625) < 1e-9
-    assert updates[1]["status"] == "happened" and abs(updates[1]["volume"] - 26.4) < 1e-9
+    assert updates[0]["lines_added"] == [23] and updates[0]["line_range"] == [22, 23]
+    assert abs(updates[0]["area"] - 73.5625) < 1e-9
+    # the live cut only made it happen: its update says that, not the unchanged sizes
+    assert updates[1]["status"] == "happened" and "volume" not in updates[1] and "happened_t" in updates[1]
     run.close()
     stored = RunReader(tmp_path / "r.sqlite").findings()
     assert len(stored) == 1 and stored[0]["lines"] == [22, 23] and abs(stored[0]["area"] - 73.5625) < 1e-9

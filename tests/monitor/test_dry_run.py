@@ -61,7 +61,12 @@ def test_cli_dry_run_bundled_example(tmp_path, capsys):
     updates = [x for x in out if x["event"] == "finding_update"]
     assert sorted(u["kind"] for u in updates if u["status"] == "happened") == ["gouge", "rapid_into_stock"]
     # the gouge's second row (line 23) grew the alerted finding rather than being dropped
-    assert [u["lines"] for u in updates if u["kind"] == "gouge"][-1] == [22, 23]
+    # (an update carries what changed: its line_range when that grew)
+    first = next(f for f in findings if f["kind"] == "gouge")
+    assert [first["line_range"], *(u["line_range"] for u in updates if u["kind"] == "gouge" and "line_range" in u)][
+        -1] == [22, 23]
+    # an update carries the lines it added: with the alert's, every line of the gouge
+    assert set(first["lines"]) | {ln for u in updates if u["kind"] == "gouge" for ln in u.get("lines_added", ())} == {22, 23}
     r = RunReader(run)
     assert [f["kind"] for f in r.findings()] == [f["kind"] for f in findings]
     assert all(f["status"] == "happened" for f in r.findings())
@@ -224,11 +229,14 @@ def test_one_finding_one_position_and_size_in_every_output(example, tmp_path, ca
         run_controller(s, vc, 0.0, done=lambda: vc.done)
         vc.close()
         s.finish()
-    # the JSON stream: each finding's last word (its finding line, then its updates)
+    # the JSON stream: each finding's last word (its finding line, then its updates, which
+    # carry the lines they add)
     last = {}
     for x in map(json.loads, js.getvalue().splitlines()):
         key = x.get("id") or len(last) + 1
-        last[key] = {**last.get(key, {}), **{k: v for k, v in x.items() if k not in ("event", "id")}}
+        rec = last.get(key, {})
+        lines = sorted(set(rec.get("lines", [])) | set(x.get("lines", [])) | set(x.get("lines_added", [])))
+        last[key] = {**rec, **{k: v for k, v in x.items() if k not in ("event", "id")}, "lines": lines}
     stored = RunReader(run).findings()
     assert main(["simulate", str(EXAMPLE_JOB), "--json"]) == 1
     sim = [f for x in map(json.loads, capsys.readouterr().out.splitlines()) for f in x.get("findings", [])]

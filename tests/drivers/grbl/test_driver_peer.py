@@ -175,6 +175,22 @@ def test_feed_hold_and_resume(link):
     c.soft_reset()
 
 
+def test_a_command_held_in_a_feed_hold_keeps_the_replies_in_order(link):
+    # Grbl 1.1h: '!' while Idle holds (Hold:0) and lines wait, unanswered, until '~'. A
+    # command that times out there is not lost: its late reply must not answer the next one
+    pr, c = link()
+    assert c.command("M3 S500") == []
+    c.feed_hold()
+    held = c.wait_for_state(lambda s: s.state is RunState.HOLD and s.substate == 0, 5)
+    assert held.spindle == 500 and held.accessories == "S"
+    with pytest.raises(DriverError, match=r"Hold:0.*cycle start"):
+        c.command("$G", timeout=0.2)
+    c.resume()
+    replies = c.command("$I")  # sent at once: the held $G's reply comes first
+    assert [type(r).__name__ for r in replies] == ["Version", "Options"]
+    assert c.command("$G")[0].words[6] == "M3"
+
+
 def test_overrides(link):
     pr, c = link()
     assert c.set_feed_override(150) == 150

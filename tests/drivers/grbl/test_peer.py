@@ -83,7 +83,8 @@ def test_status_cadence_of_wco_and_ov_idle_and_busy():
         rows = peer.interpreter.execute_line("G1 X100 F600", 1)
         with vm.lock:
             vm.queue(rows)
-        peer._wco_counter = peer._ovr_counter = 0
+        peer.cadence.flag_wco()
+        peer.cadence.flag_ovr()
         busy = [peer.status_report() for _ in range(61)]
         assert [i for i, r in enumerate(busy) if "WCO:" in r] == [0, 30, 60]
         assert [i for i, r in enumerate(busy) if "Ov:" in r] == [1, 21, 41]
@@ -104,7 +105,7 @@ def test_status_mask_fields_and_inches():
         assert r.startswith("<Idle|WPos:5.000,-2.000,1.000|Bf:15,128|FS:0,0|WCO:-5.000,2.000,-1.000")
         peer.settings[10] = 1
         peer.settings[13] = 1
-        peer._wco_counter = 0
+        peer.cadence.flag_wco()
         r = peer.status_report()
         assert "MPos:0.0000,0.0000,0.0000" in r and "WCO:-0.1969,0.0787,-0.0394" in r
     finally:

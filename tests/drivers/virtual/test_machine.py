@@ -312,6 +312,20 @@ def test_pause_m0_holds_until_resume():
     assert vm.state == RunState.IDLE and vm.position[0] == pytest.approx(10.0)
 
 
+def test_a_tool_change_row_that_moves_takes_the_machine_to_its_end():
+    # rs274 re-reads its position after "T1 M6 G43 H1": the tool change row moves Z 0 -> 10
+    vm = VirtualMachine(FREE)
+    vm.queue(rows(rapid((5, 0, 0)), (MoveKind.TOOL_CHANGE, (5, 0, 10), 0.0), line((10, 0, 10), 300)))
+    run_until_idle(vm)
+    np.testing.assert_allclose(vm.position[:3], [10, 0, 10])
+    done = []
+    vm = VirtualMachine(FREE)
+    vm.on_event = lambda name, payload: done.append(vm.position[2]) if name == "block_done" else None
+    vm.queue(rows((MoveKind.TOOL_CHANGE, (0, 0, 10), 0.0)))
+    run_until_idle(vm)
+    assert done == [pytest.approx(10.0)]   # one block_done per row, once it is there
+
+
 def test_inverse_time_feed():
     def make():
         vm = VirtualMachine(MachineConfig(accel=(1e6, 1e6, 1e6), travel_min=None, travel_max=None))

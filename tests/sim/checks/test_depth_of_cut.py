@@ -98,9 +98,10 @@ def test_runs_of_offending_moves_are_what_merging_single_findings_gives():
     for k in np.nonzero(doc > 5.0)[0]:
         singles += motion.depth_of_cut(m[k:k + 1], doc[k:k + 1], 5.0, ids[k:k + 1])
     merged = merge_findings(singles)
-    key = [(f.lines, f.stages, f.line, f.stage, f.depth, f.position) for f in runs]
-    assert key == [(f.lines, f.stages, f.line, f.stage, f.depth, f.position) for f in merged]
-    assert [f.depth for f in runs] == [7.0, 9.0, 6.0] and runs[0].line == 30
+    key = [(f.lines, f.stages, f.line, f.worst_line, f.stage, f.depth, f.position) for f in runs]
+    assert key == [(f.lines, f.stages, f.line, f.worst_line, f.stage, f.depth, f.position) for f in merged]
+    # line: where the run starts; worst_line: its deepest move
+    assert [f.depth for f in runs] == [7.0, 9.0, 6.0] and runs[0].line == 20 and runs[0].worst_line == 30
 
 
 def test_look_ahead_on_a_window_finds_the_same_depth_and_leaves_the_model_alone():

@@ -18,7 +18,8 @@ def test_consecutive_hits_of_one_kind_merge_keeping_lines_max_depth_summed_volum
     f = out[0]
     assert f.lines == (30, 40, 50) and f.stages == (3, 4, 5)
     assert f.depth == 1.5 and f.volume == 6.0
-    assert f.line == 40 and f.stage == 4 and f.position == (4.0, 0.0, 0.0)  # the worst hit
+    assert f.line == 30 and f.worst_line == 40  # where it starts, where it is worst
+    assert f.stage == 4 and f.position == (4.0, 0.0, 0.0)  # the worst hit
 
 
 def test_gaps_kinds_and_groups_keep_hits_apart():

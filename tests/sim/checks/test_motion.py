@@ -18,7 +18,8 @@ def test_travel_limit_found_at_first_offending_line_with_distance_past_it():
     out = merge_findings(motion.travel_limits(m, {"X": (0, 100), "Z": (-50, 10)}))
     assert len(out) == 1
     f = out[0]
-    assert f.kind == "travel_limit" and f.lines == (20, 30, 40) and f.line == 30
+    # line: the first move past the limit; worst_line: the one furthest past it
+    assert f.kind == "travel_limit" and f.lines == (20, 30, 40) and f.line == 20 and f.worst_line == 30
     assert f.depth == pytest.approx(30.0) and f.position[0] == pytest.approx(130.0)
     assert f.detail["axis"] == "X" and f.detail["limit"] == 100
 

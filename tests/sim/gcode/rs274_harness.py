@@ -194,7 +194,13 @@ def parse_canon(text: str) -> Run:
 
 
 def dexmon_run(program: Path, tool_table: Path, var_file: Path, block_delete: bool = False, **kw) -> Run:
-    """dexmon's motions for ``program`` with the same inputs as :func:`run_rs274`."""
+    """dexmon's motions for ``program`` with the same inputs as :func:`run_rs274`.
+
+    dexmon reads its position back after a tool change as rs274's stand-alone canon does
+    (``after_tool_change="rs274"``), not as a machine does (its default): see
+    sim/gcode/tool_length.py.
+    """
+    kw.setdefault("after_tool_change", "rs274")
     from sim.gcode import GCodeError, load_program
 
     try:
@@ -205,19 +211,20 @@ def dexmon_run(program: Path, tool_table: Path, var_file: Path, block_delete: bo
         prog = load_program(program, tool_table=tool_table, var_file=var_file, machine_units="inch",
                             subroutine_path=[Path(program).parent], block_delete=block_delete,
                             keep_going=True, **kw)
-        rows = prog.error_rows[0] if prog.error_rows else None
-        upto = (err.file, err.line) if rows is None else rows
-        return Run(dexmon_motions(prog, upto=upto), error=err.message, error_text=err.source_line,
-                   error_line=err.line)
+        first = prog.errors[0] if prog.errors else None
+        rows = getattr(first, "rows_before", None)
+        return Run(dexmon_motions(prog, upto=(err.file, err.line), rows=rows), error=err.message,
+                   error_text=err.source_line, error_line=err.line)
     return Run(dexmon_motions(prog))
 
 
-def dexmon_motions(prog, upto: tuple[str, int] | int | None = None) -> list[Motion]:
+def dexmon_motions(prog, upto: tuple[str, int] | None = None, rows: int | None = None) -> list[Motion]:
     """The motion rows of ``prog``'s move table as :class:`Motion` (work coordinates, mm).
 
     The rows of one spline block become one ``"S"`` motion (rs274 prints no spline points).
     ``upto`` (file name, line) stops at the first row of that line or a later one of that file;
-    ``upto`` an int (the rows made before the error, in a loop too) stops at that row.
+    ``rows``, the number of rows made before the error when it is known, stops there instead
+    (an error in a subroutine, a move held by cutter compensation that was never made).
     """
     from sim.gcode import MoveKind
     from sim.gcode.moves import work_end
@@ -228,15 +235,13 @@ def dexmon_motions(prog, upto: tuple[str, int] | int | None = None) -> list[Moti
     out: list[Motion] = []
     kinds = {MoveKind.RAPID: "T", MoveKind.FEED: "F", MoveKind.ARC_CW: "A", MoveKind.ARC_CCW: "A",
              MoveKind.PROBE: "P"}
-    for i in range(len(moves)):
+    for i in range(len(moves) if rows is None else min(rows, len(moves))):
         key = (int(moves["file"][i]), int(moves["line"][i]))
-        if isinstance(upto, int) and i >= upto:
-            break
-        if isinstance(upto, tuple) and prog.files[key[0]] == upto[0] and key[1] >= upto[1]:
+        if rows is None and upto is not None and prog.files[key[0]] == upto[0] and key[1] >= upto[1]:
             break
         kind = kinds.get(int(moves["kind"][i]))
-        if kind is None:
-            continue
+        if kind is None or kind == "P" and moves["feed"][i] == 0.0:
+            continue   # a probe's retract (feed 0) is part of rs274's STRAIGHT_PROBE
         where = f"{Path(prog.files[key[0]]).name}:{key[1]}"
         out.append(Motion(kind, ends[i].copy(), centers[i].copy() if kind == "A" else None, where=where, key=key))
     return out

@@ -35,16 +35,16 @@ def test_g28_without_axis_words_moves_to_its_waypoint_first():
     np.testing.assert_allclose(work_end(rows)[:, :3], [[1, 2, 3], [1, 2, 3], [10, 20, 30]])
 
 
-def test_error_rows_count_the_rows_made_before_an_error_in_a_loop():
+def test_rows_before_counts_the_rows_made_before_an_error_in_a_loop():
     # the harness compares the motions made before a refusal: in a loop these are not the
     # rows of earlier lines (cone.ngc refuses its W word on the first pass of a loop)
     from tests.sim.gcode.rs274_harness import dexmon_motions
 
     text = "G21\n#1=0\no1 while [#1 LT 3]\nG0 X#1\no2 if [#1 EQ 1]\nG0 W1\no2 endif\n#1=[#1+1]\no1 endwhile\nM2"
     p = interpret(text, keep_going=True)
-    assert [e.line for e in p.errors] == [6] and p.error_rows == [2]
-    assert [m.end[0] for m in dexmon_motions(p, upto=p.error_rows[0])] == [0, 1]
-    assert interpret("o1 if [1]\nG0 X1\n", keep_going=True).error_rows == [None]  # found before the run
+    assert [e.line for e in p.errors] == [6] and [e.rows_before for e in p.errors] == [2]
+    assert [m.end[0] for m in dexmon_motions(p, rows=p.errors[0].rows_before)] == [0, 1]
+    assert [e.rows_before for e in interpret("o1 if [1]\nG0 X1\n", keep_going=True).errors] == [None]  # found before the run
 
 
 def test_grbl_g28_without_axis_words_goes_home_at_once():

@@ -16,39 +16,9 @@ import pytest
 
 from tests.sim.gcode import rs274_harness as h
 
-TLO = "tool length offset: after G43/G43.1/G49 the program position is LinuxCNC's"
-CYCLE = "canned cycles: retract mode when neither G98 nor G99; G91 repeats measure R from the first height"
-COMP = "cutter compensation: entry moves and corner joins are LinuxCNC's"
-PROBE = "probing: #5061-#5070 set as rs274 sets them; start too close to the target refused"
-
 #: programs whose difference from rs274 is known, with its cause; each is a strict xfail,
 #: so fixing one fails here until it leaves this list
-KNOWN: dict[str, str] = {
-    "corpus/cncjs_helical_thread_milling.gcode": COMP,
-    "corpus/linuxcnc_cam_nisley.ngc": COMP,
-    "corpus/linuxcnc_mmount.ngc": TLO,
-    "corpus/linuxcnc_polar.ngc": CYCLE,
-    "corpus/linuxcnc_skeleton.ngc": TLO,
-    "package/ncfiles__comp-g1.ngc": COMP,
-    "package/ncfiles__comp.ngc": COMP,
-    "package/ncfiles__comp311.ngc": COMP,
-    "package/ncfiles__g76.ngc": COMP,
-    "package/ncfiles__lathe-g76.ngc": COMP,
-    "package/ncfiles__lathecomp.ngc": COMP,
-    "package/ncfiles__mmount.ngc": TLO,
-    "package/ncfiles__polar.ngc": CYCLE,
-    "package/ncfiles__skeleton.ngc": TLO,
-    "package/ncfiles__smartprobe.ngc": PROBE,
-    "package/ncfiles__tool-length-probe.ngc": TLO,
-    "package/ncfiles__useful-subroutines.ngc": COMP,
-    "package/ncfiles__x-trim.ngc": TLO,
-    "tests/comp_entry.ngc": COMP,
-    "tests/comp_g18.ngc": COMP,
-    "tests/cycles_g91_repeat.ngc": CYCLE,
-    "tests/cycles_retract.ngc": CYCLE,
-    "tests/probe_params.ngc": PROBE,
-    "tests/probe_too_close.ngc": PROBE,
-}
+KNOWN: dict[str, str] = {}
 
 
 def _params(which: str):
