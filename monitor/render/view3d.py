@@ -207,3 +207,125 @@ def interactive(trace, tool=None, path=None, findings=None, contours: int = 0):
     pl.add_slider_widget(show, [first, last], value=last, title="stage", fmt="%.0f")
     pl.show()
     del pv
+
+
+def deviation_cmap(tol, n: int = 4001):
+    """A matplotlib colormap of the deviation map (:mod:`.meaning`) over [-interest,
+    +interest] mm, and that range."""
+    from matplotlib.colors import ListedColormap
+
+    from monitor.render.meaning import deviation_colors
+
+    e = np.linspace(-tol.interest, tol.interest, n)
+    return ListedColormap(deviation_colors(e, tol) / 255.0), (-tol.interest, tol.interest)
+
+
+#: the colour bar: vertical on the right, its title above the numbers (never over them)
+BAR_ARGS = {"vertical": True, "position_x": 0.88, "position_y": 0.25, "height": 0.55, "width": 0.05,
+            "title_font_size": 16, "label_font_size": 13, "n_labels": 5, "fmt": "%.2f", "color": "white"}
+
+
+def _part(surf, finite: np.ndarray):
+    """``surf`` without the cells touching rays that have no material (``finite`` (nv, nu)
+    False): the part's surface only, no floor drawn round it."""
+    if finite.all() or not finite.any():
+        return surf
+    inner = surf.extract_points(finite.T.reshape(-1, order="F"), adjacent_cells=False)
+    try:
+        return inner.extract_surface(algorithm="dataset_surface")
+    except TypeError:  # older pyvista without the keyword
+        return inner.extract_surface()
+
+
+def stage_plotter(pics, stage: int, window_size=(800, 800), off_screen: bool = True, focus=None,
+                  half_mm: float | None = None):
+    """A pyvista plotter of ``stage`` of a run (``pics``: a
+    :class:`monitor.render.runpicture.RunPictures`): the part (the cropped model as a
+    surface) coloured by the deviation map with a colour bar in mm (else by depth of
+    cut), the path near the stage (feeds cyan, rapids magenta), tool and holder at their
+    pose, findings labelled with their line, an axis triad at the work origin, mm axes
+    along the part's bounds, and the stage, line and time written in a corner. The
+    camera frames the whole part, or the ``half_mm`` around world point ``focus``."""
+    pv = _pv()
+    if off_screen:
+        quiet_vtk()
+    heights, _ = pics.view.state_at(stage)
+    h = np.ascontiguousarray(pics.crop(heights), np.float64)
+    frame = pics.frame
+    floor = float(np.nanmin(pics.stock_top)) if np.isfinite(pics.stock_top).any() else 0.0
+    surf = heightfield(frame, h, floor=floor)
+    pl = pv.Plotter(off_screen=off_screen, window_size=list(window_size))
+    pl.set_background("#1c1e24")
+    errors = pics.errors(h.astype(np.float32))
+    finite = np.isfinite(h)
+    if errors is not None:
+        cmap, clim = deviation_cmap(pics.tol)
+        e = np.clip(np.nan_to_num(errors, nan=0.0, posinf=pics.tol.interest), -pics.tol.interest,
+                    pics.tol.interest)
+        surf.point_data["deviation (mm)"] = e.T.reshape(-1, order="F")
+        part = _part(surf, finite)
+        pl.add_mesh(part, scalars="deviation (mm)", cmap=cmap, clim=clim, n_colors=cmap.N, smooth_shading=True,
+                    show_scalar_bar=True, scalar_bar_args={**BAR_ARGS, "title": "deviation (mm)\n"})
+    else:
+        with np.errstate(invalid="ignore"):
+            depth = np.clip(np.nan_to_num(pics.stock_top - h, nan=0.0), 0, None)
+        top = float(max(depth.max(), 1e-3))
+        surf.point_data["depth of cut (mm)"] = depth.T.reshape(-1, order="F")
+        part = _part(surf, finite)
+        pl.add_mesh(part, scalars="depth of cut (mm)", cmap="viridis_r", clim=(0.0, top), smooth_shading=True,
+                    show_scalar_bar=True, scalar_bar_args={**BAR_ARGS, "title": "depth of cut (mm)\n"})
+    status, tip, row = pics.status(stage)
+    path = pics.path_near(row)
+    if path is not None and len(path["start"]):
+        for rapid, color, width in ((False, "cyan", 2), (True, "magenta", 1)):
+            sel = path["rapid"] == rapid
+            if sel.any():
+                seg = np.stack([path["start"][sel], path["end"][sel]], axis=1).reshape(-1, 3)
+                pl.add_mesh(pv.line_segments_from_points(seg), color=color, line_width=width)
+    if pics.tool is not None and tip is not None:
+        for mesh, col in tool_meshes(pics.tool, tip):
+            pl.add_mesh(mesh, color=col, smooth_shading=True, opacity=0.9)
+    if pics.marks:
+        from monitor.render.live import finding_label
+
+        pts = np.array([m["position"] for m in pics.marks], np.float64).reshape(-1, 3)
+        pl.add_point_labels(pts, [finding_label(m) for m in pics.marks], point_color="red", point_size=14,
+                            render_points_as_spheres=True, text_color="red", font_size=14, shape_color="#101014",
+                            shape_opacity=0.7, always_visible=True)
+    size = max(frame.nu, frame.nv) * frame.spacing
+    arm = 0.12 * size
+    for d, col in ((np.array([1.0, 0, 0]), "red"), (np.array([0, 1.0, 0]), "lime"), (np.array([0, 0, 1.0]), "dodgerblue")):
+        pl.add_mesh(pv.Arrow(start=(0, 0, 0), direction=d, scale=arm, tip_length=0.2, shaft_radius=0.03),
+                    color=col)
+    pl.add_axes(line_width=3, labels_off=False)
+    b = part.bounds
+    pl.show_bounds(bounds=b, xtitle="X mm", ytitle="Y mm", ztitle="Z mm", n_xlabels=4, n_ylabels=4, n_zlabels=3,
+                   fmt="%.0f", color="white", font_size=10, location="outer")
+    words = [f"stage {stage}"]
+    if status.get("line"):
+        words.append(f"line {status['line']}")
+    if status.get("time") is not None:
+        words.append(f"{status['time']:.1f} s")
+    if status.get("tool"):
+        words.append(status["tool"].lower())
+    pl.add_text("   ".join(words), position="upper_left", font_size=11, color="white")
+    # from the front left and above: X runs to the right, Y away, the work origin in front
+    pl.camera_position = [(-0.45, -1.0, 0.95), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0)]
+    if focus is not None and half_mm:
+        c = np.asarray(focus, np.float64).reshape(3)
+        pl.reset_camera(bounds=[c[0] - half_mm, c[0] + half_mm, c[1] - half_mm, c[1] + half_mm,
+                                c[2] - half_mm / 2, c[2] + half_mm / 2])
+    else:
+        pl.reset_camera(bounds=b)
+    pl.camera.zoom(0.95)   # room for the axes labels round the part
+    return pl
+
+
+def stage_png(pics, stage: int, window_size=(800, 800), path_out=None, **kw) -> np.ndarray:
+    """Render :func:`stage_plotter` offscreen; the RGB uint8 image (written to ``path_out``)."""
+    pl = stage_plotter(pics, stage, window_size=window_size, off_screen=True, **kw)
+    try:
+        img = pl.screenshot(path_out if path_out else None, return_img=True)
+    finally:
+        pl.close()
+    return np.asarray(img)[..., :3].astype(np.uint8)
