@@ -238,7 +238,7 @@ def _part(surf, finite: np.ndarray):
 
 
 def stage_plotter(pics, stage: int, window_size=(800, 800), off_screen: bool = True, focus=None,
-                  half_mm: float | None = None):
+                  half_mm: float | None = None, show_tool: bool = True):
     """A pyvista plotter of ``stage`` of a run (``pics``: a
     :class:`monitor.render.runpicture.RunPictures`): the part (the cropped model as a
     surface) coloured by the deviation map with a colour bar in mm (else by depth of
@@ -282,8 +282,8 @@ def stage_plotter(pics, stage: int, window_size=(800, 800), off_screen: bool = T
             if sel.any():
                 seg = np.stack([path["start"][sel], path["end"][sel]], axis=1).reshape(-1, 3)
                 pl.add_mesh(pv.line_segments_from_points(seg), color=color, line_width=width)
-    if pics.tool is not None and tip is not None:
-        for mesh, col in tool_meshes(pics.tool, tip):
+    if show_tool and pics.live.tool is not None and tip is not None:
+        for mesh, col in tool_meshes(pics.live.tool, tip):
             pl.add_mesh(mesh, color=col, smooth_shading=True, opacity=0.9)
     if pics.marks:
         from monitor.render.live import finding_label

@@ -196,3 +196,32 @@ def test_3d_view_frames_the_part_with_the_deviation_bar(example_run, tmp_path):
     bar = img[:, 255:].reshape(-1, 3).astype(int)
     assert ((bar[:, 2] > bar[:, 0] + 80)).sum() > 30   # the bar's blue scale
     check_image(img, "replay_example_end_3d.png", threshold=10.0)
+
+
+def test_report_of_the_example_shows_the_part_the_findings_and_agreeing_times(example_run, tmp_path, capsys):
+    import base64
+    import io
+    import re
+
+    import imageio.v3 as iio
+
+    pytest.importorskip("pyvista")
+    out = tmp_path / "r.html"
+    assert main(["report", str(example_run), "-o", str(out)]) == 0
+    text = out.read_text()
+    imgs = dict(re.findall(r'<img alt="([^"]*)" src="data:image/png;base64,([^"]+)"', text))
+    pic = {k: iio.imread(io.BytesIO(base64.b64decode(v))) for k, v in imgs.items()}
+    assert {"final part in 3-D", "end", "start", "removal and feed over time", "close 3-D view of gouge",
+            "section through gouge"} <= set(pic)
+    # pictures large enough to see the finding, the gouge in red in its close view and section
+    for name in ("close 3-D view of gouge", "section through gouge"):
+        img = pic[name].reshape(-1, 3).astype(int)
+        assert min(pic[name].shape[:2]) >= 280
+        assert ((img[:, 0] > img[:, 1] + 80) & (img[:, 0] > img[:, 2] + 80)).sum() > 200, name
+    # the listing round line 22 with the gouge's lines marked
+    assert re.search(r"<span class='hit'>\s+22  G1 X30 Z-5\.5", text)
+    # the times side by side agree (dry-run: the virtual machine runs the program as timed)
+    assert "Cutting recorded / programmed" in text and "(agree)" in text
+    assert re.search(r"<tr><td>T1</td><td>0:\d\d\.\d\d</td>", text)     # programmed time per tool
+    # the finding's stage and time in its sentence, told from the same start as the plot
+    assert re.search(r"Gouge at lines 22-23.*Stage \d+, 0:\d\d\.\d\d into the run\.", text)
