@@ -109,7 +109,7 @@ def _nice_floor(x: float) -> float:
 
 
 def _mm(x: float) -> str:
-    return f"{x:g}" if abs(x) >= 0.1 or x == 0 else f"{x:.2f}"
+    return f"{x:g}" if abs(x) >= 0.1 or x == 0 else f"{x:.2g}"
 
 
 def draw_circle(image: np.ndarray, frame, centre, radius: float, color, width: int = 1) -> None:

@@ -1,0 +1,105 @@
+"""Replay pictures of the corpus parts (../shared/corpus/parts, when present): a clean
+OpenCAMLib finishing pass with its 6 mm ball is a calm deviation map, not rainbow static.
+
+The run files are recorded here straight from the simulator (every chunk of moves one
+stage), the way a session writes them, so the test does not depend on a dry run's polls.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.monitor.render.imagecheck import check_image
+
+PARTS = Path(__file__).resolve().parents[3].parent / "shared" / "corpus" / "parts"
+pytestmark = pytest.mark.skipif(not PARTS.is_dir(), reason="../shared/corpus/parts is not present")
+
+#: part: (program, design, stock box x0,y0,z0,x1,y1,z1 mm)
+CORPUS = {
+    "sphere_on_plate": ("sphere_on_plate_ball6_finish.ngc", "sphere_on_plate.stl",
+                        (0.0, 0.0, -1.0, 76.4923, 76.4923, 30.8718)),
+    "carpet1": ("carpet1_ball6_finish.ngc", "carpet1.stl", (0.0, -82.0, -10.0, 152.0, 66.0, 5.1979)),
+}
+RESOLUTION = 0.5
+STAGES = 40
+
+
+def record_program(run: Path, program: Path, design: Path, stock, tool_spec: str = "ball:6") -> None:
+    """Cut ``program`` into a box ``stock`` with ``tool_spec`` and write a run file: the
+    job (design, tool), the move table, one trace stage and one cut record per chunk."""
+    from monitor.commands.simulate import build_stock
+    from monitor.runfile import RunWriter
+    from monitor.trace_io import store_trace_chunk
+    from sim.cut import Cutter
+    from sim.gcode import load_program
+    from sim.tools import parse_tool_spec
+    from sim.trace import Trace
+
+    moves = load_program(str(program)).moves
+    grid = build_stock("box:" + ",".join(map(str, stock)), RESOLUTION)
+    cutter = Cutter(grid, parse_tool_spec(tool_spec))
+    w = RunWriter(run)
+    w.put_meta("job", f'[design]\nstl = "{design}"\n[tools.1]\nspec = "{tool_spec}"\n')
+    w.put_meta("program_path", str(program))
+    w.put_meta("program", program.read_text())
+    w.put_array("moves", moves)
+    w.put_array("row_seconds", np.full(len(moves), 0.01))
+    trace = Trace(grid)
+    store_trace_chunk(w, trace)
+    bounds = np.linspace(0, len(moves), STAGES + 1).astype(int)
+    for stage, (a, b) in enumerate(zip(bounds[:-1], bounds[1:]), start=1):
+        res = cutter.cut_moves(moves[a:b], move_ids=np.arange(a, b) + 1)
+        trace.record(grid, res.changed_rays, stage)
+        end = moves["end"][b - 1, :3]
+        w.append_cut(stage, {"points": np.stack([moves["start"][a, :3], end])}, t=0.01 * b, move_id=b,
+                     line=int(moves["line"][b - 1]))
+        store_trace_chunk(w, trace)
+    w.close()
+
+
+@pytest.fixture(scope="module", params=sorted(CORPUS))
+def corpus_run(request, tmp_path_factory):
+    prog, design, stock = CORPUS[request.param]
+    run = tmp_path_factory.mktemp("corpus") / f"{request.param}.dexrun"
+    record_program(run, PARTS / prog, PARTS / design, stock)
+    return request.param, run
+
+
+def _hue_bins(img: np.ndarray) -> np.ndarray:
+    rgb = img.reshape(-1, 3).astype(np.float64)
+    mx, mn = rgb.max(1), rgb.min(1)
+    sat = (mx - mn) > 40
+    r, g, b = rgb[sat].T
+    d = (mx - mn)[sat]
+    h = np.where(mx[sat] == r, ((g - b) / d) % 6, np.where(mx[sat] == g, (b - r) / d + 2, (r - g) / d + 4))
+    counts = np.bincount((h * 6).astype(int) % 36, minlength=36)
+    return counts / max(counts.sum(), 1)
+
+
+def test_clean_finishing_pass_is_a_calm_deviation_map(corpus_run):
+    from monitor.render import meaning
+    from monitor.render.runpicture import RunPictures
+    from monitor.trace_io import RunView
+
+    name, run = corpus_run
+    with RunView(run) as view:
+        pics = RunPictures(view, size=400)
+        img = pics.picture(view.last_stage)
+        assert pics.color_by == "deviation"
+        rows = pics.live.picture_shape[0]
+        model = img[:rows]
+        # the part fills the frame
+        assert (~(model == np.array((28, 30, 36), np.uint8)).all(axis=2)).mean() > 0.85
+        # few hues: the neutral grey of the part within tolerance, and only where the ball
+        # cannot reach (material left) a blue; no gouge red, no random move colours
+        hues = _hue_bins(model)
+        assert (hues > 0.02).sum() <= 4, np.round(hues, 3)
+        err = pics.errors(np.ascontiguousarray(pics.crop(view.state_at(view.last_stage)[0])))
+        idx = meaning.deviation_index(err, pics.tol)
+        assert (idx[np.isfinite(err)] == 0).mean() > 0.8          # most of the part within tolerance
+        by_move = RunPictures(view, size=400, color_by="move").picture(view.last_stage)[:rows]
+        assert (_hue_bins(by_move) > 0.02).sum() > (hues > 0.02).sum()   # what the old default looked like
+    check_image(img, f"corpus_{name}_end.png", threshold=6.0)
