@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from tests.monitor.render.imagecheck import check_image
+from tests.monitor.run_helpers import record_program
 
 PARTS = Path(__file__).resolve().parents[3].parent / "shared" / "corpus" / "parts"
 pytestmark = pytest.mark.skipif(not PARTS.is_dir(), reason="../shared/corpus/parts is not present")
@@ -23,48 +24,13 @@ CORPUS = {
                         (0.0, 0.0, -1.0, 76.4923, 76.4923, 30.8718)),
     "carpet1": ("carpet1_ball6_finish.ngc", "carpet1.stl", (0.0, -82.0, -10.0, 152.0, 66.0, 5.1979)),
 }
-RESOLUTION = 0.5
-STAGES = 40
-
-
-def record_program(run: Path, program: Path, design: Path, stock, tool_spec: str = "ball:6") -> None:
-    """Cut ``program`` into a box ``stock`` with ``tool_spec`` and write a run file: the
-    job (design, tool), the move table, one trace stage and one cut record per chunk."""
-    from monitor.commands.simulate import build_stock
-    from monitor.runfile import RunWriter
-    from monitor.trace_io import store_trace_chunk
-    from sim.cut import Cutter
-    from sim.gcode import load_program
-    from sim.tools import parse_tool_spec
-    from sim.trace import Trace
-
-    moves = load_program(str(program)).moves
-    grid = build_stock("box:" + ",".join(map(str, stock)), RESOLUTION)
-    cutter = Cutter(grid, parse_tool_spec(tool_spec))
-    w = RunWriter(run)
-    w.put_meta("job", f'[design]\nstl = "{design}"\n[tools.1]\nspec = "{tool_spec}"\n')
-    w.put_meta("program_path", str(program))
-    w.put_meta("program", program.read_text())
-    w.put_array("moves", moves)
-    w.put_array("row_seconds", np.full(len(moves), 0.01))
-    trace = Trace(grid)
-    store_trace_chunk(w, trace)
-    bounds = np.linspace(0, len(moves), STAGES + 1).astype(int)
-    for stage, (a, b) in enumerate(zip(bounds[:-1], bounds[1:]), start=1):
-        res = cutter.cut_moves(moves[a:b], move_ids=np.arange(a, b) + 1)
-        trace.record(grid, res.changed_rays, stage)
-        end = moves["end"][b - 1, :3]
-        w.append_cut(stage, {"points": np.stack([moves["start"][a, :3], end])}, t=0.01 * b, move_id=b,
-                     line=int(moves["line"][b - 1]))
-        store_trace_chunk(w, trace)
-    w.close()
 
 
 @pytest.fixture(scope="module", params=sorted(CORPUS))
 def corpus_run(request, tmp_path_factory):
     prog, design, stock = CORPUS[request.param]
     run = tmp_path_factory.mktemp("corpus") / f"{request.param}.dexrun"
-    record_program(run, PARTS / prog, PARTS / design, stock)
+    record_program(run, PARTS / prog, PARTS / design, stock, resolution=0.5, stages=40)
     return request.param, run
 
 
