@@ -12,7 +12,8 @@
 Pictures and animations come from the traces stored in the run file; nothing is
 re-simulated. They are coloured by meaning: against the design (the run's job's, or
 ``--design``) a deviation map (within tolerance grey, gouges red, excess blue, with its
-colour bar in mm), without one the depth of cut; by move id only with ``--color-by move``. Stages may be written as integers, ``end`` or fractions like ``1/4``.
+colour bar in mm), without one the depth of cut; by move id only with ``--color-by move``.
+Stages may be written as integers, ``end`` or fractions like ``1/4``.
 """
 
 from __future__ import annotations
@@ -80,12 +81,6 @@ def parse_stage(text, last: int, first: int = 0, where: str = "--stage") -> int:
     return n
 
 
-def finding_positions(findings: list[dict]) -> np.ndarray:
-    pts = [f.get("position") for f in findings]
-    pts = [p[:3] for p in pts if isinstance(p, (list, tuple)) and len(p) >= 3]
-    return np.asarray(pts, np.float64).reshape(-1, 3)
-
-
 def stage_picture(view, stage: int, max_size: int = 800, three_d: bool = False, findings: bool = True,
                   color_by: str = "auto", design=None, tool=None):
     """RGB uint8 picture of ``stage`` of a :class:`monitor.trace_io.RunView`, coloured by
@@ -98,21 +93,6 @@ def stage_picture(view, stage: int, max_size: int = 800, three_d: bool = False, 
 
         return view3d.stage_png(pics, stage, window_size=(max_size, max_size))
     return pics.picture(stage)
-
-
-def path_points(view) -> np.ndarray | None:
-    """The programmed tip path (k, 3) in work coordinates, or None."""
-    moves = view.moves
-    if moves is None or len(moves) == 0:
-        return None
-    try:
-        from sim.checks.motion import path_polyline
-        pts = path_polyline(moves, chord=max(view.frame.spacing, 0.05))
-        pts = pts[0] if isinstance(pts, tuple) else pts
-        return np.asarray(pts, np.float64).reshape(-1, 3)
-    except Exception:
-        ends = np.asarray(moves["end"][:, :3], np.float64)
-        return ends[np.all(np.isfinite(ends), axis=1)]
 
 
 def moment(view, args, first: int, last: int) -> int:
@@ -230,8 +210,9 @@ def run(args) -> int:
         if args.view:
             from monitor.render import view3d
 
-            view3d.interactive(tr, tool=view.tool(), path=path_points(view),
-                               findings=finding_positions(view.findings))
+            from monitor.render.runpicture import RunPictures
+
+            view3d.interactive(RunPictures(view, args.size, color_by=args.color_by, design=args.design, tool=tool))
             did = True
         if not did:
             summary = {"event": "summary", "run": str(args.run), "first_stage": first, "last_stage": last,
