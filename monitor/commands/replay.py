@@ -110,33 +110,6 @@ def moment(view, args, first: int, last: int) -> int:
     return parse_stage(args.stage, last, first)
 
 
-def finding_moments(view, findings: list[dict]) -> list[tuple[int | None, float | None]]:
-    """(stage, machine time s since the run's start) of each finding: its own
-    ``machine_time``/``t`` and ``stage`` when it has them, else the stage where its
-    first line was cut and that cut's time."""
-    from monitor.render.runpicture import run_start_time
-
-    tab = view.stage_table
-    t0 = run_start_time(view)
-    out = []
-    for f in findings:
-        stage = f.get("stage") if isinstance(f.get("stage"), int) else None
-        line = f.get("line")
-        secs = None
-        if stage is None and tab.size and isinstance(line, int) and line > 0:
-            hit = np.nonzero(tab["line"] == line)[0]
-            stage = int(tab["stage"][hit[0]]) if hit.size else None
-        for key in ("machine_time", "machine_time_s"):
-            if isinstance(f.get(key), (int, float)):
-                secs = float(f[key]) - (t0 if f[key] > t0 > 0 else 0.0)
-        if secs is None and stage is not None and tab.size:
-            k = int(np.searchsorted(tab["stage"], stage, side="right")) - 1
-            if k >= 0 and np.isfinite(tab["t"][k]):
-                secs = float(tab["t"][k]) - t0
-        out.append((stage, secs))
-    return out
-
-
 def _fmt_time(s: float) -> str:
     m, sec = divmod(float(s), 60.0)
     return f"{int(m)}:{sec:05.2f}" if m else f"{sec:.2f} s"
@@ -197,6 +170,8 @@ def run(args) -> int:
             did = True
         if args.findings:
             fs = view.findings
+            from monitor.render.runpicture import finding_moments
+
             when = finding_moments(view, fs)
             for f, (stage, secs) in zip(fs, when):
                 said = format_finding(f)

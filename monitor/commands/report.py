@@ -295,7 +295,7 @@ def section_axis(view, f: dict) -> str:
 
 def timeline_section(view, pics) -> list[str]:
     """HTML: removal rate and programmed feed over machine time, the findings marked."""
-    from monitor.commands.replay import finding_moments
+    from monitor.render.runpicture import finding_moments
     from monitor.render.live import finding_label
     from monitor.render.plots import timeline_plot
     from sim.gcode.moves import MoveKind
@@ -326,7 +326,8 @@ def timeline_section(view, pics) -> list[str]:
 
 def build_report(view, size: int = 480, max_findings: int = 50, design=None, tool=None) -> str:
     """The report of a :class:`monitor.trace_io.RunView` as one HTML string."""
-    from monitor.commands.replay import finding_moments, format_finding
+    from monitor.commands.replay import format_finding
+    from monitor.render.runpicture import finding_moments
     from monitor.render.runpicture import RunPictures
 
     tr = view.trace

@@ -41,6 +41,31 @@ def run_start_time(view) -> float:
     return 0.0
 
 
+def finding_moments(view, findings: list[dict]) -> list[tuple[int | None, float | None]]:
+    """(stage, machine time s since the run's start) of each finding: its own
+    ``machine_time``/``t`` and ``stage`` when it has them, else the stage where its
+    first line was cut and that cut's time."""
+    tab = view.stage_table
+    t0 = run_start_time(view)
+    out = []
+    for f in findings:
+        stage = f.get("stage") if isinstance(f.get("stage"), int) else None
+        line = f.get("line")
+        secs = None
+        if stage is None and tab.size and isinstance(line, int) and line > 0:
+            hit = np.nonzero(tab["line"] == line)[0]
+            stage = int(tab["stage"][hit[0]]) if hit.size else None
+        for key in ("machine_time", "machine_time_s"):
+            if isinstance(f.get(key), (int, float)):
+                secs = float(f[key]) - (t0 if f[key] > t0 > 0 else 0.0)
+        if secs is None and stage is not None and tab.size:
+            k = int(np.searchsorted(tab["stage"], stage, side="right")) - 1
+            if k >= 0 and np.isfinite(tab["t"][k]):
+                secs = float(tab["t"][k]) - t0
+        out.append((stage, secs))
+    return out
+
+
 def stage_at_line(view, line: int) -> int:
     """The stage after the last cut of program ``line`` (InputError naming the lines cut)."""
     tab = view.stage_table
@@ -122,6 +147,15 @@ def load_design(view, frame, design_path=None, tol=None):
     return DesignModel(frame, trimesh.creation.box(bounds=[lo, hi]), name="design box"), tol
 
 
+def _has_position(f) -> bool:
+    """Whether :func:`monitor.render.live.finding_marks` keeps finding ``f``."""
+    p = f.get("position")
+    try:
+        return p is not None and len(p) >= 3 and bool(np.all(np.isfinite([float(v) for v in p[:3]])))
+    except (TypeError, ValueError):
+        return False
+
+
 def crop_box(heights: np.ndarray, margin_rays: int) -> tuple[int, int, int, int]:
     """(j0, j1, i0, i1), end exclusive: the rays with material grown by ``margin_rays``."""
     j, i = np.nonzero(np.isfinite(heights))
@@ -164,6 +198,10 @@ class RunPictures:
                              "or its file is not found)", "--color-by")
         self.color_by = "deviation" if self.design is not None else ("move" if color_by == "move" else "depth")
         self.marks = finding_marks(view.findings) if findings else []
+        # a finding is ringed from the stage it was found at (before it: unknown yet)
+        moments = finding_moments(view, view.findings) if findings else []
+        found = [m[0] for f, m in zip(view.findings, moments) if _has_position(f)]
+        self.mark_stages = np.array([view.first_stage if s is None else s for s in found], np.int64)
         self.t0 = run_start_time(view)
         moves = view.moves
         self.moves = moves if moves is not None and len(moves) else None
@@ -218,8 +256,10 @@ class RunPictures:
             heights, ids = self.view.state_at(stage)
         h = np.ascontiguousarray(self.crop(heights), np.float32)
         status, tip, row = self.status(stage)
-        return self.live.render(h, tip, findings=self.marks, ids=None if ids is None else self.crop(ids),
-                                status=status, errors=self.errors(h), moves=self.path_near(row))
+        marks = [m for m, s in zip(self.marks, self.mark_stages) if s <= stage]
+        img = self.live.render(h, tip, findings=marks, ids=None if ids is None else self.crop(ids),
+                               status=status, errors=self.errors(h), moves=self.path_near(row))
+        return img.copy()   # the view draws the next picture into the same buffer
 
     def frames(self, first: int, last: int, max_frames: int = 120):
         """Yield (stage, picture) from ``first`` to ``last`` (backwards when last < first),
@@ -231,4 +271,4 @@ class RunPictures:
             raise InputError("the run has no time-trace: animations need it")
         step = stage_steps(first, last, max_frames)
         for stage, heights, ids in tr.t.frames(int(first), int(last), step):
-            yield stage, self.picture(stage, heights, ids).copy()
+            yield stage, self.picture(stage, heights, ids)

@@ -35,7 +35,7 @@ def end_picture(example_run):
 
     with RunView(example_run) as view:
         pics = RunPictures(view, size=600)
-        img = pics.picture(view.last_stage).copy()
+        img = pics.picture(view.last_stage)
         yield pics, img
 
 
@@ -113,6 +113,21 @@ def test_run_picture_frames_the_part_with_axes_tool_and_holder(example_run, end_
     assert (pic == np.array(HOLDER_COLOR, np.uint8)).all(axis=2).any()
 
 
+def test_findings_are_ringed_from_the_stage_they_were_found_at(example_run):
+    from monitor.render.runpicture import RunPictures
+    from monitor.trace_io import RunView
+
+    with RunView(example_run) as view:
+        pics = RunPictures(view, size=300)
+        rows = pics.live.picture_shape[0]
+        found = sorted(int(f["stage"]) for f in view.findings)
+        red = np.array(shaded.FINDING_COLOR, np.uint8)
+        before = pics.picture(found[0] - 1)[:rows]
+        after = pics.picture(found[0])[:rows]
+    assert not (before == red).all(axis=2).any()      # nothing known yet
+    assert (after == red).all(axis=2).any()
+
+
 def test_run_picture_matches_its_reference(example_run):
     from monitor.render.runpicture import RunPictures
     from monitor.trace_io import RunView
@@ -166,12 +181,13 @@ def test_replay_findings_say_stage_and_time(example_run, capsys):
 def test_animation_frames_carry_the_overlay_and_their_count(example_run, tmp_path, capsys):
     import imageio.v3 as iio
 
-    gif = tmp_path / "a.gif"
-    assert main(["replay", str(example_run), "--from", "0", "--to", "end", "--gif", str(gif), "--frames", "7",
-                 "--size", "300", "--json"]) == 0
-    said = json.loads(capsys.readouterr().out)
+    gif, mp4 = tmp_path / "a.gif", tmp_path / "a.mp4"
+    assert main(["replay", str(example_run), "--from", "0", "--to", "end", "--gif", str(gif), "--mp4", str(mp4),
+                 "--frames", "7", "--size", "300", "--json"]) == 0
+    said = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
     frames = iio.imread(gif, index=None)
-    assert said["frames"] == frames.shape[0] == 7
+    assert said[0]["frames"] == frames.shape[0] == 7
+    assert said[1]["frames"] == iio.imread(mp4, index=None).shape[0] == 7
     # every frame has the strip with the legend's colour bar (the live view's overlay)
     pal = meaning.deviation_palette()
     for f in frames:
