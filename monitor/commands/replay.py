@@ -224,14 +224,30 @@ def format_finding(f: dict) -> str:
     kind = str(f.get("kind", "finding")).replace("_", " ")
     lines = [int(x) for x in (f.get("lines") or ()) if x]
     line = f.get("line")
-    if len(lines) > 1:
+    span = f.get("line_range")   # the first and last line even when ``lines`` was cut short
+    if isinstance(span, (list, tuple)) and len(span) == 2 and span[0] != span[1]:
+        lines = [int(span[0]), int(span[1])] if not lines else lines
+        first, last = int(span[0]), int(span[1])
+    elif len(lines) > 1:
+        first, last = lines[0], lines[-1]
+    else:
+        first = last = None
+    if first is not None:
         total = f.get("lines_total", len(lines))
-        where = f"lines {lines[0]}-{lines[-1]}" + (f" ({total} lines)" if total != lines[-1] - lines[0] + 1 else "")
+        where = f"lines {first}-{last}" + (f" ({total} lines)" if total != last - first + 1 else "")
+        worst = f.get("worst_line")
+        if isinstance(worst, int) and worst not in (0, first):
+            where += f" (worst at line {worst})"
     else:
         where = f"line {line}" if line not in (None, 0, -1) else "an unknown line"
     pos = f.get("position")
     if isinstance(pos, (list, tuple)) and len(pos) >= 3 and all(v is not None for v in pos[:3]):
         where += f", X{pos[0]:.3f} Y{pos[1]:.3f} Z{pos[2]:.3f}"
+        prog = f.get("programmed")
+        if isinstance(prog, (list, tuple)) and len(prog) >= 3 and all(isinstance(v, (int, float)) for v in prog[:3]) \
+                and max(abs(a - b) for a, b in zip(prog[:3], pos[:3])) >= 5e-4:
+            # the contact point above; where the tip was programmed to be for it
+            where += f" (programmed tip X{prog[0]:.3f} Y{prog[1]:.3f} Z{prog[2]:.3f})"
     sizes = []
     if f.get("depth") is not None:
         sizes.append(f"{f['depth']:.3f} mm deep")

@@ -69,6 +69,9 @@ def finding_label(f) -> str:
     kind = str(get("kind", "") or "finding").upper().replace("_", " ")
     lines = [int(v) for v in (get("lines", None) or ()) if v]
     line = int(get("line", 0) or 0)
+    span = get("line_range", None)   # first and last line, when ``lines`` may be cut short
+    if span is not None and len(span) == 2 and span[0] != span[1]:
+        return f"{kind} L{int(span[0])}-{int(span[1])}"
     if len(lines) > 1:
         return f"{kind} L{lines[0]}-{lines[-1]}"
     return f"{kind} L{line}" if line else kind
@@ -617,7 +620,7 @@ def finding_marks(findings, wco=None) -> list[dict]:
             q = q - w
         if np.all(np.isfinite(q)):
             out.append({"position": q, "kind": get("kind", ""), "line": get("line", 0),
-                        "lines": get("lines", None)})
+                        "lines": get("lines", None), "line_range": get("line_range", None)})
     return out
 
 

@@ -42,9 +42,10 @@ def run_start_time(view) -> float:
 
 
 def finding_moments(view, findings: list[dict]) -> list[tuple[int | None, float | None]]:
-    """(stage, machine time s since the run's start) of each finding: its own
-    ``machine_time``/``t`` and ``stage`` when it has them, else the stage where its
-    first line was cut and that cut's time."""
+    """(stage, machine time s since the run's start) of each finding: its ``stage`` (else
+    the stage where its first line was cut) and the recorded time of that stage's cut;
+    without one, its program time ``time_s`` (s from the program start, which a finding
+    predicted but never reached carries)."""
     tab = view.stage_table
     t0 = run_start_time(view)
     out = []
@@ -55,13 +56,12 @@ def finding_moments(view, findings: list[dict]) -> list[tuple[int | None, float 
         if stage is None and tab.size and isinstance(line, int) and line > 0:
             hit = np.nonzero(tab["line"] == line)[0]
             stage = int(tab["stage"][hit[0]]) if hit.size else None
-        for key in ("machine_time", "machine_time_s"):
-            if isinstance(f.get(key), (int, float)):
-                secs = float(f[key]) - (t0 if f[key] > t0 > 0 else 0.0)
-        if secs is None and stage is not None and tab.size:
+        if stage is not None and tab.size:
             k = int(np.searchsorted(tab["stage"], stage, side="right")) - 1
             if k >= 0 and np.isfinite(tab["t"][k]):
                 secs = float(tab["t"][k]) - t0
+        if secs is None and isinstance(f.get("time_s"), (int, float)) and np.isfinite(f["time_s"]):
+            secs = float(f["time_s"])
         out.append((stage, secs))
     return out
 
