@@ -86,6 +86,8 @@ def _fmt_s(s: float) -> str:
     return f"{int(h)}:{int(m):02d}:{sec:05.2f}" if h else f"{int(m)}:{sec:05.2f}"
 
 
+#: the final part's 3-D picture is at least this many pixels a side
+FINAL_3D_MIN_PX = 720
 #: link events listed in the report at most
 MAX_LINK_EVENTS = 50
 
@@ -370,7 +372,8 @@ def build_report(view, size: int = 480, max_findings: int = 50, design=None, too
     try:
         from monitor.render import view3d
 
-        img3 = view3d.stage_png(pics, last, window_size=(2 * size, 2 * size) if size < 400 else (size, size))
+        side = max(size, FINAL_3D_MIN_PX)
+        img3 = view3d.stage_png(pics, last, window_size=(side, side))
         parts.append(f"<figure>{_img_tag(img3, 'final part in 3-D')}<figcaption>stage {last} in 3-D"
                      f"{' with the deviation map' if pics.color_by == 'deviation' else ''}</figcaption></figure>")
     except ImportError:  # pyvista missing: the top views still show the part
