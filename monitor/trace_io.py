@@ -194,8 +194,13 @@ class RunView:
         rows = []
         for c in self.reader.cuts():
             a = c["arrays"]
-            p0 = np.asarray(a.get("p0", np.full(3, np.nan)), np.float64).reshape(-1)[:3]
-            p1 = np.asarray(a.get("p1", np.full(3, np.nan)), np.float64).reshape(-1)[:3]
+            pts = a.get("points")  # a session's cut: the travelled polyline (k, 3)
+            if pts is not None and np.size(pts) >= 3:
+                pts = np.asarray(pts, np.float64).reshape(-1, 3)
+                p0, p1 = pts[0], pts[-1]
+            else:
+                p0 = np.asarray(a.get("p0", np.full(3, np.nan)), np.float64).reshape(-1)[:3]
+                p1 = np.asarray(a.get("p1", np.full(3, np.nan)), np.float64).reshape(-1)[:3]
             rows.append((c["stage"], c["t"] if c["t"] is not None else np.nan,
                          c["move_id"] if c["move_id"] is not None else -1,
                          c["line"] if c["line"] is not None else -1, p0, p1))

@@ -2,13 +2,18 @@
 
     dexmon replay RUN                                  summary: stages, findings, trace sizes
     dexmon replay RUN --stage N --png out.png [--3d]   picture of stage N (N = end: last)
+    dexmon replay RUN --line 22 --png out.png          ... after the last cut of line 22
+    dexmon replay RUN --time 12.5 --png out.png        ... at 12.5 s of machine time
     dexmon replay RUN --from A --to B --gif out.gif | --mp4 out.mp4
     dexmon replay RUN --findings                       findings with their lines
     dexmon replay RUN --export-stl N out.stl           the model at stage N as an STL mesh
     dexmon replay RUN --view                           interactive 3-D window with a stage slider
 
 Pictures and animations come from the traces stored in the run file; nothing is
-re-simulated. Stages may be written as integers, ``end`` or fractions like ``1/4``.
+re-simulated. They are coloured by meaning: against the design (the run's job's, or
+``--design``) a deviation map (within tolerance grey, gouges red, excess blue, with its
+colour bar in mm), without one the depth of cut; by move id only with ``--color-by move``.
+Stages may be written as integers, ``end`` or fractions like ``1/4``.
 """
 
 from __future__ import annotations
@@ -27,7 +32,16 @@ HELP = "rebuild, picture or export any stage of a recorded run"
 def add_arguments(parser) -> None:
     parser.add_argument("run", help="run file (.dexrun / SQLite) written by live or dry-run")
     parser.add_argument("--stage", default=None, help="stage to picture: N, 'end' or a fraction like 1/2")
-    parser.add_argument("--png", default=None, metavar="OUT.png", help="write a picture of --stage")
+    parser.add_argument("--line", type=int, default=None, help="picture the stage after the last cut of this line")
+    parser.add_argument("--time", type=float, default=None, metavar="SECONDS",
+                        help="picture the stage at this machine time (s since the run's start)")
+    parser.add_argument("--png", default=None, metavar="OUT.png", help="write a picture of --stage/--line/--time")
+    parser.add_argument("--color-by", default="auto", choices=("auto", "deviation", "depth", "move"),
+                        help="colour: deviation against the design (auto when there is one), depth of cut, "
+                             "or move id")
+    parser.add_argument("--design", default=None, metavar="STL",
+                        help="design model for the deviation map (default: the run's job's)")
+    parser.add_argument("--tool", default=None, metavar="SPEC", help="tool drawn (default: the run's job's)")
     parser.add_argument("--3d", dest="three_d", action="store_true",
                         help="the --png is a pyvista 3-D view (default: Van Hook's shaded top view)")
     parser.add_argument("--from", dest="first", default=None, help="first stage of an animation")
@@ -36,7 +50,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--mp4", default=None, metavar="OUT.mp4", help="write the animation as an MP4")
     parser.add_argument("--fps", type=float, default=10.0, help="animation frames per second (default 10)")
     parser.add_argument("--frames", type=int, default=120, help="at most this many animation frames (default 120)")
-    parser.add_argument("--size", type=int, default=800, help="pictures at most this many pixels a side (default 800)")
+    parser.add_argument("--size", type=int, default=800,
+                        help="pictures this many pixels on the long side at most; small grids are enlarged "
+                             "towards it (default 800)")
     parser.add_argument("--findings", action="store_true", help="list the findings with their lines")
     parser.add_argument("--export-stl", nargs=2, default=None, metavar=("N", "OUT.stl"),
                         help="write the model at stage N as an STL mesh")
@@ -65,62 +81,38 @@ def parse_stage(text, last: int, first: int = 0, where: str = "--stage") -> int:
     return n
 
 
-def finding_positions(findings: list[dict]) -> np.ndarray:
-    pts = [f.get("position") for f in findings]
-    pts = [p[:3] for p in pts if isinstance(p, (list, tuple)) and len(p) >= 3]
-    return np.asarray(pts, np.float64).reshape(-1, 3)
+def stage_picture(view, stage: int, max_size: int = 800, three_d: bool = False, findings: bool = True,
+                  color_by: str = "auto", design=None, tool=None):
+    """RGB uint8 picture of ``stage`` of a :class:`monitor.trace_io.RunView`, coloured by
+    meaning with its overlay (:class:`monitor.render.runpicture.RunPictures`)."""
+    from monitor.render.runpicture import RunPictures
 
-
-def stage_picture(view, stage: int, max_size: int = 800, three_d: bool = False, findings: bool = True):
-    """RGB uint8 picture of ``stage`` of a :class:`monitor.trace_io.RunView`."""
-    from monitor.render.animate import frame_picture, reduce_factor
-
-    tr = view.trace
-    info = view.stage_info(stage)
-    tool = view.tool()
-    tip = info.get("tip")
-    marks = finding_positions(view.findings) if findings else None
+    pics = RunPictures(view, max_size, color_by=color_by, design=design, tool=tool, findings=findings)
     if three_d:
         from monitor.render import view3d
 
-        grid = view.grid_at(stage)
-        path = path_points(view)
-        return view3d.render_png(grid, None, tool=tool, tip=tip, path=path, findings=marks,
-                                 window_size=(max_size, max_size))
-    heights, ids = view.state_at(stage)
-    k = reduce_factor(tr.frame.shape, max_size)
-    return frame_picture(heights, ids, tr.frame, k, tool=tool,
-                         tip=tip if tip is not None and np.all(np.isfinite(tip)) else None,
-                         findings=marks)
+        return view3d.stage_png(pics, stage, window_size=(max_size, max_size))
+    return pics.picture(stage)
 
 
-def path_points(view) -> np.ndarray | None:
-    """The programmed tip path (k, 3) in work coordinates, or None."""
-    moves = view.moves
-    if moves is None or len(moves) == 0:
-        return None
-    try:
-        from sim.checks.motion import path_polyline
-        pts = path_polyline(moves, chord=max(view.frame.spacing, 0.05))
-        pts = pts[0] if isinstance(pts, tuple) else pts
-        return np.asarray(pts, np.float64).reshape(-1, 3)
-    except Exception:
-        ends = np.asarray(moves["end"][:, :3], np.float64)
-        return ends[np.all(np.isfinite(ends), axis=1)]
+def moment(view, args, first: int, last: int) -> int:
+    """The stage a picture is of: ``--stage``, ``--line`` or ``--time`` (exactly one)."""
+    from monitor.render.runpicture import stage_at_line, stage_at_time
+
+    given = [k for k in ("stage", "line", "time") if getattr(args, k) is not None]
+    if len(given) != 1:
+        raise InputError("--png needs one of --stage N, --line L or --time SECONDS"
+                         + (f" (got {', '.join('--' + g for g in given)})" if given else ""), "--png")
+    if args.line is not None:
+        return stage_at_line(view, args.line)
+    if args.time is not None:
+        return stage_at_time(view, args.time)
+    return parse_stage(args.stage, last, first)
 
 
-def _tip_of(view):
-    tab = view.stage_table
-    if tab.size == 0:
-        return None
-
-    def tip(stage):
-        k = int(np.searchsorted(tab["stage"], stage, side="right")) - 1
-        if k < 0:
-            return None
-        p = tab["p1"][k]
-        return p if np.all(np.isfinite(p)) else None
-    return tip
+def _fmt_time(s: float) -> str:
+    m, sec = divmod(float(s), 60.0)
+    return f"{int(m)}:{sec:05.2f}" if m else f"{sec:.2f} s"
 
 
 def run(args) -> int:
@@ -135,28 +127,34 @@ def run(args) -> int:
             else view.trace
         first, last = (view.first_stage, view.last_stage) if tr is not None else (0, 0)
         did = False
+        if args.size < 16:
+            raise InputError(f"expected a picture size of at least 16 pixels, got {args.size}", "--size")
+        tool = None
+        if args.tool:
+            from sim.tools import parse_tool_spec
+            tool = parse_tool_spec(args.tool)
         if args.png:
-            if args.stage is None:
-                raise InputError("--png needs --stage N", "--png")
-            n = view.check_stage(parse_stage(args.stage, last, first))
-            img = stage_picture(view, n, args.size, args.three_d)
+            n = view.check_stage(moment(view, args, first, last))
+            img = stage_picture(view, n, args.size, args.three_d, color_by=args.color_by, design=args.design,
+                                tool=tool)
             save_png(img, args.png)
             _say(args, out, {"event": "png", "stage": n, "path": args.png, "size": list(img.shape[:2])},
                  f"stage {n}: wrote {args.png} ({img.shape[1]}x{img.shape[0]})")
             did = True
-        elif args.stage is not None and not args.export_stl:
-            raise InputError("--stage needs --png OUT.png (or use --export-stl N OUT.stl)", "--stage")
+        elif (args.stage is not None or args.line is not None or args.time is not None) and not args.export_stl:
+            raise InputError("--stage/--line/--time need --png OUT.png (or use --export-stl N OUT.stl)", "--stage")
         if args.gif or args.mp4:
             if args.first is None or args.last is None:
                 raise InputError("animations need --from A and --to B", "--gif/--mp4")
-            from monitor.render.animate import animate
+            from monitor.render.animate import write_animation
+            from monitor.render.runpicture import RunPictures
 
             a = view.check_stage(parse_stage(args.first, last, first, "--from"), "--from")
             b = view.check_stage(parse_stage(args.last, last, first, "--to"), "--to")
+            pics = RunPictures(view, args.size, color_by=args.color_by, design=args.design, tool=tool)
             for path in (args.gif, args.mp4):
                 if path:
-                    n = animate(tr, a, b, path, fps=args.fps, max_frames=args.frames, max_size=args.size,
-                                tip_of=_tip_of(view), tool=view.tool())
+                    n = write_animation(pics.frames(a, b, args.frames), path, fps=args.fps)
                     _say(args, out, {"event": "animation", "from": a, "to": b, "frames": n, "path": path},
                          f"stages {a}..{b}: wrote {n} frames to {path}")
             did = True
@@ -172,8 +170,14 @@ def run(args) -> int:
             did = True
         if args.findings:
             fs = view.findings
-            for f in fs:
-                _say(args, out, {"event": "finding", **f}, format_finding(f))
+            from monitor.render.runpicture import finding_moments
+
+            when = finding_moments(view, fs)
+            for f, (stage, secs) in zip(fs, when):
+                said = format_finding(f)
+                if stage is not None:
+                    said += f" Stage {stage}" + (f", {_fmt_time(secs)} into the run." if secs is not None else ".")
+                _say(args, out, {"event": "finding", **f, "at_stage": stage, "at_s": secs}, said)
             if not fs:
                 _say(args, out, {"event": "findings", "count": 0}, "no findings")
             status = 1 if fs else 0
@@ -181,8 +185,9 @@ def run(args) -> int:
         if args.view:
             from monitor.render import view3d
 
-            view3d.interactive(tr, tool=view.tool(), path=path_points(view),
-                               findings=finding_positions(view.findings))
+            from monitor.render.runpicture import RunPictures
+
+            view3d.interactive(RunPictures(view, args.size, color_by=args.color_by, design=args.design, tool=tool))
             did = True
         if not did:
             summary = {"event": "summary", "run": str(args.run), "first_stage": first, "last_stage": last,
@@ -219,14 +224,30 @@ def format_finding(f: dict) -> str:
     kind = str(f.get("kind", "finding")).replace("_", " ")
     lines = [int(x) for x in (f.get("lines") or ()) if x]
     line = f.get("line")
-    if len(lines) > 1:
+    span = f.get("line_range")   # the first and last line even when ``lines`` was cut short
+    if isinstance(span, (list, tuple)) and len(span) == 2 and span[0] != span[1]:
+        lines = [int(span[0]), int(span[1])] if not lines else lines
+        first, last = int(span[0]), int(span[1])
+    elif len(lines) > 1:
+        first, last = lines[0], lines[-1]
+    else:
+        first = last = None
+    if first is not None:
         total = f.get("lines_total", len(lines))
-        where = f"lines {lines[0]}-{lines[-1]}" + (f" ({total} lines)" if total != lines[-1] - lines[0] + 1 else "")
+        where = f"lines {first}-{last}" + (f" ({total} lines)" if total != last - first + 1 else "")
+        worst = f.get("worst_line")
+        if isinstance(worst, int) and worst not in (0, first):
+            where += f" (worst at line {worst})"
     else:
         where = f"line {line}" if line not in (None, 0, -1) else "an unknown line"
     pos = f.get("position")
     if isinstance(pos, (list, tuple)) and len(pos) >= 3 and all(v is not None for v in pos[:3]):
         where += f", X{pos[0]:.3f} Y{pos[1]:.3f} Z{pos[2]:.3f}"
+        prog = f.get("programmed")
+        if isinstance(prog, (list, tuple)) and len(prog) >= 3 and all(isinstance(v, (int, float)) for v in prog[:3]) \
+                and max(abs(a - b) for a, b in zip(prog[:3], pos[:3])) >= 5e-4:
+            # the contact point above; where the tip was programmed to be for it
+            where += f" (programmed tip X{prog[0]:.3f} Y{prog[1]:.3f} Z{prog[2]:.3f})"
     sizes = []
     if f.get("depth") is not None:
         sizes.append(f"{f['depth']:.3f} mm deep")

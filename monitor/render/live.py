@@ -39,6 +39,7 @@ MIN_FRAME_SIZE = 640
 #: ... but not beyond this (a big grid is already strided to ``max_size``)
 MAX_UPSCALED_SIZE = 1600
 FIXTURE_COLOR = (255, 150, 40)
+HOLDER_COLOR = (150, 150, 160)
 STRIP_BG = (12, 12, 16)
 TEXT_COLOR = (235, 235, 235)
 DIM_TEXT = (160, 164, 172)
@@ -68,6 +69,9 @@ def finding_label(f) -> str:
     kind = str(get("kind", "") or "finding").upper().replace("_", " ")
     lines = [int(v) for v in (get("lines", None) or ()) if v]
     line = int(get("line", 0) or 0)
+    span = get("line_range", None)   # first and last line, when ``lines`` may be cut short
+    if span is not None and len(span) == 2 and span[0] != span[1]:
+        return f"{kind} L{int(span[0])}-{int(span[1])}"
     if len(lines) > 1:
         return f"{kind} L{lines[0]}-{lines[-1]}"
     return f"{kind} L{line}" if line else kind
@@ -108,7 +112,16 @@ def _nice_floor(x: float) -> float:
 
 
 def _mm(x: float) -> str:
-    return f"{x:g}" if abs(x) >= 0.1 or x == 0 else f"{x:.2f}"
+    return f"{x:g}" if abs(x) >= 0.1 or x == 0 else f"{x:.2g}"
+
+
+def draw_circle(image: np.ndarray, frame, centre, radius: float, color, width: int = 1) -> None:
+    """A circle of ``radius`` mm round world point ``centre`` on a top-view picture, in place."""
+    n = max(24, int(2 * np.pi * radius / frame.spacing))
+    a = np.linspace(0, 2 * np.pi, n + 1)
+    c = np.asarray(centre, np.float64).reshape(3)
+    pts = np.stack([c[0] + radius * np.cos(a), c[1] + radius * np.sin(a), np.full(a.size, c[2])], axis=1)
+    shaded.draw_polyline(image, frame, pts, color=color, width=width)
 
 
 def fixture_mask(frame, fixtures) -> np.ndarray:
@@ -160,14 +173,30 @@ class LiveView:
     fixtures : ``sim.checks.collisions.Fixture`` objects (or DexelGrids, or (nv, nu) bool
         masks) to outline, with their names when they have one.
     min_size : frames are enlarged by whole pixels per ray to at least this long side.
+    color_by : ``"depth"`` (below the stock top, the default), ``"deviation"`` (the error
+        against the design given to :meth:`render` as ``errors``: neutral within ``tol``,
+        gouges red, excess blue) or ``"move"`` (the id of the move that made each face).
+    tol : the ``sim.tolerance.Tolerance`` of the deviation map (its colour bar's stops).
+    headless : neither a window nor files: :meth:`render` only (replay and report).
+    axes : draw the work origin and millimetre ticks (:func:`.meaning.draw_axes`).
     """
 
     def __init__(self, frame, tool=None, out_dir=None, max_size: int | None = 1024, max_fps: float = 0.0,
                  color_by_move: bool = False, title: str = "dexmon", stock_top: np.ndarray | None = None,
-                 max_depth: float | None = None, fixtures=None, min_size: int | None = None):
+                 max_depth: float | None = None, fixtures=None, min_size: int | None = None,
+                 color_by: str | None = None, tol=None, headless: bool = False, axes: bool = False):
         self.frame = frame
         self.tool = tool
-        if out_dir is None and max_size:
+        self.color_by = color_by or ("move" if color_by_move else "depth")
+        if self.color_by not in ("depth", "deviation", "move"):
+            raise InputError(f"colour by depth, deviation or move, got {self.color_by!r}", "--color-by")
+        if self.color_by == "deviation":
+            from sim.tolerance import DEFAULT
+            tol = tol or DEFAULT
+        self.tol = tol
+        self.axes = axes
+        self.headless = headless
+        if out_dir is None and max_size and not headless:
             max_size = min(max_size, WINDOW_MAX_SIZE)
         self.k = reduce_factor(frame.shape, max_size)
         self.sub = frame if self.k == 1 else frame.__class__(
@@ -177,7 +206,10 @@ class LiveView:
         if min_size is None:
             # a window is scaled by matplotlib: enlarging there only costs redraw time
             min_size = MIN_FRAME_SIZE if out_dir is not None else 0
-        self.scale = max(1, min(int(np.ceil(min_size / longest)), max(MAX_UPSCALED_SIZE // longest, 1)))
+        if headless:   # a picture asked for by size: whole pixels per ray, at most that size
+            self.scale = max(1, int(min_size or 0) // longest)
+        else:
+            self.scale = max(1, min(int(np.ceil(min_size / longest)), max(MAX_UPSCALED_SIZE // longest, 1)))
         self.view_frame = shaded.upscaled_frame(self.sub, self.scale)
         self.text_scale = 2 if self.view_frame.nu >= 560 else 1
         self.stock_top = None if stock_top is None else self._sub(np.asarray(stock_top, np.float32))
@@ -189,7 +221,7 @@ class LiveView:
         self._fixture_mask = fixture_mask(self.sub, self.fixtures) if self.fixtures else None
         self._fixture_labels = self._fixture_places() if self.fixtures else []
         self.max_fps = float(max_fps)
-        self.color_by_move = color_by_move
+        self.color_by_move = self.color_by == "move"
         self.frames_drawn = 0
         self.last_image: np.ndarray | None = None
         self._buf: np.ndarray | None = None
@@ -203,7 +235,7 @@ class LiveView:
                 self.out_dir.mkdir(parents=True, exist_ok=True)
             except OSError as exc:
                 raise InputError(f"cannot create the frames folder ({exc.strerror})", str(self.out_dir)) from exc
-        else:
+        elif not headless:
             if not has_display():
                 raise InputError("no display for --view ($DISPLAY is not set); use --frames DIR", "--view")
             import matplotlib.pyplot as plt
@@ -227,7 +259,13 @@ class LiveView:
 
     @property
     def strip_height(self) -> int:
-        return 2 * (7 * self.text_scale) + 3 * 6 * self.text_scale // 2 + 4
+        rows = 3 if self._legend_rows == 2 else 2
+        return rows * (7 * self.text_scale) + (rows + 1) * 6 * self.text_scale // 2 + 4
+
+    @property
+    def _legend_rows(self) -> int:
+        """Rows of the legend: the colour meaning on a row of its own when it is long."""
+        return 2 if (self.axes or self.color_by == "deviation") else 1
 
     def pixel_of(self, points: np.ndarray) -> np.ndarray:
         """World points (k, 3) mm -> float (k, 2) (column, row) in the frames."""
@@ -269,7 +307,7 @@ class LiveView:
     # -- drawing
     def render(self, heights_or_grid, tool_pose=None, path_ahead=None, findings=None,
                ids: np.ndarray | None = None, changed: tuple[int, int, int, int] | None = None,
-               status: dict | None = None) -> np.ndarray:
+               status: dict | None = None, errors: np.ndarray | None = None, moves: dict | None = None) -> np.ndarray:
         """The frame as RGB uint8 (rows, cols, 3) without showing or writing it.
 
         ``heights_or_grid``: (nv, nu) heights mm or a DexelGrid; ``tool_pose``: tip (3,)
@@ -280,7 +318,11 @@ class LiveView:
         ``changed``: the ray box ``(j0, j1, i0, i1)`` (end exclusive) holding every ray
         whose height changed since the previous render: only that box (and the pixels
         whose normals it moves) is shaded again (Van Hook: redraw what the tool
-        touched); None shades everything.
+        touched); None shades everything. ``errors`` (nv, nu) signed mm against the
+        design colours the surface when ``color_by="deviation"``. ``moves``: the path as
+        ``{"start": (k, 3), "end": (k, 3), "rapid": (k,) bool}`` (feeds solid, rapids
+        dashed), drawn instead of ``path_ahead``. ``status`` may also give ``stage`` and
+        ``tool`` (a short text such as ``T1 FLAT 6``).
         """
         heights = heights_or_grid.top() if hasattr(heights_or_grid, "top") else np.asarray(heights_or_grid,
                                                                                           np.float32)
@@ -288,13 +330,19 @@ class LiveView:
         grown = self._depth_setup(h)
         if grown:
             self._strip = None
-        if ids is not None and self.color_by_move:
+        if self.color_by == "deviation" and errors is not None:
+            from monitor.render import meaning
+
+            idx = meaning.deviation_index(self._sub(np.asarray(errors, np.float64)), self.tol)
+            self._base = shaded.shade(h, self.sub.spacing, ids=idx, palette=meaning.deviation_palette(),
+                                      out=self._base)
+        elif ids is not None and self.color_by_move:
             self._base = shaded.shade(h, self.sub.spacing, ids=self._sub(ids), out=self._base)
         elif changed is None or self._base is None or grown:
             self._base = self._shade(h, self.stock_top, out=self._base)
         else:
             self._reshade(h, changed)
-        return self._compose(h, tool_pose, path_ahead, findings, status)
+        return self._compose(h, tool_pose, path_ahead, findings, status, moves)
 
     def _reshade(self, h: np.ndarray, changed) -> None:
         k = self.k
@@ -310,7 +358,7 @@ class LiveView:
             # shade() flips rows (+v up): ray row j of the window is picture row w1-1-j
             self._base[nv - a1:nv - a0, b0:b1] = part[w1 - a1:w1 - a0, b0 - v0:b1 - v0]
 
-    def _compose(self, h, tool_pose, path_ahead, findings, status) -> np.ndarray:
+    def _compose(self, h, tool_pose, path_ahead, findings, status, moves=None) -> np.ndarray:
         s = self.scale
         rows, cols = self.picture_shape
         shape = (rows + self.strip_height, cols, 3)
@@ -326,13 +374,25 @@ class LiveView:
                 c, r = shaded.to_pixels(vf, p[None])[0]
                 shaded.draw_text(pic, name, int(r) - 7 * self.text_scale - 4, int(c) + 2, FIXTURE_COLOR,
                                  scale=self.text_scale, background=shaded.LABEL_BG)
-        if path_ahead is not None and len(path_ahead) > 1:
+        if self.axes:
+            from monitor.render import meaning
+
+            meaning.draw_axes(pic, vf, self.text_scale)
+        if moves is not None and len(moves.get("start", ())):
+            from monitor.render import meaning
+
+            meaning.draw_moves(pic, vf, moves["start"], moves["end"], moves["rapid"], width=min(s, 2))
+        elif path_ahead is not None and len(path_ahead) > 1:
             shaded.draw_polyline(pic, vf, path_ahead, width=min(s, 2))
         tip = None if tool_pose is None else np.asarray(tool_pose, np.float64).reshape(-1)[:3]
         if tip is not None and not np.all(np.isfinite(tip)):
             tip = None
         if tip is not None and self.tool is not None:
             shaded.draw_tool(pic, vf, h, tip, self.tool, scale=s)
+            holder = getattr(self.tool, "holder", None)
+            if holder is not None and getattr(holder, "max_radius", 0) > 0:
+                # seen from above the holder is a circle round the tool: where it passes
+                draw_circle(pic, vf, tip, float(holder.max_radius), HOLDER_COLOR, max(1, min(s, 2)))
         pts, labels = _marks(findings)
         if pts is not None and len(pts):
             shaded.draw_markers(pic, vf, pts)
@@ -348,6 +408,8 @@ class LiveView:
             self._strip = self._legend(strip.shape)
         np.copyto(strip, self._strip)
         parts = []
+        if status.get("stage") is not None:
+            parts.append(f"STAGE {int(status['stage'])}")
         line = status.get("line")
         parts.append(f"LINE {int(line)}" if line else "LINE -")
         t = status.get("time")
@@ -358,6 +420,8 @@ class LiveView:
             parts.append("X -  Y -  Z -")
         feed = status.get("feed")
         parts.append(f"F {feed:.0f}" if feed is not None and np.isfinite(feed) else "F -")
+        if status.get("tool"):
+            parts.append(str(status["tool"]).upper())
         parts.append(f"FINDINGS {n_findings}")
         text = "   ".join(parts)
         sc = ts if shaded.text_size(text, ts)[1] + 12 <= strip.shape[1] else 1
@@ -378,7 +442,7 @@ class LiveView:
         strip[:] = STRIP_BG
         H = shape[0]
         th = 7 * ts
-        r = H - th - 5 * ts
+        r = H - th - 5 * ts - (th + 3 * ts) * (self._legend_rows - 1)
         col = 6
         sw = 3 * th
 
@@ -386,16 +450,23 @@ class LiveView:
             strip[r:r + th, col:col + sw] = color
             return shaded.draw_text(strip, text, r, col + sw + 3 * ts, DIM_TEXT, scale=ts)[3] + 6 * ts
 
-        col = swatch(shaded.STOCK_COLOR, "UNCUT", col)
-        # the ramp: shallow (left) to max_depth (right)
-        ramp = shaded.depth_ramp()
-        rw = 40 * ts
-        idx = np.linspace(0, len(ramp) - 1, rw).round().astype(int)
-        lab0 = "DEPTH 0"
-        col = shaded.draw_text(strip, lab0, r, col, DIM_TEXT, scale=ts)[3] + 2 * ts
-        strip[r:r + th, col:col + rw] = ramp[idx][None, :, :]
-        col += rw + 3 * ts
-        col = shaded.draw_text(strip, f"-{_mm(self.max_depth)} MM", r, col, DIM_TEXT, scale=ts)[3] + 8 * ts
+        if self.color_by == "deviation":
+            col = self._deviation_bar(strip, r, col)
+        elif self.color_by == "move":
+            col = shaded.draw_text(strip, "COLOUR: MOVE ID", r, col, DIM_TEXT, scale=ts)[3] + 8 * ts
+        else:
+            col = swatch(shaded.STOCK_COLOR, "UNCUT", col)
+            # the ramp: shallow (left) to max_depth (right)
+            ramp = shaded.depth_ramp()
+            rw = 40 * ts
+            idx = np.linspace(0, len(ramp) - 1, rw).round().astype(int)
+            lab0 = "DEPTH 0"
+            col = shaded.draw_text(strip, lab0, r, col, DIM_TEXT, scale=ts)[3] + 2 * ts
+            strip[r:r + th, col:col + rw] = ramp[idx][None, :, :]
+            col += rw + 3 * ts
+            col = shaded.draw_text(strip, f"-{_mm(self.max_depth)} MM", r, col, DIM_TEXT, scale=ts)[3] + 8 * ts
+        if self._legend_rows == 2:   # the scale bar and the overlays on a row of their own
+            r, col = H - th - 5 * ts, 6
         # scale bar: a round length about a sixth of the picture
         px_mm = 1.0 / self.view_frame.spacing
         length = _nice_floor(max(W / 6 / px_mm, 1e-3))
@@ -405,15 +476,51 @@ class LiveView:
             strip[r:r + th, col:col + ts] = TEXT_COLOR
             strip[r:r + th, col + bar - ts:col + bar] = TEXT_COLOR
             col = shaded.draw_text(strip, f"{_mm(length)} MM", r, col + bar + 3 * ts, DIM_TEXT, scale=ts)[3] + 8 * ts
-        for color, text in ((shaded.PATH_COLOR, "PATH"), (shaded.TOOL_COLOR, "TOOL"),
+        from monitor.render.meaning import RAPID_COLOR
+
+        for color, text in ((shaded.PATH_COLOR, "FEED" if self.axes else "PATH"), (RAPID_COLOR, "RAPID"),
+                            (shaded.TOOL_COLOR, "TOOL"), (HOLDER_COLOR, "HOLDER"),
                             (shaded.FINDING_COLOR, "FINDING"), (FIXTURE_COLOR, "FIXTURE")):
-            if text == "FIXTURE" and not self.fixtures:
+            if text == "FIXTURE" and not self.fixtures or text == "RAPID" and not self.axes \
+                    or text == "HOLDER" and getattr(self.tool, "holder", None) is None:
                 continue
             if col + sw + shaded.text_size(text, ts)[1] + 6 > W:
                 break
             strip[r + th // 2 - ts:r + th // 2 + ts, col:col + sw] = color
             col = shaded.draw_text(strip, text, r, col + sw + 3 * ts, DIM_TEXT, scale=ts)[3] + 6 * ts
         return np.ascontiguousarray(strip[:, :W])
+
+    def _deviation_bar(self, strip: np.ndarray, r: int, col: int) -> int:
+        """The deviation map's colour bar on the legend row from column ``col``: the gouge
+        scale (dark at -interest, light at -gouge), the neutral band, the excess scale
+        (light at +undercut, dark at +interest), each end labelled in mm. Returns the
+        column after it."""
+        from monitor.render import meaning
+
+        ts = self.text_scale
+        th = 7 * ts
+        tol = self.tol
+        pal = meaning.deviation_palette()
+        n = meaning.SCALE_STEPS
+        rw = 24 * ts
+
+        def text(t, c, color=DIM_TEXT):
+            return shaded.draw_text(strip, t, r, c, color, scale=ts)[3] + 2 * ts
+
+        col = text("GOUGE", col, meaning.GOUGE_DARK) + ts
+        col = text(f"-{_mm(tol.interest)}", col)
+        idx = np.linspace(n, 1, rw).round().astype(int)          # dark (deep) to light
+        strip[r:r + th, col:col + rw] = pal[idx][None]
+        col += rw + 2 * ts
+        col = text(f"-{_mm(tol.gouge)}", col)
+        strip[r:r + th, col:col + 8 * ts] = pal[0]
+        col = text("OK", col + 9 * ts)
+        col = text(f"+{_mm(tol.undercut)}", col)
+        idx = np.linspace(n + 1, 2 * n, rw).round().astype(int)  # light to dark (more left)
+        strip[r:r + th, col:col + rw] = pal[idx][None]
+        col += rw + 2 * ts
+        col = text(f"+{_mm(tol.interest)} MM", col)
+        return text("EXCESS", col + ts, meaning.EXCESS_DARK) + 6 * ts
 
     def update(self, heights_or_grid, tool_pose=None, path_ahead=None, findings=None,
                ids: np.ndarray | None = None, status: dict | None = None) -> bool:
@@ -430,6 +537,8 @@ class LiveView:
         next numbered PNG. The window must be presented from the thread that made it."""
         self.frames_drawn += 1
         self.last_image = img
+        if self.headless:
+            return
         if self.out_dir is not None:
             import imageio.v3 as iio
 
@@ -451,7 +560,7 @@ class LiveView:
 
     @property
     def is_window(self) -> bool:
-        return self.out_dir is None
+        return self.out_dir is None and not self.headless
 
     def close(self) -> None:
         if self._fig is not None:
@@ -511,7 +620,7 @@ def finding_marks(findings, wco=None) -> list[dict]:
             q = q - w
         if np.all(np.isfinite(q)):
             out.append({"position": q, "kind": get("kind", ""), "line": get("line", 0),
-                        "lines": get("lines", None)})
+                        "lines": get("lines", None), "line_range": get("line_range", None)})
     return out
 
 

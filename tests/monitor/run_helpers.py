@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from monitor.runfile import RunWriter
@@ -104,3 +106,38 @@ def record_run(path, chunk_every: int = 5, stop_after: int | None = None, writer
                       "position": [2.0, 2.0, 8.0], "volume": 3.2, "message": "rapid through material"})
     w.close()
     return snaps, None
+
+
+def record_program(run, program, design, stock, tool_spec: str = "ball:6", resolution: float = 0.5,
+                   stages: int = 40) -> None:
+    """Cut ``program`` into a box ``stock`` with ``tool_spec`` and write a run file: the
+    job (design, tool), the move table, one trace stage and one cut record per chunk."""
+    from monitor.commands.simulate import build_stock
+    from monitor.runfile import RunWriter
+    from monitor.trace_io import store_trace_chunk
+    from sim.cut import Cutter
+    from sim.gcode import load_program
+    from sim.tools import parse_tool_spec
+    from sim.trace import Trace
+
+    program = Path(program)
+    moves = load_program(str(program)).moves
+    grid = build_stock("box:" + ",".join(map(str, stock)), resolution)
+    cutter = Cutter(grid, parse_tool_spec(tool_spec))
+    w = RunWriter(run)
+    w.put_meta("job", f'[design]\nstl = "{design}"\n[tools.1]\nspec = "{tool_spec}"\n')
+    w.put_meta("program_path", str(program))
+    w.put_meta("program", program.read_text())
+    w.put_array("moves", moves)
+    w.put_array("row_seconds", np.full(len(moves), 0.01))
+    trace = Trace(grid)
+    store_trace_chunk(w, trace)
+    bounds = np.linspace(0, len(moves), stages + 1).astype(int)
+    for stage, (a, b) in enumerate(zip(bounds[:-1], bounds[1:]), start=1):
+        res = cutter.cut_moves(moves[a:b], move_ids=np.arange(a, b) + 1)
+        trace.record(grid, res.changed_rays, stage)
+        end = moves["end"][b - 1, :3]
+        w.append_cut(stage, {"points": np.stack([moves["start"][a, :3], end])}, t=0.01 * b, move_id=b,
+                     line=int(moves["line"][b - 1]))
+        store_trace_chunk(w, trace)
+    w.close()

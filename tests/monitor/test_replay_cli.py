@@ -53,7 +53,8 @@ def test_png_of_a_stage(recorded, tmp_path, capsys):
     out = tmp_path / "s.png"
     assert main(["replay", str(path), "--stage", "1/2", "--png", str(out)]) == 0
     img = iio.imread(out)
-    assert img.shape == (41, 61, 3)
+    # the 61 x 41 rays enlarged by whole pixels to at most --size (800), the strip below
+    assert img.shape[1] == 61 * 13 and img.shape[0] > 41 * 13 and img.ndim == 3
     assert f"stage {LAST // 2}" in capsys.readouterr().out
     # the cut region is darker/different from the untouched stock in the picture
     end = tmp_path / "e.png"
@@ -230,3 +231,32 @@ def test_resumed_simulation_equals_a_straight_one(tmp_path, capsys):
     assert "RUN:STAGE" in capsys.readouterr().err
     assert main(["simulate", str(b), "--resume", f"{run}:99", *common]) == 2
     assert main(["simulate", str(b), *common]) == 2
+
+
+def test_format_finding_says_line_range_worst_line_and_programmed_tip():
+    """Findings from sim.checks carry ``line_range`` (their ``lines`` may be cut short),
+    ``worst_line``, the contact ``position`` and the ``programmed`` tip; older runs lack
+    them and read as before."""
+    from monitor.commands.replay import format_finding
+    from monitor.render.live import finding_label
+
+    f = {"kind": "gouge", "line": 22, "lines": [22, 23, 24], "line_range": [22, 90], "lines_total": 40,
+         "worst_line": 31, "position": [30.0, 19.0, -5.5], "programmed": [30.0, 19.0, -2.5], "depth": 0.5}
+    text = format_finding(f)
+    assert text.startswith("Gouge at lines 22-90 (40 lines) (worst at line 31), X30.000 Y19.000 Z-5.500 "
+                           "(programmed tip X30.000 Y19.000 Z-2.500): 0.500 mm deep"), text
+    assert finding_label(f) == "GOUGE L22-90"
+    old = {"kind": "gouge", "line": 13, "lines": [13, 14], "position": [15.0, 16.0, 6.5], "depth": 0.4}
+    assert format_finding(old) == "Gouge at lines 13-14, X15.000 Y16.000 Z6.500: 0.400 mm deep."
+
+
+def test_finding_moments_take_the_stage_cut_time_else_the_program_time(recorded):
+    from monitor.render.runpicture import finding_moments
+
+    path, _ = recorded
+    with RunView(path) as view:
+        got = finding_moments(view, [{"kind": "gouge", "stage": 4, "line": 13},
+                                     {"kind": "gouge", "line": 999, "time_s": 7.5},
+                                     {"kind": "gouge"}])
+    # record_run stamps stage n's cut at n * 0.1 s and writes no states: times from 0
+    assert got[0] == (4, pytest.approx(0.4)) and got[1] == (None, 7.5) and got[2] == (None, None)

@@ -1,11 +1,11 @@
-"""pyvista views rendered offscreen, compared with reference images (tolerant metric)."""
+"""pyvista views rendered offscreen (the bundled job's 3-D pictures are checked in
+test_run_pictures.py against a reference image)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from tests.monitor.render.imagecheck import check_image
 from tests.sim.trace_helpers import ball_cut, box
 
 pv = pytest.importorskip("pyvista")
@@ -32,34 +32,6 @@ def test_heightfield_follows_the_tops(cut_grid):
     assert pts[k, 2] == pytest.approx(cut_grid.top()[20, 12])
 
 
-def test_height_view_png_matches_reference(cut_grid, tmp_path):
-    from monitor.render.view3d import render_png
-    from sim.tools import parse_tool_spec
-
-    out = tmp_path / "v.png"
-    img = render_png(cut_grid, out, window_size=(320, 320), tool=parse_tool_spec("ball:6:L=12"),
-                     tip=(34, 31, 7.0), path=np.array([[6, 10, 7.0], [34, 31, 7.0]]),
-                     findings=np.array([[20.0, 20.0, 7.0]]), contours=6)
-    assert out.exists() and img.shape == (320, 320, 3)
-    check_image(img, "view3d_height_ref.png", threshold=12.0)
-
-
-def test_error_map_view_has_colour_bar_colours(cut_grid):
-    from monitor.render.view3d import render_png
-    from sim.checks.error_map import error_colors
-
-    err = np.zeros(cut_grid.shape)
-    err[:, :40] = -0.5   # a gouge on the left half: reds
-    err[:, 40:] = 0.0    # in tolerance: green
-    img = render_png(cut_grid, None, errors=err, window_size=(320, 320))
-    red = error_colors(np.array([-0.5]))[0].astype(int)
-    green = error_colors(np.array([0.0]))[0].astype(int)
-    flat = img.reshape(-1, 3).astype(int)
-    near = lambda c: (np.abs(flat - c).sum(axis=1) < 90).mean()  # noqa: E731 (shading varies)
-    assert near(red) > 0.02 and near(green) > 0.02
-    check_image(img, "view3d_error_ref.png", threshold=12.0)
-
-
 def test_interactive_needs_a_display(monkeypatch):
     from monitor.render import view3d
     from sim.errors import InputError
@@ -70,26 +42,28 @@ def test_interactive_needs_a_display(monkeypatch):
         view3d.interactive(None)
 
 
-def test_replay_3d_is_a_solid_with_its_real_height_range_and_quiet_vtk(tmp_path, capfd):
-    """QA 10: the stock is a closed solid (walls down to its bottom) coloured over the real
-    height range, and VTK prints nothing offscreen."""
-    pytest.importorskip("pyvista")
+def test_3d_view_without_design_is_depth_of_cut_and_vtk_is_quiet(tmp_path, capfd):
+    """Without a design the 3-D view colours the depth of cut from 0 to the deepest cut,
+    its colour bar titled in mm; VTK prints nothing offscreen (QA 10)."""
     from monitor.render import view3d
-    from tests.sim.trace_helpers import ball_cut, box
+    from monitor.render.runpicture import RunPictures
+    from monitor.trace_io import RunView
+    from tests.monitor.run_helpers import record_run
 
-    grid = box(41, 31, 0.5, 0.0, 10.0)  # a 20 x 15 x 10 mm block
-    ball_cut(grid, np.array([10.0, 7.5, 7.0]), 3.0, 1)
-    solid = view3d.solid_surface(grid)
-    lo, hi = np.asarray(solid.bounds).reshape(3, 2).T
-    assert hi[2] == pytest.approx(10.0) and lo[2] == pytest.approx(0.0)  # sides down to the bottom
-    assert solid.point_data["height"].min() == pytest.approx(0.0)
-    pl = view3d.build_plotter(grid=grid, off_screen=True, window_size=(200, 200))
-    try:
-        rng = pl.mapper.scalar_range
-    finally:
-        pl.close()
-    assert rng[0] == pytest.approx(0.0) and rng[1] == pytest.approx(10.0)
+    run = tmp_path / "r.dexrun"
+    snaps, _ = record_run(run)
     capfd.readouterr()
-    img = view3d.render_png(grid, str(tmp_path / "s.png"), window_size=(200, 200))
+    with RunView(run) as view:
+        pics = RunPictures(view, size=200)
+        assert pics.color_by == "depth"
+        pl = view3d.stage_plotter(pics, view.last_stage, window_size=(200, 200))
+        try:
+            assert "depth of cut (mm)\n" in pl.scalar_bars
+            lo, hi = pl.scalar_bars["depth of cut (mm)\n"].GetLookupTable().GetRange()
+            deepest = np.nanmax(snaps[0].top() - snaps[view.last_stage].top())
+            assert lo == 0.0 and hi == pytest.approx(deepest, rel=1e-3)
+        finally:
+            pl.close()
+        img = view3d.stage_png(pics, view.last_stage, window_size=(200, 200))
     assert img.shape == (200, 200, 3) and img.std() > 10
     assert capfd.readouterr().err == ""
