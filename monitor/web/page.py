@@ -62,7 +62,7 @@ class Page:
                             self._live_panel(html, v3)
                             with html.Div(id="view", style="height: 68vh; position: relative;"):
                                 view = vtk_widgets.VtkRemoteView(self.scene.render_window, ref="view",
-                                                                 interactive_ratio=1, still_quality=90)
+                                                                 interactive_ratio=0.5, still_quality=90)
                             self._timeline(html, v3)
                         with v3.VCol(cols=4):
                             self._findings_panel(html, v3)

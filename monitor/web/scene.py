@@ -8,6 +8,11 @@ import numpy as np
 
 from monitor.render import view3d
 
+#: the surface drawn has at most this many points: a finer model is shown by the lowest
+#: point of each k x k block of rays (a cut never disappears), so a picture costs the
+#: same on a million rays as on a quarter of them
+MAX_SURFACE_POINTS = 256 * 1024
+
 #: colours: feeds, rapids, findings, background
 FEED_COLOUR, RAPID_COLOUR, FINDING_COLOUR, BACKGROUND = "#37c8e6", "#f08c28", "red", "#1c1e24"
 
@@ -25,19 +30,21 @@ class Scene:
         import pyvista as pv
 
         view3d.quiet_vtk()
-        self.frame = frame
+        self.model_frame = frame
+        self.k = block_factor(frame.nu * frame.nv, MAX_SURFACE_POINTS)
+        self.frame = frame = block_frame(frame, self.k)
         self.tool = tool
-        h = np.asarray(heights, np.float64)
+        h = block_lowest(np.asarray(heights, np.float64), self.k)
         #: the colour range (mm): from the program's deepest point to the stock's top
         self.clim = height_range(h, moves)
         self.floor = self.clim[0]
-        self.surface = view3d.heightfield(frame, h, floor=self.floor)
         self._base, self._axis = _point_basis(frame)
+        self.surface = surface_mesh(frame, self._base)
+        self._set_surface(h)
         self.plotter = pl = pv.Plotter(off_screen=True, window_size=list(window_size))
         pl.set_background(BACKGROUND)
         pl.add_mesh(self.surface, scalars="height", cmap="viridis", clim=self.clim, nan_color="#30323a",
-                    show_scalar_bar=True, smooth_shading=True,
-                    scalar_bar_args={"title": "height (mm)", "fmt": "%.1f", "color": "white"})
+                    show_scalar_bar=True, scalar_bar_args={"title": "height (mm)", "fmt": "%.1f", "color": "white"})
         for lines, colour, width in _path_lines(moves):
             pl.add_mesh(lines, color=colour, line_width=width)
         if findings is not None and len(findings):
@@ -64,8 +71,12 @@ class Scene:
         return actors, at
 
     def set_heights(self, heights: np.ndarray) -> None:
-        """Move the surface to ``heights`` (nv, nu) mm (empty rays drop to the floor)."""
-        h = np.asarray(heights, np.float64)
+        """Move the surface to ``heights`` (nv, nu) mm of the model's frame (empty rays
+        drop to the floor)."""
+        h = block_lowest(np.asarray(heights, np.float64), self.k)
+        self._set_surface(h)
+
+    def _set_surface(self, h: np.ndarray) -> None:
         z = np.where(np.isfinite(h), h, self.floor).T.reshape(-1, order="F")
         self.surface.points = self._base + z[:, None] * self._axis
         self.surface.point_data["height"] = h.T.reshape(-1, order="F")
@@ -90,6 +101,31 @@ class Scene:
         self.plotter.close()
 
 
+def block_factor(n_rays: int, max_points: int) -> int:
+    """The k of the k x k blocks of rays one surface point stands for (1: every ray)."""
+    return max(1, int(np.ceil(np.sqrt(n_rays / max_points))))
+
+
+def block_frame(frame, k: int):
+    """The frame whose rays are the centres of ``frame``'s k x k blocks (whole blocks)."""
+    if k == 1:
+        return frame
+    from sim.frame import Frame
+
+    centre = frame.origin + (k - 1) / 2 * frame.spacing * (frame.u + frame.v)
+    return Frame(centre, frame.direction, frame.u, frame.spacing * k, frame.nu // k, frame.nv // k)
+
+
+def block_lowest(heights: np.ndarray, k: int) -> np.ndarray:
+    """The lowest finite height of each k x k block of ``heights`` (nv, nu) (NaN where the
+    whole block is empty); rays past the last whole block are left out."""
+    if k == 1:
+        return heights
+    nv, nu = heights.shape[0] // k, heights.shape[1] // k
+    blocks = heights[:nv * k, :nu * k].reshape(nv, k, nu, k)
+    return np.fmin.reduce(np.fmin.reduce(blocks, axis=3), axis=1)
+
+
 def height_range(heights: np.ndarray, moves=None) -> tuple[float, float]:
     """(low, high) mm: the lowest of the heights and the program's deepest tip, the highest
     height (at least 1 mm apart)."""
@@ -103,6 +139,21 @@ def height_range(heights: np.ndarray, moves=None) -> tuple[float, float]:
         if ends.size:
             low = min(low, float(ends.min()))
     return low, max(high, low + 1.0)
+
+
+def surface_mesh(frame, base: np.ndarray):
+    """The top surface as a ``pv.PolyData`` of quads between neighbouring rays, its points
+    ``base`` (the heightfield's point order: u fastest). Polygons, not a structured grid:
+    a structured grid is turned into polygons again at every render, which costs more
+    than the render itself on a million rays."""
+    import pyvista as pv
+
+    nu, nv = frame.nu, frame.nv
+    idx = np.arange(nu * nv, dtype=np.int64).reshape(nv, nu)
+    a, b = idx[:-1, :-1].reshape(-1), idx[:-1, 1:].reshape(-1)
+    c, d = idx[1:, 1:].reshape(-1), idx[1:, :-1].reshape(-1)
+    quads = np.column_stack([np.full(a.size, 4, np.int64), a, b, c, d]).reshape(-1)
+    return pv.PolyData(base.copy(), faces=quads)
 
 
 def _point_basis(frame) -> tuple[np.ndarray, np.ndarray]:
