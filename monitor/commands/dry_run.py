@@ -88,4 +88,5 @@ def run(args) -> int:
     moves, _ = load_moves(job)
     controller = virtual_controller(virtual_moves(job, moves), args.speed, job.poll_hz,
                                     clock=getattr(args, "clock", "wall"))
-    return run_session(args, job, controller, done=lambda: controller.done, resume_after=DRY_RUN_RESUME_S)
+    return run_session(args, job, controller, done=lambda: controller.done, resume_after=DRY_RUN_RESUME_S,
+                       web_waits=True)

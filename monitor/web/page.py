@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +36,8 @@ class Page:
         self.model = model
         self.program_lines = program_lines if program_lines is not None else (model.program_lines if model else [])
         self._play_task = None
+        #: set when a page has opened in a browser
+        self.opened = threading.Event()
         server.enable_module({"serve": {"dexmon": str(STATIC)}, "styles": ["dexmon/page.css"]})
         state = server.state
         state.update({"title": title, "has_run": False, "first": 0, "last": 0, "stage": 0, "playing": False,
@@ -48,13 +51,14 @@ class Page:
     # -- the layout
     def _layout(self):
         from trame.ui.vuetify3 import SinglePageLayout
-        from trame.widgets import html
+        from trame.widgets import client, html
         from trame.widgets import vtk as vtk_widgets
         from trame.widgets import vuetify3 as v3
 
         with SinglePageLayout(self.server, full_height=True) as layout:
             layout.title.set_text(self.server.state.title)
             layout.icon.hide()
+            client.ClientTriggers(mounted=lambda *_, **__: self.opened.set())
             with layout.content:
                 with v3.VContainer(fluid=True, classes="pa-2"):
                     with v3.VRow(dense=True):

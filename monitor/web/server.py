@@ -16,21 +16,19 @@ class WebServer:
     """Serve one trame ``server`` (``trame.app.get_server``) on ``host``:``port``.
 
     Everything the page calls back runs on the server's thread; other threads hand it
-    work with :meth:`call_soon`. :attr:`client_seen` is set when a page first connects.
+    work with :meth:`call_soon`.
     """
 
     def __init__(self, server, host: str, port: int):
         self.server = server
         self.host = host
         self.asked_port = int(port)
-        self.client_seen = threading.Event()
         self._ready = threading.Event()
         self._loop: asyncio.AbstractEventLoop | None = None
         self._failed: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name="dexmon web", daemon=True)
         _ignore_argv(server)
         server.controller.on_server_ready.add(lambda **_: self._ready.set())
-        server.controller.on_client_connected.add(lambda *a, **k: self.client_seen.set())
 
     def start(self) -> "WebServer":
         """Start listening; InputError naming the address when it cannot bind."""
