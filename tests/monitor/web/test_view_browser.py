@@ -42,6 +42,8 @@ def page(run_file, chromium):
             browser = open_browser(pw, chromium)
             page = browser.new_page(viewport={"width": 1400, "height": 900})
             page.set_default_timeout(WAIT_S * 1e3)
+            page.requested = []
+            page.on("request", lambda r: page.requested.append(r.url))
             page.goto(url)
             page.wait_for_selector("#view img")
             page.wait_for_function("() => document.querySelector('#view img').src")
@@ -71,6 +73,13 @@ def test_page_loads_with_the_run_at_its_last_stage(page, run_file):
     assert stage_shown(page) == last
     assert page.locator("#findings .dexmon-finding").count() == len(findings) == 2
     assert page.locator("#listing .current-line").count() == 1
+
+
+def test_nothing_is_fetched_from_elsewhere(page):
+    """Scripts, styles and fonts all come from the local server (nothing downloaded)."""
+    assert page.requested
+    others = [u for u in page.requested if not u.startswith(("http://127.0.0.1:", "ws://127.0.0.1:", "data:", "blob:"))]
+    assert others == []
 
 
 def test_the_3d_view_draws_the_part(page):
