@@ -76,7 +76,8 @@ class Page:
 
     def _live_panel(self, html, v3):
         with v3.VCard(v_if=("live",), id="live", classes="mb-2 pa-2 dexmon-live", variant="outlined"):
-            html.Div("{{ live.state }}  line {{ live.line }}  X {{ live.x }}  Y {{ live.y }}  Z {{ live.z }}",
+            html.Div("{{ live.state }} · line {{ live.line }} · work X {{ live.x }} Y {{ live.y }} Z {{ live.z }} mm"
+                     " · {{ live.findings }} finding(s)",
                      id="live-status")
             html.Div("{{ live.next || 'no finding predicted ahead' }}", id="live-next")
             html.Div("{{ live.note }}", id="live-note", v_if=("live.note",))
