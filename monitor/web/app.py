@@ -23,8 +23,10 @@ class WebApp:
         self.page.scene.close()
 
 
-def start_app(title: str, scene, host: str, port: int, model=None, program_lines=None) -> WebApp:
-    """Build the page on ``scene`` (and ``model``'s run) and serve it on ``host``:``port``."""
+def start_app(title: str, scene, host: str, port: int, model=None, program_lines=None,
+              where: str = "--address") -> WebApp:
+    """Build the page on ``scene`` (and ``model``'s run) and serve it on ``host``:``port``
+    (``where``: the option that named it, for errors)."""
     from trame.app import get_server
 
     from monitor.web.page import Page
@@ -32,7 +34,7 @@ def start_app(title: str, scene, host: str, port: int, model=None, program_lines
 
     trame_server = get_server("dexmon", client_type="vue3")
     page = Page(trame_server, scene, title, model=model, program_lines=program_lines)
-    web = WebServer(trame_server, host, port).start()
+    web = WebServer(trame_server, host, port, where).start()
     return WebApp(web, page, url(host, web.port))
 
 

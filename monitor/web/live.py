@@ -143,7 +143,8 @@ def start_live_page(address: str | None, session, program_text: str, as_json: bo
     tool = wp.tool(int(session.moves["tool"][0])) if len(session.moves) else wp.default_tool
     scene = Scene(wp.frame, session.live.top(), moves=session.moves, tool=tool)
     name = session.job.program.name if session.job.program else "job"
-    app = start_app(f"dexmon {name} (live)", scene, host, port, program_lines=program_text.splitlines())
+    app = start_app(f"dexmon {name} (live)", scene, host, port, program_lines=program_text.splitlines(),
+                    where="--web")
     announce(app, host, as_json, console)
     feed = LiveFeed(session, app)
     session.attach_view(feed)

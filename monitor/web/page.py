@@ -146,8 +146,11 @@ class Page:
         self.server.state.listing = _listing(self.program_lines, int(line))
 
     def go_finding(self, i) -> None:
-        """The stage at which finding ``i`` happened."""
+        """The stage at which finding ``i`` happened (a running job: its line in the listing)."""
         if self.model is None:
+            f = self.server.state.findings[int(i)]
+            if isinstance(f.get("line"), int):
+                self.server.state.listing = _listing(self.program_lines, f["line"])
             return
         f = self.model.findings[int(i)]
         if f["stage"] is not None:

@@ -19,8 +19,9 @@ class WebServer:
     work with :meth:`call_soon`.
     """
 
-    def __init__(self, server, host: str, port: int):
+    def __init__(self, server, host: str, port: int, where: str = "--address"):
         self.server = server
+        self.where = where
         self.host = host
         self.asked_port = int(port)
         self._ready = threading.Event()
@@ -32,11 +33,12 @@ class WebServer:
 
     def start(self) -> "WebServer":
         """Start listening; InputError naming the address when it cannot bind."""
+        _check_free(self.host, self.asked_port, self.where)
         self._thread.start()
         if not self._ready.wait(START_TIMEOUT_S) or self._failed is not None:
             why = self._failed or f"not listening after {START_TIMEOUT_S:g} s"
             raise InputError(f"cannot serve the browser view on {self.host}:{self.asked_port}: {why}",
-                             "--web/--address")
+                             self.where)
         return self
 
     @property
@@ -87,3 +89,24 @@ def _ignore_argv(server) -> None:
     cli = server.cli
     parse = cli.parse_known_args
     cli.parse_known_args = lambda args=None, namespace=None: parse([], namespace)
+
+
+def _check_free(host: str, port: int, where: str) -> None:
+    """InputError (one line) when ``host``:``port`` cannot be listened on, said before
+    the server tries (its own failure comes with a traceback in its log)."""
+    import socket
+
+    if port == 0:
+        return
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+    except OSError as exc:
+        raise InputError(f"cannot serve the browser view on {host}:{port}: {exc.strerror or exc}", where) from None
+    family, kind, proto, _, address = infos[0]
+    with socket.socket(family, kind, proto) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            probe.bind(address)
+        except OSError as exc:
+            raise InputError(f"cannot serve the browser view on {host}:{port}: {exc.strerror or exc}",
+                             where) from None

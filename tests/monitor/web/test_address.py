@@ -54,3 +54,28 @@ def test_announce_says_the_address_and_warns_on_stderr_for_another_host(capsys):
     announce(app, "127.0.0.1", as_json=False)
     out, err = capsys.readouterr()
     assert out == f"browser view: {app.url}\n" and err == ""
+
+
+def test_a_port_in_use_is_one_line_naming_the_option(tmp_path):
+    """Said before anything is served: no traceback, exit 2."""
+    import os
+    import socket
+    import subprocess
+    import sys
+
+    from tests.monitor.web.browser import ROOT
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        run = tmp_path / "any.dexrun"
+        from tests.monitor.run_helpers import record_run
+
+        record_run(run)
+        r = subprocess.run([sys.executable, "-m", "monitor.cli", "view", str(run), "--address", f"127.0.0.1:{port}"],
+                           capture_output=True, text=True, timeout=120, cwd=ROOT,
+                           env={**os.environ, "PYVISTA_OFF_SCREEN": "true"})
+    assert r.returncode == 2
+    assert r.stderr.strip().splitlines() == [
+        f"dexmon view: error: --address: cannot serve the browser view on 127.0.0.1:{port}: Address already in use"]
