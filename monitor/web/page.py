@@ -36,6 +36,7 @@ class Page:
         self.model = model
         self.program_lines = program_lines if program_lines is not None else (model.program_lines if model else [])
         self._play_task = None
+        self._live_line = None
         #: set when a page has opened in a browser
         self.opened = threading.Event()
         server.enable_module({"serve": {"dexmon": str(STATIC)}, "styles": ["dexmon/page.css"]})
@@ -186,7 +187,9 @@ class Page:
         with self.server.state as state:
             state.live = figures
             line = figures.get("line")
-            if isinstance(line, int) and line > 0:
+            if isinstance(line, int) and line > 0 and line != self._live_line:
+                # only when the machine's line changes: a line the user went to stays shown
+                self._live_line = line
                 state.listing = _listing(self.program_lines, line)
             if findings is not None:
                 from monitor.web.runmodel import finding_item
