@@ -31,6 +31,12 @@ tool, the path ahead and the findings marked; ``--frames DIR`` writes the same f
 numbered PNG files (no display needed). Either is drawn by a thread of its own, at most
 ``--view-fps`` frames a second, from the rays each state changed.
 
+``--web [HOST:PORT]`` serves a browser page (127.0.0.1 and a free port by default, printed;
+JSON: ``{"event": "web", "url": ...}``): the 3-D model as it is cut, the machine's state,
+position and line, the next predicted finding with its countdown, the program listing and
+the findings; after the run the page shows the run file's timeline (as ``dexmon view``)
+until Ctrl-C. Another host than this computer's loopback is warned about.
+
 With a passthrough URL (``grbl+passthrough:///dev/ttyUSB0``) dexmon opens the machine's
 port and prints the pseudo-terminal (and TCP port) to point your own G-code sender at;
 the lines the sender streams tell the monitor where in the program the machine is.

@@ -59,11 +59,6 @@ class RunModel:
         after = np.nonzero(self._line > line)[0]
         return int(self._stages[after[0]]) if after.size else None
 
-    def stage_at_time(self, t: float) -> int:
-        """The stage the run had reached at controller time ``t`` (s)."""
-        k = int(np.searchsorted(self._t, t, side="right")) - 1
-        return int(self._stages[k]) if k >= 0 else self.first
-
     def listing_around(self, line: int) -> list[dict]:
         """Numbered program lines around ``line`` (1-based): ``{"n", "text", "current"}``."""
         return listing_window(self.program_lines, line)

@@ -30,7 +30,6 @@ class Scene:
         import pyvista as pv
 
         view3d.quiet_vtk()
-        self.model_frame = frame
         self.k = block_factor(frame.nu * frame.nv, MAX_SURFACE_POINTS)
         self.frame = frame = block_frame(frame, self.k)
         self.tool = tool
@@ -93,9 +92,6 @@ class Scene:
         """Surface at ``heights``, tool at ``tip``; the picture is drawn by the next render."""
         self.set_heights(heights)
         self.set_tip(tip)
-
-    def render(self) -> None:
-        self.plotter.render()
 
     def close(self) -> None:
         self.plotter.close()
