@@ -195,6 +195,7 @@ class Page:
                 from monitor.web.runmodel import finding_item
 
                 state.findings = [finding_item(i, f) for i, f in enumerate(findings)]
+                self.scene.set_findings([f["position"] for f in state.findings if f["position"] is not None])
         if heights is not None:
             self.scene.show(heights, tip)
             self.push_picture()

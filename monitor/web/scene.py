@@ -46,9 +46,10 @@ class Scene:
                     show_scalar_bar=True, scalar_bar_args={"title": "height (mm)", "fmt": "%.1f", "color": "white"})
         for lines, colour, width in _path_lines(moves):
             pl.add_mesh(lines, color=colour, line_width=width)
-        if findings is not None and len(findings):
-            pl.add_mesh(pv.PolyData(np.asarray(findings, np.float64).reshape(-1, 3)), color=FINDING_COLOUR,
-                        point_size=14, render_points_as_spheres=True)
+        self._findings = pv.PolyData(np.zeros((1, 3)))
+        self._findings_actor = pl.add_mesh(self._findings, color=FINDING_COLOUR, point_size=14,
+                                           render_points_as_spheres=True)
+        self.set_findings(findings)
         self._tool_actors, self._tool_at = self._add_tool(tool)
         pl.add_axes(color="white")
         pl.view_isometric()
@@ -87,6 +88,16 @@ class Scene:
             a.SetVisibility(ok)
             if ok:
                 a.SetPosition(*(np.asarray(tip, np.float64) - self._tool_at))
+
+    def set_findings(self, points) -> None:
+        """Mark the findings at ``points`` (m, 3) mm (None or none: no marks)."""
+        import pyvista as pv
+
+        pts = np.zeros((0, 3)) if points is None else np.asarray(points, np.float64).reshape(-1, 3)
+        pts = pts[np.all(np.isfinite(pts), axis=1)]
+        self._findings_actor.SetVisibility(bool(len(pts)))
+        if len(pts):
+            self._findings.copy_from(pv.PolyData(pts))
 
     def show(self, heights: np.ndarray, tip=None) -> None:
         """Surface at ``heights``, tool at ``tip``; the picture is drawn by the next render."""
