@@ -11,7 +11,9 @@ Prints JSON lines:
 * ``page_load``: seconds from asking for the page to its first 3-D picture shown;
 * ``scrub``: clicks along the timeline, each to another stage; per click the seconds until
   the stage is shown (text) and until the new picture is on the page (p50, max);
-* ``play``: pictures a second while the timeline plays.
+* ``play``: pictures a second while the timeline plays;
+* ``server_picture``: what one picture costs the server alone (the model at a stage, the
+  surface updated, one render), p50 and max s.
 
 The server renders with whatever OpenGL VTK finds (here Mesa's llvmpipe, on the CPU).
 """
@@ -96,6 +98,7 @@ def main(argv=None) -> int:
     with RunView(run) as view:
         emit(event="run", path=str(run), rays=view.frame.n_rays, shape=list(view.frame.shape),
              stages=view.last_stage)
+    server_picture(run)
     env = {**os.environ, "PYVISTA_OFF_SCREEN": "true"}
     proc = subprocess.Popen([sys.executable, "-m", "monitor.cli", "view", str(run), "--json"], cwd=ROOT,
                             stdout=subprocess.PIPE, text=True, env=env)
@@ -116,6 +119,33 @@ def main(argv=None) -> int:
         proc.terminate()
         proc.wait(30)
     return 0
+
+
+def server_picture(run: Path, pictures: int = 10) -> None:
+    from monitor.trace_io import RunView
+    from monitor.web.runmodel import RunModel
+    from monitor.web.scene import Scene
+
+    with RunView(run) as view:
+        model = RunModel(view)
+        scene = Scene(model.frame, model.heights(model.first).copy(), moves=model.moves, tool=model.tool())
+        scene.render_window.Render()
+        times = []
+        for stage in np.linspace(model.first, model.last, pictures).astype(int)[::-1]:
+            t0 = time.perf_counter()
+            scene.show(model.heights(int(stage)), model.at(int(stage)).tip)
+            scene.render_window.Render()
+            times.append(time.perf_counter() - t0)
+        emit(event="server_picture", pictures=pictures, surface_points=scene.surface.n_points,
+             window=list(scene.render_window.GetSize()), p50_s=round(float(np.median(times)), 3),
+             max_s=round(float(np.max(times)), 3), opengl=_renderer(scene))
+        scene.close()
+
+
+def _renderer(scene) -> str:
+    caps = scene.render_window.ReportCapabilities() or ""
+    line = next((x for x in caps.splitlines() if "renderer string" in x), "")
+    return line.split(":", 1)[-1].strip()
 
 
 def scrub(page, frames: int) -> None:
