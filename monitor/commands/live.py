@@ -189,11 +189,8 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
     except BaseException:
         if serving:
             controller.close()
-        raise
-    except BaseException:
         if web is not None:
             web.close()
-            web.app.close()
         raise
     finally:
         writer.close()
@@ -393,7 +390,6 @@ def _start_web(address, session, program_text: str, as_json: bool, console, wait
                 pass
         except KeyboardInterrupt:
             web.close()
-            web.app.close()
             raise
     return web
 
@@ -403,16 +399,14 @@ def _serve_web_on(web, run_path, summary: dict, console) -> None:
     try:
         web.finished(run_path, summary)
         console.print(f"browser view stays open at {web.app.url} on the run file; Ctrl-C to stop", soft_wrap=True)
-        threading_wait_forever()
+        _wait_for_ctrl_c()
     except KeyboardInterrupt:
         pass
     finally:
         web.close()
-        web.app.close()
 
 
-def threading_wait_forever() -> None:
-    """Block until Ctrl-C."""
+def _wait_for_ctrl_c() -> None:
     import threading
 
     threading.Event().wait()

@@ -19,8 +19,11 @@ class WebApp:
     url: str
 
     def close(self) -> None:
+        """Stop serving (the server's thread ends), then free the scene; twice is once."""
         self.server.close()
-        self.page.scene.close()
+        if self.page.scene is not None:
+            self.page.scene.close()
+            self.page.scene = None
 
 
 def start_app(title: str, scene, host: str, port: int, model=None, program_lines=None,

@@ -109,7 +109,9 @@ class LiveFeed:
             self.app.page.update_live({**figures, "note": f"{figures['note']}; no timeline: {exc}"})
 
     def close(self) -> None:
+        """Stop serving the page, then close the run file it showed."""
         self._ended = True
+        self.app.close()
         if self._runview is not None:
             self._runview.close()
 
@@ -133,7 +135,7 @@ def live_figures(session, tip) -> dict:
 
 def start_live_page(address: str | None, session, program_text: str, as_json: bool, console=None) -> LiveFeed:
     """Serve the page on ``address`` (``--web``'s HOST:PORT), say where, and attach it to
-    ``session``; returns the feed (close its ``app`` when done)."""
+    ``session``; returns the feed (:meth:`LiveFeed.close` when done)."""
     from monitor.web.address import parse_address
     from monitor.web.app import announce, start_app
     from monitor.web.scene import Scene

@@ -57,6 +57,9 @@ class WebServer:
         except BaseException as exc:  # noqa: BLE001 - said by start()
             self._failed = exc
             self._ready.set()
+        finally:
+            _cancel_pending(loop)
+            loop.close()
 
     def _on_done(self, task) -> None:
         if not task.cancelled() and task.exception() is not None and not self._ready.is_set():
@@ -71,7 +74,7 @@ class WebServer:
     def close(self) -> None:
         """Stop serving and end the server's thread."""
         loop = self._loop
-        if loop is None or loop.is_closed():
+        if loop is None or loop.is_closed() or not self._thread.is_alive():
             return
 
         async def stop():
@@ -110,3 +113,13 @@ def _check_free(host: str, port: int, where: str) -> None:
         except OSError as exc:
             raise InputError(f"cannot serve the browser view on {host}:{port}: {exc.strerror or exc}",
                              where) from None
+
+
+def _cancel_pending(loop: asyncio.AbstractEventLoop) -> None:
+    """Cancel what is still scheduled on the stopped ``loop`` and let it finish, so that
+    closing it leaves no task pending (trame's server task, a playback)."""
+    pending = [t for t in asyncio.all_tasks(loop) if not t.done()]
+    for t in pending:
+        t.cancel()
+    if pending:
+        loop.run_until_complete(asyncio.gather(*pending, return_exceptions=True))
