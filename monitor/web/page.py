@@ -25,9 +25,9 @@ STATIC = Path(__file__).resolve().parent / "static"
 class Page:
     """The page of one trame ``server`` on one :class:`monitor.web.scene.Scene`.
 
-    ``model`` (:class:`monitor.web.runmodel.RunModel`) gives the stages of a recorded run;
-    a running job has none until :meth:`load_run` (the page then shows :meth:`update_live`'s
-    figures instead of the timeline).
+    ``model`` (:class:`monitor.web.runmodel.RunModel`) gives the stages of a recorded run
+    and the timeline over them; a running job has none (the page shows
+    :meth:`update_live`'s figures) until its run file is loaded (:meth:`load_run`).
     """
 
     def __init__(self, server, scene, title: str, model=None, program_lines: list[str] | None = None):
@@ -35,15 +35,14 @@ class Page:
         self.scene = scene
         self.model = model
         self.program_lines = program_lines if program_lines is not None else (model.program_lines if model else [])
-        self._play_task = None
+        self._play_task = None   # kept: the loop holds only a weak reference to a task
         self._live_line = None
         #: set when a page has opened in a browser
         self.opened = threading.Event()
         server.enable_module({"serve": {"dexmon": str(STATIC)}, "styles": ["dexmon/page.css"]})
         state = server.state
         state.update({"title": title, "has_run": False, "first": 0, "last": 0, "stage": 0, "playing": False,
-                      "stage_text": "", "listing": [], "findings": [], "at_finding": -1, "pictures": 0,
-                      "live": None})
+                      "stage_text": "", "listing": [], "findings": [], "at_finding": -1, "live": None})
         state.change("stage")(self._on_stage)
         self.view = self._layout()
         if model is not None:
@@ -133,7 +132,6 @@ class Page:
 
     def push_picture(self) -> None:
         """Send the scene's picture to the page."""
-        self.server.state.pictures += 1
         self.view.update()
 
     def go_line(self, line) -> None:
