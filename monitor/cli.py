@@ -23,6 +23,7 @@ COMMANDS: dict[str, str] = {
     "serve-virtual": "serve_virtual",
     "replay": "replay",
     "report": "report",
+    "view": "view",
 }
 
 #: one-line help shown in ``dexmon --help`` (kept here so --help imports nothing heavy)
@@ -34,6 +35,7 @@ SUMMARY: dict[str, str] = {
     "serve-virtual": "expose the virtual controller as a GRBL device and/or Modbus server",
     "replay": "rebuild, picture or export any stage of a recorded run",
     "report": "write an HTML report of a recorded run",
+    "view": "show a recorded run in the browser (3-D view, timeline, listing, findings)",
 }
 
 #: the errors that mean "bad input or environment", reported as one line

@@ -15,6 +15,8 @@ the Z travel above the program's first point: :mod:`monitor.start`), so a dry ru
 one its work system is set up at the job's ``work_offset`` (a number), as the job says the
 real machine is. ``--clock sim`` moves the machine ``speed / poll_hz`` seconds per poll
 instead of by the wall clock: the run is then the same however busy the computer is.
+With ``--web`` the virtual machine starts when the browser page has opened (a dry run is
+there to be watched from its first move).
 """
 
 from __future__ import annotations
@@ -88,4 +90,5 @@ def run(args) -> int:
     moves, _ = load_moves(job)
     controller = virtual_controller(virtual_moves(job, moves), args.speed, job.poll_hz,
                                     clock=getattr(args, "clock", "wall"))
-    return run_session(args, job, controller, done=lambda: controller.done, resume_after=DRY_RUN_RESUME_S)
+    return run_session(args, job, controller, done=lambda: controller.done, resume_after=DRY_RUN_RESUME_S,
+                       web_waits=True)

@@ -31,6 +31,12 @@ tool, the path ahead and the findings marked; ``--frames DIR`` writes the same f
 numbered PNG files (no display needed). Either is drawn by a thread of its own, at most
 ``--view-fps`` frames a second, from the rays each state changed.
 
+``--web [HOST:PORT]`` serves a browser page (127.0.0.1 and a free port by default, printed;
+JSON: ``{"event": "web", "url": ...}``): the 3-D model as it is cut, the machine's state,
+position and line, the next predicted finding with its countdown, the program listing and
+the findings; after the run the page shows the run file's timeline (as ``dexmon view``)
+until Ctrl-C. Another host than this computer's loopback is warned about.
+
 With a passthrough URL (``grbl+passthrough:///dev/ttyUSB0``) dexmon opens the machine's
 port and prints the pseudo-terminal (and TCP port) to point your own G-code sender at;
 the lines the sender streams tell the monitor where in the program the machine is.
@@ -65,6 +71,10 @@ def add_common_arguments(parser) -> None:
     view.add_argument("--view", action="store_true",
                       help="a window redrawing the shaded model, tool, path ahead and findings as it cuts")
     view.add_argument("--frames", metavar="DIR", help="write the live view's frames as PNG files into DIR")
+    view.add_argument("--web", nargs="?", const="", default=None, metavar="HOST:PORT",
+                      help="serve a browser view of the run (default 127.0.0.1 and a free port; another "
+                           "host is reachable by others and is warned about); it stays up after the run "
+                           "until Ctrl-C")
     parser.add_argument("--view-fps", type=float, default=DEFAULT_VIEW_FPS, metavar="N",
                         help=f"frames per second at most for --view/--frames (default {DEFAULT_VIEW_FPS:g})")
     add_job_arguments(parser)
@@ -76,9 +86,10 @@ def add_arguments(parser) -> None:
 
 
 def run_session(args, job: Job, controller, done=None, default_run_dir: str | Path = "runs",
-                resume_after: float | None = None) -> int:
+                resume_after: float | None = None, web_waits: bool = False) -> int:
     """Open the run file, connect, follow ``controller`` to the end; return the exit status.
-    ``resume_after`` (s, dry runs): dexmon resumes the machine that long after its feed hold."""
+    ``resume_after`` (s, dry runs): dexmon resumes the machine that long after its feed hold.
+    ``web_waits`` (dry runs): with ``--web`` the machine starts when a page has opened."""
     from rich.console import Console
 
     from monitor.alerts import RESUME_HOW, Alerter
@@ -94,6 +105,7 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
     err_console = Console(stderr=True, highlight=False)
     writer = RunWriter(run_path)
     feed = None
+    web = None
     connected = False
     serving = False  # a passthrough stays open for the user's sender after the summary
     try:
@@ -114,6 +126,8 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
                 done = session.line_source.finished
         if view_opts is not None:
             feed = _start_view(session, *view_opts)
+        if getattr(args, "web", None) is not None:
+            web = _start_web(args.web, session, program_text, as_json, console, web_waits)
         status = StatusLine(console, enabled=console is not None)
         # compile before connecting (a dry run's machine starts at connect); on a first run
         # numba compiles for up to a minute, so say what is going on
@@ -175,6 +189,8 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
     except BaseException:
         if serving:
             controller.close()
+        if web is not None:
+            web.close()
         raise
     finally:
         writer.close()
@@ -186,6 +202,8 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
         _jsonl(summary)
     elif not quiet:
         _print_summary(console, summary, run_path)
+    if web is not None:
+        _serve_web_on(web, run_path, summary, console or err_console)
     if serving:
         _serve_sender(controller, console or err_console)
     if gave_up:
@@ -355,6 +373,43 @@ def _start_view(session, frames, fps: float):
     feed = ViewFeed(view, heights, path=session.path, horizon=session.lookahead.horizon_end, fps=fps)
     session.attach_view(feed)
     return feed.start()
+
+
+def _start_web(address, session, program_text: str, as_json: bool, console, wait: bool):
+    """The browser view of the session (:mod:`monitor.web.live`); with ``wait`` the
+    machine starts only when a page has opened (a dry run is there to be watched)."""
+    from monitor.web.live import start_live_page
+
+    web = start_live_page(address, session, program_text, as_json, console)
+    if wait:
+        if not as_json:
+            print("waiting for the browser view to open before starting the dry run (Ctrl-C to stop)",
+                  file=sys.stderr, flush=True)
+        try:
+            while not web.app.page.opened.wait(0.5):
+                pass
+        except KeyboardInterrupt:
+            web.close()
+            raise
+    return web
+
+
+def _serve_web_on(web, run_path, summary: dict, console) -> None:
+    """After the run: the page shows the run file's timeline until Ctrl-C."""
+    try:
+        web.finished(run_path, summary)
+        console.print(f"browser view stays open at {web.app.url} on the run file; Ctrl-C to stop", soft_wrap=True)
+        _wait_for_ctrl_c()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        web.close()
+
+
+def _wait_for_ctrl_c() -> None:
+    import threading
+
+    threading.Event().wait()
 
 
 def _announce_endpoints(controller, console, as_json: bool) -> None:

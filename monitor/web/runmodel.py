@@ -1,0 +1,129 @@
+"""What the browser view shows of a recorded run, stage by stage: heights, tool tip, line,
+time, the program listing and the findings (read from a :class:`monitor.trace_io.RunView`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: lines of the listing the page shows around the current line
+LISTING_BEFORE, LISTING_AFTER = 12, 28
+
+
+@dataclass
+class StageRow:
+    """One recorded cut: its stage, controller time (s), program line, tool tip (3,) mm."""
+
+    stage: int
+    t: float
+    line: int
+    tip: np.ndarray
+
+
+class RunModel:
+    """A run file as the page needs it. ``view``: an open RunView (closed by the caller)."""
+
+    def __init__(self, view):
+        self.view = view
+        self.first = view.first_stage
+        self.last = view.last_stage
+        self.frame = view.frame
+        self.program_lines = (view.meta.get("program") or "").splitlines()
+        self._stages, self._t, self._line, self._tips = _stage_columns(view)
+        self.findings = [finding_item(i, f, self) for i, f in enumerate(view.findings)]
+
+    def heights(self, stage: int) -> np.ndarray:
+        """Top heights (nv, nu) float32 mm at ``stage`` (a buffer reused by the next call)."""
+        return self.view.state_at(int(stage))[0]
+
+    def _row(self, stage: int) -> int:
+        """Index of the last recorded cut at or before ``stage`` (-1: before the first)."""
+        return int(np.searchsorted(self._stages, stage, side="right")) - 1
+
+    def at(self, stage: int) -> StageRow:
+        """Line, time and tip at ``stage`` (line -1, time NaN, tip NaN before the first cut)."""
+        k = self._row(stage)
+        if k < 0:
+            return StageRow(int(stage), float("nan"), -1, np.full(3, np.nan))
+        return StageRow(int(stage), float(self._t[k]), int(self._line[k]), self._tips[k])
+
+    def stage_of_line(self, line: int) -> int | None:
+        """The first stage cut on program line ``line``, or on the next line cut after it;
+        None when no cut comes at or after it."""
+        if not self._line.size:
+            return None
+        at = np.nonzero(self._line == line)[0]
+        if at.size:
+            return int(self._stages[at[0]])
+        after = np.nonzero(self._line > line)[0]
+        return int(self._stages[after[0]]) if after.size else None
+
+    def listing_around(self, line: int) -> list[dict]:
+        """Numbered program lines around ``line`` (1-based): ``{"n", "text", "current"}``."""
+        return listing_window(self.program_lines, line)
+
+    def tool(self):
+        """The run's first tool (sim Tool), or None when the run file does not say it."""
+        return self.view.tool() or _tool_from_job(self.view)
+
+    @property
+    def moves(self):
+        return self.view.moves
+
+
+def listing_window(lines: list[str], line: int) -> list[dict]:
+    """``lines`` (the program) numbered from 1, the window around ``line`` the page shows."""
+    centre = max(1, int(line))
+    lo = max(1, centre - LISTING_BEFORE)
+    hi = min(len(lines), max(lo + LISTING_BEFORE + LISTING_AFTER, centre + LISTING_AFTER))
+    return [{"n": n, "text": lines[n - 1], "current": n == line} for n in range(lo, hi + 1)]
+
+
+def _stage_columns(view) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per recorded cut in stage order: stages int64, times float64 s, lines int64 and the
+    tip (the last point of the piece cut, else the move's end) float64 (k, 3) mm."""
+    stages, times, lines, tips = [], [], [], []
+    for c in sorted(view.reader.cuts(), key=lambda c: c["stage"]):
+        a = c["arrays"]
+        pts = np.asarray(a.get("points", a.get("p1", np.full(3, np.nan))), np.float64).reshape(-1, 3)
+        stages.append(int(c["stage"]))
+        times.append(np.nan if c["t"] is None else float(c["t"]))
+        lines.append(-1 if c["line"] is None else int(c["line"]))
+        tips.append(pts[-1] if len(pts) else np.full(3, np.nan))
+    return (np.asarray(stages, np.int64), np.asarray(times, np.float64), np.asarray(lines, np.int64),
+            np.asarray(tips, np.float64).reshape(-1, 3))
+
+
+def _tool_from_job(view):
+    """The job's first tool, its file names read beside the recorded program (a job whose
+    files stay where they were, recorded elsewhere); None when that does not parse."""
+    from pathlib import Path
+
+    text, program = view.meta.get("job"), view.meta.get("program_path")
+    if not text or not program:
+        return None
+    try:
+        from monitor.job import parse_job_text
+        from sim.tools import parse_tool_spec
+
+        job = parse_job_text(text, name=f"{view.path.name}:job", base=Path(program).parent)
+        td = job.tool(0) or job.default_tool or next(iter(job.tools.values()), None)
+        return parse_tool_spec(td.spec) if td is not None and getattr(td, "spec", None) else None
+    except Exception:  # noqa: BLE001 - files moved: the view shows no tool
+        return None
+
+
+def finding_item(i: int, f: dict, model: RunModel | None = None) -> dict:
+    """A finding as the page lists it: index, kind, line, the stage it happened at (or the
+    first stage of its line), position and one sentence."""
+    from monitor.commands.replay import format_finding
+
+    stage = f.get("stage")
+    if not isinstance(stage, int) and model is not None and isinstance(f.get("line"), int):
+        stage = model.stage_of_line(f["line"])
+    pos = f.get("position")
+    return {"i": i, "kind": str(f.get("kind", "finding")), "line": f.get("line"),
+            "stage": stage if isinstance(stage, int) else None,
+            "position": [float(x) for x in pos[:3]] if isinstance(pos, list) and len(pos) >= 3 else None,
+            "text": format_finding(f)}
