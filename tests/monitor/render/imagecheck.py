@@ -36,3 +36,15 @@ def check_image(img: np.ndarray, name: str, threshold: float) -> float:
     d = image_difference(img, ref)
     assert d <= threshold, f"{name}: mean difference {d:.2f} > {threshold}"
     return d
+
+
+def hue_shares(img: np.ndarray) -> np.ndarray:
+    """Share of the saturated pixels of an RGB image in each of 36 hue bins (10 degrees each)."""
+    rgb = img.reshape(-1, img.shape[-1])[:, :3].astype(np.float64)
+    mx, mn = rgb.max(1), rgb.min(1)
+    sat = (mx - mn) > 40
+    r, g, b = rgb[sat].T
+    d = (mx - mn)[sat]
+    h = np.where(mx[sat] == r, ((g - b) / d) % 6, np.where(mx[sat] == g, (b - r) / d + 2, (r - g) / d + 4))
+    counts = np.bincount((h * 6).astype(int) % 36, minlength=36)
+    return counts / max(counts.sum(), 1)

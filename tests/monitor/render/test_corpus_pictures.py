@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tests.monitor.render.imagecheck import check_image
+from tests.monitor.render.imagecheck import check_image, hue_shares
 from tests.monitor.run_helpers import record_program
 
 PARTS = Path(__file__).resolve().parents[3].parent / "shared" / "corpus" / "parts"
@@ -34,17 +34,6 @@ def corpus_run(request, tmp_path_factory):
     return request.param, run
 
 
-def _hue_bins(img: np.ndarray) -> np.ndarray:
-    rgb = img.reshape(-1, 3).astype(np.float64)
-    mx, mn = rgb.max(1), rgb.min(1)
-    sat = (mx - mn) > 40
-    r, g, b = rgb[sat].T
-    d = (mx - mn)[sat]
-    h = np.where(mx[sat] == r, ((g - b) / d) % 6, np.where(mx[sat] == g, (b - r) / d + 2, (r - g) / d + 4))
-    counts = np.bincount((h * 6).astype(int) % 36, minlength=36)
-    return counts / max(counts.sum(), 1)
-
-
 def test_clean_finishing_pass_is_a_calm_deviation_map(corpus_run):
     from monitor.render import meaning
     from monitor.render.runpicture import RunPictures
@@ -61,11 +50,11 @@ def test_clean_finishing_pass_is_a_calm_deviation_map(corpus_run):
         assert (~(model == np.array((28, 30, 36), np.uint8)).all(axis=2)).mean() > 0.85
         # few hues: the neutral grey of the part within tolerance, and only where the ball
         # cannot reach (material left) a blue; no gouge red, no random move colours
-        hues = _hue_bins(model)
+        hues = hue_shares(model)
         assert (hues > 0.02).sum() <= 4, np.round(hues, 3)
         err = pics.errors(np.ascontiguousarray(pics.crop(view.state_at(view.last_stage)[0])))
         idx = meaning.deviation_index(err, pics.tol)
         assert (idx[np.isfinite(err)] == 0).mean() > 0.8          # most of the part within tolerance
         by_move = RunPictures(view, size=400, color_by="move").picture(view.last_stage)[:rows]
-        assert (_hue_bins(by_move) > 0.02).sum() > (hues > 0.02).sum()   # what the old default looked like
+        assert (hue_shares(by_move) > 0.02).sum() > (hues > 0.02).sum()   # what the old default looked like
     check_image(img, f"corpus_{name}_end.png", threshold=6.0)

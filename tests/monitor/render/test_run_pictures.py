@@ -14,7 +14,7 @@ import pytest
 
 from monitor.cli import main
 from monitor.render import meaning, shaded
-from tests.monitor.render.imagecheck import check_image
+from tests.monitor.render.imagecheck import check_image, hue_shares
 
 #: the bundled job's planted faults: a gouge on line 22 (X30 Y19..22, 0.5 mm deep) and a
 #: rapid through the stock on line 36
@@ -37,18 +37,6 @@ def end_picture(example_run):
         pics = RunPictures(view, size=600)
         img = pics.picture(view.last_stage)
         yield pics, img
-
-
-def _hues(img: np.ndarray) -> np.ndarray:
-    """Share of the saturated pixels in each of 36 hue bins (10 degrees each)."""
-    rgb = img.reshape(-1, 3).astype(np.float64)
-    mx, mn = rgb.max(1), rgb.min(1)
-    sat = (mx - mn) > 40
-    r, g, b = rgb[sat].T
-    d = (mx - mn)[sat]
-    h = np.where(mx[sat] == r, ((g - b) / d) % 6, np.where(mx[sat] == g, (b - r) / d + 2, (r - g) / d + 4))
-    counts = np.bincount((h * 6).astype(int) % 36, minlength=36)
-    return counts / max(counts.sum(), 1)
 
 
 def test_run_picture_colours_the_gouge_red_and_carries_the_colour_bar(end_picture):
@@ -78,11 +66,11 @@ def test_run_picture_has_few_hues_and_move_ids_only_on_request(example_run, end_
 
     pics, img = end_picture
     rows = pics.live.picture_shape[0]
-    hues = _hues(img[:rows])
+    hues = hue_shares(img[:rows])
     assert (hues > 0.01).sum() <= 8, np.round(hues, 3)   # meaning, not noise
     with RunView(example_run) as view:
         by_move = RunPictures(view, size=600, color_by="move").picture(view.last_stage)
-    assert (_hues(by_move[:rows]) > 0.01).sum() > (hues > 0.01).sum()
+    assert (hue_shares(by_move[:rows]) > 0.01).sum() > (hues > 0.01).sum()
 
 
 def test_run_picture_frames_the_part_with_axes_tool_and_holder(example_run, end_picture):
