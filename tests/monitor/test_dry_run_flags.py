@@ -29,16 +29,25 @@ def dry_run_events(capsys, tmp_path, *flags) -> tuple[int, list[dict]]:
     return rc, [json.loads(x) for x in capsys.readouterr().out.splitlines()]
 
 
-def dome_program(path) -> None:
-    """One pass over the dome's crest along X, the tip on the ball's offset surface (the
-    sphere of radius R + 3 about the centre, less 3): a 6 mm ball touches the sphere and
-    never enters it; a 6 mm flat end mill on the same tips cuts into its flanks."""
-    lines = ["G21 G90 G17 G94 G54", "T1 M6", "S12000 M3", "G0 Z20", f"G0 X{CX - 16:.4f} Y{CY:.4f}",
-             "G1 Z0 F300", "F1500"]
-    for x in np.arange(CX - 16, CX + 16.01, 0.25):
-        d = abs(x - CX)
-        z = math.sqrt((R + BALL_R) ** 2 - d * d) - BALL_R if d < R + BALL_R else -BALL_R
-        lines.append(f"G1 X{x:.4f} Z{max(z, 0.0) + 0.002:.4f}")  # 2 um above: no rounding dips
+def dome_tip_z(x: float, y: float) -> float:
+    """The ball's tip on the dome's offset surface (the sphere of radius R + 3 about the
+    centre, less 3), 2 um above it (no rounding dips), at least on the stock's bottom."""
+    d2 = (x - CX) ** 2 + (y - CY) ** 2
+    z = math.sqrt((R + BALL_R) ** 2 - d2) - BALL_R if d2 < (R + BALL_R) ** 2 else -BALL_R
+    return max(z, 0.0) + 0.002
+
+
+def dome_program(path, ys=(CY,)) -> None:
+    """Passes along X over the dome at each of ``ys`` (a zig-zag), the tip on the ball's
+    offset surface: a 6 mm ball touches the sphere and never enters it; a 6 mm flat end
+    mill on the same tips cuts into its flanks, and so would a straight chord between two
+    points of the path (the dome is convex)."""
+    xs = np.arange(CX - 16, CX + 16.01, 0.25)
+    lines = ["G21 G90 G17 G94 G54", "T1 M6", "S12000 M3", "G0 Z20", f"G0 X{xs[0]:.4f} Y{ys[0]:.4f}",
+             "G1 Z0.002 F300", "F1500"]
+    for k, y in enumerate(ys):
+        for x in (xs if k % 2 == 0 else xs[::-1]):
+            lines.append(f"G1 X{x:.4f} Y{y:.4f} Z{dome_tip_z(x, y):.4f}")
     path.write_text("\n".join(lines + ["G0 Z20", "M5", "M30"]) + "\n")
 
 
