@@ -26,9 +26,9 @@ def test_raster_over_a_dome_polled_coarsely_is_clean_and_takes_the_programs_time
     prog, design, run = tmp_path / "dome.ngc", tmp_path / "dome.stl", tmp_path / "r.sqlite"
     dome_program(prog, ys=np.arange(CY - 12, CY + 12.01, 1.0))
     dome_design(design)
-    rc = main(["dry-run", "--program", str(prog), "--stock", f"box:0,0,0,{2 * CX},{2 * CY},{R + 1}",
-               "--design", str(design), "--tool", "ball:6", "--resolution", "0.5",
-               "--clock", "sim", "--speed", f"{SPEED:g}", "--json", "--run", str(run)])
+    main(["dry-run", "--program", str(prog), "--stock", f"box:0,0,0,{2 * CX},{2 * CY},{R + 1}",
+          "--design", str(design), "--tool", "ball:6", "--resolution", "0.5",
+          "--clock", "sim", "--speed", f"{SPEED:g}", "--json", "--run", str(run)])
     events = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
     summary = events[-1]
     assert summary["event"] == "summary" and summary["progress_s"] == summary["program_s"]
