@@ -146,6 +146,7 @@ class VirtualController(Controller):
             self.vm.set_wco(self.moves["wco"][0])
         self.vm.on_event = self._record
         self._feeder = ProgramFeeder(self.moves, self.faults)
+        self.vm.refill = self._tick  # fed as blocks complete, however long a poll's step
         self._last, self._lost = None, None
         self._started = False
         self._connected = True

@@ -226,6 +226,10 @@ class VirtualMachine:
         self.config = config or MachineConfig()
         self.lock = threading.RLock()
         self.on_event: Callable[[str, object], None] | None = None
+        #: called with the machine before each step of :meth:`advance` (under its lock), or
+        #: None: a sender streaming the program refills the planner as blocks complete, so
+        #: a long advance runs the program in its own time, not 15 blocks and then idle
+        self.refill: Callable[["VirtualMachine"], None] | None = None
         self.t0 = 0.0
         self.time = 0.0
         self._rate, self._accel = self.config.axis_arrays()
@@ -460,17 +464,21 @@ class VirtualMachine:
         """Run the machine for ``dt`` simulated seconds."""
         if dt < 0:
             raise ValueError("dt must be >= 0")
-        left = float(dt)
-        guard = 0
+        start, left = self.time, float(dt)
+        guard = 0  # steps in a row that took no time
         while left > 0.0:
             guard += 1
             if guard > 1_000_000:  # a bug, not a state a user can reach
                 raise RuntimeError("virtual machine made no progress")
+            if self.refill is not None:
+                self.refill(self)
             used = self._step(left)
             if used is None:  # nothing to do: time passes standing still
                 break
             left -= used
-        self.time += dt
+            guard = 0 if used > 0.0 else guard  # a long advance runs many blocks
+            self.time = start + (dt - left)  # events in the step are stamped when they happen
+        self.time = start + dt
 
     def _step(self, budget: float) -> float | None:
         """Advance through at most one phase of the current block; returns time used

@@ -2,6 +2,7 @@
 
     dexmon dry-run                      the bundled example (monitor/examples/clamp_job)
     dexmon dry-run JOB.toml --speed 20  any job, 20 x faster than real time
+    dexmon dry-run --program P.nc --stock box:... --tool ball:6   a job given by flags alone
 
 The program runs on an in-process virtual machine (no soft limits: the job's [limits]
 are what the monitor checks) and the monitor follows it exactly as it follows a real
@@ -43,13 +44,22 @@ VIRTUAL_MACHINE = {"max_rate": VIRTUAL_MAX_RATE, "acceleration": VIRTUAL_ACCEL, 
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("job", nargs="?", help="job file (TOML); default: the bundled example")
+    parser.add_argument("job", nargs="?", help="job file (TOML); default: the bundled example, or with --program "
+                                               "the job the flags give")
     parser.add_argument("--speed", type=float, default=5.0,
                         help="simulated seconds per wall second (default 5)")
     parser.add_argument("--clock", choices=("wall", "sim"), default="wall",
                         help="wall: the machine runs by the wall clock (default); sim: it moves speed/poll_hz "
                              "seconds per poll, the same run however busy the computer is")
     add_common_arguments(parser)
+
+
+def example_base(args):
+    """The bundled example when the flags name no program (``dexmon dry-run`` alone, maybe
+    with ``--speed`` or ``--view``), else None: a job given by flags is that job, with
+    nothing of the example's (its tool table would make tool 1 a flat end mill whatever
+    ``--tool`` says, its fixture and tolerances would judge a part they are not for)."""
+    return None if getattr(args, "program", None) else EXAMPLE_JOB
 
 
 def virtual_controller(moves, speed: float, rate: float, clock: str = "wall"):
@@ -85,7 +95,7 @@ def run(args) -> int:
 
     if not (args.speed and args.speed > 0):
         raise JobError(f"expected a positive number, got {args.speed}", "--speed")
-    job = job_from_args(args, args.job or EXAMPLE_JOB)
+    job = job_from_args(args, args.job or example_base(args))
     require(job, "program", "stock", "tools")
     moves, _ = load_moves(job)
     controller = virtual_controller(virtual_moves(job, moves), args.speed, job.poll_hz,

@@ -53,6 +53,31 @@ def test_speed_scales_simulated_step():
     assert s2.t - s1.t == pytest.approx(0.5)
 
 
+def test_long_poll_steps_keep_the_planner_fed_and_the_programs_time():
+    """A poll step far longer than the planner's blocks (``--speed 2000`` at 50 Hz: 40 s
+    per poll) runs the program in its own time, as a sender keeps the planner filled as
+    blocks complete. Before: the feeder refilled the 15 blocks once per poll, the machine
+    stood idle the rest of the step, and the recorded run took a poll per 15 rows
+    (the corpus dome: 65,080 s recorded against 280 s programmed)."""
+    def finish_time(speed):
+        c = VirtualController(program(300), speed=speed, rate=50, clock="sim", config=FREE)
+        c.connect()
+        polls = 0
+        while not c.done:
+            c.poll()
+            polls += 1
+            assert polls < 100000
+        c.close()
+        done = [t for t, name, _ in c.events if name == "block_done"]
+        return polls, done[-1], len(done)
+
+    fine = finish_time(1.0)                       # 20 ms per poll: shorter than every block
+    polls, t_end, blocks = finish_time(2000.0)    # 40 s per poll
+    assert blocks == fine[2] == 301
+    assert t_end == pytest.approx(fine[1], rel=0.01)  # the program's time, not a poll per 15 rows
+    assert polls <= fine[1] / 40.0 + 2
+
+
 def test_wall_clock_runs_and_holds():
     c = VirtualController(rows(line((-100, 0, 0), 600)), speed=20.0, clock="wall", config=FREE)
     moved = threading.Event()
