@@ -76,8 +76,9 @@ class LiveFeed:
         findings = list(self.session.findings)
         changed = len(findings) != self._shown_findings
         self._shown_findings = len(findings)
+        sync = self.session.last_sync
         self.app.page.update_live(live_figures(self.session, tip), self.heights.reshape(self.session.live.frame.shape),
-                                  tip, findings if changed else None)
+                                  tip, findings if changed else None, row=None if sync is None else int(sync.row))
         self.frames += 1
 
     # -- the end

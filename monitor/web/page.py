@@ -123,7 +123,7 @@ class Page:
             return
         stage = min(max(int(stage), self.model.first), self.model.last)
         row = self.model.at(stage)
-        self.scene.show(self.model.heights(stage), row.tip)
+        self.scene.show(self.model.heights(stage), row.tip, self.model.row(stage))
         state = self.server.state
         state.stage_text = stage_text(stage, self.model.last, row.line, row.t)
         state.listing = self.model.listing_around(row.line)
@@ -178,10 +178,11 @@ class Page:
             state.playing = False
 
     # -- a running job
-    def update_live(self, figures: dict, heights=None, tip=None, findings: list | None = None) -> None:
+    def update_live(self, figures: dict, heights=None, tip=None, findings: list | None = None,
+                    row: int | None = None) -> None:
         """Show a running machine: ``figures`` (state, line, x, y, z, next, note), the
-        model's ``heights`` and the tool at ``tip`` (None: unchanged), ``findings`` (raw
-        finding records) when they changed."""
+        model's ``heights`` and the tool at ``tip`` (None: unchanged) with the path round
+        program ``row``, ``findings`` (raw finding records) when they changed."""
         with self.server.state as state:
             state.live = figures
             line = figures.get("line")
@@ -193,9 +194,10 @@ class Page:
                 from monitor.web.runmodel import finding_item
 
                 state.findings = [finding_item(i, f) for i, f in enumerate(findings)]
-                self.scene.set_findings([f["position"] for f in state.findings if f["position"] is not None])
+                shown = [f for f in state.findings if f["position"] is not None]
+                self.scene.set_findings([f["position"] for f in shown], [f["label"] for f in shown])
         if heights is not None:
-            self.scene.show(heights, tip)
+            self.scene.show(heights, tip, row)
             self.push_picture()
 
 
