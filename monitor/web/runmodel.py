@@ -132,4 +132,4 @@ def finding_item(i: int, f: dict, model: RunModel | None = None) -> dict:
     return {"i": i, "kind": str(f.get("kind", "finding")), "line": f.get("line"),
             "stage": stage if isinstance(stage, int) else None,
             "position": [float(x) for x in pos[:3]] if isinstance(pos, list) and len(pos) >= 3 else None,
-            "label": finding_label(f), "text": format_finding(f)}
+            "predicted": f.get("status") == "predicted", "label": finding_label(f), "text": format_finding(f)}
