@@ -366,11 +366,13 @@ def _start_view(session, frames, fps: float):
 
     wp = session.wp
     tool = wp.tool(int(session.moves["tool"][0])) if len(session.moves) else wp.default_tool
+    # the overlay of the replay pictures: axes and work origin, the path near the machine
     view = LiveView(wp.frame, tool=tool, out_dir=frames, title=f"dexmon {session.job.program or ''}",
-                    fixtures=wp.fixtures)
+                    fixtures=wp.fixtures, axes=True)
     heights = session.live.top()
     view.render(heights, session.path.point_at(0.0) if len(session.path) else None)  # compile the shading
-    feed = ViewFeed(view, heights, path=session.path, horizon=session.lookahead.horizon_end, fps=fps)
+    feed = ViewFeed(view, heights, path=session.path, horizon=session.lookahead.horizon_end, fps=fps,
+                    moves=session.moves)
     session.attach_view(feed)
     return feed.start()
 

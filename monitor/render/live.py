@@ -724,13 +724,19 @@ class ViewFeed:
     path : monitor.sync.ProgramPath or None, for the path ahead.
     horizon : callable(progress s) -> program time s where the path ahead ends.
     fps : frames per second at most.
+    moves : the move table (the model's frame) or None: with it the path drawn is the
+        moves near the machine's row (feeds solid, rapids dashed), as the replay
+        pictures draw it (:func:`monitor.render.runpicture.path_near`), instead of the
+        path ahead.
     """
 
-    def __init__(self, view: LiveView, heights: np.ndarray, path=None, horizon=None, fps: float = 15.0):
+    def __init__(self, view: LiveView, heights: np.ndarray, path=None, horizon=None, fps: float = 15.0,
+                 moves=None):
         if not fps > 0:
             raise InputError(f"expected a positive number of frames per second, got {fps}", "--view-fps")
         self.view = view
         self.path = path
+        self.moves = moves if moves is not None and len(moves) else None
         self.horizon = horizon or (lambda progress: progress + 5.0)
         self.period = 1.0 / float(fps)
         self.heights = np.array(heights, np.float32, copy=True).reshape(view.frame.shape)
@@ -748,7 +754,7 @@ class ViewFeed:
         self._cond = threading.Condition()
         self._rays: list[np.ndarray] = []
         self._tops: list[np.ndarray] = []
-        self._pose = None        # (tip (3,), tool, progress, findings, wco)
+        self._pose = None        # (tip (3,), tool, progress, findings, wco, stage)
         self._posted = 0         # posts so far
         self._drawn = 0          # posts reflected in the last frame
         self._ready: np.ndarray | None = None   # a frame waiting for the window
@@ -768,16 +774,16 @@ class ViewFeed:
 
     # -- the loop's side
     def post(self, rays: np.ndarray | None, tops: np.ndarray | None, tip=None, tool=None,
-             progress: float | None = None, findings=None, wco=None) -> None:
+             progress: float | None = None, findings=None, wco=None, stage: int | None = None) -> None:
         """Hand over one state: ``rays`` (k,) int64 the step changed and their new ``tops``
         (k,) float32 mm, the tool ``tip`` (3,) mm in work coordinates and the ``tool``
         there, the program ``progress`` s, the ``findings`` list (read, not copied, by
-        the render thread) and the work offset ``wco``."""
+        the render thread), the work offset ``wco`` and the live ``stage``."""
         with self._cond:
             if rays is not None and len(rays):
                 self._rays.append(rays)
                 self._tops.append(tops)
-            self._pose = (tip, tool, progress, findings, wco)
+            self._pose = (tip, tool, progress, findings, wco, stage)
             self._posted += 1
             self._cond.notify_all()
 
@@ -816,14 +822,22 @@ class ViewFeed:
             changed = (lo // nu, hi // nu + 1, int(cols.min()), int(cols.max()) + 1)
         if self._first:
             changed, self._first = None, False
-        tip, tool, progress, findings, wco = pose if pose is not None else (None,) * 5
-        ahead = None
-        if progress is not None and self.path is not None:
-            ahead = path_ahead(self.path, progress, self.horizon(progress))
+        tip, tool, progress, findings, wco, stage = pose if pose is not None else (None,) * 6
+        ahead = near = None
+        if progress is not None and self.path is not None and len(self.path):
+            if self.moves is not None:
+                from monitor.render.runpicture import path_near
+
+                near = path_near(self.moves, int(self.path.row[self.path.segment_at(progress)]))
+            else:
+                ahead = path_ahead(self.path, progress, self.horizon(progress))
         if tool is not None:
             self.view.tool = tool
+        from monitor.render.runpicture import tool_text
+
+        status = {**feed_status(self.path, progress), "stage": stage, "tool": tool_text(self.view.tool)}
         img = self.view.render(self.heights, tip, ahead, finding_marks(findings or (), wco), changed=changed,
-                               status=feed_status(self.path, progress))
+                               status=status, moves=near)
         if self.view.is_window:
             with self._cond:
                 self._ready = img.copy()

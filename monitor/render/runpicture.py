@@ -23,8 +23,9 @@ CROP_MARGIN_MM = 2.0
 
 
 def tool_text(tool) -> str:
-    """``T1 FLAT 6`` / ``BALL 6`` for a ``sim.tools.Tool`` (empty when None)."""
-    if tool is None:
+    """``T1 FLAT 6`` / ``BALL 6`` for a ``sim.tools.Tool`` (empty when None or only a
+    radius)."""
+    if tool is None or not hasattr(tool, "kind"):
         return ""
     num = f"T{tool.number} " if getattr(tool, "number", None) else ""
     return f"{num}{tool.kind} {tool.diameter:g}".upper()

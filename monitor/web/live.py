@@ -45,7 +45,7 @@ class LiveFeed:
         app.server.call_soon(self._start)
 
     # -- the session loop's side
-    def post(self, rays, tops, tip=None, tool=None, progress=None, findings=None, wco=None) -> None:
+    def post(self, rays, tops, tip=None, tool=None, progress=None, findings=None, wco=None, stage=None) -> None:
         with self._lock:
             if rays is not None and tops is not None and len(rays):
                 self._rays.append(np.asarray(rays, np.int64))
