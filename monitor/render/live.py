@@ -111,6 +111,25 @@ def _nice_floor(x: float) -> float:
     return e
 
 
+#: the parts of the longest status line (how many lines a narrow picture wraps it onto)
+STATUS_LONGEST = ["STAGE 99999", "LINE 99999", "T 9999.9 S", "X -999.999  Y -999.999  Z -999.999", "F 99999",
+                  "T99 BALL 12.7", "FINDINGS 999"]
+
+
+def _wrap_words(words: list[str], chars: int, gap: int) -> list[list[str]]:
+    """``words`` on lines of at most ``chars`` characters, ``gap`` spaces apart (a word
+    longer than a line has a line of its own)."""
+    lines, line, used = [], [], 0
+    for w in words:
+        need = len(w) + (gap if line else 0)
+        if line and used + need > chars:
+            lines.append(line)
+            line, used, need = [], 0, len(w)
+        line.append(w)
+        used += need
+    return lines + [line] if line else lines
+
+
 def _only_if(shown, draw):
     """A legend piece drawn only while ``shown()`` (its room is kept either way)."""
     def piece(strip, r, col, ts):
@@ -292,7 +311,7 @@ class LiveView:
 
     @property
     def strip_height(self) -> int:
-        rows = 1 + self._legend_rows
+        rows = self._status_rows + self._legend_rows
         return rows * (7 * self.text_scale) + (rows + 1) * 6 * self.text_scale // 2 + 4
 
     def pixel_of(self, points: np.ndarray) -> np.ndarray:
@@ -451,14 +470,16 @@ class LiveView:
         if status.get("tool"):
             parts.append(str(status["tool"]).upper())
         parts.append(f"FINDINGS {n_findings}")
-        text = "   ".join(parts)
-        sc = ts if shaded.text_size(text, ts)[1] + 12 <= strip.shape[1] else 1
-        shaded.draw_text(strip, text, 4 * ts, 6, TEXT_COLOR if not n_findings else TEXT_COLOR, scale=sc)
-        if n_findings:
-            # the count in the finding colour, so it is seen without reading the line
-            head = "   ".join(parts[:-1]) + "   "
-            col = 6 + shaded.GLYPH_W * sc * len(head)
-            shaded.draw_text(strip, parts[-1], 4 * ts, col, shaded.FINDING_COLOR, scale=sc)
+        width = strip.shape[1] - 12
+        sc = ts if shaded.text_size("   ".join(parts), ts)[1] <= width else 1
+        lines = _wrap_words(parts, width // (shaded.GLYPH_W * sc), 3) if self._status_rows > 1 else [parts]
+        for k, line in enumerate(lines):
+            col = 6
+            for part in line:
+                # the count in the finding colour, so it is seen without reading the line
+                color = shaded.FINDING_COLOR if n_findings and part.startswith("FINDINGS") else TEXT_COLOR
+                shaded.draw_text(strip, part, 4 * ts + k * 10 * sc, col, color, scale=sc)
+                col += shaded.GLYPH_W * sc * (len(part) + 3)
 
     def _legend(self, shape) -> np.ndarray:
         """The strip's legend rows (see :meth:`_legend_plan`) on a strip of ``shape``."""
@@ -488,6 +509,12 @@ class LiveView:
             if rows is not None:
                 self._plans[width] = plan = (ts, rows)
                 return plan
+
+    @property
+    def _status_rows(self) -> int:
+        """Lines of the status text: more than one on a picture too narrow for the
+        longest at the smallest scale."""
+        return len(_wrap_words(STATUS_LONGEST, (self.picture_shape[1] - 12) // shaded.GLYPH_W, 3))
 
     @property
     def _legend_rows(self) -> int:
