@@ -113,7 +113,8 @@ class Scene:
         labels = list(labels) if labels is not None else ["finding"] * len(pts)
         keep = np.all(np.isfinite(pts), axis=1)
         pts, labels = pts[keep], [t for t, k in zip(labels, keep) if k]
-        self.plotter.remove_actor("findings", render=False)
+        for part in ("findings-labels", "findings-points"):   # the two actors add_point_labels names
+            self.plotter.remove_actor(part, render=False)
         if len(pts):
             self.plotter.add_point_labels(pts, labels, name="findings", point_color=FINDING_COLOUR, point_size=14,
                                           render_points_as_spheres=True, text_color=FINDING_COLOUR, font_size=14,
