@@ -312,7 +312,8 @@ class Session:
         rays, self._changed = self._changed, None
         tops = tops_of(self.live, rays) if rays is not None and rays.size else None
         tool = self.wp.tool(int(self.moves["tool"][s.row])) if len(self.moves) else None
-        self.view.post(rays, tops, tip=tip, tool=tool, progress=s.progress, findings=self.findings, wco=wco)
+        self.view.post(rays, tops, tip=tip, tool=tool, progress=s.progress, findings=self.findings, wco=wco,
+                       stage=self.stage)
 
     # -- positions
     def _row(self, row: int | None) -> int | None:

@@ -27,7 +27,9 @@ behind: ..." (``{"event": "behind"}``) at most every few seconds. With the outpu
 progress line every few seconds takes the status line's place.
 
 ``--view`` opens a window that redraws the shaded model as the machine cuts, with the
-tool, the path ahead and the findings marked; ``--frames DIR`` writes the same frames as
+overlay of the replay pictures (axes and work origin, the tool and holder, the path near
+the machine with feeds solid and rapids dashed, the findings labelled, the stage, line
+and time in the strip below with a scale bar); ``--frames DIR`` writes the same frames as
 numbered PNG files (no display needed). Either is drawn by a thread of its own, at most
 ``--view-fps`` frames a second, from the rays each state changed.
 
@@ -69,7 +71,7 @@ def add_common_arguments(parser) -> None:
     out.add_argument("--json", action="store_true", help="JSON lines on stdout: start, each finding, summary")
     view = parser.add_mutually_exclusive_group()
     view.add_argument("--view", action="store_true",
-                      help="a window redrawing the shaded model, tool, path ahead and findings as it cuts")
+                      help="a window redrawing the shaded model, tool, path near the machine and findings as it cuts")
     view.add_argument("--frames", metavar="DIR", help="write the live view's frames as PNG files into DIR")
     view.add_argument("--web", nargs="?", const="", default=None, metavar="HOST:PORT",
                       help="serve a browser view of the run (default 127.0.0.1 and a free port; another "
@@ -366,11 +368,13 @@ def _start_view(session, frames, fps: float):
 
     wp = session.wp
     tool = wp.tool(int(session.moves["tool"][0])) if len(session.moves) else wp.default_tool
+    # the overlay of the replay pictures: axes and work origin, the path near the machine
     view = LiveView(wp.frame, tool=tool, out_dir=frames, title=f"dexmon {session.job.program or ''}",
-                    fixtures=wp.fixtures)
+                    fixtures=wp.fixtures, axes=True)
     heights = session.live.top()
     view.render(heights, session.path.point_at(0.0) if len(session.path) else None)  # compile the shading
-    feed = ViewFeed(view, heights, path=session.path, horizon=session.lookahead.horizon_end, fps=fps)
+    feed = ViewFeed(view, heights, path=session.path, horizon=session.lookahead.horizon_end, fps=fps,
+                    moves=session.moves)
     session.attach_view(feed)
     return feed.start()
 

@@ -37,9 +37,10 @@ def open_run_page(run_path, host: str, port: int):
     view = RunView(run_path)
     try:
         model = RunModel(view)
-        positions = [f["position"] for f in model.findings if f["position"] is not None]
+        shown = [f for f in model.findings if f["position"] is not None]
         scene = Scene(model.frame, model.heights(model.first).copy(), moves=model.moves, tool=model.tool(),
-                      findings=np.asarray(positions, np.float64).reshape(-1, 3))
+                      findings=np.asarray([f["position"] for f in shown], np.float64).reshape(-1, 3),
+                      finding_labels=[f["label"] for f in shown])
         app = start_app(f"dexmon {view.path.name}", scene, host, port, model=model)
     except BaseException:
         view.close()

@@ -111,6 +111,58 @@ def _nice_floor(x: float) -> float:
     return e
 
 
+#: the parts of the longest status line (how many lines a narrow picture wraps it onto)
+STATUS_LONGEST = ["STAGE 99999", "LINE 99999", "T 9999.9 S", "X -999.999  Y -999.999  Z -999.999", "F 99999",
+                  "T99 BALL 12.7", "FINDINGS 999"]
+
+
+def _wrap_words(words: list[str], chars: int, gap: int) -> list[list[str]]:
+    """``words`` on lines of at most ``chars`` characters, ``gap`` spaces apart (a word
+    longer than a line has a line of its own)."""
+    lines, line, used = [], [], 0
+    for w in words:
+        need = len(w) + (gap if line else 0)
+        if line and used + need > chars:
+            lines.append(line)
+            line, used, need = [], 0, len(w)
+        line.append(w)
+        used += need
+    return lines + [line] if line else lines
+
+
+def _only_if(shown, draw):
+    """A legend piece drawn only while ``shown()`` (its room is kept either way)."""
+    def piece(strip, r, col, ts):
+        return draw(strip if shown() else strip.copy(), r, col, ts)
+    return piece
+
+
+def _flow(pieces: list, width: int, ts: int, wrap: bool) -> list | None:
+    """Place the legend ``pieces`` (None: a new row) left to right from column 6 at text
+    scale ``ts``: rows of (piece, column). A piece passing ``width`` goes to the next row
+    when ``wrap``, else the placing fails (None)."""
+    scratch = np.zeros((7 * ts + 8, 4 * width + 1400, 3), np.uint8)
+    rows, row, col = [], [], 6
+    for piece in pieces:
+        if piece is None:
+            rows.append(row)
+            row, col = [], 6
+            continue
+        end = piece(scratch, 2, col, ts)
+        if end - 4 * ts > width and row:
+            if not wrap:
+                return None
+            rows.append(row)
+            row, col = [], 6
+            end = piece(scratch, 2, col, ts)
+        if end - 4 * ts > width and not wrap:
+            return None
+        row.append((piece, col))
+        col = end
+    rows.append(row)
+    return [r for r in rows if r]
+
+
 def _mm(x: float) -> str:
     return f"{x:g}" if abs(x) >= 0.1 or x == 0 else f"{x:.2g}"
 
@@ -259,13 +311,8 @@ class LiveView:
 
     @property
     def strip_height(self) -> int:
-        rows = 3 if self._legend_rows == 2 else 2
+        rows = self._status_rows + self._legend_rows
         return rows * (7 * self.text_scale) + (rows + 1) * 6 * self.text_scale // 2 + 4
-
-    @property
-    def _legend_rows(self) -> int:
-        """Rows of the legend: the colour meaning on a row of its own when it is long."""
-        return 2 if (self.axes or self.color_by == "deviation") else 1
 
     def pixel_of(self, points: np.ndarray) -> np.ndarray:
         """World points (k, 3) mm -> float (k, 2) (column, row) in the frames."""
@@ -423,104 +470,153 @@ class LiveView:
         if status.get("tool"):
             parts.append(str(status["tool"]).upper())
         parts.append(f"FINDINGS {n_findings}")
-        text = "   ".join(parts)
-        sc = ts if shaded.text_size(text, ts)[1] + 12 <= strip.shape[1] else 1
-        shaded.draw_text(strip, text, 4 * ts, 6, TEXT_COLOR if not n_findings else TEXT_COLOR, scale=sc)
-        if n_findings:
-            # the count in the finding colour, so it is seen without reading the line
-            head = "   ".join(parts[:-1]) + "   "
-            col = 6 + shaded.GLYPH_W * sc * len(head)
-            shaded.draw_text(strip, parts[-1], 4 * ts, col, shaded.FINDING_COLOR, scale=sc)
+        width = strip.shape[1] - 12
+        sc = ts if shaded.text_size("   ".join(parts), ts)[1] <= width else 1
+        lines = _wrap_words(parts, width // (shaded.GLYPH_W * sc), 3) if self._status_rows > 1 else [parts]
+        for k, line in enumerate(lines):
+            col = 6
+            for part in line:
+                # the count in the finding colour, so it is seen without reading the line
+                color = shaded.FINDING_COLOR if n_findings and part.startswith("FINDINGS") else TEXT_COLOR
+                shaded.draw_text(strip, part, 4 * ts + k * 10 * sc, col, color, scale=sc)
+                col += shaded.GLYPH_W * sc * (len(part) + 3)
 
     def _legend(self, shape) -> np.ndarray:
-        """The strip's second row: uncut stock swatch, the depth ramp with its range, a
-        scale bar in mm and the overlay colours."""
-        ts = self.text_scale
-        # drawn on a strip wide enough for all of it, then cut to the picture's width
-        W = shape[1]
-        strip = np.empty((shape[0], max(W, 1400), 3), np.uint8)
+        """The strip's legend rows (see :meth:`_legend_plan`) on a strip of ``shape``."""
+        # drawn on a wider strip (a piece wider than a tiny picture is cut, not an error)
+        strip = np.empty((shape[0], shape[1] + 1400, 3), np.uint8)
         strip[:] = STRIP_BG
-        H = shape[0]
+        ts, rows = self._legend_plan(shape[1])
         th = 7 * ts
-        r = H - th - 5 * ts - (th + 3 * ts) * (self._legend_rows - 1)
-        col = 6
-        sw = 3 * th
+        for k, row in enumerate(rows):
+            r = shape[0] - th - 5 * ts - (th + 3 * ts) * (len(rows) - 1 - k)
+            for draw, col in row:
+                draw(strip, r, col, ts)
+        return np.ascontiguousarray(strip[:, :shape[1]])
 
-        def swatch(color, text, col):
-            strip[r:r + th, col:col + sw] = color
-            return shaded.draw_text(strip, text, r, col + sw + 3 * ts, DIM_TEXT, scale=ts)[3] + 6 * ts
+    def _legend_plan(self, width: int) -> tuple[int, list]:
+        """(text scale, rows of (piece, column)) of the legend on a picture ``width`` px
+        wide: at the text's scale on its rows when that fits, else at the smallest scale,
+        each row wrapped onto the next where it would pass the right edge (a narrow
+        picture: nothing is cut off). The colour meaning (uncut stock and the depth ramp,
+        or the deviation bar) comes first; with axes or a deviation map the scale bar and
+        the overlay colours start a row of their own."""
+        plan = self.__dict__.setdefault("_plans", {}).get(width)
+        if plan is not None:
+            return plan
+        for ts in range(self.text_scale, 0, -1):
+            rows = _flow(self._legend_pieces(width), width, ts, wrap=ts == 1)
+            if rows is not None:
+                self._plans[width] = plan = (ts, rows)
+                return plan
+
+    @property
+    def _status_rows(self) -> int:
+        """Lines of the status text: more than one on a picture too narrow for the
+        longest at the smallest scale."""
+        return len(_wrap_words(STATUS_LONGEST, (self.picture_shape[1] - 12) // shaded.GLYPH_W, 3))
+
+    @property
+    def _legend_rows(self) -> int:
+        """Rows of the legend on this view's pictures."""
+        return len(self._legend_plan(self.picture_shape[1])[1])
+
+    def _legend_pieces(self, width: int) -> list:
+        """The legend's pieces in order: functions ``draw(strip, row, col, ts) -> the column
+        after it``; ``None`` where a new row starts."""
+        def text(t, color=DIM_TEXT, gap=2):
+            return lambda strip, r, col, ts: shaded.draw_text(strip, t, r, col, color, scale=ts)[3] + gap * ts
+
+        def swatch(color, label, line=False):
+            def draw(strip, r, col, ts):
+                th, sw = 7 * ts, 21 * ts
+                if line:   # a path colour: a thick line
+                    strip[r + th // 2 - ts:r + th // 2 + ts, col:col + sw] = color
+                else:
+                    strip[r:r + th, col:col + sw] = color
+                return shaded.draw_text(strip, label, r, col + sw + 3 * ts, DIM_TEXT, scale=ts)[3] + 6 * ts
+            return draw
 
         if self.color_by == "deviation":
-            col = self._deviation_bar(strip, r, col)
+            pieces = self._deviation_pieces(text)
         elif self.color_by == "move":
-            col = shaded.draw_text(strip, "COLOUR: MOVE ID", r, col, DIM_TEXT, scale=ts)[3] + 8 * ts
+            pieces = [text("COLOUR: MOVE ID", gap=8)]
         else:
-            col = swatch(shaded.STOCK_COLOR, "UNCUT", col)
-            # the ramp: shallow (left) to max_depth (right)
-            ramp = shaded.depth_ramp()
-            rw = 40 * ts
-            idx = np.linspace(0, len(ramp) - 1, rw).round().astype(int)
-            lab0 = "DEPTH 0"
-            col = shaded.draw_text(strip, lab0, r, col, DIM_TEXT, scale=ts)[3] + 2 * ts
-            strip[r:r + th, col:col + rw] = ramp[idx][None, :, :]
-            col += rw + 3 * ts
-            col = shaded.draw_text(strip, f"-{_mm(self.max_depth)} MM", r, col, DIM_TEXT, scale=ts)[3] + 8 * ts
-        if self._legend_rows == 2:   # the scale bar and the overlays on a row of their own
-            r, col = H - th - 5 * ts, 6
-        # scale bar: a round length about a sixth of the picture
+            pieces = [swatch(shaded.STOCK_COLOR, "UNCUT"), self._depth_ramp]
+        if self.axes or self.color_by == "deviation":
+            pieces.append(None)
+        pieces.append(self._scale_bar(width))
+        from monitor.render.meaning import RAPID_COLOR
+
+        for color, label in ((shaded.PATH_COLOR, "FEED" if self.axes else "PATH"), (RAPID_COLOR, "RAPID"),
+                             (shaded.TOOL_COLOR, "TOOL"), (HOLDER_COLOR, "HOLDER"),
+                             (shaded.FINDING_COLOR, "FINDING"), (FIXTURE_COLOR, "FIXTURE")):
+            if label == "FIXTURE" and not self.fixtures or label == "RAPID" and not self.axes:
+                continue
+            # HOLDER is planned for always (the tool may change between pictures), drawn with one
+            pieces.append(_only_if(lambda: label != "HOLDER" or getattr(self.tool, "holder", None) is not None,
+                                   swatch(color, label, line=True)))
+        return pieces
+
+    def _depth_ramp(self, strip, r: int, col: int, ts: int) -> int:
+        """``DEPTH 0`` [the ramp, shallow to deep] ``-max MM``; planned as wide as a
+        3-digit range (the range grows as the cut deepens)."""
+        th = 7 * ts
+        ramp = shaded.depth_ramp()
+        rw = 40 * ts
+        col = shaded.draw_text(strip, "DEPTH 0", r, col, DIM_TEXT, scale=ts)[3] + 2 * ts
+        strip[r:r + th, col:col + rw] = ramp[np.linspace(0, len(ramp) - 1, rw).round().astype(int)][None, :, :]
+        col += rw + 3 * ts
+        label = f"-{_mm(self.max_depth if self.max_depth is not None else 1.0)} MM"
+        end = shaded.draw_text(strip, label, r, col, DIM_TEXT, scale=ts)[3]
+        return max(end, col + shaded.text_size("-888.8 MM", ts)[1]) + 8 * ts
+
+    def _scale_bar(self, width: int):
+        """The scale bar: a round length about a sixth of a picture ``width`` px wide."""
         px_mm = 1.0 / self.view_frame.spacing
-        length = _nice_floor(max(W / 6 / px_mm, 1e-3))
+        length = _nice_floor(max(width / 6 / px_mm, 1e-3))
         bar = max(int(round(length * px_mm)), 2)
-        if col + bar + 60 * ts < W:
+
+        def draw(strip, r, col, ts):
+            th = 7 * ts
             strip[r + th // 2 - ts:r + th // 2 + ts, col:col + bar] = TEXT_COLOR
             strip[r:r + th, col:col + ts] = TEXT_COLOR
             strip[r:r + th, col + bar - ts:col + bar] = TEXT_COLOR
-            col = shaded.draw_text(strip, f"{_mm(length)} MM", r, col + bar + 3 * ts, DIM_TEXT, scale=ts)[3] + 8 * ts
-        from monitor.render.meaning import RAPID_COLOR
+            return shaded.draw_text(strip, f"{_mm(length)} MM", r, col + bar + 3 * ts, DIM_TEXT, scale=ts)[3] + 8 * ts
+        return draw
 
-        for color, text in ((shaded.PATH_COLOR, "FEED" if self.axes else "PATH"), (RAPID_COLOR, "RAPID"),
-                            (shaded.TOOL_COLOR, "TOOL"), (HOLDER_COLOR, "HOLDER"),
-                            (shaded.FINDING_COLOR, "FINDING"), (FIXTURE_COLOR, "FIXTURE")):
-            if text == "FIXTURE" and not self.fixtures or text == "RAPID" and not self.axes \
-                    or text == "HOLDER" and getattr(self.tool, "holder", None) is None:
-                continue
-            if col + sw + shaded.text_size(text, ts)[1] + 6 > W:
-                break
-            strip[r + th // 2 - ts:r + th // 2 + ts, col:col + sw] = color
-            col = shaded.draw_text(strip, text, r, col + sw + 3 * ts, DIM_TEXT, scale=ts)[3] + 6 * ts
-        return np.ascontiguousarray(strip[:, :W])
-
-    def _deviation_bar(self, strip: np.ndarray, r: int, col: int) -> int:
-        """The deviation map's colour bar on the legend row from column ``col``: the gouge
-        scale (dark at -interest, light at -gouge), the neutral band, the excess scale
-        (light at +undercut, dark at +interest), each end labelled in mm. Returns the
-        column after it."""
+    def _deviation_pieces(self, text) -> list:
+        """The deviation map's colour bar in three pieces (kept on one row when it fits):
+        the gouge scale (dark at -interest, light at -gouge), the neutral band, the excess
+        scale (light at +undercut, dark at +interest), each end labelled in mm."""
         from monitor.render import meaning
 
-        ts = self.text_scale
-        th = 7 * ts
         tol = self.tol
         pal = meaning.deviation_palette()
         n = meaning.SCALE_STEPS
-        rw = 24 * ts
 
-        def text(t, c, color=DIM_TEXT):
-            return shaded.draw_text(strip, t, r, c, color, scale=ts)[3] + 2 * ts
+        def scale(first, last, idx):
+            def draw(strip, r, col, ts):
+                rw = 24 * ts
+                for t, color in first:
+                    col = text(t, color)(strip, r, col, ts) + (ts if t in ("GOUGE",) else 0)
+                strip[r:r + 7 * ts, col:col + rw] = pal[np.linspace(*idx, rw).round().astype(int)][None]
+                col += rw + 2 * ts
+                for t, color in last:
+                    col = text(t, color)(strip, r, col + (ts if t == "EXCESS" else 0), ts)
+                return col + 4 * ts
+            return draw
 
-        col = text("GOUGE", col, meaning.GOUGE_DARK) + ts
-        col = text(f"-{_mm(tol.interest)}", col)
-        idx = np.linspace(n, 1, rw).round().astype(int)          # dark (deep) to light
-        strip[r:r + th, col:col + rw] = pal[idx][None]
-        col += rw + 2 * ts
-        col = text(f"-{_mm(tol.gouge)}", col)
-        strip[r:r + th, col:col + 8 * ts] = pal[0]
-        col = text("OK", col + 9 * ts)
-        col = text(f"+{_mm(tol.undercut)}", col)
-        idx = np.linspace(n + 1, 2 * n, rw).round().astype(int)  # light to dark (more left)
-        strip[r:r + th, col:col + rw] = pal[idx][None]
-        col += rw + 2 * ts
-        col = text(f"+{_mm(tol.interest)} MM", col)
-        return text("EXCESS", col + ts, meaning.EXCESS_DARK) + 6 * ts
+        def neutral(strip, r, col, ts):
+            strip[r:r + 7 * ts, col:col + 8 * ts] = pal[0]
+            return text("OK")(strip, r, col + 9 * ts, ts) + 4 * ts
+
+        gouge = scale([("GOUGE", meaning.GOUGE_DARK), (f"-{_mm(tol.interest)}", DIM_TEXT)],
+                      [(f"-{_mm(tol.gouge)}", DIM_TEXT)], (n, 1))            # dark (deep) to light
+        excess = scale([(f"+{_mm(tol.undercut)}", DIM_TEXT)],
+                       [(f"+{_mm(tol.interest)} MM", DIM_TEXT), ("EXCESS", meaning.EXCESS_DARK)],
+                       (n + 1, 2 * n))                                              # light to dark
+        return [gouge, neutral, excess]
 
     def update(self, heights_or_grid, tool_pose=None, path_ahead=None, findings=None,
                ids: np.ndarray | None = None, status: dict | None = None) -> bool:
@@ -655,13 +751,19 @@ class ViewFeed:
     path : monitor.sync.ProgramPath or None, for the path ahead.
     horizon : callable(progress s) -> program time s where the path ahead ends.
     fps : frames per second at most.
+    moves : the move table (the model's frame) or None: with it the path drawn is the
+        moves near the machine's row (feeds solid, rapids dashed), as the replay
+        pictures draw it (:func:`monitor.render.runpicture.path_near`), instead of the
+        path ahead.
     """
 
-    def __init__(self, view: LiveView, heights: np.ndarray, path=None, horizon=None, fps: float = 15.0):
+    def __init__(self, view: LiveView, heights: np.ndarray, path=None, horizon=None, fps: float = 15.0,
+                 moves=None):
         if not fps > 0:
             raise InputError(f"expected a positive number of frames per second, got {fps}", "--view-fps")
         self.view = view
         self.path = path
+        self.moves = moves if moves is not None and len(moves) else None
         self.horizon = horizon or (lambda progress: progress + 5.0)
         self.period = 1.0 / float(fps)
         self.heights = np.array(heights, np.float32, copy=True).reshape(view.frame.shape)
@@ -679,7 +781,7 @@ class ViewFeed:
         self._cond = threading.Condition()
         self._rays: list[np.ndarray] = []
         self._tops: list[np.ndarray] = []
-        self._pose = None        # (tip (3,), tool, progress, findings, wco)
+        self._pose = None        # (tip (3,), tool, progress, findings, wco, stage)
         self._posted = 0         # posts so far
         self._drawn = 0          # posts reflected in the last frame
         self._ready: np.ndarray | None = None   # a frame waiting for the window
@@ -699,16 +801,16 @@ class ViewFeed:
 
     # -- the loop's side
     def post(self, rays: np.ndarray | None, tops: np.ndarray | None, tip=None, tool=None,
-             progress: float | None = None, findings=None, wco=None) -> None:
+             progress: float | None = None, findings=None, wco=None, stage: int | None = None) -> None:
         """Hand over one state: ``rays`` (k,) int64 the step changed and their new ``tops``
         (k,) float32 mm, the tool ``tip`` (3,) mm in work coordinates and the ``tool``
         there, the program ``progress`` s, the ``findings`` list (read, not copied, by
-        the render thread) and the work offset ``wco``."""
+        the render thread), the work offset ``wco`` and the live ``stage``."""
         with self._cond:
             if rays is not None and len(rays):
                 self._rays.append(rays)
                 self._tops.append(tops)
-            self._pose = (tip, tool, progress, findings, wco)
+            self._pose = (tip, tool, progress, findings, wco, stage)
             self._posted += 1
             self._cond.notify_all()
 
@@ -747,14 +849,22 @@ class ViewFeed:
             changed = (lo // nu, hi // nu + 1, int(cols.min()), int(cols.max()) + 1)
         if self._first:
             changed, self._first = None, False
-        tip, tool, progress, findings, wco = pose if pose is not None else (None,) * 5
-        ahead = None
-        if progress is not None and self.path is not None:
-            ahead = path_ahead(self.path, progress, self.horizon(progress))
+        tip, tool, progress, findings, wco, stage = pose if pose is not None else (None,) * 6
+        ahead = near = None
+        if progress is not None and self.path is not None and len(self.path):
+            if self.moves is not None:
+                from monitor.render.runpicture import path_near
+
+                near = path_near(self.moves, int(self.path.row[self.path.segment_at(progress)]))
+            else:
+                ahead = path_ahead(self.path, progress, self.horizon(progress))
         if tool is not None:
             self.view.tool = tool
+        from monitor.render.runpicture import tool_text
+
+        status = {**feed_status(self.path, progress), "stage": stage, "tool": tool_text(self.view.tool)}
         img = self.view.render(self.heights, tip, ahead, finding_marks(findings or (), wco), changed=changed,
-                               status=feed_status(self.path, progress))
+                               status=status, moves=near)
         if self.view.is_window:
             with self._cond:
                 self._ready = img.copy()

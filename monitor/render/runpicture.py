@@ -23,8 +23,9 @@ CROP_MARGIN_MM = 2.0
 
 
 def tool_text(tool) -> str:
-    """``T1 FLAT 6`` / ``BALL 6`` for a ``sim.tools.Tool`` (empty when None)."""
-    if tool is None:
+    """``T1 FLAT 6`` / ``BALL 6`` for a ``sim.tools.Tool`` (empty when None or only a
+    radius)."""
+    if tool is None or not hasattr(tool, "kind"):
         return ""
     num = f"T{tool.number} " if getattr(tool, "number", None) else ""
     return f"{num}{tool.kind} {tool.diameter:g}".upper()
@@ -166,6 +167,23 @@ def crop_box(heights: np.ndarray, margin_rays: int) -> tuple[int, int, int, int]
             max(int(i.min()) - margin_rays, 0), min(int(i.max()) + margin_rays + 1, nu))
 
 
+def path_near(moves, row: int | None) -> dict | None:
+    """The moves of table ``moves`` around program ``row`` (PATH_BEFORE before it,
+    PATH_AFTER after it; None: the program's first PATH_AFTER) as ``{"start", "end",
+    "rapid"}`` (mm, the table's coordinates): the path every picture draws near its stage.
+    None when there is no table."""
+    if moves is None or not len(moves):
+        return None
+    from sim.gcode.moves import MoveKind
+
+    lo = 0 if row is None else max(int(row) - PATH_BEFORE, 0)
+    hi = min(len(moves), (PATH_AFTER if row is None else int(row) + PATH_AFTER + 1))
+    part = moves[lo:hi]
+    moving = np.isin(part["kind"], (MoveKind.RAPID, MoveKind.FEED, MoveKind.ARC_CW, MoveKind.ARC_CCW))
+    part = part[moving]
+    return {"start": part["start"][:, :3], "end": part["end"][:, :3], "rapid": part["kind"] == MoveKind.RAPID}
+
+
 class RunPictures:
     """Pictures of the stages of a :class:`monitor.trace_io.RunView`.
 
@@ -236,20 +254,6 @@ class RunPictures:
                   "tool": tool_text(tool)}
         return status, tip, row
 
-    def path_near(self, row: int | None) -> dict | None:
-        """The moves around program ``row`` as ``{"start", "end", "rapid"}`` (work mm)."""
-        if self.moves is None:
-            return None
-        from sim.gcode.moves import MoveKind
-
-        m = self.moves
-        lo = 0 if row is None else max(row - PATH_BEFORE, 0)
-        hi = min(len(m), (PATH_AFTER if row is None else row + PATH_AFTER + 1))
-        part = m[lo:hi]
-        moving = np.isin(part["kind"], (MoveKind.RAPID, MoveKind.FEED, MoveKind.ARC_CW, MoveKind.ARC_CCW))
-        part = part[moving]
-        return {"start": part["start"][:, :3], "end": part["end"][:, :3], "rapid": part["kind"] == MoveKind.RAPID}
-
     def picture(self, stage: int, heights: np.ndarray | None = None, ids: np.ndarray | None = None) -> np.ndarray:
         """RGB uint8 (rows, cols, 3) of ``stage``: the model and its overlay, the strip below."""
         if heights is None:
@@ -258,7 +262,7 @@ class RunPictures:
         status, tip, row = self.status(stage)
         marks = [m for m, s in zip(self.marks, self.mark_stages) if s <= stage]
         img = self.live.render(h, tip, findings=marks, ids=None if ids is None else self.crop(ids),
-                               status=status, errors=self.errors(h), moves=self.path_near(row))
+                               status=status, errors=self.errors(h), moves=path_near(self.moves, row))
         return img.copy()   # the view draws the next picture into the same buffer
 
     def frames(self, first: int, last: int, max_frames: int = 120):

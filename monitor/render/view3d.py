@@ -217,7 +217,9 @@ def add_stage(pl, pics, stage: int, show_tool: bool = True) -> None:
         pl.add_mesh(part, scalars="depth of cut (mm)", cmap="viridis_r", clim=(0.0, top), smooth_shading=True,
                     show_scalar_bar=True, scalar_bar_args=bar_args("depth of cut (mm)", pl.window_size[0]))
     status, tip, row = pics.status(stage)
-    path = pics.path_near(row)
+    from monitor.render.runpicture import path_near
+
+    path = path_near(pics.moves, row)
     if path is not None and len(path["start"]):
         for rapid, color, width in ((False, "cyan", 2), (True, "magenta", 1)):
             sel = path["rapid"] == rapid

@@ -33,17 +33,19 @@ class LiveFeed:
         self._tops: list[np.ndarray] = []
         self._tip = None
         self._posted = self._drawn = 0
-        self._shown_findings = -1
+        self._shown_findings = None   # (status, stage) of each finding last sent
         self._task = None
         self._ended = False
         #: pictures sent to the page
         self.frames = 0
         self.error: BaseException | None = None
         self._runview = None
+        self._stage_view = None   # the run file opened to show a finding's stage
+        app.page.live_stage = self.stage_of
         app.server.call_soon(self._start)
 
     # -- the session loop's side
-    def post(self, rays, tops, tip=None, tool=None, progress=None, findings=None, wco=None) -> None:
+    def post(self, rays, tops, tip=None, tool=None, progress=None, findings=None, wco=None, stage=None) -> None:
         with self._lock:
             if rays is not None and tops is not None and len(rays):
                 self._rays.append(np.asarray(rays, np.int64))
@@ -74,11 +76,42 @@ class LiveFeed:
         for r, t in zip(rays, tops):
             self.heights[r] = t
         findings = list(self.session.findings)
-        changed = len(findings) != self._shown_findings
-        self._shown_findings = len(findings)
+        # a finding predicted then happened changes in place: its status and stage count too
+        seen = [(f.get("status"), f.get("stage")) for f in findings]
+        changed = seen != self._shown_findings
+        self._shown_findings = seen
+        sync = self.session.last_sync
         self.app.page.update_live(live_figures(self.session, tip), self.heights.reshape(self.session.live.frame.shape),
-                                  tip, findings if changed else None)
+                                  tip, findings if changed else None, row=None if sync is None else int(sync.row))
         self.frames += 1
+
+    def stage_of(self, finding: dict):
+        """``(heights, tip, row, stage)`` of the model at the stage where ``finding`` (a
+        page item) happened, read from the run file being written; or a sentence saying
+        why it cannot be shown (predicted and not cut yet, not recorded, not in the file
+        yet)."""
+        from monitor.trace_io import RunView
+        from monitor.web.runmodel import RunModel
+
+        stage = finding.get("stage")
+        line = finding.get("line")
+        if finding.get("predicted") or not isinstance(stage, int):
+            return (f"predicted at line {line}, not cut yet: there is no model of it until the machine "
+                    "has cut it (its stage can be shown then)")
+        run = getattr(self.session, "run", None)
+        if run is None:
+            return "this job is not recorded (no run file): its stage cannot be shown until a run file is kept"
+        if self._stage_view is not None:
+            self._stage_view.close()
+        # opened again on each click: the file grows as the machine runs
+        self._stage_view = view = RunView(run.path)
+        held = view.trace.last_stage
+        if stage > held:
+            return (f"happened at stage {stage}, which the run file does not hold yet (it holds stages up "
+                    f"to {held}; the model is written every few dozen stages): click it again in a moment")
+        model = RunModel(view)
+        heights = np.array(model.heights(stage), np.float32)
+        return heights, model.at(stage).tip, model.row(stage), stage
 
     # -- the end
     def finished(self, run_path, summary: dict) -> None:
@@ -112,8 +145,9 @@ class LiveFeed:
         """Stop serving the page, then close the run file it showed."""
         self._ended = True
         self.app.close()
-        if self._runview is not None:
-            self._runview.close()
+        for view in (self._runview, self._stage_view):
+            if view is not None:
+                view.close()
 
 
 def live_figures(session, tip) -> dict:

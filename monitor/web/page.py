@@ -37,12 +37,19 @@ class Page:
         self.program_lines = program_lines if program_lines is not None else (model.program_lines if model else [])
         self._play_task = None   # kept: the loop holds only a weak reference to a task
         self._live_line = None
+        #: a running job's model as last given (heights, tip, row): shown again when the
+        #: user goes back to the machine from a finding's stage
+        self._live_picture = None
+        #: a running job: ``stage_of(finding record) -> (heights, tip, row, stage) or a
+        #: sentence saying why its stage cannot be shown`` (set by the live feed)
+        self.live_stage = None
         #: set when a page has opened in a browser
         self.opened = threading.Event()
         server.enable_module({"serve": {"dexmon": str(STATIC)}, "styles": ["dexmon/page.css"]})
         state = server.state
         state.update({"title": title, "has_run": False, "first": 0, "last": 0, "stage": 0, "playing": False,
-                      "stage_text": "", "listing": [], "findings": [], "at_finding": -1, "live": None})
+                      "stage_text": "", "listing": [], "findings": [], "at_finding": -1, "live": None,
+                      "finding_note": "", "pinned": False})
         state.change("stage")(self._on_stage)
         self.view = self._layout()
         if model is not None:
@@ -98,6 +105,10 @@ class Page:
                          classes=("'dexmon-finding' + (f.i === at_finding ? ' at' : '')",),
                          click=(self.go_finding, "[f.i]"))
                 html.Div("no findings", v_if=("!findings.length",), classes="pa-2")
+            with html.Div(v_if=("finding_note",), classes="pa-2 text-body-2 dexmon-note"):
+                html.Span("{{ finding_note }}", id="finding-note")
+                v3.VBtn("Back to the machine", v_if=("pinned",), id="live-back", click=self.back_to_machine,
+                        size="small", classes="ml-2")
 
     def _listing_panel(self, html, v3):
         with v3.VCard(variant="outlined"):
@@ -114,7 +125,7 @@ class Page:
         self.program_lines = model.program_lines
         with self.server.state as state:
             state.update({"has_run": True, "first": model.first, "last": model.last,
-                          "findings": model.findings})
+                          "findings": model.findings, "finding_note": "", "pinned": False})
             state.stage = model.last
         self._on_stage(model.last)
 
@@ -123,7 +134,7 @@ class Page:
             return
         stage = min(max(int(stage), self.model.first), self.model.last)
         row = self.model.at(stage)
-        self.scene.show(self.model.heights(stage), row.tip)
+        self.scene.show(self.model.heights(stage), row.tip, self.model.row(stage))
         state = self.server.state
         state.stage_text = stage_text(stage, self.model.last, row.line, row.t)
         state.listing = self.model.listing_around(row.line)
@@ -145,11 +156,10 @@ class Page:
         self.server.state.listing = _listing(self.program_lines, int(line))
 
     def go_finding(self, i) -> None:
-        """The stage at which finding ``i`` happened (a running job: its line in the listing)."""
+        """The stage at which finding ``i`` happened (a running job: its line in the
+        listing and, when the run file holds it, its stage, else why not)."""
         if self.model is None:
-            f = self.server.state.findings[int(i)]
-            if isinstance(f.get("line"), int):
-                self.server.state.listing = _listing(self.program_lines, f["line"])
+            self._go_live_finding(int(i))
             return
         f = self.model.findings[int(i)]
         if f["stage"] is not None:
@@ -178,10 +188,39 @@ class Page:
             state.playing = False
 
     # -- a running job
-    def update_live(self, figures: dict, heights=None, tip=None, findings: list | None = None) -> None:
+    def _go_live_finding(self, i: int) -> None:
+        """Finding ``i`` of a running job: its line in the listing, and the model at the
+        stage it happened (the live picture held until :meth:`back_to_machine`) when the
+        run file holds that stage; else a sentence on the page says why not."""
+        state = self.server.state
+        f = state.findings[i]
+        state.at_finding = i
+        if isinstance(f.get("line"), int):
+            state.listing = _listing(self.program_lines, f["line"])
+        shown = self.live_stage(f) if self.live_stage is not None else "this job is not recorded: no stages to show"
+        if isinstance(shown, str):
+            state.finding_note = f"Finding {i + 1}: {shown}."
+            return
+        heights, tip, row, stage = shown
+        state.pinned = True
+        state.finding_note = (f"Showing stage {stage}, where finding {i + 1} happened; "
+                              "the machine goes on (the status above is live).")
+        self.scene.show(heights, tip, row)
+        self.push_picture()
+
+    def back_to_machine(self) -> None:
+        """Leave a finding's stage: the running machine's model again."""
+        state = self.server.state
+        state.pinned, state.finding_note, state.at_finding = False, "", -1
+        if self._live_picture is not None:
+            self.scene.show(*self._live_picture)
+            self.push_picture()
+
+    def update_live(self, figures: dict, heights=None, tip=None, findings: list | None = None,
+                    row: int | None = None) -> None:
         """Show a running machine: ``figures`` (state, line, x, y, z, next, note), the
-        model's ``heights`` and the tool at ``tip`` (None: unchanged), ``findings`` (raw
-        finding records) when they changed."""
+        model's ``heights`` and the tool at ``tip`` (None: unchanged) with the path round
+        program ``row``, ``findings`` (raw finding records) when they changed."""
         with self.server.state as state:
             state.live = figures
             line = figures.get("line")
@@ -193,10 +232,13 @@ class Page:
                 from monitor.web.runmodel import finding_item
 
                 state.findings = [finding_item(i, f) for i, f in enumerate(findings)]
-                self.scene.set_findings([f["position"] for f in state.findings if f["position"] is not None])
+                shown = [f for f in state.findings if f["position"] is not None]
+                self.scene.set_findings([f["position"] for f in shown], [f["label"] for f in shown])
         if heights is not None:
-            self.scene.show(heights, tip)
-            self.push_picture()
+            self._live_picture = (heights, tip, row)
+            if not self.server.state.pinned:   # a finding's stage stays until the user leaves it
+                self.scene.show(heights, tip, row)
+                self.push_picture()
 
 
 def _listing(lines: list[str], line: int) -> list[dict]:

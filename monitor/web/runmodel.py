@@ -63,6 +63,11 @@ class RunModel:
         """Numbered program lines around ``line`` (1-based): ``{"n", "text", "current"}``."""
         return listing_window(self.program_lines, line)
 
+    def row(self, stage: int) -> int | None:
+        """The move-table row cut at ``stage`` (None before the first cut)."""
+        move_id = self.view.stage_info(int(stage)).get("move_id", 0)
+        return move_id - 1 if move_id > 0 else None
+
     def tool(self):
         """The run's first tool (sim Tool), or None when the run file does not say it."""
         return self.view.tool() or _tool_from_job(self.view)
@@ -116,8 +121,9 @@ def _tool_from_job(view):
 
 def finding_item(i: int, f: dict, model: RunModel | None = None) -> dict:
     """A finding as the page lists it: index, kind, line, the stage it happened at (or the
-    first stage of its line), position and one sentence."""
+    first stage of its line), position, its label in the 3-D view and one sentence."""
     from monitor.commands.replay import format_finding
+    from monitor.render.live import finding_label
 
     stage = f.get("stage")
     if not isinstance(stage, int) and model is not None and isinstance(f.get("line"), int):
@@ -126,4 +132,4 @@ def finding_item(i: int, f: dict, model: RunModel | None = None) -> dict:
     return {"i": i, "kind": str(f.get("kind", "finding")), "line": f.get("line"),
             "stage": stage if isinstance(stage, int) else None,
             "position": [float(x) for x in pos[:3]] if isinstance(pos, list) and len(pos) >= 3 else None,
-            "text": format_finding(f)}
+            "predicted": f.get("status") == "predicted", "label": finding_label(f), "text": format_finding(f)}

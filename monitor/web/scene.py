@@ -1,6 +1,8 @@
 """The 3-D scene the page shows: the model's top surface coloured by height, the path
-(rapids and feeds told apart), the tool at its tip and the findings, in one offscreen
-pyvista plotter whose surface is updated in place from stage to stage."""
+near the stage (rapids and feeds told apart; the moves the pictures draw,
+:func:`monitor.render.runpicture.path_near`), the tool at its tip and the findings
+labelled with their line (drawn over the surface, so one under the stock's top still
+shows), in one offscreen pyvista plotter updated in place from stage to stage."""
 
 from __future__ import annotations
 
@@ -20,13 +22,14 @@ FEED_COLOUR, RAPID_COLOUR, FINDING_COLOUR, BACKGROUND = "#37c8e6", "#f08c28", "r
 class Scene:
     """A plotter on a model of ``frame`` (sim Frame) starting from ``heights`` (nv, nu) mm.
 
-    ``moves`` (move table in the model frame) draws the path, ``tool`` (sim Tool) the tool,
-    ``findings`` (m, 3) mm the findings' positions. :meth:`show` puts the surface at new
-    heights and the tool at a new tip, then renders.
+    ``moves`` (move table in the model frame) gives the path, ``tool`` (sim Tool) the tool,
+    ``findings`` (m, 3) mm the findings' positions and ``finding_labels`` their labels.
+    :meth:`show` puts the surface at new heights, the tool at a new tip and the path
+    round a new program row; the next render draws them.
     """
 
     def __init__(self, frame, heights: np.ndarray, moves=None, tool=None, findings=None,
-                 window_size=(900, 640)):
+                 finding_labels=None, window_size=(900, 640)):
         import pyvista as pv
 
         view3d.quiet_vtk()
@@ -44,12 +47,14 @@ class Scene:
         pl.set_background(BACKGROUND)
         pl.add_mesh(self.surface, scalars="height", cmap="viridis", clim=self.clim, nan_color="#30323a",
                     show_scalar_bar=True, scalar_bar_args={"title": "height (mm)", "fmt": "%.1f", "color": "white"})
-        for lines, colour, width in _path_lines(moves):
-            pl.add_mesh(lines, color=colour, line_width=width)
-        self._findings = pv.PolyData(np.zeros((1, 3)))
-        self._findings_actor = pl.add_mesh(self._findings, color=FINDING_COLOUR, point_size=14,
-                                           render_points_as_spheres=True)
-        self.set_findings(findings)
+        self.moves = moves if moves is not None and len(moves) else None
+        #: feeds and rapids: (mesh, actor) each, their points replaced by :meth:`set_path`
+        self._path = {}
+        for rapid, colour, width in ((False, FEED_COLOUR, 2), (True, RAPID_COLOUR, 1)):
+            mesh = pv.PolyData(np.zeros((2, 3)), lines=np.array([2, 0, 1]))
+            self._path[rapid] = (mesh, pl.add_mesh(mesh, color=colour, line_width=width))
+        self.set_path(None)
+        self.set_findings(findings, finding_labels)
         self._tool_actors, self._tool_at = self._add_tool(tool)
         pl.add_axes(color="white")
         pl.view_isometric()
@@ -89,20 +94,43 @@ class Scene:
             if ok:
                 a.SetPosition(*(np.asarray(tip, np.float64) - self._tool_at))
 
-    def set_findings(self, points) -> None:
-        """Mark the findings at ``points`` (m, 3) mm (None or none: no marks)."""
-        import pyvista as pv
+    def set_path(self, row: int | None) -> None:
+        """Draw the path round program ``row`` of the move table (None: its start)."""
+        from monitor.render.runpicture import path_near
 
+        path = path_near(self.moves, row)
+        for rapid, (mesh, actor) in self._path.items():
+            sel = np.zeros(0, bool) if path is None else path["rapid"] == rapid
+            actor.SetVisibility(bool(sel.any()))
+            if sel.any():
+                mesh.copy_from(segments(path["start"][sel], path["end"][sel]))
+
+    def set_findings(self, points, labels=None) -> None:
+        """Mark the findings at ``points`` (m, 3) mm with ``labels`` (m,) (default
+        ``finding``); None or none: no marks. The labels are drawn over the model (a
+        finding under the surface is not hidden by it), each with a red dot."""
         pts = np.zeros((0, 3)) if points is None else np.asarray(points, np.float64).reshape(-1, 3)
-        pts = pts[np.all(np.isfinite(pts), axis=1)]
-        self._findings_actor.SetVisibility(bool(len(pts)))
+        labels = list(labels) if labels is not None else ["finding"] * len(pts)
+        keep = np.all(np.isfinite(pts), axis=1)
+        pts, labels = pts[keep], [t for t, k in zip(labels, keep) if k]
+        for part in ("findings-labels", "findings-points"):   # the two actors add_point_labels names
+            self.plotter.remove_actor(part, render=False)
         if len(pts):
-            self._findings.copy_from(pv.PolyData(pts))
+            self.plotter.add_point_labels(pts, labels, name="findings", point_color=FINDING_COLOUR, point_size=14,
+                                          render_points_as_spheres=True, text_color=FINDING_COLOUR, font_size=14,
+                                          shape_color="#101014", shape_opacity=0.7, always_visible=True,
+                                          render=False)
 
-    def show(self, heights: np.ndarray, tip=None) -> None:
-        """Surface at ``heights``, tool at ``tip``; the picture is drawn by the next render."""
+    def show(self, heights: np.ndarray, tip=None, row: int | None = None) -> None:
+        """Surface at ``heights``, tool at ``tip``, the path round program ``row``; the
+        picture is drawn by the next render."""
         self.set_heights(heights)
         self.set_tip(tip)
+        self.set_path(row)
+
+    def path_meshes(self) -> list:
+        """The path's meshes now shown (feeds, rapids)."""
+        return [mesh for mesh, actor in self._path.values() if actor.GetVisibility()]
 
     def close(self) -> None:
         self.plotter.close()
@@ -175,25 +203,12 @@ def _point_basis(frame) -> tuple[np.ndarray, np.ndarray]:
     return base, axis
 
 
-def _path_lines(moves):
-    """``(pv.PolyData lines, colour, width)`` for the feeds and for the rapids of a move table."""
-    if moves is None or not len(moves):
-        return []
+def segments(start: np.ndarray, end: np.ndarray):
+    """A ``pv.PolyData`` of the line pieces from ``start`` (k, 3) to ``end`` (k, 3) mm."""
     import pyvista as pv
 
-    from sim.checks.motion import path_polyline
-    from sim.gcode.moves import MoveKind
-
-    p0, p1, rows = path_polyline(moves, chord=0.1)
-    rapid = np.asarray(moves["kind"])[rows] == MoveKind.RAPID
-    out = []
-    for which, colour, width in ((~rapid, FEED_COLOUR, 2), (rapid, RAPID_COLOUR, 1)):
-        if not which.any():
-            continue
-        a, b = p0[which], p1[which]
-        pts = np.empty((2 * len(a), 3))
-        pts[0::2], pts[1::2] = a, b
-        n = len(a)
-        cells = np.column_stack([np.full(n, 2), 2 * np.arange(n), 2 * np.arange(n) + 1]).reshape(-1)
-        out.append((pv.PolyData(pts, lines=cells), colour, width))
-    return out
+    n = len(start)
+    pts = np.empty((2 * n, 3))
+    pts[0::2], pts[1::2] = start, end
+    cells = np.column_stack([np.full(n, 2), 2 * np.arange(n), 2 * np.arange(n) + 1]).reshape(-1)
+    return pv.PolyData(pts, lines=cells)

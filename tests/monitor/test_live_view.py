@@ -28,7 +28,7 @@ def _view_of(frame_meta, tmp_path) -> LiveView:
     f = Frame.top(frame_meta["origin"][0], frame_meta["origin"][1],
                   frame_meta["origin"][0] + (frame_meta["nu"] - 1) * frame_meta["spacing"],
                   frame_meta["origin"][1] + (frame_meta["nv"] - 1) * frame_meta["spacing"], frame_meta["spacing"])
-    return LiveView(f, out_dir=tmp_path / "layout")
+    return LiveView(f, out_dir=tmp_path / "layout", axes=True)
 
 
 def _pixel(view, x: float, y: float) -> tuple[int, int]:
@@ -95,6 +95,28 @@ def _has_text(mask, text, scale) -> bool:
     pat = shaded.text_mask(text, scale)
     win = sliding_window_view(mask, pat.shape)
     return bool(win[..., pat].all(axis=-1).any())
+
+
+def test_dry_run_frames_carry_the_replay_overlay(tmp_path, capsys):
+    """The live frames draw what the replay pictures draw: axes and the work origin, the
+    path near the machine with its rapids (dashed, in the rapid colour), the stage and
+    the tool in the strip."""
+    import imageio.v3 as iio
+
+    from monitor.render.meaning import AXIS_X_COLOR, AXIS_Y_COLOR, RAPID_COLOR
+
+    frames, run = tmp_path / "frames", tmp_path / "run.sqlite"
+    assert main(["dry-run", "--clock", "sim", "--speed", "20", "--quiet", "--run", str(run), "--frames",
+                 str(frames), "--view-fps", "20"]) == 1
+    meta = RunReader(run).meta()["frame"]
+    meta = json.loads(meta) if isinstance(meta, str) else meta
+    rows, _ = _view_of(meta, tmp_path).picture_shape
+    pictures = [iio.imread(p) for p in sorted(frames.glob("frame_*.png"))]
+    assert len(pictures) >= 10
+    for img in pictures[1:]:
+        model = img[:rows]
+        assert _mask(model, AXIS_X_COLOR).sum() > 10 and _mask(model, AXIS_Y_COLOR).sum() > 10
+    assert max(_mask(img[:rows], RAPID_COLOR).sum() for img in pictures) > 20
 
 
 def test_view_without_display_is_one_line_suggesting_frames(tmp_path, monkeypatch, capsys):

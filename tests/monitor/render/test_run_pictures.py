@@ -116,6 +116,28 @@ def test_findings_are_ringed_from_the_stage_they_were_found_at(example_run):
     assert (after == red).all(axis=2).any()
 
 
+@pytest.mark.parametrize("size", [300, 600])
+def test_the_legend_fits_a_narrow_picture(example_run, size):
+    """Under ~600 px the legend is drawn smaller and wrapped, and the status line onto two
+    lines: nothing is cut off at the right edge, and the legend's last pieces (the excess
+    end of the colour bar, the finding colour) are there."""
+    from monitor.render.live import STRIP_BG
+    from monitor.render.runpicture import RunPictures
+    from monitor.trace_io import RunView
+
+    with RunView(example_run) as view:
+        pics = RunPictures(view, size=size)
+        img = pics.picture(view.last_stage)
+    rows, cols = pics.live.picture_shape
+    assert cols < 600
+    strip = img[rows:]
+    drawn = np.abs(strip.astype(int) - np.array(STRIP_BG)).sum(axis=-1) > 0
+    assert not drawn[:, -3:].any()
+    legend = strip[-pics.live._legend_rows * 10 * pics.live.text_scale - 8:]
+    for color in (meaning.EXCESS_DARK, shaded.FINDING_COLOR, shaded.TOOL_COLOR):
+        assert np.all(legend == np.array(color, np.uint8), axis=-1).sum() > 10, color
+
+
 def test_run_picture_matches_its_reference(example_run):
     from monitor.render.runpicture import RunPictures
     from monitor.trace_io import RunView
