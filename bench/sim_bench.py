@@ -41,7 +41,7 @@ from sim.frame import Frame  # noqa: E402
 from sim.gcode import load_program  # noqa: E402
 from sim.gcode.moves import MoveKind, tip_positions  # noqa: E402
 from sim.grid import DexelGrid  # noqa: E402
-from sim.sweep import PLANE_AXES, arc_points  # noqa: E402
+from sim.sweep import arc_points  # noqa: E402
 from sim.tools import parse_tool_spec  # noqa: E402
 
 CASES = {

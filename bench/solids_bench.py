@@ -17,7 +17,6 @@ import resource
 import time
 from pathlib import Path
 
-import numpy as np
 import trimesh
 
 from sim.boolean import difference, intersection, overlap_length, union

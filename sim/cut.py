@@ -21,7 +21,6 @@ judge ``center_cutting`` either.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 

@@ -626,7 +626,6 @@ class ZTrace(_BlockLog):
         np.cumsum(counts, out=seg_ptr[1:])
         return self._ingest(np.array([0, rays.size], np.int64), rays, seg_ptr, (n, f, ni, fi),
                             np.array([stage], np.int64), 0)
-        return self.n_changes - before
 
     def record_journal(self, changed_ptr, changed_rays, seg_ptr, near, far, near_id, far_id,
                        stages=None) -> int:

@@ -22,8 +22,6 @@ import json
 import sys
 from fractions import Fraction
 
-import numpy as np
-
 from sim.errors import InputError
 
 HELP = "rebuild, picture or export any stage of a recorded run"

@@ -77,7 +77,6 @@ def _shade(h, spacing, zscale, lx, ly, lz, ambient, ids, palette, base, bg, out,
     use_depth = ref.shape[0] == nv and lut.shape[0] > 0
     nlut = lut.shape[0]
     npal = palette.shape[0]
-    inv2 = 0.5 / spacing
     for j in range(nv):
         row = nv - 1 - j
         for i in range(nu):

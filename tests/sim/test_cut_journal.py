@@ -10,7 +10,7 @@ from sim.gcode.moves import MoveKind
 from sim.grid import DexelGrid
 from sim.tools import Tool, parse_tool_spec
 
-from tests.sim.test_cut import SP, moves_of, stock  # the same stock and move helpers
+from tests.sim.test_cut import moves_of, stock  # the same stock and move helpers
 
 
 def all_segments(g: DexelGrid):

@@ -255,4 +255,4 @@ def test_url_interpreter_options_named_in_errors(tmp_path):
             open_controller(f"virtual://{nc}?{query}")
         assert all(w in str(e.value) for w in words), str(e.value)
     with pytest.raises(DriverError, match="no program"):
-        open_controller(f"virtual://?machine_units=mm")
+        open_controller("virtual://?machine_units=mm")
