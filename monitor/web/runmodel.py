@@ -30,7 +30,13 @@ class RunModel:
         self.last = view.last_stage
         self.frame = view.frame
         self.program_lines = (view.meta.get("program") or "").splitlines()
-        self._stages, self._t, self._line, self._tips = _stage_columns(view)
+        # the same cuts, times and tips as the replay pictures: one stage table, times told
+        # from the run's first recorded state
+        from monitor.render.runpicture import run_start_time
+
+        tab = view.stage_table
+        self._stages, self._line, self._tips = tab["stage"], tab["line"], tab["p1"]
+        self._t = tab["t"] - run_start_time(view)
         self.findings = [finding_item(i, f, self) for i, f in enumerate(view.findings)]
 
     def heights(self, stage: int) -> np.ndarray:
@@ -83,21 +89,6 @@ def listing_window(lines: list[str], line: int) -> list[dict]:
     lo = max(1, centre - LISTING_BEFORE)
     hi = min(len(lines), max(lo + LISTING_BEFORE + LISTING_AFTER, centre + LISTING_AFTER))
     return [{"n": n, "text": lines[n - 1], "current": n == line} for n in range(lo, hi + 1)]
-
-
-def _stage_columns(view) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per recorded cut in stage order: stages int64, times float64 s, lines int64 and the
-    tip (the last point of the piece cut, else the move's end) float64 (k, 3) mm."""
-    stages, times, lines, tips = [], [], [], []
-    for c in sorted(view.reader.cuts(), key=lambda c: c["stage"]):
-        a = c["arrays"]
-        pts = np.asarray(a.get("points", a.get("p1", np.full(3, np.nan))), np.float64).reshape(-1, 3)
-        stages.append(int(c["stage"]))
-        times.append(np.nan if c["t"] is None else float(c["t"]))
-        lines.append(-1 if c["line"] is None else int(c["line"]))
-        tips.append(pts[-1] if len(pts) else np.full(3, np.nan))
-    return (np.asarray(stages, np.int64), np.asarray(times, np.float64), np.asarray(lines, np.int64),
-            np.asarray(tips, np.float64).reshape(-1, 3))
 
 
 def _tool_from_job(view):

@@ -251,3 +251,17 @@ def test_report_of_the_example_shows_the_part_the_findings_and_agreeing_times(ex
     assert re.search(r"<tr><td>T1</td><td>0:\d\d\.\d\d</td>", text)     # programmed time per tool
     # the finding's stage and time in its sentence, told from the same start as the plot
     assert re.search(r"Gouge at lines 22-23.*Stage \d+, 0:\d\d\.\d\d into the run\.", text)
+
+
+def test_the_browser_view_tells_the_same_stage_time_as_the_pictures(example_run):
+    # one stage, one time: the page's stage line and the picture strip read one stage table
+    from monitor.render.runpicture import RunPictures
+    from monitor.trace_io import RunView
+    from monitor.web.runmodel import RunModel
+
+    with RunView(example_run) as view:
+        pics, model = RunPictures(view, size=300), RunModel(view)
+        for stage in (view.first_stage + 1, (view.first_stage + view.last_stage) // 2, view.last_stage):
+            status, _tip, _row = pics.status(stage)
+            assert model.at(stage).t == pytest.approx(status["time"])
+            assert model.at(stage).line == status["line"]
