@@ -152,13 +152,20 @@ def zmap_cut(H, x0, y0, spacing, p0, p1, R, ball, bottom):
                     H[j, i] = max(z, bottom)
 
 
-def cut_program(frame, tool, moves: np.ndarray, top: float, bottom: float) -> np.ndarray:
-    """Heights (float64 ``frame.shape``, mm) of stock ``bottom..top`` on the top-view
-    ``frame`` after ``tool`` (kind ``ball`` or ``flat``) followed ``moves``."""
+def cut_into(H: np.ndarray, frame, tool, moves: np.ndarray, bottom: float) -> None:
+    """Lower the heights ``H`` (float64 ``frame.shape``, mm, in place) of the top-view
+    ``frame`` by ``tool`` (kind ``ball`` or ``flat``) following ``moves``, floored at
+    ``bottom``. This is what the benchmark times."""
     if tool.kind not in ("ball", "flat"):
         raise ValueError(f"zmap baseline: tool kind {tool.kind!r} unsupported (expected ball or flat)")
     p0, p1 = tip_segments(moves)
-    H = np.full(frame.shape, float(top))
     zmap_cut(H, float(frame.origin[0]), float(frame.origin[1]), float(frame.spacing), p0, p1,
              float(tool.radius), tool.kind == "ball", float(bottom))
+
+
+def cut_program(frame, tool, moves: np.ndarray, top: float, bottom: float) -> np.ndarray:
+    """Heights (float64 ``frame.shape``, mm) of stock ``bottom..top`` on the top-view
+    ``frame`` after ``tool`` (kind ``ball`` or ``flat``) followed ``moves``."""
+    H = np.full(frame.shape, float(top))
+    cut_into(H, frame, tool, moves, bottom)
     return H
