@@ -17,7 +17,8 @@ straight tip segment ``p0[k] -> p1[k]`` (tool axis +Z), floored at ``bottom``:
   may fall either side.
 
 Per segment it loops over the rays of the segment's bounding box grown by R and keeps the
-minimum - no culling beyond the box, no tiles, one core (numba, no parallel loops). Arcs
+minimum - no culling beyond the box and a cheap per-ray reject (the ray's distance to the
+segment projected on XY, before the exact test), no tiles, one core (numba, no parallel loops). Arcs
 are not swept exactly: :func:`tip_segments` splits them into chords at most 0.05 mm long
 (the benchmark's programs are straight moves; only the pocket case has arcs).
 """
@@ -64,40 +65,43 @@ def tip_segments(moves: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 @nb.njit(cache=True, fastmath=False)
-def _ball_low(x, y, ax, ay, az, dx, dy, dz, R):
+def _ball_low(x, y, ax, ay, az, dx, dy, dz, R, n, ux, uy, uz, ex, ey, ez, A, inv_A, inv_dxy2):
     """Lowest z of the vertical line (x, y) inside the capsule of radius R about the
-    centre segment (ax, ay, az) + t (dx, dy, dz), t in [0, 1]; +inf if it misses."""
-    low = math.inf
+    centre segment (ax, ay, az) + t (dx, dy, dz), t in [0, 1]; +inf if it misses.
+
+    n: segment length; (ux, uy, uz): its unit direction (0 if n == 0); (ex, ey, ez): e_z
+    less its part along u, A its squared norm, inv_A = 1 / A; inv_dxy2 = 1 / (dx^2 + dy^2),
+    0 when the segment is vertical (all constant along a segment)."""
     R2 = R * R
-    for s in range(2):  # end spheres
-        cx, cy, cz = ax + s * dx, ay + s * dy, az + s * dz
+    # cheap reject: (x, y) farther than R from the segment projected on the XY plane
+    fx, fy = x - ax, y - ay
+    s = min(1.0, max(0.0, (fx * dx + fy * dy) * inv_dxy2))
+    gx, gy = fx - s * dx, fy - s * dy
+    if gx * gx + gy * gy > R2:
+        return math.inf
+    if n > 0.0 and A >= 1e-12:
+        # the lower root of the line against the infinite cylinder about the segment: when
+        # its foot lies on the segment it is the capsule's lowest point (the capsule is
+        # inside the cylinder); otherwise the lowest point lies on an end sphere
+        wx, wy, wz = fx, fy, -az  # the line's point at z = 0, from the segment start
+        wu = wx * ux + wy * uy + wz * uz
+        px, py, pz = wx - wu * ux, wy - wu * uy, wz - wu * uz
+        B = px * ex + py * ey + pz * ez
+        C = px * px + py * py + pz * pz - R2
+        disc = B * B - A * C
+        if disc >= 0.0:
+            z = (-B - math.sqrt(disc)) * inv_A
+            t = wu + z * uz  # foot of the root along the segment (mm)
+            if 0.0 <= t <= n:
+                return z
+    low = math.inf
+    for e in range(2):  # end spheres
+        cx, cy, cz = ax + e * dx, ay + e * dy, az + e * dz
         q = R2 - (x - cx) ** 2 - (y - cy) ** 2
         if q >= 0.0:
             z = cz - math.sqrt(q)
             if z < low:
                 low = z
-    n2 = dx * dx + dy * dy + dz * dz
-    if n2 < 1e-24:
-        return low
-    n = math.sqrt(n2)
-    ux, uy, uz = dx / n, dy / n, dz / n
-    # point on the line at z = 0 relative to the segment start; e_z; both less their part along u
-    wx, wy, wz = x - ax, y - ay, -az
-    wu = wx * ux + wy * uy + wz * uz
-    px, py, pz = wx - wu * ux, wy - wu * uy, wz - wu * uz
-    ex, ey, ez = -uz * ux, -uz * uy, 1.0 - uz * uz
-    A = ex * ex + ey * ey + ez * ez
-    if A < 1e-12:  # vertical segment: the spheres bound it
-        return low
-    B = px * ex + py * ey + pz * ez
-    C = px * px + py * py + pz * pz - R2
-    disc = B * B - A * C
-    if disc < 0.0:
-        return low
-    z = (-B - math.sqrt(disc)) / A
-    t = wu + z * uz  # foot of the root along the segment (mm)
-    if 0.0 <= t <= n and z < low:
-        low = z
     return low
 
 
@@ -140,12 +144,24 @@ def zmap_cut(H, x0, y0, spacing, p0, p1, R, ball, bottom):
         i1 = min(nu, int(math.ceil((max(ax, ax + dx) + R - x0) / spacing)) + 1)
         j0 = max(0, int(math.floor((min(ay, ay + dy) - R - y0) / spacing)))
         j1 = min(nv, int(math.ceil((max(ay, ay + dy) + R - y0) / spacing)) + 1)
+        n = math.sqrt(dx * dx + dy * dy + dz * dz)
+        ux = uy = uz = 0.0
+        if n > 1e-12:
+            ux, uy, uz = dx / n, dy / n, dz / n
+        else:
+            n = 0.0
+        ex, ey, ez = -uz * ux, -uz * uy, 1.0 - uz * uz
+        A = ex * ex + ey * ey + ez * ez
+        inv_A = 1.0 / A if A >= 1e-12 else 0.0
+        dxy2 = dx * dx + dy * dy
+        inv_dxy2 = 1.0 / dxy2 if dxy2 > 0.0 else 0.0
         for j in range(j0, j1):
             y = y0 + j * spacing
             for i in range(i0, i1):
                 x = x0 + i * spacing
                 if ball:
-                    z = _ball_low(x, y, ax, ay, az, dx, dy, dz, R)
+                    z = _ball_low(x, y, ax, ay, az, dx, dy, dz, R, n, ux, uy, uz, ex, ey, ez, A,
+                                  inv_A, inv_dxy2)
                 else:
                     z = _flat_low(x, y, ax, ay, az, dx, dy, dz, R)
                 if z < H[j, i]:
