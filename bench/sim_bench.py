@@ -250,7 +250,9 @@ def run_baseline_pairs(name: str, spec: str, shared: Path, pairs: int = 5) -> di
     absolute speeds drift with the machine's load; ``dexmon_s`` / ``baseline_s``: the
     medians. ``height_max_diff_mm``: largest |baseline - dexmon| over all rays (for the
     flat tool rays on a vertical wall may differ by the wall's height: ``rays_over_1um``
-    counts those); ``load_avg``: the 1, 5 and 15 min load averages after the run.
+    counts those); ``bracket_max_err_mm``: how far dexmon's heights lie outside the
+    baseline's with the radius 1e-6 mm smaller and larger (boundary rays accepted either
+    way); ``load_avg``: the 1, 5 and 15 min load averages after the run.
     """
     tool = parse_tool_spec(spec)
     moves = load_program(shared / CASES[name][0]).moves
@@ -270,6 +272,11 @@ def run_baseline_pairs(name: str, spec: str, shared: Path, pairs: int = 5) -> di
         ratios.append(tb / td)
     top = np.nan_to_num(grid.top().astype(np.float64), nan=STOCK[2])
     diff = np.abs(H - top)
+    bracket = []  # a ray within 1e-6 mm of the swept boundary may fall either side
+    for dr in (-1e-6, 1e-6):
+        bracket.append(np.full(frame.shape, STOCK[5]))
+        zmap_baseline.cut_into(bracket[-1], frame, tool, moves, STOCK[2], dr)
+    outside = np.maximum(0.0, np.maximum(top - np.maximum(*bracket), np.minimum(*bracket) - top))
     return {
         "case": name,
         "mode": "baseline_pairs",
@@ -283,6 +290,7 @@ def run_baseline_pairs(name: str, spec: str, shared: Path, pairs: int = 5) -> di
         "pairs": len(ratios),
         "height_max_diff_mm": float(f"{diff.max():.3g}"),
         "rays_over_1um": int((diff > 0.001).sum()),
+        "bracket_max_err_mm": float(f"{outside.max():.3g}"),
         "load_avg": [round(x, 2) for x in os.getloadavg()],
     }
 

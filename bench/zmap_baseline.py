@@ -168,15 +168,16 @@ def zmap_cut(H, x0, y0, spacing, p0, p1, R, ball, bottom):
                     H[j, i] = max(z, bottom)
 
 
-def cut_into(H: np.ndarray, frame, tool, moves: np.ndarray, bottom: float) -> None:
+def cut_into(H: np.ndarray, frame, tool, moves: np.ndarray, bottom: float, dr: float = 0.0) -> None:
     """Lower the heights ``H`` (float64 ``frame.shape``, mm, in place) of the top-view
     ``frame`` by ``tool`` (kind ``ball`` or ``flat``) following ``moves``, floored at
-    ``bottom``. This is what the benchmark times."""
+    ``bottom``. This is what the benchmark times. ``dr`` (mm) grows the tool radius, to
+    bracket rays lying on the swept boundary."""
     if tool.kind not in ("ball", "flat"):
         raise ValueError(f"zmap baseline: tool kind {tool.kind!r} unsupported (expected ball or flat)")
     p0, p1 = tip_segments(moves)
     zmap_cut(H, float(frame.origin[0]), float(frame.origin[1]), float(frame.spacing), p0, p1,
-             float(tool.radius), tool.kind == "ball", float(bottom))
+             float(tool.radius) + dr, tool.kind == "ball", float(bottom))
 
 
 def cut_program(frame, tool, moves: np.ndarray, top: float, bottom: float) -> np.ndarray:
