@@ -19,6 +19,12 @@ evaluation of the exact swept surface at every ray (numpy, vertical line against
 move's capsule / flat disk sweep; arcs sampled every 0.01 mm; rays within 1e-6 mm of
 the swept boundary may fall either side): height_max_err_mm and rays_over_1um. The cut runs on one core (numba, no parallel loops); numba is warmed up
 first so compilation is not timed.
+
+Then, per ``BASELINE_RUNS`` entry (ball and flat on ``wavy_finish``), a line with
+``mode: baseline_pairs``: dexmon's plain cut and the straightforward z-map kernel of
+``bench/zmap_baseline.py`` timed in ``--pairs`` interleaved pairs in this process;
+``ratio_median`` (baseline seconds / dexmon seconds, median of the pairs) is the figure
+to quote (see :func:`run_baseline_pairs`).
 """
 
 from __future__ import annotations
@@ -26,7 +32,9 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import resource
+import statistics
 import sys
 import time
 from pathlib import Path
@@ -44,10 +52,14 @@ from sim.grid import DexelGrid  # noqa: E402
 from sim.sweep import arc_points  # noqa: E402
 from sim.tools import parse_tool_spec  # noqa: E402
 
+from bench import zmap_baseline  # noqa: E402
+
 CASES = {
     "wavy_finish": ("bench/wavy_finish.nc", "ball:6:L=20"),
     "pocket_rough": ("bench/pocket_rough.nc", "flat:6:L=25"),
 }
+#: (case, tool) pairs timed against the baseline z-map kernel (bench/zmap_baseline.py)
+BASELINE_RUNS = (("wavy_finish", "ball:6:L=20"), ("wavy_finish", "flat:6:L=20"))
 STOCK = (0.0, 0.0, 0.0, 100.0, 100.0, 20.0)
 RESOLUTION = 0.1
 
@@ -212,6 +224,77 @@ def run_case(name: str, shared: Path, check: bool, repeat: int = 3, mode: str = 
     return out
 
 
+def _time_dexmon(tool, moves) -> tuple[float, DexelGrid]:
+    """Wall seconds of dexmon's plain cut of ``moves`` into fresh stock, and the grid."""
+    grid = stock_grid()
+    cutter = Cutter(grid, tool)
+    w0 = time.perf_counter()
+    cutter.cut_moves(moves, record_changes=False)
+    return time.perf_counter() - w0, grid
+
+
+def _time_baseline(tool, moves, frame: Frame) -> tuple[float, np.ndarray]:
+    """Wall seconds of the baseline z-map cut of ``moves`` into fresh stock, and its heights."""
+    H = np.full(frame.shape, STOCK[5])
+    w0 = time.perf_counter()
+    zmap_baseline.cut_into(H, frame, tool, moves, STOCK[2])
+    return time.perf_counter() - w0, H
+
+
+def run_baseline_pairs(name: str, spec: str, shared: Path, pairs: int = 5) -> dict:
+    """dexmon's plain cut against the baseline z-map kernel, timed in interleaved pairs.
+
+    Each pair cuts fresh stock once with each (the order alternates from pair to pair so
+    a drifting machine load favours neither). ``ratio_median``: median over the pairs of
+    baseline seconds / dexmon seconds (> 1: dexmon is faster) - the figure to quote, as
+    absolute speeds drift with the machine's load; ``dexmon_s`` / ``baseline_s``: the
+    medians. ``height_max_diff_mm``: largest |baseline - dexmon| over all rays (for the
+    flat tool rays on a vertical wall may differ by the wall's height: ``rays_over_1um``
+    counts those); ``bracket_max_err_mm``: how far dexmon's heights lie outside the
+    baseline's with the radius 1e-6 mm smaller and larger (boundary rays accepted either
+    way); ``load_avg``: the 1, 5 and 15 min load averages after the run.
+    """
+    tool = parse_tool_spec(spec)
+    moves = load_program(shared / CASES[name][0]).moves
+    warm_up(tool, moves)
+    frame = stock_grid().frame
+    zmap_baseline.cut_program(Frame.top(0, 0, 20, 20, RESOLUTION), tool, moves[:50], STOCK[5], STOCK[2])
+    dexmon_s, baseline_s, ratios = [], [], []
+    for k in range(max(1, pairs)):
+        if k % 2 == 0:
+            td, grid = _time_dexmon(tool, moves)
+            tb, H = _time_baseline(tool, moves, frame)
+        else:
+            tb, H = _time_baseline(tool, moves, frame)
+            td, grid = _time_dexmon(tool, moves)
+        dexmon_s.append(td)
+        baseline_s.append(tb)
+        ratios.append(tb / td)
+    top = np.nan_to_num(grid.top().astype(np.float64), nan=STOCK[2])
+    diff = np.abs(H - top)
+    bracket = []  # a ray within 1e-6 mm of the swept boundary may fall either side
+    for dr in (-1e-6, 1e-6):
+        bracket.append(np.full(frame.shape, STOCK[5]))
+        zmap_baseline.cut_into(bracket[-1], frame, tool, moves, STOCK[2], dr)
+    outside = np.maximum(0.0, np.maximum(top - np.maximum(*bracket), np.minimum(*bracket) - top))
+    return {
+        "case": name,
+        "mode": "baseline_pairs",
+        "tool": spec,
+        "moves": int(len(moves)),
+        "rays": frame.n_rays,
+        "dexmon_s": round(statistics.median(dexmon_s), 4),
+        "baseline_s": round(statistics.median(baseline_s), 4),
+        "ratio_median": round(statistics.median(ratios), 3),
+        "ratios": [round(r, 3) for r in ratios],
+        "pairs": len(ratios),
+        "height_max_diff_mm": float(f"{diff.max():.3g}"),
+        "rays_over_1um": int((diff > 0.001).sum()),
+        "bracket_max_err_mm": float(f"{outside.max():.3g}"),
+        "load_avg": [round(x, 2) for x in os.getloadavg()],
+    }
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--shared", default=str(ROOT.parent / "shared"))
@@ -220,6 +303,8 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=3, help="runs per case; the best is reported (default 3)")
     ap.add_argument("--mode", choices=["plain", "record", "journal"], action="append",
                     help="what the cut records (default: plain and journal)")
+    ap.add_argument("--pairs", type=int, default=5,
+                    help="interleaved dexmon/baseline pairs per baseline run (default 5; 0: none)")
     args = ap.parse_args(argv)
     shared = Path(args.shared)
     if not shared.is_dir():
@@ -229,6 +314,9 @@ def main(argv=None) -> int:
         for mode in args.mode or ["plain", "journal"]:
             print(json.dumps(run_case(name, shared, not args.no_check and mode == "plain",
                                       args.repeat, mode)), flush=True)
+    for name, spec in BASELINE_RUNS:
+        if args.pairs > 0 and name in (args.case or list(CASES)):
+            print(json.dumps(run_baseline_pairs(name, spec, shared, args.pairs)), flush=True)
     return 0
 
 
