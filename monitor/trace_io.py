@@ -224,14 +224,22 @@ class RunView:
 
     @cached_property
     def job(self):
+        """The run's job (``monitor.job.Job``) or None: its recorded TOML with relative paths
+        resolved against the run file's folder, else the program's folder (where a job file
+        sits beside its program, the run recorded elsewhere), else the current folder."""
         text = self.meta.get("job")
         if not text:
             return None
-        try:
-            from monitor.job import parse_job_text
-            return parse_job_text(text, name=f"{self.path.name}:job", base=self.path.parent)
-        except Exception:  # a job that no longer parses (moved files) still replays without it
-            return None
+        from monitor.job import parse_job_text
+
+        program = Path(self.meta.get("program_path") or "")
+        bases = [self.path.parent] + ([program.parent] if program.is_absolute() else []) + [Path.cwd()]
+        for base in bases:
+            try:
+                return parse_job_text(text, name=f"{self.path.name}:job", base=base)
+            except Exception:  # noqa: BLE001 - try the next folder; a run replays without its job
+                continue
+        return None
 
     def tool(self, number: int = 0):
         """The sim Tool for tool number ``number`` if the job names one, else None."""

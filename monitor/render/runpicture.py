@@ -90,29 +90,6 @@ def stage_at_time(view, seconds: float) -> int:
     return int(tab["stage"][k[-1]]) if k.size else view.first_stage
 
 
-def run_job(view):
-    """The run's job (``monitor.job.Job``) or None: its recorded TOML with relative paths
-    resolved against the run file's folder, else the program's folder (where a job file
-    sits beside its program), else the current folder."""
-    from pathlib import Path
-
-    from monitor.job import parse_job_text
-
-    if view.job is not None:
-        return view.job
-    text = view.meta.get("job")
-    if not text:
-        return None
-    program = view.meta.get("program_path") or ""
-    bases = ([Path(program).parent] if Path(program).is_absolute() else []) + [Path.cwd()]
-    for base in bases:
-        try:
-            return parse_job_text(text, name=f"{view.path.name}:job", base=base)
-        except Exception:  # noqa: BLE001 - try the next folder; a run replays without its job
-            continue
-    return None
-
-
 def run_tools(view, job=None) -> tuple[dict, object]:
     """``({tool number: sim.tools.Tool}, default Tool or None)`` of the run: the job's
     tools (with shank and holder) for the numbers its moves use, else the run's one tool."""
@@ -134,7 +111,7 @@ def load_design(view, frame, design_path=None, tol=None):
     from sim.checks.error_map import DesignModel
     from sim.tolerance import DEFAULT
 
-    job = run_job(view)
+    job = view.job
     tol = tol or (job.tolerance if job is not None else DEFAULT)
     if design_path is not None:
         return DesignModel(frame, design_path, name=str(design_path)), tol
@@ -199,7 +176,7 @@ class RunPictures:
                  findings: bool = True):
         self.view = view
         full = view.frame
-        self.tools, self.tool = ({}, tool) if tool is not None else run_tools(view, run_job(view))
+        self.tools, self.tool = ({}, tool) if tool is not None else run_tools(view, view.job)
         h0, _ = view.state_at(view.first_stage)
         reach = float(getattr(self.tool, "cutting_radius", 0.0) or 0.0) + CROP_MARGIN_MM
         self.box = j0, j1, i0, i1 = crop_box(h0, int(np.ceil(reach / full.spacing)))

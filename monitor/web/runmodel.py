@@ -76,7 +76,7 @@ class RunModel:
 
     def tool(self):
         """The run's first tool (sim Tool), or None when the run file does not say it."""
-        return self.view.tool() or _tool_from_job(self.view)
+        return self.view.tool()
 
     @property
     def moves(self):
@@ -89,25 +89,6 @@ def listing_window(lines: list[str], line: int) -> list[dict]:
     lo = max(1, centre - LISTING_BEFORE)
     hi = min(len(lines), max(lo + LISTING_BEFORE + LISTING_AFTER, centre + LISTING_AFTER))
     return [{"n": n, "text": lines[n - 1], "current": n == line} for n in range(lo, hi + 1)]
-
-
-def _tool_from_job(view):
-    """The job's first tool, its file names read beside the recorded program (a job whose
-    files stay where they were, recorded elsewhere); None when that does not parse."""
-    from pathlib import Path
-
-    text, program = view.meta.get("job"), view.meta.get("program_path")
-    if not text or not program:
-        return None
-    try:
-        from monitor.job import parse_job_text
-        from sim.tools import parse_tool_spec
-
-        job = parse_job_text(text, name=f"{view.path.name}:job", base=Path(program).parent)
-        td = job.tool(0) or job.default_tool or next(iter(job.tools.values()), None)
-        return parse_tool_spec(td.spec) if td is not None and getattr(td, "spec", None) else None
-    except Exception:  # noqa: BLE001 - files moved: the view shows no tool
-        return None
 
 
 def finding_item(i: int, f: dict, model: RunModel | None = None) -> dict:

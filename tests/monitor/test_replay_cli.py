@@ -260,3 +260,14 @@ def test_finding_moments_take_the_stage_cut_time_else_the_program_time(recorded)
                                      {"kind": "gouge"}])
     # record_run stamps stage n's cut at n * 0.1 s and writes no states: times from 0
     assert got[0] == (4, pytest.approx(0.4)) and got[1] == (None, 7.5) and got[2] == (None, None)
+
+
+def test_a_run_recorded_away_from_its_job_still_knows_its_job_and_tool(tmp_path):
+    # the bundled job names its files relative to its own folder; the run file is written
+    # elsewhere: replay, report and the browser view all read the job through RunView.job
+    run = tmp_path / "elsewhere" / "face.dexrun"
+    run.parent.mkdir()
+    assert main(["dry-run", "--clock", "sim", "--speed", "50", "--quiet", "--run", str(run)]) == 1
+    with RunView(run) as view:
+        assert view.job is not None
+        assert view.tool() is not None and view.tool().diameter == pytest.approx(6.0)
