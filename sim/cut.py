@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from sim import bands
 from sim import dexel_store as ds
 from sim import sweep
 from sim import sweep_kernels as K
@@ -171,16 +172,6 @@ class _Log:
         self.s_top = self.s_len = _EMPTY_F64
 
 
-#: buffers of a kernel call that records nothing (never written)
-_NO_LOG = (np.zeros(1, np.int64), np.zeros(1, np.float32), np.zeros(1, np.int64), np.zeros(1, np.int64),
-           np.zeros(1, np.float32), np.zeros(1, np.float32), np.zeros(1, np.int32), np.zeros(1, np.int32),
-           np.zeros(1), np.zeros(1))
-#: trace buffers of a kernel call that traces nothing (never written)
-_NO_TRACE = (np.zeros(1, np.int32), np.zeros(1, np.float32), np.zeros(1, np.int32), np.zeros(1, np.int32),
-             np.zeros(1, np.int16), np.zeros(1, np.float32), np.zeros(1, np.float32), np.zeros(1, np.int32),
-             np.zeros(1, np.int32), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int64),
-             np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int64))
-_NO_TS = np.zeros(K.TRACE_STATE_SIZE, np.int64)
 
 
 class _Work:
@@ -231,10 +222,12 @@ class Cutter:
     grid: the :class:`DexelGrid` to cut (changed in place). tool: the :class:`Tool`.
     tools: optional ``{tool number: Tool}``; when given, :meth:`cut_moves` follows the
     ``tool`` column of the move table (rows whose tool is not in the dict use ``tool``).
+    threads: how many threads a large batch may cut on (bands of rows, :mod:`sim.bands`);
+    default :func:`sim.bands.default_threads`; 1 keeps every cut on the calling thread.
     """
 
     def __init__(self, grid: DexelGrid, tool: Tool, tol: Tolerance = DEFAULT,
-                 tools: dict[int, Tool] | None = None):
+                 tools: dict[int, Tool] | None = None, threads: int | None = None):
         if not isinstance(grid, DexelGrid):
             raise InputError(f"Cutter needs a DexelGrid, got {type(grid).__name__}")
         if not isinstance(tool, Tool):
@@ -243,6 +236,7 @@ class Cutter:
         self.tool = tool
         self.tol = tol
         self.tools = dict(tools or {})
+        self.threads = bands.default_threads() if threads is None else max(1, int(threads))
         self._top = grid.frame.is_top  # frames are immutable; asked on every batch
         self._params: dict[int, tuple] = {}  # id(body) -> (body, kernel parameters)
 
@@ -482,19 +476,7 @@ class Cutter:
             if tp is None or tp[0] is not body:
                 tp = self._params[id(body)] = (body, sweep.body_params(body))
             tp = tp[1]
-            if sink is not None:  # the rays within reach of each segment bound its changes
-                if len(sm) > 1 and np.any(sm[1:] == sm[:-1]):
-                    sink.need_marks()
-                reach = tp[6] / f.spacing + 1.0
-                run = np.hypot(*(p1[:, :2] - p0[:, :2]).T) / f.spacing
-                sink.reserve(min(int(np.sum((run + 2 * reach) * 2 * reach)), 32 * f.n_rays + len(p0) * 64))
-            top_bound = np.inf
-            if len(p0) >= 64 and not probe:  # lets chained moves skip rays already cut
-                tops = grid.top()
-                top_bound = float(np.nanmax(tops)) if np.isfinite(tops).any() else -np.inf
-            self._loop(lambda S, st, B, T, ts: K.cut_linear_batch(
-                S, f.origin[0], f.origin[1], f.spacing, f.nu, f.nv, p0, p1, sm, sid, tp, eps,
-                probe, record, journal, removed, B, st, sink is not None, T, ts, top_bound), log, sink)
+            self._cut_linear(p0, p1, sm, sid, tp, removed, probe, log, sink)
         tips, axes, pm, pid = work.pose_arrays()
         if len(tips):
             prof = sweep.body_profile(body)
@@ -509,6 +491,40 @@ class Cutter:
                 S, f.spacing, f.nu, f.nv, tips_l, axes_l, pm, pid, prof, rmax, eps, probe, record,
                 journal, removed, B, st, sink is not None, T, ts), log, sink)
 
+    def _cut_linear(self, p0, p1, sm, sid, tp, removed, probe: bool, log: _Log | None, sink) -> None:
+        """The exact sweep of straight segments (see ``K.cut_linear_batch``): on bands of
+        rows on several threads when the batch is large (:mod:`sim.bands`), else here."""
+        grid = self.grid
+        f = grid.frame
+        eps = self.tol.length
+        record = log is not None
+        journal = record and log.journal
+        traced = sink is not None
+        reach = bands.reach_rays(p0, p1, tp[6], f.spacing)
+        events = min(int(reach.sum()), 32 * f.n_rays + len(p0) * 64)  # bounds the changes
+        if traced and len(sm) > 1 and np.any(sm[1:] == sm[:-1]):
+            sink.need_marks()
+        top_bound = np.inf
+        if len(p0) >= 64 and not probe:  # lets chained moves skip rays already cut
+            tops = grid.top()
+            top_bound = float(np.nanmax(tops)) if np.isfinite(tops).any() else -np.inf
+        bounds = None
+        if self.threads > 1 and not probe and not journal and reach.sum() >= bands.MIN_PARALLEL_RAYS:
+            bounds = bands.plan_bands(p0, p1, tp[6], f.origin[1], f.spacing, f.nv, self.threads)
+        if bounds is not None and len(bounds) > 2:
+            def band_cut(S, st, B, T, ts, rem, band, segs):
+                a, b = segs
+                return K.cut_linear_batch(S, f.origin[0], f.origin[1], f.spacing, f.nu, f.nv, p0[a:b],
+                                          p1[a:b], sm[a:b], sid[a:b], tp, eps, False, record, False, rem,
+                                          B, st, traced, T, ts, top_bound, band[0], band[1])
+            bands.cut_in_bands(grid, band_cut, sm, bounds, removed, log, sink, events, self.threads)
+            return
+        if traced:
+            sink.reserve(events)
+        self._loop(lambda S, st, B, T, ts: K.cut_linear_batch(
+            S, f.origin[0], f.origin[1], f.spacing, f.nu, f.nv, p0, p1, sm, sid, tp, eps,
+            probe, record, journal, removed, B, st, traced, T, ts, top_bound), log, sink)
+
     def _loop(self, call, log: _Log | None, sink=None) -> None:
         """Call a batch kernel until it is done, growing the pool, the log's buffers and
         the trace's columns, and letting the trace take its keyframes."""
@@ -518,9 +534,9 @@ class Cutter:
             state[3] = log.n
             state[5] = log.nj
         while True:
-            status = call(self.grid.S, state, _NO_LOG if log is None else log.buffers(),
-                          _NO_TRACE if sink is None else sink.buffers(),
-                          _NO_TS if sink is None else sink.ts)
+            status = call(self.grid.S, state, K.NO_LOG if log is None else log.buffers(),
+                          K.NO_TRACE if sink is None else sink.buffers(),
+                          K.NO_TS if sink is None else sink.ts)
             if status == K.DONE:
                 break
             if status == K.STOP_TRACE:

@@ -7,6 +7,7 @@ Layout (``n`` rays, flat index ``r = j*nu + i``)::
     near_id[r], far_id[r]         int32   id of the move that made each face (0 = stock)
     xstart[r], xcap[r]            int32   block in the pool holding segments 1..count-1
     pool_near/far/near_id/far_id  (P,)    the pool; ``pool_top[0]`` = first free slot
+                                          (a second element, if any, ends the free range)
 
 Segments on a ray are sorted, disjoint and longer than ``eps``. Most rays hold one
 segment, which lives in the dense first-segment arrays; only rays that need more get a
@@ -124,7 +125,9 @@ def _reserve(S, r, n_segments):
         return True
     cap = max(need, 2 * S[6][r], 2)
     top = S[11][0]
-    if top + cap > S[7].size:
+    # a band of a parallel cut takes blocks from its own range [top, end) of the pool
+    end = S[7].size if S[11].size < 2 else S[11][1]
+    if top + cap > end:
         return False
     old = S[5][r]
     for k in range(S[0][r] - 1):

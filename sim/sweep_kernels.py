@@ -854,9 +854,10 @@ def _trace_due(ts, mv):
     return False
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps, probe,
-                     record, journal, removed, B, state, trace, T, ts, top_bound=np.inf):
+                     record, journal, removed, B, state, trace, T, ts, top_bound=np.inf,
+                     band0=0, band1=1 << 62):
     """Sweep the body ``tp`` along each straight tip move ``P0[k] -> P1[k]`` and cut it.
 
     S: store tuple; grid rays at ``(gx0 + i*sp, gy0 + j*sp)``, ``nu x nv`` of them.
@@ -878,6 +879,8 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     again) and TRACE_KEYFRAME (a keyframe fell due after move ``ts[TS_KEY_MOVE]``: take it
     from the model as it is now, call again).
     top_bound: no material anywhere lies above this (mm; ``inf`` when unknown).
+    band0, band1: touch only rows ``band0 <= j < band1`` (a band of :mod:`sim.bands`;
+    the kernel holds no lock, so bands of one store run on threads at the same time).
 
     A move that starts exactly where the batch's previous move ended skips the rays
     whose lowest point of the sweep lies at the start (behind it): the previous move's
@@ -981,8 +984,9 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
         xmax = max(x0, x0 + dx)
         ymin = min(y0, y0 + dy)
         ymax = max(y0, y0 + dy)
-        jlo = max(0, int(math.ceil((ymin - Rc - gy0) / sp)))
-        jhi = min(nv - 1, int(math.floor((ymax + Rc - gy0) / sp)))
+        jlo = max(band0, int(math.ceil((ymin - Rc - gy0) / sp)))
+        jhi = min(nv, band1) - 1
+        jhi = min(jhi, int(math.floor((ymax + Rc - gy0) / sp)))
         if jhi < jlo:
             continue
         skip_behind = False
@@ -1440,3 +1444,15 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
     _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
     _save(state, n, -1, -1, nout, mc)
     return DONE
+
+
+#: buffers of a kernel call that records nothing (never written)
+NO_LOG = (np.zeros(1, np.int64), np.zeros(1, np.float32), np.zeros(1, np.int64), np.zeros(1, np.int64),
+          np.zeros(1, np.float32), np.zeros(1, np.float32), np.zeros(1, np.int32), np.zeros(1, np.int32),
+          np.zeros(1), np.zeros(1))
+#: trace buffers of a kernel call that traces nothing (never written)
+NO_TRACE = (np.zeros(1, np.int32), np.zeros(1, np.float32), np.zeros(1, np.int32), np.zeros(1, np.int32),
+            np.zeros(1, np.int16), np.zeros(1, np.float32), np.zeros(1, np.float32), np.zeros(1, np.int32),
+            np.zeros(1, np.int32), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int64),
+            np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros(1, np.int64))
+NO_TS = np.zeros(TRACE_STATE_SIZE, np.int64)

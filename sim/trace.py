@@ -1227,9 +1227,28 @@ class _Sink:
         self.z._f_id.n = int(ts[K.TS_NF])
 
     def buffers(self) -> tuple:
+        return (*(c.buf for c in self.cols), *self.blk[:3], *self.marks(), self.gen, self.blk[3])
+
+    def marks(self) -> tuple[np.ndarray, np.ndarray]:
+        """The per-ray (mark, slot) arrays, or placeholders until :meth:`need_marks`."""
         z = self.z
-        mark, slot = (z._mark, z._slot) if z._mark is not None else (_NO_MARK, _NO_MARK)
-        return (*(c.buf for c in self.cols), *self.blk[:3], mark, slot, self.gen, self.blk[3])
+        return (z._mark, z._slot) if z._mark is not None else (_NO_MARK, _NO_MARK)
+
+    def make_room(self, n_far: int, n_general: int, n_segments: int, n_runs: int) -> None:
+        """Room for this many more far events, general events, their segments and runs
+        (``sim.bands`` merges what its bands recorded into the columns)."""
+        self._sync_counts()
+        for c, extra in zip((*self.cols, self.z._f_id),
+                            (n_runs, n_far, n_runs, n_general, n_general, *(n_segments,) * 4, n_far)):
+            c.grow_to(c.n + int(extra) + 1)
+
+    def chunk_done(self, mv: int) -> None:
+        """Moves up to ``mv`` are in the columns (a chunk of ``sim.bands``): take a keyframe
+        of the model now if one fell due (bands run with keyframes off)."""
+        self._sync_counts()
+        ts = self.ts
+        if self.inline and int(ts[K.TS_NF] + ts[K.TS_NG]) >= ts[K.TS_NEXT_DUE]:
+            self._snapshot(mv)
 
     def need_marks(self) -> None:
         """The moves to come may change a ray more than once (arc chords, instances of

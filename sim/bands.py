@@ -1,0 +1,397 @@
+"""The exact linear batch cut on every core: bands of rows on threads, merged move by move.
+
+A ray's material depends only on the moves that reach it and on their order, so disjoint
+bands of rows can be cut at the same time by independent calls of
+:func:`sim.sweep_kernels.cut_linear_batch` (its ``band0, band1`` clamp), each taking every
+segment but touching only its own rows. The kernel holds no lock, so the calls run on
+threads. What a band records per move (the length removed, changed rays, trace events)
+goes to buffers of its own and is merged move by move, band by band: within a move the
+one-core kernel visits the rays row by row, so band order is its order, and heights,
+face ids, the change log and the trace's events come out as one core makes them. (A move
+of several segments, an arc's chords, lists its far events in the order the rays were
+first reached, chord by chord on one core, band by band here: the same events, each ray
+once per block, in another order.)
+
+The pool of the store (rays of several segments) is shared: each band takes new blocks
+from a range of its own (its ``pool_top`` carries ``[top, end]``). A band that runs out,
+or fills its log or trace buffers, stops; the calling thread grows what is full between
+rounds and sends it on, so no thread grows an array another one is writing.
+
+Logged or traced batches are cut in chunks of whole moves: the band buffers stay small,
+and the trace's keyframes fall due at a chunk's end (the same chunks whatever the number
+of bands, so the trace is the same).
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+
+import numba as nb
+import numpy as np
+
+from sim import dexel_store as ds
+from sim import sweep_kernels as K
+
+#: a band holds at least this many rows (a thinner one is mostly overhead)
+MIN_BAND_ROWS = 16
+#: segments per chunk of a logged or traced batch
+CHUNK_SEGMENTS = 4096
+#: below this many rays within reach of a batch, one core is faster than handing off
+MIN_PARALLEL_RAYS = 200_000
+
+_pool: ThreadPoolExecutor | None = None
+
+
+def default_threads() -> int:
+    """Threads a cut may use: ``DEXMON_THREADS`` if set, else the cores this process may run on."""
+    env = os.environ.get("DEXMON_THREADS", "").strip()
+    if env:
+        try:
+            return max(1, int(env))
+        except ValueError:
+            raise ValueError(f"DEXMON_THREADS={env!r}: expected a whole number of threads") from None
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _executor(threads: int) -> ThreadPoolExecutor:
+    global _pool
+    if _pool is None or _pool._max_workers < threads:
+        _pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="dexmon-band")
+    return _pool
+
+
+def reach_rays(p0: np.ndarray, p1: np.ndarray, reach: float, spacing: float) -> np.ndarray:
+    """Rays within reach of each segment, about: float64 (n,) from tips (n, 3) mm, the
+    body's largest radius ``reach`` and the ray spacing (mm)."""
+    run = np.hypot(*(p1[:, :2] - p0[:, :2]).T) / spacing
+    r = reach / spacing + 1.0
+    return (run + 2 * r) * 2 * r
+
+
+def plan_bands(p0: np.ndarray, p1: np.ndarray, reach: float, origin_y: float, spacing: float,
+               nv: int, n_bands: int) -> np.ndarray:
+    """Row bounds (int64 (m + 1,), 0 ... nv) of ``m <= n_bands`` bands holding about the same
+    work: each segment's rays within reach spread evenly over the rows it spans."""
+    j0 = np.floor((np.minimum(p0[:, 1], p1[:, 1]) - reach - origin_y) / spacing)
+    j1 = np.ceil((np.maximum(p0[:, 1], p1[:, 1]) + reach - origin_y) / spacing) + 1
+    j0 = np.clip(j0, 0, nv).astype(np.int64)
+    j1 = np.clip(j1, 0, nv).astype(np.int64)
+    rows = np.maximum(j1 - j0, 1)
+    per_row = reach_rays(p0, p1, reach, spacing) / rows
+    density = np.zeros(nv + 1)
+    np.add.at(density, j0, per_row)
+    np.add.at(density, j1, -per_row)
+    work = np.cumsum(np.cumsum(density)[:nv])
+    n_bands = max(1, min(n_bands, nv // MIN_BAND_ROWS))
+    if work[-1] <= 0 or n_bands == 1:
+        return np.array([0, nv], np.int64)
+    cuts = np.searchsorted(work, work[-1] * np.arange(1, n_bands) / n_bands)
+    bounds = np.unique(np.concatenate([[0], cuts, [nv]])).astype(np.int64)
+    # no band thinner than MIN_BAND_ROWS: merge a thin one into its neighbour
+    keep = [0]
+    for b in bounds[1:-1]:
+        if b - keep[-1] >= MIN_BAND_ROWS and nv - b >= MIN_BAND_ROWS:
+            keep.append(int(b))
+    keep.append(nv)
+    return np.array(keep, np.int64)
+
+
+def chunk_bounds(seg_move: np.ndarray, chunk: int) -> list[tuple[int, int]]:
+    """Segment ranges ``[a, b)`` of about ``chunk`` segments that never split a move."""
+    n = len(seg_move)
+    out = []
+    a = 0
+    while a < n:
+        b = min(a + chunk, n)
+        while b < n and seg_move[b] == seg_move[b - 1]:
+            b += 1
+        out.append((a, b))
+        a = b
+    return out
+
+
+class _Buffers:
+    """Per-band arrays, one row per band (a row of a C array is the 1-D array a kernel
+    takes). Grown only between rounds, by the calling thread."""
+
+    def __init__(self, n_bands: int, spec: dict[str, tuple[int, type]]):
+        self.n_bands = n_bands
+        self.a = {name: np.empty((n_bands, size), dtype) for name, (size, dtype) in spec.items()}
+
+    def row(self, name: str, t: int) -> np.ndarray:
+        return self.a[name][t]
+
+    def grow(self, names, size: int) -> None:
+        for name in names:
+            old = self.a[name]
+            if old.shape[1] < size:
+                new = np.empty((self.n_bands, max(size, old.shape[1] + old.shape[1] // 2)), old.dtype)
+                new[:, :old.shape[1]] = old
+                self.a[name] = new
+
+
+class _BandLogs(_Buffers):
+    """The change logs of the bands (see ``sweep_kernels.finish_move``), no journal."""
+
+    _DUMMY = (np.zeros(1, np.int64), np.zeros(1, np.float32), np.zeros(1, np.float32),
+              np.zeros(1, np.int32), np.zeros(1, np.int32))
+
+    def __init__(self, n_bands: int, n_moves: int):
+        super().__init__(n_bands, {"ray": (1 << 14, np.int64), "depth": (1 << 14, np.float32),
+                                   "s_top": (1 << 12, np.float64), "s_len": (1 << 12, np.float64)})
+        self.counts = np.zeros((n_bands, n_moves), np.int64)
+
+    def buffers(self, t: int) -> tuple:
+        jptr, jn, jf, jni, jfi = self._DUMMY
+        return (self.row("ray", t), self.row("depth", t), jptr, self.counts[t], jn, jf, jni, jfi,
+                self.row("s_top", t), self.row("s_len", t))
+
+    def grow_for(self, state: np.ndarray) -> None:
+        used, cur = int(state[3]), int(state[4])
+        self.grow(("ray", "depth"), used + cur + 1)
+        self.grow(("s_top", "s_len"), cur + 1)
+
+
+_TRACE_COLS = (("rs", np.int32), ("f_val", np.float32), ("rl", np.int32), ("g_ray", np.int32),
+               ("g_count", np.int16), ("g_near", np.float32), ("g_far", np.float32),
+               ("g_nid", np.int32), ("g_fid", np.int32))
+
+
+class _BandTraces(_Buffers):
+    """The trace events of the bands, in the kernels' column order (see
+    ``sweep_kernels`` trace sink), and a trace state per band."""
+
+    def __init__(self, n_bands: int, n_moves: int, sink, events: int):
+        cap = max(int(events) + 4096, 1 << 12)
+        spec = {name: (cap if k < 3 else 1024, dt) for k, (name, dt) in enumerate(_TRACE_COLS)}
+        spec["gen"] = (4096, np.int64)
+        super().__init__(n_bands, spec)
+        self.blk = np.full((4, n_bands, max(n_moves, 1)), -1, np.int64)
+        self.sink = sink
+        self.ts = np.zeros((n_bands, K.TRACE_STATE_SIZE), np.int64)
+
+    def start_chunk(self, m0: int, m1: int) -> None:
+        ts = self.ts
+        ts[:] = 0
+        ts[:, K.TS_OPEN] = -1
+        ts[:, K.TS_BLK0] = self.sink.ts[K.TS_BLK0]
+        ts[:, K.TS_NEXT_DUE] = np.iinfo(np.int64).max   # keyframes: at chunk ends only
+        self.blk[:, :, m0:m1] = -1
+
+    def buffers(self, t: int) -> tuple:
+        mark, slot = self.sink.marks()
+        cols = tuple(self.row(name, t) for name, _ in _TRACE_COLS)
+        return (*cols, self.blk[0, t], self.blk[1, t], self.blk[2, t], mark, slot,
+                self.row("gen", t), self.blk[3, t])
+
+    def grow_for(self, t: int) -> None:
+        """Room for what band ``t`` stopped on (as ``sim.trace._Sink.grow`` does)."""
+        ts = self.ts[t]
+        need_f = max(int(ts[K.TS_NF]) + 1, int(ts[K.TS_NEED_F]))
+        need_r = int(ts[K.TS_NR]) + max(need_f - int(ts[K.TS_NF]), 1)
+        self.grow(("f_val",), need_f)
+        self.grow(("rs", "rl"), need_r)
+        self.grow(("gen",), max(int(ts[K.TS_NGL]) + 1, int(ts[K.TS_NEED_GEN])))
+        self.grow(("g_ray", "g_count"), int(ts[K.TS_NEED_G]))
+        self.grow(("g_near", "g_far", "g_nid", "g_fid"), int(ts[K.TS_NEED_S]))
+
+    def totals(self) -> tuple[int, int, int, int]:
+        """Far events, general events, their segments and runs over all bands."""
+        ts = self.ts
+        return (int(ts[:, K.TS_NF].sum()), int(ts[:, K.TS_NG].sum()), int(ts[:, K.TS_NS].sum()),
+                int(ts[:, K.TS_NR].sum()))
+
+
+def cut_in_bands(grid, kernel, seg_move: np.ndarray, bounds: np.ndarray, removed: np.ndarray,
+                 log=None, sink=None, events: int = 0, threads: int | None = None) -> None:
+    """Run a linear batch cut band by band on threads, and merge what the bands recorded.
+
+    kernel(S, state, B, T, ts, removed, band, segs): one call of ``cut_linear_batch`` on
+    rows ``band = (j0, j1)`` and the slice ``segs = (a, b)`` of the segment arrays,
+    returning the kernel's status (``state[0]``, counted from the slice's start, says
+    where to begin: the slice holds one segment before the chunk, for the kernel to look
+    back at).
+    bounds: row bounds of the bands (:func:`plan_bands`); removed: float64 (n_moves,)
+    accumulates the length removed per move (mm). log: the cutter's change log (no
+    journal) or None; sink: the trace sink (``sim.trace._Sink``) or None; events: about
+    how many trace events the batch makes (buffer sizes).
+    """
+    n_bands = len(bounds) - 1
+    n_moves = removed.size
+    threads = min(threads or default_threads(), n_bands)
+    store = grid.store
+    rem = np.zeros((n_bands, n_moves))
+    pools = np.zeros((n_bands, 2), np.int64)   # each band's [top, end) in the pool; empty at first
+    logs = _BandLogs(n_bands, n_moves) if log is not None else None
+    chunks = chunk_bounds(seg_move, CHUNK_SEGMENTS) if (log is not None or sink is not None) \
+        else [(0, len(seg_move))]
+    traces = None
+    if sink is not None:
+        per_chunk = events * CHUNK_SEGMENTS // max(len(seg_move), 1) // n_bands
+        traces = _BandTraces(n_bands, n_moves, sink, min(per_chunk, events))
+    ex = _executor(threads) if threads > 1 else None
+    for ci, (a, b) in enumerate(chunks):
+        m0, m1 = int(seg_move[a]), int(seg_move[b - 1]) + 1
+        s0 = max(a - 1, 0)   # the slice starts one segment early: the kernel looks back one
+        states = np.zeros((n_bands, K.STATE_SIZE), np.int64)
+        states[:, 0] = a - s0
+        states[:, 1] = states[:, 2] = -1
+        if traces is not None:
+            traces.start_chunk(m0, m1)
+        if logs is not None:
+            logs.counts[:, m0:m1] = 0
+        todo = list(range(n_bands))
+        while todo:
+            def run(t, S=grid.S):
+                band_S = (*S[:11], pools[t])
+                return kernel(band_S, states[t], logs.buffers(t) if logs is not None else K.NO_LOG,
+                              traces.buffers(t) if traces is not None else K.NO_TRACE,
+                              traces.ts[t] if traces is not None else K.NO_TS, rem[t],
+                              (int(bounds[t]), int(bounds[t + 1])), (s0, b))
+            status = list(ex.map(run, todo)) if ex is not None and len(todo) > 1 else [run(t) for t in todo]
+            again = []
+            for t, st in zip(todo, status):
+                if st == K.DONE:
+                    continue
+                again.append(t)
+                if st == K.STOP_POOL:
+                    _new_pool_range(store, pools, t)
+                elif st == K.STOP_CHANGES:
+                    logs.grow_for(states[t])
+                elif st == K.STOP_TRACE:
+                    traces.grow_for(t)
+                else:  # journal stops cannot happen (no journal); keyframes are off in bands
+                    raise RuntimeError(f"band cut stopped with status {st}")
+            todo = again
+        if logs is not None:
+            _merge_logs(log, logs, states, m0, m1)
+        if traces is not None:
+            _merge_traces(sink, traces, m0, m1, last=ci == len(chunks) - 1)
+    removed += rem.sum(axis=0)
+    _end_pool_ranges(store, pools)
+
+
+def _new_pool_range(store: dict, pools: np.ndarray, t: int) -> None:
+    """Give band ``t`` a fresh range at the end of the pool (grown if need be), twice the
+    last one it had (at least 1024 slots)."""
+    size = max(1024, 2 * int(pools[t, 1] - pools[t, 0]))
+    ds.grow_pool(store, size)
+    top = int(store["pool_top"][0])
+    pools[t] = (top, top + size)
+    store["pool_top"][0] = top + size
+
+
+def _end_pool_ranges(store: dict, pools: np.ndarray) -> None:
+    """Give back the unused end of the range handed out last (it ends the pool's used part)."""
+    top = int(store["pool_top"][0])
+    for band_top, end in pools:
+        if end == top and end > 0:
+            store["pool_top"][0] = band_top
+
+
+def _merge_logs(log, logs: _BandLogs, states: np.ndarray, m0: int, m1: int) -> None:
+    """Append the bands' change-log entries of moves ``m0 .. m1-1`` to ``log``, move by
+    move, band by band."""
+    total = int(states[:, 3].sum())
+    need = log.n + total
+    if need > log.ray.size:
+        cap = max(need, log.ray.size + log.ray.size // 2)
+        log.ray.resize(cap, refcheck=False)
+        log.depth.resize(cap, refcheck=False)
+    log.n = _merge_log_kernel(m0, m1, logs.counts, logs.a["ray"], logs.a["depth"], log.ray,
+                              log.depth, log.counts, log.n)
+
+
+@nb.njit(cache=True)
+def _merge_log_kernel(m0, m1, counts, ray, depth, out_ray, out_depth, out_counts, n):
+    nb_ = counts.shape[0]
+    pos = np.zeros(nb_, np.int64)
+    for mv in range(m0, m1):
+        for t in range(nb_):
+            c = counts[t, mv]
+            p = pos[t]
+            for q in range(c):
+                out_ray[n + q] = ray[t, p + q]
+                out_depth[n + q] = depth[t, p + q]
+            n += c
+            pos[t] = p + c
+            out_counts[mv] += c
+    return n
+
+
+def _merge_traces(sink, traces: _BandTraces, m0: int, m1: int, last: bool) -> None:
+    """Append the bands' trace events of moves ``m0 .. m1-1`` to the sink's columns, close
+    their blocks, and take a keyframe now if one fell due (not after the batch's last
+    chunk: the sink's end does that)."""
+    nf, ng, ns, nr = traces.totals()
+    sink.make_room(nf, ng, ns, nr)
+    cols = sink.buffers()
+    a = traces.a
+    _merge_trace_kernel(m0, m1, a["rs"], a["f_val"], a["rl"], a["g_ray"], a["g_count"], a["g_near"],
+                        a["g_far"], a["g_nid"], a["g_fid"], traces.blk, *cols[:9], *sink.blk, sink.ts)
+    if not last:
+        sink.chunk_done(m1 - 1)
+
+
+@nb.njit(cache=True)
+def _merge_trace_kernel(m0, m1, b_rs, b_val, b_rl, b_gray, b_gcnt, b_gn, b_gf, b_gni, b_gfi, b_blk,
+                        rs, val, rl, gray, gcnt, gn, gf, gni, gfi, blk_f, blk_g, blk_s, blk_r, ts):
+    nb_ = b_rs.shape[0]
+    nf = ts[K.TS_NF]
+    ng = ts[K.TS_NG]
+    ns = ts[K.TS_NS]
+    nr = ts[K.TS_NR]
+    pf = np.zeros(nb_, np.int64)
+    pg = np.zeros(nb_, np.int64)
+    ps = np.zeros(nb_, np.int64)
+    pr = np.zeros(nb_, np.int64)
+    for mv in range(m0, m1):
+        opened = False
+        run_start = nr
+        for t in range(nb_):
+            ef = b_blk[0, t, mv]
+            if ef < 0:
+                continue
+            opened = True
+            eg = b_blk[1, t, mv]
+            es = b_blk[2, t, mv]
+            er = b_blk[3, t, mv]
+            for q in range(pr[t], er):
+                r0 = b_rs[t, q]
+                ln = b_rl[t, q]
+                if nr > run_start and rs[nr - 1] + rl[nr - 1] == r0:
+                    rl[nr - 1] += ln   # the run went on across the band's edge, as on one core
+                else:
+                    rs[nr] = r0
+                    rl[nr] = ln
+                    nr += 1
+            for q in range(pf[t], ef):
+                val[nf] = b_val[t, q]
+                nf += 1
+            for q in range(pg[t], eg):
+                gray[ng] = b_gray[t, q]
+                gcnt[ng] = b_gcnt[t, q]
+                ng += 1
+            for q in range(ps[t], es):
+                gn[ns] = b_gn[t, q]
+                gf[ns] = b_gf[t, q]
+                gni[ns] = b_gni[t, q]
+                gfi[ns] = b_gfi[t, q]
+                ns += 1
+            pf[t] = ef
+            pg[t] = eg
+            ps[t] = es
+            pr[t] = er
+        if opened:
+            blk_f[mv] = nf
+            blk_g[mv] = ng
+            blk_s[mv] = ns
+            blk_r[mv] = nr
+    ts[K.TS_NF] = nf
+    ts[K.TS_NG] = ng
+    ts[K.TS_NS] = ns
+    ts[K.TS_NR] = nr

@@ -1,0 +1,209 @@
+"""The batch cut on bands of rows (sim.bands): the same model, change log and trace events
+as one core, whatever the number of bands; the pool shared safely; clear settings."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sim import bands
+from sim import trace_kernels as tk
+from sim.cut import Cutter
+from sim.tools import parse_tool_spec
+from sim.trace import Trace, same_model
+from tests.sim.trace_helpers import box, feed_moves
+
+
+@pytest.fixture(autouse=True)
+def small_bands(monkeypatch):
+    """Bands on the small grids of these tests (the defaults keep small batches on one core)."""
+    monkeypatch.setattr(bands, "MIN_BAND_ROWS", 3)
+    monkeypatch.setattr(bands, "MIN_PARALLEL_RAYS", 0)
+    monkeypatch.setattr(bands, "CHUNK_SEGMENTS", 7)   # several chunks, a keyframe check after each
+
+
+def raster(nx: float, ny: float, step: float, z: float, wave: float, seed: int = 0):
+    """A zig-zag finishing raster of short straight feeds with a wavy depth (mm)."""
+    rng = np.random.default_rng(seed)
+    pts = []
+    for k, y in enumerate(np.arange(0.5, ny, step)):
+        xs = np.linspace(0.5, nx - 0.5, 9)
+        for x in (xs if k % 2 == 0 else xs[::-1]):
+            pts.append((x, y, z + wave * np.sin(x * 0.7) * np.cos(y * 0.5) + rng.uniform(0, 0.05)))
+    pts = np.array(pts)
+    return feed_moves(list(zip(pts[:-1], pts[1:])))
+
+
+#: arcs (several chords a move), a plunge through the bottom (rays emptied: general
+#: events), a rapid out of the stock, and moves that change nothing
+MIXED_ROWS = [((1, 1, 12), (1, 1, 8.5)),
+              ((1, 1, 8.5), (18, 3, 8.0)),
+              ((18, 3, 8.0), (18, 12, 7.0)),
+              ((18, 12, 7.0), (4, 12, 7.0)),       # arc
+              ((4, 12, 7.0), (4, 4, 6.5)),
+              ((4, 4, 6.5), (10, 8, 6.5)),
+              ((10, 8, 6.5), (10, 8, -2.0)),       # through the bottom
+              ((10, 8, -2.0), (16, 8, -2.0)),
+              ((16, 8, -2.0), (16, 2, 5.0)),
+              ((16, 2, 5.0), (3, 2, 5.0)),         # arc
+              ((3, 2, 5.0), (40, 40, 30)),
+              ((40, 40, 30), (41, 40, 30))]
+MIXED_ARCS = {3: (11, 12, 7.0), 9: (9.5, 2, 5.0)}
+
+
+def cut(grid_factory, spec, moves, threads, mode):
+    """Cut ``moves`` on ``threads`` threads; ``mode`` plain, record or trace."""
+    grid = grid_factory()
+    tr = Trace(grid, keyframe_every=997) if mode == "trace" else None
+    calls = []
+    real = bands.cut_in_bands
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(bands, "cut_in_bands", lambda *a, **k: calls.append(len(a[3]) - 1) or real(*a, **k))
+        res = Cutter(grid, parse_tool_spec(spec), threads=threads).cut_moves(
+            moves, record_changes=mode == "record", trace=tr)
+    # the batch went on bands (several) exactly when more than one thread was allowed
+    assert (calls and min(calls) > 1) if threads > 1 else not calls
+    return grid, res, tr
+
+
+def block_events(z, b):
+    """Block ``b``'s far events {ray: (far, id)} and general events {ray: segments}."""
+    f0, f1 = z._f_ptr.a[b], z._f_ptr.a[b + 1]
+    r0, r1 = z._r_ptr.a[b], z._r_ptr.a[b + 1]
+    rays = np.concatenate([np.arange(s, s + n) for s, n in zip(z._f_rs.a[r0:r1], z._f_rl.a[r0:r1])]
+                          + [np.zeros(0, np.int64)])
+    assert rays.size == f1 - f0
+    far = dict(zip(rays.tolist(), z._f_val.a[f0:f1].tolist()))
+    general = {}
+    s = z._gs_ptr.a[b]
+    for q in range(z._g_ptr.a[b], z._g_ptr.a[b + 1]):
+        c = int(z._g_count.a[q])
+        general[int(z._g_ray.a[q])] = [tuple(col.a[s:s + c].tolist()) for col in
+                                       (z._g_near, z._g_far, z._g_nid, z._g_fid)]
+        s += c
+    assert len(general) == z._g_ptr.a[b + 1] - z._g_ptr.a[b]   # each ray once a block
+    return far, general
+
+
+def tops(grid):
+    n = grid.frame.n_rays
+    top, tid = np.empty(n, np.float32), np.empty(n, np.int32)
+    tk.gather_tops(grid.S, np.arange(n), top, tid)
+    return top, tid
+
+
+CASES = {
+    # straight moves only: the columns come out identical, run for run
+    "raster_ball": (lambda: box(81, 61, 0.25, 0.0, 10.0), "ball:3", raster(20, 15, 0.6, 6.0, 1.5)),
+    "raster_bull": (lambda: box(81, 61, 0.25, 0.0, 10.0), "bull:4:1", raster(20, 15, 0.9, 6.5, 1.0, 1)),
+    # a grid narrower than the tool: a move reaches both edges, its runs go on from row to row
+    "narrow": (lambda: box(6, 90, 0.25, 0.0, 10.0), "flat:6", raster(1.5, 22, 1.1, 7.0, 0.5, 2)),
+    "mixed": (lambda: box(50, 34, 0.5, 0.0, 10.0), "ball:4", feed_moves(MIXED_ROWS, MIXED_ARCS)),
+    # flutes 2 mm long below 10 mm of stock: every cut splits rays (the pool, shared by bands)
+    "splits": (lambda: box(50, 34, 0.5, 0.0, 10.0), "flat:3:L=2",
+               feed_moves([((2, 2, 4), (22, 3, 4.5)), ((22, 3, 4.5), (5, 14, 3.0)),
+                           ((5, 14, 3.0), (20, 15, 6.0)), ((20, 15, 6.0), (2, 2, 2.0))] * 3)),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+@pytest.mark.parametrize("threads", [2, 3])
+def test_bands_cut_the_model_one_core_cuts(case, threads):
+    make, spec, moves = CASES[case]
+    g1, r1, _ = cut(make, spec, moves, 1, "plain")
+    g2, r2, _ = cut(make, spec, moves, threads, "plain")
+    assert same_model(g1, g2)                      # heights and face ids, every segment
+    np.testing.assert_array_equal(tops(g1)[0], tops(g2)[0])
+    np.testing.assert_allclose(r2.removed, r1.removed, rtol=1e-12, atol=1e-12)
+    if case == "splits":
+        assert (g1.store["count"] > 1).any()
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_bands_log_the_changes_one_core_logs(case):
+    make, spec, moves = CASES[case]
+    _, r1, _ = cut(make, spec, moves, 1, "record")
+    _, r2, _ = cut(make, spec, moves, 3, "record")
+    np.testing.assert_array_equal(r2.changed_ptr, r1.changed_ptr)
+    np.testing.assert_array_equal(r2.changed_rays, r1.changed_rays)
+    np.testing.assert_array_equal(r2.changed_depth, r1.changed_depth)
+    assert r1.changed_rays.size > 0
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+@pytest.mark.parametrize("threads", [2, 3])
+def test_bands_trace_the_events_one_core_traces(case, threads):
+    make, spec, moves = CASES[case]
+    g1, _, t1 = cut(make, spec, moves, 1, "trace")
+    g2, _, t2 = cut(make, spec, moves, threads, "trace")
+    z1, z2 = t1.z, t2.z
+    assert z1.n_blocks == z2.n_blocks == len(moves)
+    assert z1.n_changes == z2.n_changes > 0
+    for b in range(z1.n_blocks):
+        assert block_events(z1, b) == block_events(z2, b), f"block {b}"
+    np.testing.assert_array_equal(z2._b_id.a, z1._b_id.a)
+    for name in ("_f_ptr", "_g_ptr", "_gs_ptr"):
+        np.testing.assert_array_equal(getattr(z2, name).a, getattr(z1, name).a, err_msg=name)
+    if case.startswith("raster") or case == "narrow":   # one segment a move: the very same columns
+        for name in ("_f_rs", "_f_rl", "_f_val", "_r_ptr"):
+            np.testing.assert_array_equal(getattr(z2, name).a, getattr(z1, name).a, err_msg=name)
+    # every stage replays to the same model, forwards and back (keyframes taken between chunks)
+    assert len(z2._keyframes) > 1
+    for s in list(range(len(moves) + 1)) + [3, 0]:
+        assert same_model(t1.grid_at(s), t2.grid_at(s)), s
+    assert same_model(t2.grid_at(len(moves)), g2) and same_model(g1, g2)
+
+
+def test_runs_join_across_a_band_edge():
+    """The narrow grid's moves reach both edges: the run of changed rays goes on from one
+    row into the next, across the band boundary too, as on one core."""
+    make, spec, moves = CASES["narrow"]
+    _, _, t1 = cut(make, spec, moves, 1, "trace")
+    rl = t1.z._f_rl.a
+    assert rl.max() > make().frame.nu      # runs longer than a row exist
+
+
+def test_the_pool_is_handed_out_in_ranges_and_its_unused_end_given_back():
+    make, spec, moves = CASES["splits"]
+    g1, _, _ = cut(make, spec, moves, 1, "plain")
+    g2, _, _ = cut(make, spec, moves, 3, "plain")
+    used1 = int(g1.store["pool_top"][0])
+    used2 = int(g2.store["pool_top"][0])
+    assert used1 > 0
+    # bands take their blocks from ranges of at least 1024 slots: all but the last range's
+    # unused end may stay behind, no more than a range per band
+    assert used2 <= used1 + 3 * 1024
+    assert g2.store["pool_top"].size == 1
+
+
+def test_plan_bands_balances_the_rows_the_moves_reach():
+    p0 = np.array([[0.0, 10.0, 0.0]] * 50)
+    p1 = np.array([[50.0, 10.0, 0.0]] * 50)   # all the work in rows near y = 10
+    b = bands.plan_bands(p0, p1, 3.0, 0.0, 0.1, 1001, 2)
+    assert b[0] == 0 and b[-1] == 1001 and len(b) == 3
+    assert 70 <= b[1] <= 130                   # split within the rows 70 .. 130 the moves reach
+
+
+def test_plan_bands_keeps_bands_thick(monkeypatch):
+    monkeypatch.setattr(bands, "MIN_BAND_ROWS", 16)
+    p0 = np.zeros((4, 3))
+    p1 = np.array([[10.0, 1.0, 0.0]] * 4)
+    assert bands.plan_bands(p0, p1, 3.0, 0.0, 0.5, 20, 4).tolist() == [0, 20]
+
+
+def test_chunks_never_split_a_move():
+    sm = np.array([0, 0, 0, 1, 2, 2, 2, 2, 3, 4])
+    ch = bands.chunk_bounds(sm, 2)
+    assert ch[0] == (0, 3) and ch[-1][1] == len(sm)
+    for a, b in ch:
+        assert a == 0 or sm[a] != sm[a - 1]
+
+
+def test_threads_setting(monkeypatch):
+    monkeypatch.setenv("DEXMON_THREADS", "3")
+    assert bands.default_threads() == 3
+    monkeypatch.setenv("DEXMON_THREADS", "lots")
+    with pytest.raises(ValueError, match="DEXMON_THREADS='lots': expected a whole number"):
+        bands.default_threads()
+    monkeypatch.delenv("DEXMON_THREADS")
+    assert bands.default_threads() >= 1
