@@ -195,6 +195,7 @@ def run_case(name: str, shared: Path, check: bool, repeat: int = 3, mode: str = 
         "case": name,
         "mode": mode,
         "tool": spec,
+        "threads": cutter.threads,
         "moves": int(len(moves)),
         "rays": grid.frame.n_rays,
         "repeat": repeat,
@@ -252,24 +253,30 @@ def run_baseline_pairs(name: str, spec: str, shared: Path, pairs: int = 5) -> di
     flat tool rays on a vertical wall may differ by the wall's height: ``rays_over_1um``
     counts those); ``bracket_max_err_mm``: how far dexmon's heights lie outside the
     baseline's with the radius 1e-6 mm smaller and larger (boundary rays accepted either
-    way); ``load_avg``: the 1, 5 and 15 min load averages after the run.
+    way); ``load_avg``: the 1, 5 and 15 min load averages after the run. dexmon cuts on
+    every core it may use (``threads``, see :mod:`sim.bands`); each pair also times it on
+    one core: ``dexmon_1core_s`` and ``ratio_median_1core``.
     """
     tool = parse_tool_spec(spec)
     moves = load_program(shared / CASES[name][0]).moves
     warm_up(tool, moves)
     frame = stock_grid().frame
     zmap_baseline.cut_program(Frame.top(0, 0, 20, 20, RESOLUTION), tool, moves[:50], STOCK[5], STOCK[2])
-    dexmon_s, baseline_s, ratios = [], [], []
+    dexmon_s, one_core_s, baseline_s, ratios, ratios_1 = [], [], [], [], []
     for k in range(max(1, pairs)):
         if k % 2 == 0:
             td, grid = _time_dexmon(tool, moves)
+            t1, _ = _time_dexmon(tool, moves, threads=1)
             tb, H = _time_baseline(tool, moves, frame)
         else:
             tb, H = _time_baseline(tool, moves, frame)
+            t1, _ = _time_dexmon(tool, moves, threads=1)
             td, grid = _time_dexmon(tool, moves)
         dexmon_s.append(td)
+        one_core_s.append(t1)
         baseline_s.append(tb)
         ratios.append(tb / td)
+        ratios_1.append(tb / t1)
     top = np.nan_to_num(grid.top().astype(np.float64), nan=STOCK[2])
     diff = np.abs(H - top)
     bracket = []  # a ray within 1e-6 mm of the swept boundary may fall either side
@@ -283,10 +290,13 @@ def run_baseline_pairs(name: str, spec: str, shared: Path, pairs: int = 5) -> di
         "tool": spec,
         "moves": int(len(moves)),
         "rays": frame.n_rays,
+        "threads": Cutter(grid, tool).threads,
         "dexmon_s": round(statistics.median(dexmon_s), 4),
+        "dexmon_1core_s": round(statistics.median(one_core_s), 4),
         "baseline_s": round(statistics.median(baseline_s), 4),
         "ratio_median": round(statistics.median(ratios), 3),
         "ratios": [round(r, 3) for r in ratios],
+        "ratio_median_1core": round(statistics.median(ratios_1), 3),
         "pairs": len(ratios),
         "height_max_diff_mm": float(f"{diff.max():.3g}"),
         "rays_over_1um": int((diff > 0.001).sum()),

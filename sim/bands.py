@@ -125,12 +125,14 @@ class _Buffers:
     def row(self, name: str, t: int) -> np.ndarray:
         return self.a[name][t]
 
-    def grow(self, names, size: int) -> None:
+    def grow(self, names, size: int, keep: bool = True) -> None:
+        """Room for ``size`` values a band in the columns ``names`` (``keep``: their contents)."""
         for name in names:
             old = self.a[name]
             if old.shape[1] < size:
                 new = np.empty((self.n_bands, max(size, old.shape[1] + old.shape[1] // 2)), old.dtype)
-                new[:, :old.shape[1]] = old
+                if keep:
+                    new[:, :old.shape[1]] = old
                 self.a[name] = new
 
 
@@ -144,6 +146,12 @@ class _BandLogs(_Buffers):
         super().__init__(n_bands, {"ray": (1 << 14, np.int64), "depth": (1 << 14, np.float32),
                                    "s_top": (1 << 12, np.float64), "s_len": (1 << 12, np.float64)})
         self.counts = np.zeros((n_bands, n_moves), np.int64)
+
+    def start_chunk(self, m0: int, m1: int, changes: int) -> None:
+        """Empty logs with room for ``changes`` entries a band (the rays within reach of
+        the chunk's segments bound them, so the kernels rarely stop for room)."""
+        self.counts[:, m0:m1] = 0
+        self.grow(("ray", "depth"), changes, keep=False)
 
     def buffers(self, t: int) -> tuple:
         jptr, jn, jf, jni, jfi = self._DUMMY
@@ -165,16 +173,18 @@ class _BandTraces(_Buffers):
     """The trace events of the bands, in the kernels' column order (see
     ``sweep_kernels`` trace sink), and a trace state per band."""
 
-    def __init__(self, n_bands: int, n_moves: int, sink, events: int):
-        cap = max(int(events) + 4096, 1 << 12)
-        spec = {name: (cap if k < 3 else 1024, dt) for k, (name, dt) in enumerate(_TRACE_COLS)}
+    def __init__(self, n_bands: int, n_moves: int, sink):
+        spec = {name: (1 << 12 if k < 3 else 1024, dt) for k, (name, dt) in enumerate(_TRACE_COLS)}
         spec["gen"] = (4096, np.int64)
         super().__init__(n_bands, spec)
         self.blk = np.full((4, n_bands, max(n_moves, 1)), -1, np.int64)
         self.sink = sink
         self.ts = np.zeros((n_bands, K.TRACE_STATE_SIZE), np.int64)
 
-    def start_chunk(self, m0: int, m1: int) -> None:
+    def start_chunk(self, m0: int, m1: int, changes: int) -> None:
+        """Empty columns with room for ``changes`` far events a band (see
+        :meth:`_BandLogs.start_chunk`); keyframes off."""
+        self.grow(("rs", "f_val", "rl"), changes, keep=False)
         ts = self.ts
         ts[:] = 0
         ts[:, K.TS_OPEN] = -1
@@ -207,7 +217,7 @@ class _BandTraces(_Buffers):
 
 
 def cut_in_bands(grid, kernel, seg_move: np.ndarray, bounds: np.ndarray, removed: np.ndarray,
-                 log=None, sink=None, events: int = 0, threads: int | None = None) -> None:
+                 log=None, sink=None, reach: np.ndarray | None = None, threads: int | None = None) -> None:
     """Run a linear batch cut band by band on threads, and merge what the bands recorded.
 
     kernel(S, state, B, T, ts, removed, band, segs): one call of ``cut_linear_batch`` on
@@ -217,8 +227,8 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, bounds: np.ndarray, removed
     back at).
     bounds: row bounds of the bands (:func:`plan_bands`); removed: float64 (n_moves,)
     accumulates the length removed per move (mm). log: the cutter's change log (no
-    journal) or None; sink: the trace sink (``sim.trace._Sink``) or None; events: about
-    how many trace events the batch makes (buffer sizes).
+    journal) or None; sink: the trace sink (``sim.trace._Sink``) or None; reach: the rays
+    within reach of each segment (:func:`reach_rays`: they bound the changes a band logs).
     """
     n_bands = len(bounds) - 1
     n_moves = removed.size
@@ -229,10 +239,10 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, bounds: np.ndarray, removed
     logs = _BandLogs(n_bands, n_moves) if log is not None else None
     chunks = chunk_bounds(seg_move, CHUNK_SEGMENTS) if (log is not None or sink is not None) \
         else [(0, len(seg_move))]
-    traces = None
-    if sink is not None:
-        per_chunk = events * CHUNK_SEGMENTS // max(len(seg_move), 1) // n_bands
-        traces = _BandTraces(n_bands, n_moves, sink, min(per_chunk, events))
+    traces = _BandTraces(n_bands, n_moves, sink) if sink is not None else None
+    if reach is None:
+        reach = np.zeros(len(seg_move))
+    bound = np.concatenate([[0.0], np.cumsum(reach)])
     ex = _executor(threads) if threads > 1 else None
     for ci, (a, b) in enumerate(chunks):
         m0, m1 = int(seg_move[a]), int(seg_move[b - 1]) + 1
@@ -240,10 +250,11 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, bounds: np.ndarray, removed
         states = np.zeros((n_bands, K.STATE_SIZE), np.int64)
         states[:, 0] = a - s0
         states[:, 1] = states[:, 2] = -1
+        changes = min(int(bound[b] - bound[a]), grid.frame.n_rays * (b - a)) + 4096
         if traces is not None:
-            traces.start_chunk(m0, m1)
+            traces.start_chunk(m0, m1, changes)
         if logs is not None:
-            logs.counts[:, m0:m1] = 0
+            logs.start_chunk(m0, m1, changes)
         todo = list(range(n_bands))
         while todo:
             def run(t, S=grid.S):
@@ -369,19 +380,21 @@ def _merge_trace_kernel(m0, m1, b_rs, b_val, b_rl, b_gray, b_gcnt, b_gn, b_gf, b
                     rs[nr] = r0
                     rl[nr] = ln
                     nr += 1
-            for q in range(pf[t], ef):
-                val[nf] = b_val[t, q]
-                nf += 1
-            for q in range(pg[t], eg):
-                gray[ng] = b_gray[t, q]
-                gcnt[ng] = b_gcnt[t, q]
-                ng += 1
-            for q in range(ps[t], es):
-                gn[ns] = b_gn[t, q]
-                gf[ns] = b_gf[t, q]
-                gni[ns] = b_gni[t, q]
-                gfi[ns] = b_gfi[t, q]
-                ns += 1
+            c = ef - pf[t]
+            val[nf:nf + c] = b_val[t, pf[t]:ef]
+            nf += c
+            c = eg - pg[t]
+            if c > 0:
+                gray[ng:ng + c] = b_gray[t, pg[t]:eg]
+                gcnt[ng:ng + c] = b_gcnt[t, pg[t]:eg]
+                ng += c
+            c = es - ps[t]
+            if c > 0:
+                gn[ns:ns + c] = b_gn[t, ps[t]:es]
+                gf[ns:ns + c] = b_gf[t, ps[t]:es]
+                gni[ns:ns + c] = b_gni[t, ps[t]:es]
+                gfi[ns:ns + c] = b_gfi[t, ps[t]:es]
+                ns += c
             pf[t] = ef
             pg[t] = eg
             ps[t] = es

@@ -502,8 +502,10 @@ class Cutter:
         traced = sink is not None
         reach = bands.reach_rays(p0, p1, tp[6], f.spacing)
         events = min(int(reach.sum()), 32 * f.n_rays + len(p0) * 64)  # bounds the changes
-        if traced and len(sm) > 1 and np.any(sm[1:] == sm[:-1]):
-            sink.need_marks()
+        if traced:
+            if len(sm) > 1 and np.any(sm[1:] == sm[:-1]):
+                sink.need_marks()
+            sink.reserve(events)
         top_bound = np.inf
         if len(p0) >= 64 and not probe:  # lets chained moves skip rays already cut
             tops = grid.top()
@@ -517,10 +519,8 @@ class Cutter:
                 return K.cut_linear_batch(S, f.origin[0], f.origin[1], f.spacing, f.nu, f.nv, p0[a:b],
                                           p1[a:b], sm[a:b], sid[a:b], tp, eps, False, record, False, rem,
                                           B, st, traced, T, ts, top_bound, band[0], band[1])
-            bands.cut_in_bands(grid, band_cut, sm, bounds, removed, log, sink, events, self.threads)
+            bands.cut_in_bands(grid, band_cut, sm, bounds, removed, log, sink, reach, self.threads)
             return
-        if traced:
-            sink.reserve(events)
         self._loop(lambda S, st, B, T, ts: K.cut_linear_batch(
             S, f.origin[0], f.origin[1], f.spacing, f.nu, f.nv, p0, p1, sm, sid, tp, eps,
             probe, record, journal, removed, B, st, traced, T, ts, top_bound), log, sink)
