@@ -465,11 +465,7 @@ class Cutter:
                  force_instances=False, sink=None) -> None:
         """Run the kernels over the planned work, appending the changes to ``log`` (if any)
         and the trace events to ``sink`` (if any)."""
-        grid = self.grid
-        f = grid.frame
-        eps = self.tol.length
-        record = log is not None
-        journal = record and log.journal
+        f = self.grid.frame
         p0, p1, sm, sid = work.seg_arrays()
         if len(p0) and not force_instances:
             tp = self._params.get(id(body))
@@ -484,12 +480,7 @@ class Cutter:
             axes_l = np.ascontiguousarray(np.stack([axes @ f.u, axes @ f.v, axes @ f.direction], axis=1))
             axes_l /= np.linalg.norm(axes_l, axis=1, keepdims=True)
             rmax = float(prof[:, 1].max())
-            if sink is not None:
-                sink.need_marks()
-                sink.reserve(min(int(len(tips) * (2 * rmax / f.spacing + 2) ** 2), 4 * f.n_rays))
-            self._loop(lambda S, st, B, T, ts: K.cut_poses(
-                S, f.spacing, f.nu, f.nv, tips_l, axes_l, pm, pid, prof, rmax, eps, probe, record,
-                journal, removed, B, st, sink is not None, T, ts), log, sink)
+            self._cut_poses(tips_l, axes_l, pm, pid, prof, rmax, removed, probe, log, sink)
 
     def _cut_linear(self, p0, p1, sm, sid, tp, removed, probe: bool, log: _Log | None, sink) -> None:
         """The exact sweep of straight segments (see ``K.cut_linear_batch``): on bands of
@@ -524,6 +515,38 @@ class Cutter:
         self._loop(lambda S, st, B, T, ts: K.cut_linear_batch(
             S, f.origin[0], f.origin[1], f.spacing, f.nu, f.nv, p0, p1, sm, sid, tp, eps,
             probe, record, journal, removed, B, st, traced, T, ts, top_bound), log, sink)
+
+    def _cut_poses(self, tips, axes, pm, pid, prof, rmax: float, removed, probe: bool,
+                   log: _Log | None, sink) -> None:
+        """Instances of motion (see ``K.cut_poses``; tips and axes frame-local): on bands of
+        rows on several threads when there are many, else here."""
+        f = self.grid.frame
+        eps = self.tol.length
+        record = log is not None
+        journal = record and log.journal
+        traced = sink is not None
+        per_pose = (2 * rmax / f.spacing + 2) ** 2
+        if traced:
+            sink.need_marks()
+            sink.reserve(min(int(len(tips) * per_pose), 4 * f.n_rays))
+        if (self.threads > 1 and not probe and not journal and len(tips) >= 16
+                and len(tips) * per_pose >= bands.MIN_PARALLEL_RAYS):
+            # each pose's rows: from the bottom to the top of the (tilted) body, grown by rmax
+            lo = tips + prof[0, 0] * axes
+            hi = tips + prof[-1, 0] * axes
+            bounds = bands.plan_bands(lo, hi, rmax, 0.0, f.spacing, f.nv, self.threads)
+            if len(bounds) > 2:
+                def band_cut(S, st, B, T, ts, rem, band, segs):
+                    a, b = segs
+                    return K.cut_poses(S, f.spacing, f.nu, f.nv, tips[a:b], axes[a:b], pm[a:b], pid[a:b],
+                                       prof, rmax, eps, False, record, False, rem, B, st, traced, T, ts,
+                                       band[0], band[1])
+                bands.cut_in_bands(self.grid, band_cut, pm, bounds, removed, log, sink,
+                                   np.full(len(tips), per_pose), self.threads)
+                return
+        self._loop(lambda S, st, B, T, ts: K.cut_poses(
+            S, f.spacing, f.nu, f.nv, tips, axes, pm, pid, prof, rmax, eps, probe, record,
+            journal, removed, B, st, traced, T, ts), log, sink)
 
     def _loop(self, call, log: _Log | None, sink=None) -> None:
         """Call a batch kernel until it is done, growing the pool, the log's buffers and

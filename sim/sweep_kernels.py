@@ -1293,9 +1293,9 @@ def pose_intervals(prof, tip, axis, px, py, out, buf):
     return w + 1
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, probe, record,
-              journal, removed, B, state, trace, T, ts):
+              journal, removed, B, state, trace, T, ts, band0=0, band1=1 << 62):
     """Cut (or probe) one tool instance per row of ``tips``/``axes`` (frame-local, mm).
 
     Rays are at local ``(i*sp, j*sp)``. Other arguments and the return value as for
@@ -1363,8 +1363,8 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
         vb = tip[1] + top_h * ax[1]
         ilo = max(0, int(math.ceil((min(ua, ub) - rmax) / sp)))
         ihi = min(nu - 1, int(math.floor((max(ua, ub) + rmax) / sp)))
-        jlo = max(0, int(math.ceil((min(va, vb) - rmax) / sp)))
-        jhi = min(nv - 1, int(math.floor((max(va, vb) + rmax) / sp)))
+        jlo = max(band0, int(math.ceil((min(va, vb) - rmax) / sp)))
+        jhi = min(min(nv, band1) - 1, int(math.floor((max(va, vb) + rmax) / sp)))
         resuming = k == k0 and j_resume >= 0
         if resuming:
             jlo = j_resume
