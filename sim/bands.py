@@ -281,7 +281,7 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, bounds: np.ndarray, removed
         if logs is not None:
             _merge_logs(log, logs, states, m0, m1)
         if traces is not None:
-            _merge_traces(sink, traces, m0, m1, last=ci == len(chunks) - 1)
+            _merge_traces(sink, traces, m0, m1, ci == len(chunks) - 1, ex)
     removed += rem.sum(axis=0)
     _end_pool_ranges(store, pools)
 
@@ -334,77 +334,94 @@ def _merge_log_kernel(m0, m1, counts, ray, depth, out_ray, out_depth, out_counts
     return n
 
 
-def _merge_traces(sink, traces: _BandTraces, m0: int, m1: int, last: bool) -> None:
+def _merge_traces(sink, traces: _BandTraces, m0: int, m1: int, last: bool, ex) -> None:
     """Append the bands' trace events of moves ``m0 .. m1-1`` to the sink's columns, close
     their blocks, and take a keyframe now if one fell due (not after the batch's last
-    chunk: the sink's end does that)."""
-    nf, ng, ns, nr = traces.totals()
-    sink.make_room(nf, ng, ns, nr)
-    cols = sink.buffers()
+    chunk: the sink's end does that).
+
+    Where each band's events of each move go is worked out first (move by move, band by
+    band); then every band copies its own on a thread of its own, which also shares out
+    the first touch of the columns' fresh pages. A band whose first run of far rays goes
+    on from the previous band's last one (a move reaching both edges of a narrow grid)
+    adds its length to that run afterwards, as one core would have made one run.
+    """
+    nb_ = traces.n_bands
+    m = m1 - m0
+    ts = sink.ts
+    E = traces.blk[:, :, m0:m1]                       # (4 columns, bands, moves): ends, -1 unopened
+    opened = (E[0] >= 0).any(axis=0)
+    ends = np.maximum.accumulate(np.maximum(E, 0), axis=2)
+    cnt = np.diff(ends, axis=2, prepend=0)
+    starts = ends - cnt
+    rs_b, rl_b = traces.a["rs"], traces.a["rl"]
+    join = np.zeros((nb_, m), np.bool_)
+    prev_end = np.full(m, -1, np.int64)
+    for t in range(nb_):
+        has = np.flatnonzero(cnt[3, t] > 0)
+        join[t, has] = rs_b[t, starts[3, t, has]] == prev_end[has]
+        last_run = ends[3, t, has] - 1
+        prev_end[has] = rs_b[t, last_run].astype(np.int64) + rl_b[t, last_run]
+    written = cnt.copy()
+    written[3] -= join                                 # a joined run is not written anew
+    base = np.array([ts[K.TS_NF], ts[K.TS_NG], ts[K.TS_NS], ts[K.TS_NR]], np.int64)
+    order = written.transpose(0, 2, 1).reshape(4, -1)  # move by move, band by band
+    after = np.cumsum(order, axis=1)
+    dest = (base[:, None] + after - order).reshape(4, m, nb_).transpose(0, 2, 1).copy()
+    block_end = base[:, None] + after.reshape(4, m, nb_)[:, :, -1]
+    sink.make_room(*(int(x) for x in written.sum(axis=(1, 2))))
+    cols = sink.buffers()[:9]
     a = traces.a
-    _merge_trace_kernel(m0, m1, a["rs"], a["f_val"], a["rl"], a["g_ray"], a["g_count"], a["g_near"],
-                        a["g_far"], a["g_nid"], a["g_fid"], traces.blk, *cols[:9], *sink.blk, sink.ts)
+    band_cols = (a["rs"], a["f_val"], a["rl"], a["g_ray"], a["g_count"], a["g_near"], a["g_far"],
+                 a["g_nid"], a["g_fid"])
+
+    def copy(t):
+        _copy_band_events(t, starts, cnt, dest, join, *band_cols, *cols)
+
+    if ex is not None and nb_ > 1:
+        list(ex.map(copy, range(nb_)))
+    else:
+        for t in range(nb_):
+            copy(t)
+    jt, jq = np.nonzero(join)
+    if jt.size:
+        np.add.at(cols[2], dest[3, jt, jq] - 1, rl_b[jt, starts[3, jt, jq]])
+    for c, blk in enumerate(sink.blk):
+        blk[m0:m1][opened] = block_end[c][opened]
+    ts[K.TS_NF], ts[K.TS_NG], ts[K.TS_NS], ts[K.TS_NR] = block_end[:, -1] if m else base
     if not last:
         sink.chunk_done(m1 - 1)
 
 
-@nb.njit(cache=True)
-def _merge_trace_kernel(m0, m1, b_rs, b_val, b_rl, b_gray, b_gcnt, b_gn, b_gf, b_gni, b_gfi, b_blk,
-                        rs, val, rl, gray, gcnt, gn, gf, gni, gfi, blk_f, blk_g, blk_s, blk_r, ts):
-    nb_ = b_rs.shape[0]
-    nf = ts[K.TS_NF]
-    ng = ts[K.TS_NG]
-    ns = ts[K.TS_NS]
-    nr = ts[K.TS_NR]
-    pf = np.zeros(nb_, np.int64)
-    pg = np.zeros(nb_, np.int64)
-    ps = np.zeros(nb_, np.int64)
-    pr = np.zeros(nb_, np.int64)
-    for mv in range(m0, m1):
-        opened = False
-        run_start = nr
-        for t in range(nb_):
-            ef = b_blk[0, t, mv]
-            if ef < 0:
-                continue
-            opened = True
-            eg = b_blk[1, t, mv]
-            es = b_blk[2, t, mv]
-            er = b_blk[3, t, mv]
-            for q in range(pr[t], er):
-                r0 = b_rs[t, q]
-                ln = b_rl[t, q]
-                if nr > run_start and rs[nr - 1] + rl[nr - 1] == r0:
-                    rl[nr - 1] += ln   # the run went on across the band's edge, as on one core
-                else:
-                    rs[nr] = r0
-                    rl[nr] = ln
-                    nr += 1
-            c = ef - pf[t]
-            val[nf:nf + c] = b_val[t, pf[t]:ef]
-            nf += c
-            c = eg - pg[t]
-            if c > 0:
-                gray[ng:ng + c] = b_gray[t, pg[t]:eg]
-                gcnt[ng:ng + c] = b_gcnt[t, pg[t]:eg]
-                ng += c
-            c = es - ps[t]
-            if c > 0:
-                gn[ns:ns + c] = b_gn[t, ps[t]:es]
-                gf[ns:ns + c] = b_gf[t, ps[t]:es]
-                gni[ns:ns + c] = b_gni[t, ps[t]:es]
-                gfi[ns:ns + c] = b_gfi[t, ps[t]:es]
-                ns += c
-            pf[t] = ef
-            pg[t] = eg
-            ps[t] = es
-            pr[t] = er
-        if opened:
-            blk_f[mv] = nf
-            blk_g[mv] = ng
-            blk_s[mv] = ns
-            blk_r[mv] = nr
-    ts[K.TS_NF] = nf
-    ts[K.TS_NG] = ng
-    ts[K.TS_NS] = ns
-    ts[K.TS_NR] = nr
+@nb.njit(cache=True, nogil=True)
+def _copy_band_events(t, starts, cnt, dest, join, b_rs, b_val, b_rl, b_gray, b_gcnt, b_gn, b_gf, b_gni,
+                      b_gfi, rs, val, rl, gray, gcnt, gn, gf, gni, gfi):
+    """Copy band ``t``'s events of each move to where :func:`_merge_traces` placed them
+    (``starts``/``cnt``/``dest``: (4 columns, bands, moves); a joined first run is left
+    for the caller to add)."""
+    for q in range(starts.shape[2]):
+        c = cnt[0, t, q]
+        if c > 0:
+            s = starts[0, t, q]
+            d = dest[0, t, q]
+            val[d:d + c] = b_val[t, s:s + c]
+        j = 1 if join[t, q] else 0
+        c = cnt[3, t, q] - j
+        if c > 0:
+            s = starts[3, t, q] + j
+            d = dest[3, t, q]
+            rs[d:d + c] = b_rs[t, s:s + c]
+            rl[d:d + c] = b_rl[t, s:s + c]
+        c = cnt[1, t, q]
+        if c > 0:
+            s = starts[1, t, q]
+            d = dest[1, t, q]
+            gray[d:d + c] = b_gray[t, s:s + c]
+            gcnt[d:d + c] = b_gcnt[t, s:s + c]
+        c = cnt[2, t, q]
+        if c > 0:
+            s = starts[2, t, q]
+            d = dest[2, t, q]
+            gn[d:d + c] = b_gn[t, s:s + c]
+            gf[d:d + c] = b_gf[t, s:s + c]
+            gni[d:d + c] = b_gni[t, s:s + c]
+            gfi[d:d + c] = b_gfi[t, s:s + c]
