@@ -514,7 +514,7 @@ class Cutter:
             return
         self._loop(lambda S, st, B, T, ts: K.cut_linear_batch(
             S, f.origin[0], f.origin[1], f.spacing, f.nu, f.nv, p0, p1, sm, sid, tp, eps,
-            probe, record, journal, removed, B, st, traced, T, ts, top_bound), log, sink)
+            probe, record, journal, removed, B, st, traced, T, ts, top_bound, 0, int(f.nv)), log, sink)
 
     def _cut_poses(self, tips, axes, pm, pid, prof, rmax: float, removed, probe: bool,
                    log: _Log | None, sink) -> None:
@@ -546,7 +546,7 @@ class Cutter:
                 return
         self._loop(lambda S, st, B, T, ts: K.cut_poses(
             S, f.spacing, f.nu, f.nv, tips, axes, pm, pid, prof, rmax, eps, probe, record,
-            journal, removed, B, st, traced, T, ts), log, sink)
+            journal, removed, B, st, traced, T, ts, 0, int(f.nv)), log, sink)
 
     def _loop(self, call, log: _Log | None, sink=None) -> None:
         """Call a batch kernel until it is done, growing the pool, the log's buffers and

@@ -856,8 +856,7 @@ def _trace_due(ts, mv):
 
 @nb.njit(cache=True, nogil=True)
 def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps, probe,
-                     record, journal, removed, B, state, trace, T, ts, top_bound=np.inf,
-                     band0=0, band1=1 << 62):
+                     record, journal, removed, B, state, trace, T, ts, top_bound, band0, band1):
     """Sweep the body ``tp`` along each straight tip move ``P0[k] -> P1[k]`` and cut it.
 
     S: store tuple; grid rays at ``(gx0 + i*sp, gy0 + j*sp)``, ``nu x nv`` of them.
@@ -1295,7 +1294,7 @@ def pose_intervals(prof, tip, axis, px, py, out, buf):
 
 @nb.njit(cache=True, nogil=True)
 def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, probe, record,
-              journal, removed, B, state, trace, T, ts, band0=0, band1=1 << 62):
+              journal, removed, B, state, trace, T, ts, band0, band1):
     """Cut (or probe) one tool instance per row of ``tips``/``axes`` (frame-local, mm).
 
     Rays are at local ``(i*sp, j*sp)``. Other arguments and the return value as for
