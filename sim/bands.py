@@ -64,6 +64,16 @@ def _executor(threads: int) -> ThreadPoolExecutor:
     return _pool
 
 
+def _forget_pool() -> None:
+    """In a forked child the pool's threads are gone: start a new pool when one is needed."""
+    global _pool
+    _pool = None
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_forget_pool)
+
+
 def reach_rays(p0: np.ndarray, p1: np.ndarray, reach: float, spacing: float) -> np.ndarray:
     """Rays within reach of each segment, about: float64 (n,) from tips (n, 3) mm, the
     body's largest radius ``reach`` and the ray spacing (mm)."""

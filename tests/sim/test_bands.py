@@ -212,3 +212,22 @@ def test_threads_setting(monkeypatch):
         bands.default_threads()
     monkeypatch.delenv("DEXMON_THREADS")
     assert bands.default_threads() >= 1
+
+
+def test_a_forked_child_cuts_on_bands_of_its_own():
+    """The pool's threads do not survive a fork: a child that cuts must not wait on them."""
+    import multiprocessing as mp
+    make, spec, moves = CASES["raster_ball"]
+    g1, _, _ = cut(make, spec, moves, 2, "plain")      # the parent's pool exists now
+    ctx = mp.get_context("fork")
+    with ctx.Pool(1) as pool:
+        top = pool.apply_async(_child_cut, ()).get(timeout=300)
+    np.testing.assert_array_equal(top, tops(g1)[0])
+
+
+def _child_cut():
+    bands.MIN_BAND_ROWS, bands.MIN_PARALLEL_RAYS = 3, 0
+    make, spec, moves = CASES["raster_ball"]
+    grid = make()
+    Cutter(grid, parse_tool_spec(spec), threads=2).cut_moves(moves, record_changes=False)
+    return tops(grid)[0]
