@@ -85,6 +85,10 @@ def main(argv=None) -> int:
 
     stock_grid = build_stock(stock, args.resolution)
     model_bytes = stock_grid.nbytes()
+    # and the band kernels (sim.bands: large batches cut on every core)
+    g = stock_grid.copy()
+    Cutter(g, tool).cut_moves(moves[:2000], move_ids=ids[:2000], record_changes=False, trace=Trace(g))
+    Cutter(stock_grid.copy(), tool).cut_moves(moves[:2000], move_ids=ids[:2000], record_changes=False)
     # plain and traced runs interleaved, 5 of each: the best of each, and the median of the
     # five side-by-side ratios (this machine's speed drifts between runs; a pair shares it)
     plain, traced = [], []
@@ -109,7 +113,8 @@ def main(argv=None) -> int:
          extra_pct=round(100 * (t_traced - t_plain) / t_plain, 1),
          extra_pct_pairs_median=round(100 * (float(np.median(np.array(traced) / np.array(plain))) - 1), 1),
          z_changes=tr.z.n_changes, z_far_events=tr.z._f_val.n, z_general_events=tr.z._g_ray.n,
-         keyframes=len(tr.z._keyframes), target_extra_pct=20)
+         keyframes=len(tr.z._keyframes), threads=Cutter(g, tool).threads,
+         load_avg=[round(x, 2) for x in os.getloadavg()], target_extra_pct=20)
 
     z, t = tr.z, tr.t
     z_arr = {**z.header_arrays(), **z.chunk_since(None)}
