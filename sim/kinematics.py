@@ -11,7 +11,13 @@ machine's kinematics. This module holds those, array in and array out:
   solution closest to a previous pose;
 * :meth:`Kinematics.machine_xyz` ``(tip, rotary (n, 3), tool_length) -> (n, 3)``: the
   linear axes that put the tip there with the rotaries given (what a LinuxCNC TCP
-  kinematics does with a program's X Y Z A B C).
+  kinematics does with a program's X Y Z A B C);
+* :meth:`Kinematics.tool_points` ``(axes, tool_length, local (m, 3)) -> (n, m, 3)``: any
+  points fixed to the tool, in the workpiece frame;
+* :meth:`Kinematics.instance_counts` ``(start, end, tool_length, height, radius, step)``:
+  how many instances of motion (Huang & Oliver) a move from machine pose ``start`` to
+  ``end`` needs so that no point of the tool moves more than ``step`` between two, and
+  :func:`instance_poses` the machine poses themselves.
 
 Frames and points
 -----------------
@@ -250,12 +256,82 @@ class Kinematics:
             tip, axis = self._table_turn(ax, tip, axis, axes[:, ROTARY_COLUMN[ax.letter]], +1)
         return tip, axis
 
+    def tool_points(self, axes, tool_length, local) -> np.ndarray:
+        """Points fixed to the tool, in the workpiece frame, (n, m, 3) mm.
+
+        axes: (n, 6) machine axes; tool_length: scalar or (n,) mm; local: (m, 3) mm in the
+        tool's frame: origin at the tip, z up the tool axis, x and y as the machine's
+        when every rotary is 0 (``[0, 0, 0]`` is the tip, ``[0, 0, h]`` a point up the axis).
+        """
+        axes = np.atleast_2d(np.asarray(axes, np.float64))
+        local = np.atleast_2d(np.asarray(local, np.float64))
+        n, m = len(axes), len(local)
+        tip, _ = self._tip_in_machine(axes[:, :3], axes, _lengths(tool_length, n))
+        offsets = np.repeat(local[None], n, axis=0).reshape(n * m, 3)
+        pts = np.repeat(tip, m, axis=0) + self._head_turn(offsets, np.repeat(axes, m, axis=0))
+        axis = np.zeros_like(pts)
+        for ax in self.table:
+            pts, axis = self._table_turn(ax, pts, axis, np.repeat(axes[:, ROTARY_COLUMN[ax.letter]], m), +1)
+        return pts.reshape(n, m, 3)
+
+    def _head_turn(self, v: np.ndarray, angles: np.ndarray) -> np.ndarray:
+        """Vectors of the tool's frame (n, 3) in the machine frame: the head's rotations."""
+        for ax in reversed(self.head):  # the innermost turns the tool first
+            v = rotate(v, ROTARY_ABOUT[ax.letter], ax.sign * angles[:, ROTARY_COLUMN[ax.letter]])
+        return v
+
     def _head_axis(self, angles: np.ndarray, n: int) -> np.ndarray:
         """The tool axis in the machine frame (n, 3): the head's rotations of +Z."""
-        k = np.tile(_Z, (n, 1))
-        for ax in reversed(self.head):  # the innermost turns the tool first
-            k = rotate(k, ROTARY_ABOUT[ax.letter], ax.sign * angles[:, ROTARY_COLUMN[ax.letter]])
-        return k
+        return self._head_turn(np.tile(_Z, (n, 1)), angles)
+
+    # --- instances of motion -----------------------------------------------------------
+
+    def instance_counts(self, start, end, tool_length, height: float, radius: float, step: float) -> np.ndarray:
+        """Instances of motion each move needs, (n,) int >= 1: with the machine axes
+        interpolated linearly from ``start`` to ``end`` ((n, 6), as GRBL and LinuxCNC's
+        joint moves do) in that many equal steps, no point of the tool moves more than
+        ``step`` mm in the workpiece frame from one instance to the next.
+
+        The tool is taken as the cylinder ``radius`` x ``height`` (mm) standing on the
+        tip (its cutting part, or shank and holder too). The bound: a point moves at most
+        ``|dXYZ| + sum over rotaries of |dangle| (rad) * its distance from that axis``,
+        the distance bounded over the whole move (the gauge point's from the axis at the
+        ends, plus the tool's reach, plus the offsets between axes), so it holds between
+        the ends too, not only at them.
+        """
+        start = np.atleast_2d(np.asarray(start, np.float64))
+        end = np.atleast_2d(np.asarray(end, np.float64))
+        n = len(start)
+        _rows(end, n, 6, "end")
+        if not (step > 0 and math.isfinite(step)):
+            raise ValueError(f"step must be a positive number (mm), got {step!r}")
+        lengths = _lengths(tool_length, n)
+        # every tool point lies within `cyl` of the cylinder's centre, which sits
+        # `centre` below the pivot along the tool axis (the gauge point on a fixed head)
+        half = 0.5 * float(height)
+        cyl = math.hypot(half, float(radius))
+        centre = self.pivot_length + lengths - half
+        bound = np.linalg.norm(end[:, :3] - start[:, :3], axis=1)
+        turn = np.radians(np.abs(end[:, 3:] - start[:, 3:]))
+        for ax in self.head:  # the head's axes pass through the pivot
+            bound = bound + turn[:, ROTARY_COLUMN[ax.letter] - 3] * (np.abs(centre) + cyl)
+        if self.table:
+            base = np.asarray(self.table[0].point, np.float64)
+            if self.head:  # the centre swings about the pivot: bound it by the gauge point's reach
+                reach = np.maximum(np.linalg.norm(start[:, :3] - base, axis=1),
+                                   np.linalg.norm(end[:, :3] - base, axis=1)) + self.pivot_length + np.abs(centre)
+            else:  # the centre moves on a line: its farthest from the base axis is at an end
+                drop = (lengths - half)[:, None] * _Z
+                reach = np.maximum(np.linalg.norm(start[:, :3] - drop - base, axis=1),
+                                   np.linalg.norm(end[:, :3] - drop - base, axis=1))
+            reach = reach + cyl
+            prev = base
+            for ax in self.table:  # each axis line sits its offset further from the base one
+                p = np.asarray(ax.point, np.float64)
+                reach = reach + np.linalg.norm(p - prev)
+                prev = p
+                bound = bound + turn[:, ROTARY_COLUMN[ax.letter] - 3] * reach
+        return np.maximum(1, np.ceil(bound / step - 1e-12)).astype(np.int64)
 
     def _tip_in_machine(self, xyz, angles, lengths):
         k = self._head_axis(angles, len(xyz))
@@ -318,6 +394,17 @@ class Kinematics:
             return {letter: nearest_turn(phi / sign, prev[:, ROTARY_COLUMN[letter]])}
         (c_letter, c_sign), (t_letter, t_sign) = self._orient
         return _tilt_and_turn(k, ROTARY_ABOUT[t_letter], prev, c_letter, c_sign, t_letter, t_sign)
+
+
+def instance_poses(start, end, count: int) -> np.ndarray:
+    """Machine poses (count + 1, 6) from ``start`` to ``end`` ((6,) each) in ``count``
+    equal steps of every axis, both ends included (exactly ``start`` and ``end``)."""
+    start = np.asarray(start, np.float64).reshape(6)
+    end = np.asarray(end, np.float64).reshape(6)
+    s = np.linspace(0.0, 1.0, int(count) + 1)[:, None]
+    out = start + s * (end - start)
+    out[-1] = end
+    return out
 
 
 def _must_reach(k, miss, reachable: str) -> None:

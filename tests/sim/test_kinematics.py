@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from sim.kinematics import (KINEMATICS, ROTARY_COLUMN, FourthAxis, HeadHead, HeadTable, KinematicsError,
-                            TableTable, Trivial, make_kinematics)
+                            TableTable, Trivial, instance_poses, make_kinematics)
 
 TOL = 1e-9
 
@@ -342,3 +342,80 @@ def test_shapes_are_checked():
         kin.forward(np.zeros((3, 5)))
     with pytest.raises(ValueError, match=r"previous: expected shape \(2, 6\)"):
         kin.inverse(np.zeros((2, 3)), [0, 0, 1], previous=np.zeros((3, 6)))
+
+
+# --- tool points and instances of motion ------------------------------------------------
+
+def test_tool_points_are_the_tip_and_axis_for_points_on_the_axis():
+    kin = make_kinematics("xyzac-trt", **ALL["xyzac-trt"])
+    axes = random_axes(np.random.default_rng(4), 25)
+    tip, axis = kin.forward(axes, 15.0)
+    pts = kin.tool_points(axes, 15.0, [[0, 0, 0], [0, 0, 10], [3, 0, 0], [0, 3, 0]])
+    close(pts[:, 0], tip)
+    close(pts[:, 1], tip + 10 * axis)
+    # points off the axis stay square to it and at their radius
+    for j in (2, 3):
+        r = pts[:, j] - tip
+        close(np.linalg.norm(r, axis=1), np.full(len(axes), 3.0))
+        close(np.einsum("ij,ij->i", r, axis), np.zeros(len(axes)))
+
+
+def test_instances_of_a_straight_three_axis_move_are_its_length_over_the_step():
+    kin = Trivial()
+    counts = kin.instance_counts([[0, 0, 0, 0, 0, 0], [0, 0, 0, 0, 0, 0]],
+                                 [[3, 4, 0, 90, 0, 0], [0, 0, 0, 0, 0, 0]], 20, height=30, radius=3, step=0.5)
+    assert counts.tolist() == [10, 1]  # A turns nothing on a 3-axis machine; no motion is one instance
+
+
+def test_instances_of_a_fourth_axis_turn_follow_the_farthest_point():
+    # the tool's cylinder (r 3, 20 high, standing on the tip 25 above the A axis): its
+    # centre 35 above the axis, every point within hypot(10, 3) of it
+    kin = FourthAxis("A")
+    count = int(kin.instance_counts([0, 0, 45, 0, 0, 0], [0, 0, 45, 90, 0, 0], 20, height=20, radius=3,
+                                    step=0.1)[0])
+    assert count == math.ceil(math.pi / 2 * (35 + math.hypot(10, 3)) / 0.1)
+    # and no fewer than the farthest point's arc needs (top rim, hypot(45, 3) from the axis)
+    assert count >= math.pi / 2 * math.hypot(45, 3) / 0.1
+
+
+def _surface(height, radius):
+    """Points of the tool cylinder's surface (tool frame): rims, sides, axis ends."""
+    phi = np.radians(np.arange(0, 360, 30))
+    pts = [[0, 0, 0], [0, 0, height]]
+    for h in (0.0, height / 2, height):
+        pts += [[radius * math.cos(f), radius * math.sin(f), h] for f in phi]
+    return np.array(pts)
+
+
+@pytest.mark.parametrize("name", sorted(ALL))
+def test_no_tool_point_moves_more_than_the_step_between_instances(name):
+    kin = make_kinematics(name, **ALL[name])
+    rng = np.random.default_rng(13)
+    height, radius, step, L = 40.0, 4.0, 1.0, 30.0
+    surface = _surface(height, radius)
+    worst = []
+    for _ in range(12):
+        q0 = random_axes(rng, 1, span=80)[0]
+        q1 = q0 + np.concatenate([rng.uniform(-40, 40, 3), rng.uniform(-60, 60, 3)])
+        count = int(kin.instance_counts(q0, q1, L, height, radius, step)[0])
+        # the instances, and 4 poses between each two (the bound holds along the way too)
+        fine = instance_poses(q0, q1, 4 * count)
+        pts = kin.tool_points(fine, L, surface)
+        moved = np.linalg.norm(pts[4::4] - pts[:-4:4], axis=2)
+        assert moved.max() <= step * (1 + 1e-9)
+        sub = np.linalg.norm(np.diff(pts, axis=0), axis=2).sum(axis=0)  # path length of each point
+        worst.append(sub.max() / count)
+    # the bound is not wildly loose: the farthest-moving point uses a fair share of the step
+    assert max(worst) > 0.3 * step
+
+
+def test_instance_poses_include_both_ends_exactly():
+    q0, q1 = np.array([0.1, 0.2, 0.3, 10, 20, 30]), np.array([1.7, -2.2, 3.3, -10, 200, 31])
+    poses = instance_poses(q0, q1, 7)
+    assert poses.shape == (8, 6) and (poses[0] == q0).all() and (poses[-1] == q1).all()
+    close(np.diff(poses, axis=0), np.tile((q1 - q0) / 7, (7, 1)))
+
+
+def test_instance_counts_refuse_a_step_that_is_not_positive():
+    with pytest.raises(ValueError, match="step must be a positive number"):
+        Trivial().instance_counts(np.zeros(6), np.ones(6), 0, 10, 3, 0.0)
