@@ -85,8 +85,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from sim.errors import InputError
-from sim.kinematics import KINEMATICS, PARAMETERS as KINEMATICS_PARAMETERS, Kinematics, Trivial, \
-    kinematics_name, make_kinematics
+from sim.kinematics import KINEMATICS, PARAMETERS as KINEMATICS_PARAMETERS, Kinematics, KinematicsError, \
+    Trivial, kinematics_name, make_kinematics
 from sim.tolerance import Tolerance
 
 ALERT_ACTIONS = ("log", "bell", "feed_hold")
@@ -397,7 +397,10 @@ def _kinematics(ctx: _Ctx, given: dict) -> Kinematics:
             if not isinstance(v, bool):
                 raise ctx.err(where, "true or false", v)
             params[k] = v
-    return make_kinematics(key, **params)
+    try:
+        return make_kinematics(key, **params)
+    except KinematicsError as exc:  # what the checks above let through: still one clear line
+        raise JobError(f"[machine]: {exc}", ctx.name) from None
 
 
 def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) -> Job:
