@@ -419,3 +419,32 @@ def test_instance_poses_include_both_ends_exactly():
 def test_instance_counts_refuse_a_step_that_is_not_positive():
     with pytest.raises(ValueError, match="step must be a positive number"):
         Trivial().instance_counts(np.zeros(6), np.ones(6), 0, 10, 3, 0.0)
+
+
+def test_fourth_axis_turn_cut_by_instances_leaves_a_cylinder():
+    """Machine poses -> instances of motion -> Cutter.cut_poses: a ball end mill standing
+    still while A turns -15..15 deg cuts, in the part, a groove whose bottom is the cylinder
+    of radius (ball centre's radius - ball radius) about the A axis."""
+    from sim.cut import Cutter
+    from sim.frame import Frame
+    from sim.grid import DexelGrid
+    from sim.tools import parse_tool_spec
+
+    sp = 0.25
+    frame = Frame.top(0.0, -15.0, 20.0, 15.0, sp)
+    grid = DexelGrid.from_intervals(frame, np.zeros(frame.shape), np.full(frame.shape, 30.0))
+    tool = parse_tool_spec("ball:6:L=20")
+    kin = FourthAxis("A")
+    L = 20.0
+    q0, q1 = np.array([10.0, 0, 26 + L, -15, 0, 0]), np.array([10.0, 0, 26 + L, 15, 0, 0])
+    step = 0.5 * sp
+    count = int(kin.instance_counts(q0, q1, L, height=20.0, radius=3.0, step=step)[0])
+    tips, axes = kin.forward(instance_poses(q0, q1, count), L)
+    assert Cutter(grid, tool).cut_poses(tips, axes, 1) > 0
+    y = -15.0 + np.arange(frame.nv) * sp
+    inside = np.abs(y) <= 26 * math.sin(math.radians(15)) - 3 * sp
+    bottom = grid.top()[inside, int(round(10.0 / sp))]
+    want = np.sqrt(26.0**2 - y[inside] ** 2)
+    # never deeper than the cylinder; shallower only by the cusps between instances
+    assert (bottom >= want - 1e-5).all()
+    np.testing.assert_allclose(bottom, want, atol=2e-3)
