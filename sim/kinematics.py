@@ -73,9 +73,9 @@ The machines
   B about Y) carries the rotary table C. Offsets as LinuxCNC's trtfuncs: ``rot_point``
   is a point of the C axis (its x-rot-point, y-rot-point, z-rot-point) and the tilt axis
   passes through ``rot_point + rot_offset`` (its x-offset, y-offset, z-offset; the offset
-  along the tilt axis itself changes nothing). The forward transform is the chapter's
-  ``world = Rz(s C) [R_tilt(s tilt) (P - rot_point - offset) + offset] + rot_point`` with
-  P the tip in the machine frame.
+  along the tilt axis itself changes nothing). The forward transform is trtfuncs':
+  ``tip = Rz(s C) [R_tilt(s tilt) (P - rot_point - offset) + offset] + rot_point`` with
+  P the tip in the machine frame (``X Y Z - (0, 0, L)``) and ``tip`` on the part.
 * ``xyzbc-head-table`` / ``xyzac-head-table``: the head tilts about Y (B) or X (A) at a
   pivot ``pivot_length`` above the gauge point; the part sits on a C table whose axis
   passes through ``rot_point``.
