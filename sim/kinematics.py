@@ -8,7 +8,8 @@ machine's kinematics. This module holds those, array in and array out:
 * :meth:`Kinematics.forward` ``(axes (n, 6) X Y Z mm A B C deg, tool_length) -> (tip (n, 3),
   axis (n, 3))`` in the workpiece frame;
 * :meth:`Kinematics.inverse` ``(tip, axis, tool_length, previous) -> axes (n, 6)``, the
-  solution closest to a previous pose;
+  solution closest to a previous pose; :meth:`Kinematics.inverse_path` along a path, each
+  row near the one before (CAM cutter-location data to machine axes);
 * :meth:`Kinematics.machine_xyz` ``(tip, rotary (n, 3), tool_length) -> (n, 3)``: the
   linear axes that put the tip there with the rotaries given (what a LinuxCNC TCP
   kinematics does with a program's X Y Z A B C);
@@ -17,7 +18,8 @@ machine's kinematics. This module holds those, array in and array out:
 * :meth:`Kinematics.instance_counts` ``(start, end, tool_length, height, radius, step)``:
   how many instances of motion (Huang & Oliver) a move from machine pose ``start`` to
   ``end`` needs so that no point of the tool moves more than ``step`` between two, and
-  :func:`instance_poses` the machine poses themselves.
+  :func:`instance_poses` the machine poses themselves; :meth:`Kinematics.move_instances`
+  the tips and axes of one move's instances, ready for ``Cutter.cut_poses``.
 
 Frames and points
 -----------------
@@ -383,6 +385,21 @@ class Kinematics:
         out[:, :3] = self.machine_xyz(tip, out[:, 3:], tool_length)
         return out
 
+    def inverse_path(self, tip, axis, tool_length=0.0, start=None) -> np.ndarray:
+        """Machine axes (n, 6) along a path of tips and axes ((n, 3) each, workpiece
+        frame): each row's solution the one nearest the row before, the first nearest
+        ``start`` ((6,), default all 0), so the rotaries turn no more than they must."""
+        tip = np.atleast_2d(np.asarray(tip, np.float64))
+        n = len(tip)
+        k = _unit_axes(axis, n)
+        lengths = _lengths(tool_length, n)
+        out = np.empty((n, 6))
+        prev = np.zeros(6) if start is None else _rows(start, 1, 6, "start")[0]
+        for i in range(n):
+            prev = self.inverse(tip[i:i + 1], k[i:i + 1], lengths[i], previous=prev)[0]
+            out[i] = prev
+        return out
+
     def _solve_angles(self, k: np.ndarray, prev: np.ndarray) -> dict[str, np.ndarray]:
         """Machine angles (deg) of the rotaries that turn +Z into ``k`` (n, 3), near ``prev``."""
         if not self._orient:
@@ -394,6 +411,15 @@ class Kinematics:
             return {letter: nearest_turn(phi / sign, prev[:, ROTARY_COLUMN[letter]])}
         (c_letter, c_sign), (t_letter, t_sign) = self._orient
         return _tilt_and_turn(k, ROTARY_ABOUT[t_letter], prev, c_letter, c_sign, t_letter, t_sign)
+
+
+def move_instances(kin: Kinematics, start, end, tool_length, height: float, radius: float,
+                   step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Tips and axes ((k, 3) each, workpiece frame) of the instances of motion of one
+    move from machine pose ``start`` to ``end`` ((6,) each): :meth:`Kinematics.instance_counts`
+    equal steps, both ends included, ready for ``Cutter.cut_poses``."""
+    count = int(kin.instance_counts(start, end, tool_length, height, radius, step)[0])
+    return kin.forward(instance_poses(start, end, count), tool_length)
 
 
 def instance_poses(start, end, count: int) -> np.ndarray:

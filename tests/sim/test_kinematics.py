@@ -448,3 +448,32 @@ def test_fourth_axis_turn_cut_by_instances_leaves_a_cylinder():
     # never deeper than the cylinder; shallower only by the cusps between instances
     assert (bottom >= want - 1e-5).all()
     np.testing.assert_allclose(bottom, want, atol=2e-3)
+
+
+def test_inverse_path_keeps_the_rotaries_continuous():
+    # a tool axis circling the vertical twice at 30 deg tilt: C winds on past 360
+    # instead of jumping back, and the tilt keeps its sign
+    kin = make_kinematics("xyzbc-head", pivot_length=100)
+    az = np.linspace(0, 720, 145)
+    k = np.stack([np.sin(np.radians(30)) * np.cos(np.radians(az)),
+                  np.sin(np.radians(30)) * np.sin(np.radians(az)), np.full(len(az), np.cos(np.radians(30)))], 1)
+    tips = np.stack([np.cos(np.radians(az)), np.sin(np.radians(az)), np.zeros(len(az))], 1) * 20
+    axes = kin.inverse_path(tips, k, 10.0, start=[0, 0, 0, 0, -30, 0])
+    assert np.abs(np.diff(axes[:, 5])).max() < 5.01 and axes[-1, 5] == pytest.approx(720.0)
+    close(axes[:, 4], np.full(len(az), -30.0))
+    tip2, k2 = kin.forward(axes, 10.0)
+    close(tip2, tips, 1e-9)
+    close(k2, k, 1e-12)
+
+
+def test_move_instances_are_the_forward_of_the_instance_poses():
+    from sim.kinematics import move_instances
+
+    kin = FourthAxis("A")
+    q0, q1 = np.array([0.0, 0, 45, 0, 0, 0]), np.array([5.0, 0, 45, 30, 0, 0])
+    tips, axes = move_instances(kin, q0, q1, 20.0, 20.0, 3.0, 0.5)
+    count = int(kin.instance_counts(q0, q1, 20.0, 20.0, 3.0, 0.5)[0])
+    assert len(tips) == count + 1
+    want_tips, want_axes = kin.forward(instance_poses(q0, q1, count), 20.0)
+    close(tips, want_tips)
+    close(axes, want_axes)
