@@ -122,6 +122,7 @@ AXIS_TOL = 1e-9
 SINGULAR_SIN = 1e-12
 
 _Z = np.array([0.0, 0.0, 1.0])
+_UNIT = {"x": np.array([1.0, 0.0, 0.0]), "y": np.array([0.0, 1.0, 0.0]), "z": _Z}
 
 
 class KinematicsError(InputError):
@@ -318,17 +319,27 @@ class Kinematics:
         for ax in self.head:  # the head's axes pass through the pivot
             bound = bound + turn[:, ROTARY_COLUMN[ax.letter] - 3] * (np.abs(centre) + cyl)
         if self.table:
-            base = np.asarray(self.table[0].point, np.float64)
-            if self.head:  # the centre swings about the pivot: bound it by the gauge point's reach
-                reach = np.maximum(np.linalg.norm(start[:, :3] - base, axis=1),
-                                   np.linalg.norm(end[:, :3] - base, axis=1)) + self.pivot_length + np.abs(centre)
-            else:  # the centre moves on a line: its farthest from the base axis is at an end
+            # the tool's centre at the ends; a fixed head's moves on a line, a turning
+            # head's within pivot_length + |centre| of the gauge point, which moves on one
+            if self.head:
+                ends = (start[:, :3], end[:, :3])
+                slack = self.pivot_length + np.abs(centre) + cyl
+            else:
                 drop = (lengths - half)[:, None] * _Z
-                reach = np.maximum(np.linalg.norm(start[:, :3] - drop - base, axis=1),
-                                   np.linalg.norm(end[:, :3] - drop - base, axis=1))
-            reach = reach + cyl
-            prev = base
-            for ax in self.table:  # each axis line sits its offset further from the base one
+                ends = (start[:, :3] - drop, end[:, :3] - drop)
+                slack = np.full(n, cyl)
+            base = self.table[0]
+            p0 = np.asarray(base.point, np.float64)
+            # the base axis stays put: the distance from its line, largest at an end
+            # (distance from a line is convex along a segment)
+            e0 = _UNIT[ROTARY_ABOUT[base.letter]]
+            to_line = max(_line_distance(q, p0, e0) for q in ends) + slack
+            bound = bound + turn[:, ROTARY_COLUMN[base.letter] - 3] * to_line
+            # an inner axis turns with the base: from its point, which stays within the
+            # offsets of the base point
+            reach = np.maximum(*(np.linalg.norm(q - p0, axis=1) for q in ends)) + slack
+            prev = p0
+            for ax in self.table[1:]:
                 p = np.asarray(ax.point, np.float64)
                 reach = reach + np.linalg.norm(p - prev)
                 prev = p
@@ -431,6 +442,12 @@ def instance_poses(start, end, count: int) -> np.ndarray:
     out = start + s * (end - start)
     out[-1] = end
     return out
+
+
+def _line_distance(q: np.ndarray, point: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """Distance (n,) of points ``q`` (n, 3) from the line through ``point`` along unit ``direction``."""
+    d = q - point
+    return np.linalg.norm(d - (d @ direction)[:, None] * direction, axis=1)
 
 
 def _must_reach(k, miss, reachable: str) -> None:

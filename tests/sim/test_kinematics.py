@@ -376,6 +376,9 @@ def test_instances_of_a_fourth_axis_turn_follow_the_farthest_point():
     assert count == math.ceil(math.pi / 2 * (35 + math.hypot(10, 3)) / 0.1)
     # and no fewer than the farthest point's arc needs (top rim, hypot(45, 3) from the axis)
     assert count >= math.pi / 2 * math.hypot(45, 3) / 0.1
+    # along the A axis the distance does not grow: 100 mm further in X, the same count
+    assert kin.instance_counts([100, 0, 45, 0, 0, 0], [100, 0, 45, 90, 0, 0], 20, height=20, radius=3,
+                               step=0.1)[0] == count
 
 
 def _surface(height, radius):
