@@ -58,7 +58,8 @@ xyzac-trt, xyzbc-trt (tables)    all -1      trtfuncs (xyzac-trt-kins, xyzbc-trt
                                              opposite of the conventional" (5-Axis
                                              Kinematics chapter)
 xyzbc-head, xyzac-head           tilt -1,    5axiskins: B = +90 swings the tip toward
-(head-head)                      C +1        +X; C turns the tool counterclockwise
+(head-head)                      C +1        +X (an A head, by analogy: A = +90 toward
+                                             -Y); C turns the tool counterclockwise
 xyzbc-head-table, xyzac-head-    all -1      the head tilt as 5axiskins, the table C as
 table (head tilt, C table)                   trtfuncs
 ===============================  ==========  ==========================================

@@ -127,6 +127,31 @@ def test_head_table_tilts_the_tool_and_turns_the_part():
     close(axis, [[0, -1, 0]])
 
 
+def test_a_head_tilts_as_a_b_head_turned_a_quarter():
+    # an A head by analogy with 5axiskins' B (the LinuxCNC direction): A = +90 swings the
+    # tip toward -Y, the tool lying along +Y; C = +90 then turns that toward +X
+    kin = HeadHead("A", pivot_length=100)
+    tip, axis = kin.forward(pose(a=90), tool_length=20)
+    close(tip, [[0, -120, 100]])
+    close(axis, [[0, 1, 0]])
+    tip, axis = kin.forward(pose(a=90, c=90), tool_length=20)
+    close(tip, [[120, 0, 100]])
+    close(axis, [[-1, 0, 0]])
+    # the RS274 direction: the tool turns +90 about X, its tip toward +Y
+    tip, axis = HeadHead("A", pivot_length=100, conventional_directions=True).forward(pose(a=90), 20)
+    close(tip, [[0, 120, 100]])
+    close(axis, [[0, -1, 0]])
+
+
+def test_a_head_over_a_c_table():
+    kin = HeadTable("A", pivot_length=50, rot_point=(100, 0, 0))
+    # the tip swings 70 mm toward -Y of the C axis; C = +90 (table counterclockwise)
+    # brings that point of the part from its -X side
+    tip, axis = kin.forward(pose(100, 0, 0, a=90, c=90), tool_length=20)
+    close(tip, [[30, 0, 50]])
+    close(axis, [[1, 0, 0]])
+
+
 # --- LinuxCNC's formulas, transcribed from its 5-axis chapter and modules ----------------
 
 def linuxcnc_trt_world(kind, j, xr, yr, zr, dx, dy, dz, tool, con):
