@@ -63,6 +63,14 @@ needs; paths are relative to the job file's folder)::
                                 # coords (mm, like [limits]), e.g. where it homes. Default:
                                 # the top of [limits] z above the program's first point (else
                                 # 10 mm above stock, fixtures and program); see monitor.start
+    kinematics = "xyz"          # or xyza, xyzb (4th axis), xyzac-trt, xyzbc-trt (trunnion),
+                                # xyzac-head-table, xyzbc-head-table, xyzac-head, xyzbc-head
+                                # (LinuxCNC names trivkins, xyzac-trt-kins, xyzbc-trt-kins,
+                                # 5axiskins too); see sim.kinematics
+    rot_point = [0, 0, 0]       # mm, machine coords: a point of the 4th axis / the C table axis
+    rot_offset = [0, 0, 0]      # trunnion: the tilt axis from rot_point, mm
+    pivot_length = 0            # head: gauge point to the head's pivot, mm
+    conventional_directions = false  # true: RS274 rotary directions, not LinuxCNC's
 
 Errors name the file, the key and what was expected:
 ``job.toml: [stock] box: expected 6 numbers (mm), got "abc"``.
@@ -77,6 +85,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from sim.errors import InputError
+from sim.kinematics import KINEMATICS, PARAMETERS as KINEMATICS_PARAMETERS, Kinematics, KinematicsError, \
+    Trivial, kinematics_name, make_kinematics
 from sim.tolerance import Tolerance
 
 ALERT_ACTIONS = ("log", "bell", "feed_hold")
@@ -175,6 +185,9 @@ class Job:
     #: where the machine stands when the program starts, machine coords (3,) mm; None: the
     #: default of :func:`monitor.start.job_start`
     start: tuple[float, float, float] | None = None
+    #: the machine's kinematics ([machine] kinematics and its parameters): how A B C turn
+    #: the part or the tool (sim.kinematics); plain 3-axis by default
+    kinematics: Kinematics = field(default_factory=Trivial)
 
     def tool(self, number: int) -> ToolDef | None:
         """The tool for tool number ``number`` (the default tool when it is not listed)."""
@@ -358,6 +371,38 @@ def _spec(ctx: _Ctx, value, where: str) -> str:
     return value.strip()
 
 
+def _kinematics(ctx: _Ctx, given: dict) -> Kinematics:
+    """The kinematics [machine] names, with its parameters (``given``: the keys as in the file)."""
+    name = given.pop("kinematics", "xyz")
+    key = kinematics_name(name) if isinstance(name, str) else None
+    if key is None:
+        raise ctx.err("[machine] kinematics", f"one of {', '.join(KINEMATICS)}", name)
+    takes = KINEMATICS[key][2]
+    params = {}
+    for k, v in given.items():
+        where = f"[machine] {k}"
+        if k not in takes:
+            raise JobError(f"{where}: not used by kinematics {key!r}"
+                           + (f" (it takes {', '.join(takes)})" if takes else " (plain 3-axis: give kinematics)"),
+                           ctx.name)
+        if k == "rot_point":
+            params[k] = ctx.numbers(v, 3, where, "mm, machine coords: a point of the rotary axis")
+        elif k == "rot_offset":
+            params[k] = ctx.numbers(v, 3, where, "mm: the tilt axis from rot_point")
+        elif k == "pivot_length":
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not (v >= 0) or not math.isfinite(v):
+                raise ctx.err(where, "a number >= 0 (mm, gauge point to the head's pivot)", v)
+            params[k] = float(v)
+        else:  # conventional_directions
+            if not isinstance(v, bool):
+                raise ctx.err(where, "true or false", v)
+            params[k] = v
+    try:
+        return make_kinematics(key, **params)
+    except KinematicsError as exc:  # what the checks above let through: still one clear line
+        raise JobError(f"[machine]: {exc}", ctx.name) from None
+
+
 def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) -> Job:
     """Parse job TOML ``text``; ``name`` is used in errors, ``base`` resolves relative paths."""
     base = Path(".") if base is None else base
@@ -483,9 +528,18 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
         doc["machine"] = rest
         if not rest:
             del doc["machine"]
+    if isinstance(doc.get("machine"), dict) and set(doc["machine"]) & ({"kinematics"} | set(KINEMATICS_PARAMETERS)):
+        # the machine's build, not a timing limit: taken out like start
+        rest = dict(doc["machine"])
+        given = {k: rest.pop(k) for k in ("kinematics",) + KINEMATICS_PARAMETERS if k in rest}
+        job.kinematics = _kinematics(ctx, given)
+        doc["machine"] = rest
+        if not rest:
+            del doc["machine"]
     if "machine" in doc:
         t = ctx.table(doc["machine"], "[machine]")
-        ctx.no_unknown(t, {"max_rate", "acceleration", "junction_deviation"}, "[machine]")
+        ctx.no_unknown(t, {"max_rate", "acceleration", "junction_deviation", "start", "kinematics",
+                           *KINEMATICS_PARAMETERS}, "[machine]")
         m = {}  # only what the job says: the rest comes from the controller, else the defaults
         for key, unit in (("max_rate", "mm/min"), ("acceleration", "mm/s^2")):
             if key in t:

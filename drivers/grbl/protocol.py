@@ -690,18 +690,21 @@ def status_to_state(
     if inches is None:
         inches = report_in_inches(report)
     scale = MM_PER_INCH if inches else 1.0
+    # per axis: grblHAL leaves the axes $376 calls rotary in degrees in an inch report
+    rotary = rotary_axes(settings)
+    scales = tuple(1.0 if i in rotary else scale for i in range(6))
     wco = None
     if report.wco is not None:
-        wco = tuple(v * scale for v in report.wco)
+        wco = tuple(v * k for v, k in zip(report.wco, scales))
     elif last_wco is not None:
         wco = tuple(float(v) for v in last_wco)
     else:
         wco = (0.0,) * 6
     wco6 = (tuple(wco) + (0.0,) * 6)[:6]
     if report.mpos is not None:
-        mpos = tuple(v * scale for v in report.mpos)
+        mpos = tuple(v * k for v, k in zip(report.mpos, scales))
     else:
-        mpos = tuple(w * scale + o for w, o in zip(report.wpos, wco6))
+        mpos = tuple(w * k + o for w, k, o in zip(report.wpos, scales, wco6))
     if report.overrides is not None:
         overrides = report.overrides
         accessories = report.accessories or ""
@@ -775,6 +778,23 @@ def settings_limits(settings: dict[int, float] | None, source: str, option_codes
 
 
 _POSITION_DECIMALS = re.compile(r"[MW]Pos:[+-]?\d*\.(\d*)")
+
+
+#: grblHAL's $376: the mask of axes that are rotary (bit 3 A, 4 B, 5 C)
+ROTARY_AXES_SETTING = 376
+
+
+def rotary_axes(settings: dict[int, float] | None) -> frozenset[int]:
+    """Columns (3 A, 4 B, 5 C) of the axes that are rotary, in degrees whatever ``$13``.
+
+    grblHAL's ``$376`` mask says which (its inch reports leave those axes in degrees,
+    report.c get_axis_values_inches); without a ``$376`` it can mean (not read, Grbl
+    1.1h's 3 axes, garbage), A B C are rotary, as their letters say.
+    """
+    value = (settings or {}).get(ROTARY_AXES_SETTING)
+    if isinstance(value, (int, float)) and float(value).is_integer() and 0 <= value < 256:
+        return frozenset(i for i in (3, 4, 5) if int(value) >> i & 1)
+    return frozenset((3, 4, 5))
 
 
 def report_in_inches(report: StatusReport) -> bool:

@@ -303,7 +303,10 @@ class VirtualController(Controller):
 
 
 def _status_text(st: MachineState) -> str:
-    pos = ",".join(f"{v:.3f}" for v in st.mpos[:3])
+    """The state as a GRBL report (for garbled and bad replies): X Y Z, and A B C as
+    grblHAL sends them when a rotary is off zero (a bad A must show in the text)."""
+    axes = st.mpos if any(v != 0.0 for v in st.mpos[3:]) else st.mpos[:3]
+    pos = ",".join(f"{v:.3f}" for v in axes)
     return f"<{st.state.value}|MPos:{pos}|FS:{st.feed:.0f},{st.spindle:.0f}>\r\n"
 
 

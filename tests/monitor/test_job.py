@@ -215,3 +215,53 @@ def test_lead_times_come_from_the_planned_cycle_time():
         def cycle_time(self, machine=None):
             raise RuntimeError("no planner")
     assert np.array_equal(program_seconds(NoTiming(), moves), naive)
+
+
+def test_machine_kinematics_default_is_plain_three_axis():
+    from sim.kinematics import Trivial
+
+    assert parse_job_text("").kinematics == Trivial()
+    job = parse_job_text('[machine]\nmax_rate = 1000\n')
+    assert job.kinematics == Trivial() and job.machine == {"max_rate": (1000.0, 1000.0, 1000.0)}
+
+
+def test_machine_kinematics_and_their_parameters():
+    from sim.kinematics import FourthAxis, HeadHead, TableTable
+
+    job = parse_job_text('[machine]\nkinematics = "xyzac-trt"\nrot_point = [10, 20, 30]\n'
+                         'rot_offset = "0, 5, -8"\nconventional_directions = true\n')
+    assert job.kinematics == TableTable("A", rot_point=(10, 20, 30), rot_offset=(0, 5, -8),
+                                        conventional_directions=True)
+    # the build alone keeps the default timing, as start does
+    assert job.machine is None
+    job = parse_job_text('[machine]\nkinematics = "xyza"\nrot_point = [0, 0, -40]\nstart = [0, 0, 0]\n'
+                         'acceleration = 300\n')
+    assert job.kinematics == FourthAxis("A", rot_point=(0, 0, -40)) and job.start == (0.0, 0.0, 0.0)
+    assert job.machine == {"acceleration": (300.0, 300.0, 300.0)}
+    assert parse_job_text('[machine]\nkinematics = "5axiskins"\npivot_length = 250\n').kinematics == \
+        HeadHead("B", pivot_length=250)
+
+
+@pytest.mark.parametrize("machine, message", [
+    ('kinematics = "xyzq"', r'job.toml: \[machine\] kinematics: expected one of xyz, xyza, xyzb, xyzac-trt, '
+                            r'xyzbc-trt, .*, got "xyzq"'),
+    ('kinematics = 5', r'\[machine\] kinematics: expected one of xyz, .*, got 5'),
+    ('kinematics = "xyza"\nrot_point = [1, 2]', r'\[machine\] rot_point: expected 3 numbers \(mm, machine coords: '
+                                                r'a point of the rotary axis\), got \[1, 2\]'),
+    ('kinematics = "xyzac-trt"\nrot_offset = "a, b"', r'\[machine\] rot_offset: expected 3 numbers'),
+    ('kinematics = "xyzbc-head"\npivot_length = -3', r'\[machine\] pivot_length: expected a number >= 0 \(mm, '
+                                                     r'gauge point to the head.s pivot\), got -3'),
+    ('kinematics = "xyzbc-head"\nconventional_directions = "yes"',
+     r'\[machine\] conventional_directions: expected true or false, got "yes"'),
+    ('kinematics = "xyzac-trt"\npivot_length = 100', r"\[machine\] pivot_length: not used by kinematics "
+                                                     r"'xyzac-trt' \(it takes rot_point, rot_offset, "
+                                                     r"conventional_directions\)"),
+    ('rot_point = [0, 0, 0]', r"\[machine\] rot_point: not used by kinematics 'xyz' \(plain 3-axis: "
+                              r"give kinematics\)"),
+    ('kinematic = "xyza"', r"\[machine\]: unknown key 'kinematic'; expected one of acceleration, "
+                           r"conventional_directions, junction_deviation, kinematics, max_rate, pivot_length, "
+                           r"rot_offset, rot_point, start"),
+])
+def test_machine_kinematics_errors_name_key_and_expected(machine, message):
+    with pytest.raises(JobError, match=message):
+        parse_job_text(f"[machine]\n{machine}\n")

@@ -196,6 +196,32 @@ def test_status_to_state_inches_and_alarm():
     assert idle.alarm is None and isinstance(idle, MachineState)
 
 
+def test_status_to_state_carries_rotary_axes():
+    """grblHAL sends 4 to 6 axes: A B C reach the state in degrees, in MPos, WPos and WCO."""
+    s = p.status_to_state(p.parse_line("<Idle|MPos:1.000,2.000,3.000,90.000|FS:0,0>"), {13: 0}, None, 0.0)
+    assert s.mpos == (1.0, 2.0, 3.0, 90.0, 0.0, 0.0)
+    r = p.parse_line("<Run|WPos:1.000,2.000,3.000,80.000,-10.000,370.000|FS:100,0|WCO:0,0,0,10.000,5.000,0>")
+    s = p.status_to_state(r, {13: 0}, None, 0.0)
+    assert s.mpos == (1.0, 2.0, 3.0, 90.0, -5.0, 370.0) and s.wco[3:] == (10.0, 5.0, 0.0)
+
+
+@pytest.mark.parametrize("settings", [{13: 1, 376: 8}, {13: 1, 376: 56}, {13: 1}])
+def test_status_to_state_inches_leave_rotary_axes_in_degrees(settings):
+    """grblHAL with $13=1 reports the axes $376 marks rotary in degrees (3 decimals), not
+    inches; without $376 read, A B C are taken as rotary."""
+    r = p.parse_line("<Idle|MPos:1.0000,2.0000,0.0000,90.000|FS:0,0|WCO:0.5000,0,0,10.000>")
+    s = p.status_to_state(r, settings, None, 0.0)
+    assert s.mpos[:3] == pytest.approx((25.4, 50.8, 0.0))
+    assert s.mpos[3] == 90.0 and s.wco[3] == 10.0 and s.wco[0] == pytest.approx(12.7)
+
+
+def test_status_to_state_inches_scale_an_axis_376_calls_linear():
+    """$376=0 (grblHAL's old default): the A axis is a length, reported in inches like X."""
+    r = p.parse_line("<Idle|MPos:1.0000,0.0000,0.0000,2.0000|FS:0,0>")
+    s = p.status_to_state(r, {13: 1, 376: 0}, None, 0.0)
+    assert s.mpos[3] == pytest.approx(50.8)
+
+
 def test_status_to_state_substate_buffer_pins_line():
     r = p.parse_line("<Hold:0|MPos:0,0,0|Bf:15,128|Ln:77|FS:0,0|Pn:P>")
     s = p.status_to_state(r, None, None, 2.0)

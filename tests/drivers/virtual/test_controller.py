@@ -256,3 +256,29 @@ def test_url_interpreter_options_named_in_errors(tmp_path):
         assert all(w in str(e.value) for w in words), str(e.value)
     with pytest.raises(DriverError, match="no program"):
         open_controller("virtual://?machine_units=mm")
+
+
+def test_rotary_axes_run_and_reach_the_states(tmp_path):
+    """A program turning A (a 4th axis, LinuxCNC dialect): the states carry A in degrees,
+    through every value between, to the end; its bad replies show A too."""
+    path = tmp_path / "rotary.ngc"
+    path.write_text("G21 G90 G94\nG0 X0 Y0 Z5 A0\nG1 X10 A90 F600\nG1 A180 F3600\nM30\n")
+    c = open_controller(f"virtual://{path}?speed=4&clock=sim&rate=50")
+    c.connect()
+    states = [c.poll()]
+    while not c.done:
+        states.append(c.poll())
+        assert len(states) < 100000
+    c.close()
+    a = [s.mpos[3] for s in states]
+    assert a == sorted(a) and len({round(v) for v in a}) > 10  # A turned step by step
+    assert states[-1].mpos == pytest.approx((10.0, 0.0, 5.0, 180.0, 0.0, 0.0))
+
+
+def test_status_text_of_a_bad_reply_shows_the_rotary_axes():
+    from drivers.state import MachineState
+    from drivers.virtual.controller import _status_text
+
+    text = _status_text(MachineState(t=0.0, mpos=(1, 2, 3, 1e9, 0, 0)))
+    assert "MPos:1.000,2.000,3.000,1000000000.000,0.000,0.000" in text
+    assert "MPos:1.000,2.000,3.000|" in _status_text(MachineState(t=0.0, mpos=(1, 2, 3)))
