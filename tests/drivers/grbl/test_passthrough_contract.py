@@ -225,9 +225,12 @@ def test_a_failing_callback_kills_no_thread(scripted):
     the passthrough goes on forwarding both ways."""
     m, pt = scripted([IDLE])
     calls = {"state": 0, "line": 0}
+    three_states = threading.Event()
 
     def bad_state(state):
         calls["state"] += 1
+        if calls["state"] >= 3:
+            three_states.set()
         raise RuntimeError("monitor bug")
 
     def bad_line(line):
@@ -239,7 +242,8 @@ def test_a_failing_callback_kills_no_thread(scripted):
     for k in range(3):
         sender.sock.sendall(b"G4 P0\n?")
         sender.read_until(b"ok\r\n", count=k + 1)
-    assert calls["line"] == 3 and calls["state"] >= 3
+    # the reports reach on_state on the machine reader's thread, maybe after the oks
+    assert calls["line"] == 3 and three_states.wait(WAIT)
     assert pt.wait_lines(3, WAIT)
     assert pt.poll(timeout=WAIT).fresh
     notes = _events(pt, LinkKind.NOTE)
