@@ -123,3 +123,19 @@ def test_trapezoid_volume_of_a_box_is_exact(spacing):
     assert g.volume(weights="trapezoid") == pytest.approx(48000.0 - 10.0 * spacing**2, rel=1e-9)
     with pytest.raises(ValueError):
         g.volume(weights="simpson")
+
+
+def test_a_million_ray_box_with_one_cut_stays_under_32_mb():
+    """The model is its store (per-ray arrays and the pool) and nothing else per ray."""
+    from sim.cut import Cutter
+    from sim.tools import parse_tool_spec
+
+    frame = Frame.top(0, 0, 100, 100, 0.1)
+    assert frame.n_rays >= 1_000_000
+    g = box_grid(frame, (0, 0, 0), (100, 100, 20))
+    got = Cutter(g, parse_tool_spec("ball:6:L=20")).cut_segment((5, 10, 12), (95, 80, 8), 1)
+    assert got > 0
+    held = [v for v in vars(g).values() if isinstance(v, np.ndarray)]
+    assert held == []  # no cached tops or ids beside the store
+    assert g.nbytes() == sum(a.nbytes for a in g.store.values())
+    assert g.nbytes() < 32_000_000
