@@ -943,6 +943,11 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     so nothing is left for this move on those rays. For a level or climbing flat end mill
     and for a ball that is every ray with ``a <= -R |sin(slope)|`` (``a`` along the move).
 
+    Rays within reach, per row: those within ``Rc`` (+ ``REACH_PAD``) of the move's XY
+    segment (its stadium; :func:`_stadium_span`); none in a row where the tool's lowest
+    possible point, ``min z + h_off + h*(row's distance from the segment)``, lies above
+    ``top_bound``, nor anywhere for a move wholly above it.
+
     Per move, the intervals of all rays within reach are computed first (one call,
     vectorised for flat and ball), then compared with the stored material; one-segment
     rays (the common case) are cut in place here, everything else goes through
