@@ -1064,6 +1064,8 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
         zmin = min(z0, z0 + dz) + h_off
         if not probe and zmin >= top_bound + 1e-9:
             continue
+        # only when the tool's rim clears the top may a row do so (one test per move)
+        rows_clear = zmin + _hstar(code, R, tp[2], tp[3], Rc) >= top_bound + 1e-9
         diagonal = dx != 0.0 and dy != 0.0
         # each row's reach: within Rc of the move's bounding box, then (diagonal moves)
         # within Rc of the segment: the stadium, a spare ray either side
@@ -1074,7 +1076,8 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
             dym = max(ymin - y, y - ymax, 0.0)
             ilo = 0
             ihi = -1
-            if dym <= Rc and zmin + _hstar(code, R, tp[2], tp[3], dym) < top_bound + 1e-9:
+            clear = rows_clear and zmin + _hstar(code, R, tp[2], tp[3], dym) >= top_bound + 1e-9
+            if dym <= Rc and not clear:
                 w = math.sqrt(Rc * Rc - dym * dym)
                 ilo = max(0, int(math.ceil((xmin - w - gx0) / sp)))
                 ihi = min(nu - 1, int(math.floor((xmax + w - gx0) / sp)))
