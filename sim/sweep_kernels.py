@@ -865,7 +865,7 @@ def _trace_due(ts, mv):
     return False
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _stadium_span(ax, ay, dx, dy, rad, y):
     """X range ``(lo, hi)`` of the line at height ``y`` within ``rad`` of the segment from
     ``(ax, ay)`` to ``(ax + dx, ay + dy)`` (mm); ``lo > hi`` when the line misses it.
