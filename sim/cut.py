@@ -490,8 +490,7 @@ class Cutter:
                 sink.reserve(min(int(np.sum((run + 2 * reach) * 2 * reach)), 32 * f.n_rays + len(p0) * 64))
             top_bound = np.inf
             if len(p0) >= 64 and not probe:  # lets chained moves skip rays already cut
-                tops = grid.top()
-                top_bound = float(np.nanmax(tops)) if np.isfinite(tops).any() else -np.inf
+                top_bound = grid.max_top()
             self._loop(lambda S, st, B, T, ts: K.cut_linear_batch(
                 S, f.origin[0], f.origin[1], f.spacing, f.nu, f.nv, p0, p1, sm, sid, tp, eps,
                 probe, record, journal, removed, B, st, sink is not None, T, ts, top_bound), log, sink)

@@ -75,8 +75,12 @@ def test_top_and_volume_of_a_stepped_model():
     assert g.volume() == pytest.approx(12 * 3 - 1.5 - 1.0)
     np.testing.assert_allclose(g.segments(2, 0), [[-1, 0], [1, 2]])
     assert g.face_ids(2, 0).tolist() == [[0, 4], [4, 0]]
+    assert g.max_top() == 2.0
+    g.subtract(2, 0, 1.5, 5, move_id=5)  # the top of a two-segment ray is in the pool
+    g.add(0, 0, 2.5, 3.25)
+    assert g.max_top() == 3.25 == np.nanmax(g.top())
     empty = DexelGrid(f)
-    assert np.all(np.isnan(empty.top())) and empty.volume() == 0.0
+    assert np.all(np.isnan(empty.top())) and empty.volume() == 0.0 and empty.max_top() == -np.inf
 
 
 def test_window_is_an_independent_copy_in_its_own_frame():
