@@ -20,6 +20,16 @@ move's capsule / flat disk sweep; arcs sampled every 0.01 mm; rays within 1e-6 m
 the swept boundary may fall either side): height_max_err_mm and rays_over_1um. The cut runs on one core (numba, no parallel loops); numba is warmed up
 first so compilation is not timed.
 
+``grid_bytes`` is everything the model keeps (:meth:`DexelGrid.nbytes`: the dense
+per-ray arrays and the whole segment pool; nothing else is kept per ray) and
+``bytes_per_ray`` that over the rays.
+
+``--big`` instead times a wavy raster finish generated here (:func:`wavy_raster`: the
+shape, step and stepover of ``wavy_finish.nc``, 6 mm ball) on 100 x 100 mm (1M rays)
+and on 300 x 300 mm (10M rays) at 0.1 mm, in ``--pairs`` interleaved pairs, and prints
+one line (``mode: big``) with the rays within reach per second of each and their ratio
+(see :func:`run_big`), and the peak RSS of a fresh process that cuts the 10M case alone.
+
 Then, per ``BASELINE_RUNS`` entry (ball and flat on ``wavy_finish``), a line with
 ``mode: baseline_pairs``: dexmon's plain cut and the straightforward z-map kernel of
 ``bench/zmap_baseline.py`` timed in ``--pairs`` interleaved pairs in this process;
@@ -35,6 +45,7 @@ import math
 import os
 import resource
 import statistics
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -47,7 +58,7 @@ sys.path.insert(0, str(ROOT))
 from sim.cut import Cutter  # noqa: E402
 from sim.frame import Frame  # noqa: E402
 from sim.gcode import load_program  # noqa: E402
-from sim.gcode.moves import MoveKind, tip_positions  # noqa: E402
+from sim.gcode.moves import MoveKind, empty_moves, tip_positions  # noqa: E402
 from sim.grid import DexelGrid  # noqa: E402
 from sim.sweep import arc_points  # noqa: E402
 from sim.tools import parse_tool_spec  # noqa: E402
@@ -205,6 +216,8 @@ def run_case(name: str, shared: Path, check: bool, repeat: int = 3, mode: str = 
         "moves_per_s_cpu": round(len(moves) / cpu, 1) if cpu > 0 else None,
         "removed_mm3": round(float(res.removed.sum()), 3),
         "grid_mb": round(grid.nbytes() / 2**20, 2),
+        "grid_bytes": grid.nbytes(),
+        "bytes_per_ray": round(grid.nbytes() / grid.frame.n_rays, 2),
         "load_seconds": round(load_s, 3),
     }
     if mode != "plain":
@@ -223,6 +236,181 @@ def run_case(name: str, shared: Path, check: bool, repeat: int = 3, mode: str = 
         out["height_max_err_mm"] = float(f"{err.max():.3g}")
         out["rays_over_1um"] = int((err > 0.001).sum())
     return out
+
+
+# --- 1M against 10M rays -------------------------------------------------------------
+
+BIG_TOOL = "ball:6:L=20"
+
+
+def wavy_surface(x, y):
+    """Height (mm) of the wavy test surface: 10 +- 3 mm, periods 60 mm in X, 75 mm in Y."""
+    return 10.0 + 3.0 * np.sin(2 * np.pi * x / 60.0) * np.cos(2 * np.pi * y / 75.0)
+
+
+def wavy_raster(size: float, step: float = 0.5, stepover: float = 0.5) -> np.ndarray:
+    """A zigzag raster finish over :func:`wavy_surface` on ``[0, size]^2`` (tip on the surface).
+
+    As ``wavy_finish.nc``: from Z25 over the origin a plunge onto the surface, then
+    passes along X in ``step`` mm moves, ``stepover`` mm apart in Y, alternating direction
+    (4 x 10^4 moves for 100 mm, 3.6 x 10^5 for 300 mm).
+    """
+    xs = np.linspace(0.0, size, int(round(size / step)) + 1)
+    ys = np.linspace(0.0, size, int(round(size / stepover)) + 1)
+    pts = []
+    for k, y in enumerate(ys):
+        x = xs if k % 2 == 0 else xs[::-1]
+        pts.append(np.column_stack([x, np.full_like(x, y), wavy_surface(x, y)]))
+    path = np.concatenate([[[0.0, 0.0, 25.0]]] + pts)  # the plunge from Z25, then the passes
+    moves = empty_moves(len(path) - 1)
+    moves["kind"] = MoveKind.FEED
+    moves["start"][:, :3] = path[:-1]
+    moves["end"][:, :3] = path[1:]
+    return moves
+
+
+def rays_within_reach(frame: Frame, moves, radius: float) -> int:
+    """Sum over the moves of the rays within ``radius`` (XY) of the tip's path, mm.
+
+    The moves must be parallel to X or Y (as :func:`wavy_raster`'s): then each row's
+    reach is the segment's X range grown by ``sqrt(radius^2 - dy^2)``.
+    """
+    p0 = tip_positions(moves, "start")
+    p1 = tip_positions(moves, "end")
+    d = p1 - p0
+    if np.any((d[:, 0] != 0) & (d[:, 1] != 0)):
+        raise ValueError("rays_within_reach takes moves parallel to X or Y")
+    sp = frame.spacing
+    x_lo = np.minimum(p0[:, 0], p1[:, 0]) - frame.origin[0]
+    x_hi = np.maximum(p0[:, 0], p1[:, 0]) - frame.origin[0]
+    y_lo = np.minimum(p0[:, 1], p1[:, 1]) - frame.origin[1]
+    y_hi = np.maximum(p0[:, 1], p1[:, 1]) - frame.origin[1]
+    j0 = np.ceil((y_lo - radius) / sp).astype(np.int64)
+    rows = int(np.ceil((y_hi - y_lo).max() / sp + 2 * radius / sp)) + 2
+    total = 0
+    for k in range(rows):
+        j = j0 + k
+        y = j * sp
+        dy = np.maximum(np.maximum(y_lo - y, y - y_hi), 0.0)
+        ok = (dy <= radius) & (j >= 0) & (j < frame.nv)
+        w = np.sqrt(np.maximum(radius * radius - dy * dy, 0.0))
+        i0 = np.maximum(np.ceil((x_lo - w) / sp), 0)
+        i1 = np.minimum(np.floor((x_hi + w) / sp), frame.nu - 1)
+        total += int(np.sum(np.where(ok, np.maximum(i1 - i0 + 1, 0), 0)))
+    return total
+
+
+def _big_grid(size: float) -> DexelGrid:
+    """Stock ``size`` x ``size`` x 20 mm, written straight into the store (no temporaries:
+    the peak RSS is the cut's)."""
+    grid = DexelGrid(Frame.top(0.0, 0.0, size, size, RESOLUTION))
+    grid.store["count"][:] = 1
+    grid.store["near"][:] = STOCK[2]
+    grid.store["far"][:] = STOCK[5]
+    return grid
+
+
+def _time_big(size: float, tool, moves) -> tuple[float, float, DexelGrid]:
+    """Wall and CPU seconds of the plain cut of ``moves`` into a fresh ``size`` mm square,
+    and the grid."""
+    grid = _big_grid(size)
+    cutter = Cutter(grid, tool)
+    c0 = time.process_time()
+    w0 = time.perf_counter()
+    cutter.cut_moves(moves, record_changes=False)
+    return time.perf_counter() - w0, time.process_time() - c0, grid
+
+
+def run_big(pairs: int = 3) -> dict:
+    """Rays within reach per second on 1M rays (100 mm) and on 10M rays (300 mm).
+
+    The same raster (:func:`wavy_raster`) on both, cut on fresh stock in ``pairs``
+    interleaved pairs (the 10M grid is dropped before the next pair's). ``ratio_median``:
+    median over the pairs of (10M rays/s) / (1M rays/s), wall time; 1.0 means the
+    bigger model costs nothing per ray (``ratio_cpu_median``: the same by CPU time, less
+    disturbed by other processes). ``window_max_diff_mm``: the largest height difference of the
+    two results on ``[0, 96]^2`` mm, where both are cut by the same segments (0: exact
+    alike). ``peak_rss_10m_mb``: ``ru_maxrss`` of a fresh process that cuts only the
+    10M case (``rss_before_grid_mb``: the same before it builds the grid - the moves,
+    numba and the kernels; ``vm_hwm_mb``: its VmHWM, the same peak from /proc).
+    """
+    # first, while this process is small: a child's ru_maxrss starts from its parent's
+    # peak at the fork (Linux keeps the high-water mark across exec)
+    child = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--big-rss"],
+                           capture_output=True, text=True, check=True)
+    rss = json.loads(child.stdout.strip().splitlines()[-1])
+    tool = parse_tool_spec(BIG_TOOL)
+    small, big = wavy_raster(100.0), wavy_raster(300.0)
+    reach_small = rays_within_reach(Frame.top(0.0, 0.0, 100.0, 100.0, RESOLUTION), small, tool.cutting_radius)
+    reach_big = rays_within_reach(Frame.top(0.0, 0.0, 300.0, 300.0, RESOLUTION), big, tool.cutting_radius)
+    warm_up(tool, small)
+    s_small, s_big, c_small, c_big, ratios, ratios_cpu = [], [], [], [], [], []
+    top_small = top_big = None
+    for k in range(max(1, pairs)):
+        order = (100.0, 300.0) if k % 2 == 0 else (300.0, 100.0)
+        for size in order:
+            secs, cpu, grid = _time_big(size, tool, small if size == 100.0 else big)
+            n = int(round(96.0 / RESOLUTION))
+            top = grid.top()[:n, :n].copy()
+            if size == 100.0:
+                s_small.append(secs)
+                c_small.append(cpu)
+                top_small = top
+            else:
+                s_big.append(secs)
+                c_big.append(cpu)
+                top_big = top
+                big_rays = grid.frame.n_rays
+                big_bytes = grid.nbytes()
+            del grid
+        ratios.append((reach_big / s_big[-1]) / (reach_small / s_small[-1]))
+        ratios_cpu.append((reach_big / c_big[-1]) / (reach_small / c_small[-1]))
+    return {
+        "case": "wavy_raster",
+        "mode": "big",
+        "tool": BIG_TOOL,
+        "moves_1m": int(len(small)),
+        "moves_10m": int(len(big)),
+        "rays_10m": big_rays,
+        "reach_rays_1m": reach_small,
+        "reach_rays_10m": reach_big,
+        "seconds_1m": round(statistics.median(s_small), 3),
+        "seconds_10m": round(statistics.median(s_big), 3),
+        "rays_per_s_1m": round(reach_small / statistics.median(s_small)),
+        "rays_per_s_10m": round(reach_big / statistics.median(s_big)),
+        "ratio_median": round(statistics.median(ratios), 3),
+        "ratios": [round(r, 3) for r in ratios],
+        "ratio_cpu_median": round(statistics.median(ratios_cpu), 3),
+        "pairs": len(ratios),
+        "window_max_diff_mm": float(np.nanmax(np.abs(top_small.astype(np.float64) - top_big))),
+        "grid_mb_10m": round(big_bytes / 2**20, 1),
+        **rss,
+        "load_avg": [round(x, 2) for x in os.getloadavg()],
+    }
+
+
+def big_rss() -> dict:
+    """The 10M case alone in this (fresh) process: its peak RSS."""
+    tool = parse_tool_spec(BIG_TOOL)
+    moves = wavy_raster(300.0)
+    warm_up(tool, moves)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    secs, _, grid = _time_big(300.0, tool, moves)
+    return {"peak_rss_10m_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1),
+            "rss_before_grid_mb": round(before, 1), "vm_hwm_mb": _vm_hwm_mb(),
+            "seconds_10m_alone": round(secs, 3)}
+
+
+def _vm_hwm_mb() -> float | None:
+    """This process's own peak resident set (VmHWM, Linux), MB; None where unknown."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return round(int(line.split()[1]) / 1024, 1)
+    except OSError:
+        pass
+    return None
 
 
 def _time_dexmon(tool, moves) -> tuple[float, DexelGrid]:
@@ -315,7 +503,16 @@ def main(argv=None) -> int:
                     help="what the cut records (default: plain and journal)")
     ap.add_argument("--pairs", type=int, default=5,
                     help="interleaved dexmon/baseline pairs per baseline run (default 5; 0: none)")
+    ap.add_argument("--big", action="store_true",
+                    help="only the 1M against 10M rays comparison (see run_big)")
+    ap.add_argument("--big-rss", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.big_rss:
+        print(json.dumps(big_rss()), flush=True)
+        return 0
+    if args.big:
+        print(json.dumps(run_big(max(1, args.pairs))), flush=True)
+        return 0
     shared = Path(args.shared)
     if not shared.is_dir():
         print(f"sim_bench: {shared} not found (pass --shared)", file=sys.stderr)

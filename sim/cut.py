@@ -499,8 +499,7 @@ class Cutter:
             sink.reserve(events)
         top_bound = np.inf
         if len(p0) >= 64 and not probe:  # lets chained moves skip rays already cut
-            tops = grid.top()
-            top_bound = float(np.nanmax(tops)) if np.isfinite(tops).any() else -np.inf
+            top_bound = grid.max_top()
         bounds = None
         if self.threads > 1 and not probe and not journal and reach.sum() >= bands.MIN_PARALLEL_RAYS:
             bounds = bands.plan_bands(p0, p1, tp[6], f.origin[1], f.spacing, f.nv, self.threads)

@@ -323,6 +323,20 @@ def top_all(S, out):
 
 
 @nb.njit(cache=True)
+def max_top(S):
+    """Largest top over all rays (mm, float64 of the stored float32); -inf if all are empty."""
+    best = -np.inf
+    for r in range(S[0].size):
+        c = S[0][r]
+        if c == 0:
+            continue
+        v = np.float64(S[2][r]) if c == 1 else np.float64(S[8][S[5][r] + c - 2])
+        if v > best:
+            best = v
+    return best
+
+
+@nb.njit(cache=True)
 def total_length(S):
     """Sum of segment lengths over all rays, mm."""
     total = 0.0

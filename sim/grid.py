@@ -144,6 +144,11 @@ class DexelGrid:
         ds.top_all(self.S, out)
         return out.reshape(self.frame.shape)
 
+    def max_top(self) -> float:
+        """The largest top over all rays, mm (``-inf`` when every ray is empty), without
+        a per-ray array (:meth:`top` of 10M rays is 36 MB)."""
+        return float(ds.max_top(self.S))
+
     def volume(self, weights: str | None = None) -> float:
         """Material volume, mm^3.
 

@@ -49,6 +49,10 @@ STOP_JOURNAL = 3
 STOP_TRACE = 4
 TRACE_KEYFRAME = 5
 
+#: mm added to a tool's reach when culling rays: a ray the kernels' rounding might put
+#: inside the swept footprint is kept (a spare ray is harmless, a missed one a bug)
+REACH_PAD = 1e-6
+
 #: int64 ``state`` of a batch kernel: [k, j, i, entries closed, entries of the current move,
 #: journal segments used, journal segments needed (after STOP_JOURNAL)]
 STATE_SIZE = 7
@@ -230,12 +234,15 @@ def overlap_length(S, r, lo, hi):
 
 
 @nb.njit(cache=True, error_model="numpy", boundscheck=False)
-def _rows_ball(R, Rc, h_off, h_top, z0, m, sin_t, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
+def _rows_ball(R, Rc, h_off, h_top, z0, m, sin_t, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows, row_ia,
                row_ilo, row_off, cnt, near, far, lo, hi, flag):
     """Ball (its capsule) on the rays of one move, rows ``jlo .. jlo+nrows-1``.
 
     Row ``jj`` covers rays ``row_ilo[jj] ..`` (``row_off[jj+1] - row_off[jj]`` of them);
-    the ray at ``i, j`` sits at ``(rx0 + i*sp, ry0 + j*sp)`` from the move's start. Writes
+    the ray at ``i, j`` sits at ``(rx0 + i*sp, ry0 + j*sp)`` from the move's start. The
+    row's arithmetic steps from ray ``row_ia[jj] <= row_ilo[jj]`` (the start of the
+    row's bounding-box range), so a ray's value does not depend on how tightly the
+    range was culled. Writes
     each ray's interval rounded to float32 into ``lo``/``hi`` (at ``row_off[jj] + q``)
     and flags the rays it may change: material there, and either several segments or the
     one segment overlapping. The inner loop is branch-free so that it vectorises; one
@@ -246,9 +253,10 @@ def _rows_ball(R, Rc, h_off, h_top, z0, m, sin_t, ell, ux, uy, rx0, ry0, sp, nu,
     two_sqrt = Rc < R
     for jj in range(nrows):
         i0 = row_ilo[jj]
+        qa = i0 - row_ia[jj]
         o = row_off[jj]
         nq = row_off[jj + 1] - o
-        rx = rx0 + i0 * sp
+        rx = rx0 + row_ia[jj] * sp
         ry = ry0 + (jlo + jj) * sp
         a0 = rx * ux + ry * uy
         e0 = -rx * uy + ry * ux
@@ -263,8 +271,8 @@ def _rows_ball(R, Rc, h_off, h_top, z0, m, sin_t, ell, ux, uy, rx0, ry0, sp, nu,
         ne_r = near[base:base + nq]
         fa_r = far[base:base + nq]
         for q in range(nq):
-            a = a0 + q * da
-            e = e0 + q * de
+            a = a0 + (q + qa) * da
+            e = e0 + (q + qa) * de
             e2 = e * e
             qc = Rc2 - e2
             rho_c = math.sqrt(max(qc, 0.0))
@@ -284,15 +292,16 @@ def _rows_ball(R, Rc, h_off, h_top, z0, m, sin_t, ell, ux, uy, rx0, ry0, sp, nu,
 
 
 @nb.njit(cache=True, error_model="numpy", boundscheck=False)
-def _rows_flat(Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
+def _rows_flat(Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows, row_ia,
                row_ilo, row_off, cnt, near, far, lo, hi, flag):
     """Flat-bottom cylinder on the rays of one move (see :func:`_rows_ball`)."""
     Rc2 = Rc * Rc
     for jj in range(nrows):
         i0 = row_ilo[jj]
+        qa = i0 - row_ia[jj]
         o = row_off[jj]
         nq = row_off[jj + 1] - o
-        rx = rx0 + i0 * sp
+        rx = rx0 + row_ia[jj] * sp
         ry = ry0 + (jlo + jj) * sp
         a0 = rx * ux + ry * uy
         e0 = -rx * uy + ry * ux
@@ -306,8 +315,8 @@ def _rows_flat(Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrow
         ne_r = near[base:base + nq]
         fa_r = far[base:base + nq]
         for q in range(nq):
-            a = a0 + q * da
-            e = e0 + q * de
+            a = a0 + (q + qa) * da
+            e = e0 + (q + qa) * de
             qc = Rc2 - e * e
             rho_c = math.sqrt(max(qc, 0.0))
             s_lo = max(a - rho_c, 0.0)
@@ -323,7 +332,7 @@ def _rows_flat(Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrow
 
 
 @nb.njit(cache=True, error_model="numpy", boundscheck=False)
-def _rows_cone(cot, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
+def _rows_cone(cot, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows, row_ia,
                row_ilo, row_off, cnt, near, far, lo, hi, flag):
     """Cone (vbit / drill point) on the rays of one move (see :func:`_rows_ball`).
 
@@ -339,9 +348,10 @@ def _rows_cone(cot, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo,
     sq = math.sqrt(1.0 - g * g) if not (at_start or at_end) else 1.0
     for jj in range(nrows):
         i0 = row_ilo[jj]
+        qa = i0 - row_ia[jj]
         o = row_off[jj]
         nq = row_off[jj + 1] - o
-        rx = rx0 + i0 * sp
+        rx = rx0 + row_ia[jj] * sp
         ry = ry0 + (jlo + jj) * sp
         a0 = rx * ux + ry * uy
         e0 = -rx * uy + ry * ux
@@ -355,8 +365,8 @@ def _rows_cone(cot, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo,
         ne_r = near[base:base + nq]
         fa_r = far[base:base + nq]
         for q in range(nq):
-            a = a0 + q * da
-            e = e0 + q * de
+            a = a0 + (q + qa) * da
+            e = e0 + (q + qa) * de
             e2 = e * e
             qc = Rc2 - e2
             rho_c = math.sqrt(max(qc, 0.0))
@@ -439,7 +449,7 @@ def _bull_root(R, rc, m, a, e2, lo_s, hi_s, ga, gb, s0):
 
 
 @nb.njit(cache=True, error_model="numpy")
-def _rows_bull(R, rc, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
+def _rows_bull(R, rc, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows, row_ia,
                row_ilo, row_off, cnt, near, far, lo, hi, flag):
     """Bull-nose on the rays of one move (see :func:`_rows_ball`), by the same formulas as
     :func:`linear_interval`: closed form for level moves, else the root of the monotone
@@ -447,9 +457,10 @@ def _rows_bull(R, rc, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jl
     Rc2 = Rc * Rc
     for jj in range(nrows):
         i0 = row_ilo[jj]
+        qa = i0 - row_ia[jj]
         o = row_off[jj]
         nq = row_off[jj + 1] - o
-        rx = rx0 + i0 * sp
+        rx = rx0 + row_ia[jj] * sp
         ry = ry0 + (jlo + jj) * sp
         a0 = rx * ux + ry * uy
         e0 = -rx * uy + ry * ux
@@ -458,8 +469,8 @@ def _rows_bull(R, rc, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jl
         base = (jlo + jj) * nu + i0
         s_prev = np.nan
         for q in range(nq):
-            a = a0 + q * da
-            e = e0 + q * de
+            a = a0 + (q + qa) * da
+            e = e0 + (q + qa) * de
             e2 = e * e
             qc = Rc2 - e2
             flag[o + q] = False
@@ -854,6 +865,53 @@ def _trace_due(ts, mv):
     return False
 
 
+@nb.njit(cache=True)
+def _stadium_span(ax, ay, dx, dy, rad, y):
+    """X range ``(lo, hi)`` of the line at height ``y`` within ``rad`` of the segment from
+    ``(ax, ay)`` to ``(ax + dx, ay + dy)`` (mm); ``lo > hi`` when the line misses it.
+
+    The stadium is convex, so its chord is the hull of the chords of the two end discs
+    and of the band between them (``0 <= (p - a).d <= |d|^2``, ``|(p - a) x d| <= rad |d|``,
+    each linear in ``x``).
+    """
+    lo = np.inf
+    hi = -np.inf
+    rad2 = rad * rad
+    for cx, cy in ((ax, ay), (ax + dx, ay + dy)):
+        t = y - cy
+        if t * t <= rad2:
+            w = math.sqrt(rad2 - t * t)
+            lo = min(lo, cx - w)
+            hi = max(hi, cx + w)
+    L2 = dx * dx + dy * dy
+    if L2 == 0.0:
+        return lo, hi
+    ry = y - ay
+    band_lo = -np.inf
+    band_hi = np.inf
+    # along the segment: dx * x + dy * ry in [0, L2] (x relative to ax)
+    if dx != 0.0:
+        u0 = -dy * ry / dx
+        u1 = (L2 - dy * ry) / dx
+        band_lo = max(band_lo, min(u0, u1))
+        band_hi = min(band_hi, max(u0, u1))
+    elif not (0.0 <= dy * ry <= L2):
+        return lo, hi
+    # across it: dx * ry - dy * x in [-rad |d|, rad |d|]
+    half = rad * math.sqrt(L2)
+    if dy != 0.0:
+        v0 = (dx * ry - half) / dy
+        v1 = (dx * ry + half) / dy
+        band_lo = max(band_lo, min(v0, v1))
+        band_hi = min(band_hi, max(v0, v1))
+    elif abs(dx * ry) > half:
+        return lo, hi
+    if band_lo <= band_hi:
+        lo = min(lo, ax + band_lo)
+        hi = max(hi, ax + band_hi)
+    return lo, hi
+
+
 @nb.njit(cache=True, nogil=True)
 def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps, probe,
                      record, journal, removed, B, state, trace, T, ts, top_bound, band0, band1):
@@ -886,6 +944,11 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     end pose was already cut there, as deep, and its flutes reached above ``top_bound``,
     so nothing is left for this move on those rays. For a level or climbing flat end mill
     and for a ball that is every ray with ``a <= -R |sin(slope)|`` (``a`` along the move).
+
+    Rays within reach, per row: those within ``Rc`` (+ ``REACH_PAD``) of the move's XY
+    segment (its stadium; :func:`_stadium_span`); none in a row where the tool's lowest
+    possible point, ``min z + h_off + h*(row's distance from the segment)``, lies above
+    ``top_bound``, nor anywhere for a move wholly above it.
 
     Per move, the intervals of all rays within reach are computed first (one call,
     vectorised for flat and ball), then compared with the stored material; one-segment
@@ -931,6 +994,7 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     buf_lo = np.empty(cap, np.float32)
     buf_hi = np.empty(cap, np.float32)
     flag = np.empty(cap, np.bool_)
+    row_ia = np.empty(nv + 1, np.int64)
     row_ilo = np.empty(nv + 1, np.int64)
     row_off = np.empty(nv + 2, np.int64)
     for k in range(k0, n):
@@ -998,7 +1062,16 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
             elif code == CODE_FLAT and m >= 0.0:
                 skip_behind = True
                 a_cut = -1e-9
-        # each row's reach: within Rc of the move's bounding box
+        # the tool's lowest point in a row at distance dym from the path: at or above
+        # zmin + h_off + h*(dym); a row where that clears every top cannot change
+        zmin = min(z0, z0 + dz) + h_off
+        if not probe and zmin >= top_bound + 1e-9:
+            continue
+        # only when the tool's rim clears the top may a row do so (one test per move)
+        rows_clear = zmin + _hstar(code, R, tp[2], tp[3], Rc) >= top_bound + 1e-9
+        diagonal = dx != 0.0 and dy != 0.0
+        # each row's reach: within Rc of the move's bounding box, then (diagonal moves)
+        # within Rc of the segment: the stadium, a spare ray either side
         nrows = jhi - jlo + 1
         row_off[0] = 0
         for jj in range(nrows):
@@ -1006,7 +1079,8 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
             dym = max(ymin - y, y - ymax, 0.0)
             ilo = 0
             ihi = -1
-            if dym <= Rc:
+            clear = rows_clear and zmin + _hstar(code, R, tp[2], tp[3], dym) >= top_bound + 1e-9
+            if dym <= Rc and not clear:
                 w = math.sqrt(Rc * Rc - dym * dym)
                 ilo = max(0, int(math.ceil((xmin - w - gx0) / sp)))
                 ihi = min(nu - 1, int(math.floor((xmax + w - gx0) / sp)))
@@ -1018,6 +1092,14 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                         ihi = min(ihi, int(math.ceil((x0 + (a_cut - uy * (y - y0)) / ux - gx0) / sp)))
                     elif uy * (y - y0) < a_cut - 1e-9:
                         ihi = ilo - 1
+            row_ia[jj] = ilo
+            if diagonal and ilo <= ihi:
+                xlo, xhi = _stadium_span(x0, y0, dx, dy, Rc + REACH_PAD, y)
+                if xlo <= xhi:
+                    ilo = max(ilo, int(math.ceil((xlo - gx0) / sp)))
+                    ihi = min(ihi, int(math.floor((xhi - gx0) / sp)))
+                else:
+                    ihi = ilo - 1
             row_ilo[jj] = ilo
             row_off[jj + 1] = row_off[jj] + max(ihi - ilo + 1, 0)
         total = row_off[nrows]
@@ -1040,16 +1122,16 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
         ry0 = gy0 - y0
         if ell > 0.0 and code == CODE_BALL:
             _rows_ball(R, Rc, h_off, h_top, z0, m, sin_t, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
-                       row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
+                       row_ia, row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
         elif ell > 0.0 and code == CODE_FLAT:
             _rows_flat(Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
-                       row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
+                       row_ia, row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
         elif ell > 0.0 and code == CODE_BULL:
             _rows_bull(R, tp[2], Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
-                       row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
+                       row_ia, row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
         elif ell > 0.0 and code == CODE_CONE:
             _rows_cone(tp[3], Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
-                       row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
+                       row_ia, row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
         else:
             _rows_any(tp, x0, y0, z0, dz, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
                       row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
@@ -1370,10 +1452,16 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
         mv = pose_move[k]
         fid = pose_id[k]
         for j in range(jlo, jhi + 1):
-            i_start = ilo
-            if resuming and j == j_resume and i_resume > ilo:
+            # the body lies within rmax of its axis: only the rays within rmax of the
+            # axis' footprint (a stadium), a spare ray either side
+            xlo, xhi = _stadium_span(ua, va, ub - ua, vb - va, rmax + REACH_PAD, j * sp)
+            if xlo > xhi:
+                continue
+            i_start = max(ilo, int(math.ceil(xlo / sp)))
+            i_end = min(ihi, int(math.floor(xhi / sp)))
+            if resuming and j == j_resume and i_resume > i_start:
                 i_start = i_resume
-            for i in range(i_start, ihi + 1):
+            for i in range(i_start, i_end + 1):
                 r = j * nu + i
                 if S[0][r] == 0:
                     continue

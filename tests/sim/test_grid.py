@@ -75,8 +75,12 @@ def test_top_and_volume_of_a_stepped_model():
     assert g.volume() == pytest.approx(12 * 3 - 1.5 - 1.0)
     np.testing.assert_allclose(g.segments(2, 0), [[-1, 0], [1, 2]])
     assert g.face_ids(2, 0).tolist() == [[0, 4], [4, 0]]
+    assert g.max_top() == 2.0
+    g.subtract(2, 0, 1.5, 5, move_id=5)  # the top of a two-segment ray is in the pool
+    g.add(0, 0, 2.5, 3.25)
+    assert g.max_top() == 3.25 == np.nanmax(g.top())
     empty = DexelGrid(f)
-    assert np.all(np.isnan(empty.top())) and empty.volume() == 0.0
+    assert np.all(np.isnan(empty.top())) and empty.volume() == 0.0 and empty.max_top() == -np.inf
 
 
 def test_window_is_an_independent_copy_in_its_own_frame():
@@ -123,3 +127,19 @@ def test_trapezoid_volume_of_a_box_is_exact(spacing):
     assert g.volume(weights="trapezoid") == pytest.approx(48000.0 - 10.0 * spacing**2, rel=1e-9)
     with pytest.raises(ValueError):
         g.volume(weights="simpson")
+
+
+def test_a_million_ray_box_with_one_cut_stays_under_32_mb():
+    """The model is its store (per-ray arrays and the pool) and nothing else per ray."""
+    from sim.cut import Cutter
+    from sim.tools import parse_tool_spec
+
+    frame = Frame.top(0, 0, 100, 100, 0.1)
+    assert frame.n_rays >= 1_000_000
+    g = box_grid(frame, (0, 0, 0), (100, 100, 20))
+    got = Cutter(g, parse_tool_spec("ball:6:L=20")).cut_segment((5, 10, 12), (95, 80, 8), 1)
+    assert got > 0
+    held = [v for v in vars(g).values() if isinstance(v, np.ndarray)]
+    assert held == []  # no cached tops or ids beside the store
+    assert g.nbytes() == sum(a.nbytes for a in g.store.values())
+    assert g.nbytes() < 32_000_000
