@@ -54,6 +54,7 @@ from monitor.machine import in_force
 from monitor.predict import (LiveChecks, Lookahead, Workpiece, build_workpiece, finding_record, lead_time,
                              limits_in_work, reference_wco, row_shifts, work_moves)
 from monitor.sync import ProgramPath, ProgramSync, SyncResult, row_seconds
+from sim.checks.arrays import distinct
 from sim.gcode.moves import MoveKind
 
 #: progress jumps larger than this (program s) re-anchor the look-ahead on the live model
@@ -485,10 +486,11 @@ class Session:
             return []
         res = Cutter(self.live, self.wp.default_tool, self.wp.tol, tools=self.wp.tools).cut_moves(
             pieces, move_ids=ids, record_changes=True)
-        rays = np.unique(res.changed_rays).astype(np.int64) if res.changed_rays is not None else np.zeros(0, np.int64)
+        rays = (distinct(res.changed_rays).astype(np.int64) if res.changed_rays is not None
+                else np.zeros(0, np.int64))
         self.stage += 1
         if self.view is not None and rays.size:
-            self._changed = rays if self._changed is None else np.union1d(self._changed, rays)
+            self._changed = rays if self._changed is None else distinct(np.concatenate([self._changed, rays]))
         if self.run is not None:
             pts = np.concatenate([pieces["start"][:1, :3], pieces["end"][:, :3]])
             self.run.append_cut(self.stage, {"points": pts}, t=state.t, move_id=r1 + 1, line=int(s.line))
@@ -525,7 +527,7 @@ class Session:
         removed, rays, found = self.live_checks.cut(pts, rows, rpm, arrived_row=self._prev_row)
         self._prev_row = int(rows[-1])
         if self.view is not None and rays.size:
-            self._changed = rays if self._changed is None else np.union1d(self._changed, rays)
+            self._changed = rays if self._changed is None else distinct(np.concatenate([self._changed, rays]))
         if self.run is not None:
             self.run.append_cut(self.stage, {"points": pts}, t=state.t, move_id=s.row + 1, line=s.line)
             if removed > 0 and rays.size:

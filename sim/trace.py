@@ -59,6 +59,7 @@ import numpy as np
 from sim import dexel_store as ds
 from sim import sweep_kernels as K
 from sim import trace_kernels as tk
+from sim.checks.arrays import distinct
 from sim.errors import InputError
 from sim.frame import Frame
 from sim.grid import DexelGrid
@@ -272,9 +273,12 @@ def _batch_stages(last_stage: int, stages, n_moves: int) -> np.ndarray:
 
 
 def _rays_arg(rays, n_rays: int) -> np.ndarray:
+    """``rays`` as sorted distinct int64 (all rays for None)."""
     if rays is None:
         return np.arange(n_rays, dtype=np.int64)
-    rays = np.unique(np.asarray(rays, np.int64).reshape(-1))
+    rays = np.asarray(rays, np.int64).reshape(-1)
+    if rays.size > 1 and not np.all(rays[1:] > rays[:-1]):  # a live loop's lists are sorted already
+        rays = distinct(rays)
     if rays.size and (rays[0] < 0 or rays[-1] >= n_rays):
         raise InputError(f"ray index out of range 0..{n_rays - 1}")
     return rays
@@ -617,7 +621,7 @@ class ZTrace(_BlockLog):
         compiled pass over ``rays``; keyframe work due is done a slice at a time.
         """
         stage = self.last_stage + 1 if stage is None else _check_stage(self.last_stage, stage)
-        if not grid.frame.same_rays(self.frame):
+        if grid.frame is not self.frame and not grid.frame.same_rays(self.frame):
             raise InputError("recorded grid is not on the trace's dexel frame")
         rays = _rays_arg(rays, self.n_rays)
         # the rays' segments as a one-move journal: one compiled pass does the rest

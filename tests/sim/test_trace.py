@@ -196,6 +196,25 @@ def test_over_covering_rays_records_only_changes():
     assert z.n_changes == n
 
 
+def test_rays_in_any_order_with_repeats_record_as_the_sorted_distinct_ones():
+    # a live loop hands sorted distinct rays (taken as they are); any other order is sorted
+    g1, g2 = box(20, 20, 1.0), box(20, 20, 1.0)
+    t1, t2 = Trace(g1), Trace(g2)
+    rng = np.random.default_rng(2)
+    for s in range(1, 12):
+        r1 = ball_cut(g1, (s % 17 + 1, (5 * s) % 17 + 1, 9.5 - 0.2 * s), 2.5, s)
+        r2 = ball_cut(g2, (s % 17 + 1, (5 * s) % 17 + 1, 9.5 - 0.2 * s), 2.5, s)
+        mixed = rng.permutation(np.concatenate([r2, r2[::3]]))
+        t1.record(g1, np.unique(r1), s)
+        t2.record(g2, mixed, s)
+    a, b = t1.take_chunk(), t2.take_chunk()
+    assert a.keys() == b.keys()
+    for k in a:
+        assert np.array_equal(a[k], b[k]), k
+    with pytest.raises(InputError, match="out of range"):
+        t2.record(g2, np.array([3, 2, g2.frame.n_rays]), 12)
+
+
 def test_keyframes_stay_bounded_on_long_runs():
     g = box(20, 20, 1.0)
     z = ZTrace(g, keyframe_every=10, max_keyframes=6)
