@@ -320,26 +320,16 @@ class ErrorMap:
         are the same, ``excess`` is not exact (for a map that reports
         gouges only, like the one :meth:`Checker.cut_and_check` keeps)."""
         rays = distinct(np.asarray(rays, np.int64))
-        self.gouge[rays] = np.nan
-        self.excess[rays] = np.nan
         if rays.size == 0:
             return rays
-        near, far, nid, fid, counts = grid.segments_of(rays)
-        # points grouped by ray: near and far face of each segment side by side
-        pr = np.repeat(np.repeat(rays, counts), 2)
-        ps = np.stack([near, far], axis=1).reshape(-1).astype(np.float64)
-        pid = np.stack([nid, fid], axis=1).reshape(-1)
-        is_far = np.zeros(pr.size, np.uint8)
-        is_far[1::2] = 1
-        if faces == "cut":
-            keep = pid != 0
-            pr, ps, pid, is_far = pr[keep], ps[keep], pid[keep], is_far[keep]
-        if pr.size == 0:
-            return pr
-        dr = pr if design_rays is None else design_rays(pr)
-        err, dv = design.errors(dr, ps, tol, with_dv=True, exact_outside=exact_excess)
-        K.worst_per_ray(pr, is_far, err, pid, ps, dv, self.gouge, self.gouge_id, self.gouge_s, self.gouge_len,
-                        self.excess, self.excess_id, self.excess_s, self.excess_len)
+        dr = rays if design_rays is None else np.ascontiguousarray(design_rays(rays), np.int64)
+        d, f = design, design.frame
+        bin_size, nbu, nbv, bptr, bitems = d._binned()
+        # one compiled pass: the rays' faces gathered, assessed and reduced per ray
+        K.update_rays(grid.S, rays, dr, faces == "cut", f.nu, f.spacing, d.ptr, d.hit_s, d.hit_tri, d.tri_dz,
+                      not d.closed, tol.gouge, tol.undercut if exact_excess else np.inf, 1.5 * tol.interest,
+                      d.tri, d.tri_lo, d.tri_hi, bin_size, nbu, nbv, bptr, bitems, self.gouge, self.gouge_id,
+                      self.gouge_s, self.gouge_len, self.excess, self.excess_id, self.excess_s, self.excess_len)
         return rays[~np.isnan(self.gouge[rays])]
 
     def findings(self, tol: Tolerance, move_lines=None, rays=None, undercut: bool = True,

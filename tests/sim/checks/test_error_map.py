@@ -155,6 +155,53 @@ def test_update_keeps_the_worst_point_of_every_ray(design):
         assert np.array_equal(getattr(em, key + "_len")[has], ln[has])
 
 
+@pytest.mark.parametrize("exact_excess", [True, False])
+def test_update_of_cut_faces_on_a_window_is_the_reference_reduction_of_those_faces(design, exact_excess):
+    """Faces a move made (id != 0) only, on a window of the design's frame mapped back to
+    its rays (as look-ahead windows are), over a subset of rays given unsorted: the
+    reference reduction of exactly those points."""
+    f = design.frame
+    i0, j0, i1, j1 = 10, 6, 70, 50
+    wf = f.window(i0, i1, j0, j1)
+    rng = np.random.default_rng(8)
+    counts = rng.integers(0, 3, wf.n_rays)
+    seg_ray = np.repeat(np.arange(wf.n_rays), counts)
+    k = np.arange(seg_ray.size) - np.repeat(np.cumsum(counts) - counts, counts)
+    near = 4.0 + 6.0 * k + np.round(rng.uniform(0, 3, seg_ray.size), 1)
+    far = near + np.round(rng.uniform(0.5, 3.0, seg_ray.size), 1)
+    ids = rng.integers(0, 4, (seg_ray.size, 2)).astype(np.int32)  # a quarter are stock faces (0)
+    grid = DexelGrid(wf)
+    grid._write_rays(np.arange(wf.n_rays), counts, near.astype(np.float32), far.astype(np.float32),
+                     ids[:, 0], ids[:, 1])
+
+    def to_full(r):
+        return (r // wf.nu + j0) * f.nu + (r % wf.nu + i0)
+
+    asked = rng.permutation(rng.integers(0, wf.n_rays, wf.n_rays // 2))
+    tol = Tolerance(gouge=0.01, undercut=0.05)
+    em = ErrorMap(wf)
+    got = em.update(grid, design, asked, tol, design_rays=to_full, exact_excess=exact_excess)
+    rays = distinct(asked)
+    nr, fr, ni, fi, c = grid.segments_of(rays)
+    pr = np.repeat(np.repeat(rays, c), 2)
+    ps = np.stack([nr, fr], 1).reshape(-1).astype(float)
+    pid = np.stack([ni, fi], 1).reshape(-1)
+    is_far = np.tile([0, 1], pr.size // 2)
+    keep = pid != 0
+    pr, ps, pid, is_far = pr[keep], ps[keep], pid[keep], is_far[keep]
+    err, dv = design.errors(to_full(pr), ps, tol, with_dv=True, exact_outside=exact_excess)
+    ref = reference_worst(pr, err, pid, ps, dv, is_far, wf.n_rays)
+    assert np.array_equal(got, distinct(pr)) and got.size < rays.size  # rays of stock faces only: none
+    for key in ("gouge", "excess"):
+        val, ids_, s_, ln = ref[key]
+        assert np.array_equal(getattr(em, key), val, equal_nan=True)
+        has = ~np.isnan(val)
+        assert has.sum() > 500
+        assert np.array_equal(getattr(em, key + "_id")[has], ids_[has])
+        assert np.array_equal(getattr(em, key + "_s")[has], s_[has])
+        assert np.array_equal(getattr(em, key + "_len")[has], ln[has])
+
+
 @pytest.mark.parametrize("a", [[], [3], [5, 1, 5, 2, 2, 9, 1], np.random.default_rng(0).integers(0, 50, 500)])
 def test_distinct_is_numpy_unique(a):
     a = np.asarray(a, np.int64)
