@@ -61,8 +61,6 @@ from sim.gcode.moves import MoveKind
 JUMP_S = 2.0
 #: a trace chunk is written every this many stages
 TRACE_CHUNK_STAGES = 50
-#: keyframe work (array elements copied / changes replayed) done per trace chunk written
-TRACE_KEYFRAME_BUDGET = 1 << 20
 
 
 @dataclass
@@ -221,7 +219,8 @@ class Session:
             try:
                 from sim.trace import Trace
 
-                trace = Trace(scratch, stage=0)  # before the cuts, so it sees them change rays
+                # as the live one, before the cuts, so it sees them change rays
+                trace = Trace(scratch, stage=0, auto_maintain=False, keep_history=False)
             except Exception:  # the trace is a replay aid; warming it is optional
                 trace = None
         moving = np.nonzero(np.isin(self.moves["kind"], (MoveKind.RAPID, MoveKind.FEED, MoveKind.ARC_CW,
@@ -625,8 +624,10 @@ class Session:
         except ImportError:
             return
         try:
-            # keyframes are built at the run file writer's cadence (flush_trace), not in polls
-            self._trace = Trace(self.live, stage=0, auto_maintain=False).ready_for_records()
+            # the trace only encodes the stages for the run file: it keeps no history (no
+            # keyframes, columns of one chunk), so no poll pays for growing or indexing it
+            self._trace = Trace(self.live, stage=0, auto_maintain=False, keep_history=False)
+            self._trace.ready_for_records()
             self.run.append_trace_chunk(0, 0, self._trace.take_chunk())
         except Exception:  # the trace is a replay aid; the monitor runs without it
             self._trace = None
@@ -645,8 +646,6 @@ class Session:
         if self._trace is not None and self.run is not None and self.stage > self._trace_from:
             self.run.append_trace_chunk(self._trace_from + 1, self.stage, self._trace.take_chunk())
             self._trace_from = self.stage
-            # a slice of any keyframe work due (the trace's in-memory index), off the polls
-            self._trace.maintain(TRACE_KEYFRAME_BUDGET)
 
     def check_setup(self, inch: bool = False, reports_wco: bool = True, t: float | None = None) -> list[dict]:
         """Alert what cannot be the setup the user meant, before any cutting is judged

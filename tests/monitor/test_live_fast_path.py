@@ -5,7 +5,8 @@ gouges only (``Checker.exact_excess_while_cutting`` off: the material left keeps
 estimate while cutting). The example job run through the virtual machine 0.5 mm low
 (the program's planted gouge predicted, the machine's found on the live model) gives the same findings
 (every record: kind, lines, depth, position, volume, lead time), the same live model and
-the same trace in the run file as with the exact map.
+the same trace in the run file as with the exact map (the session's trace keeps no
+history: what it wrote replays the live model).
 """
 
 from __future__ import annotations
@@ -74,6 +75,9 @@ def test_findings_model_and_trace_are_those_of_the_exact_error_map(example, tmp_
     assert fast_trace.z.last_stage == last and last > 100
     for stage in (last // 3, last):
         assert np.array_equal(fast_trace.grid_at(stage).top(), exact_trace.grid_at(stage).top(), equal_nan=True)
+    assert np.array_equal(exact_trace.grid_at(last).top(), b, equal_nan=True)
+    # the session's trace handed every chunk on to the run file and kept none of it
+    assert fast._trace.z.n_changes == 0 and fast._trace.z._keyframes == []
     # the gouge side of both error maps is the same (the look-ahead's found the planted
     # dip on line 22 too)
     for checks in ("live_checks", "lookahead"):
