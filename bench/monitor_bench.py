@@ -7,7 +7,9 @@
    preemption by other processes included) and the thread's CPU time (the session's own
    work) are both given. Run once without a design and once with one (a height-field
    sheet 0.1 mm under the surface the program cuts), so the live and look-ahead gouge
-   checks are in the figure;
+   checks are in the figure. The session is warmed up first, as the CLI does (no JIT
+   load in a poll); target: p99 <= 5 ms with the design (issue 15), read beside the
+   load average (other processes' work shows in the wall figures, not in the CPU ones);
 2. dry-run speed: the bundled example at full speed (simulated s per wall s, the session
    processing every state of a 50 Hz poll as fast as it can).
 
