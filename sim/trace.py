@@ -276,7 +276,7 @@ def _rays_arg(rays, n_rays: int) -> np.ndarray:
     """``rays`` as sorted distinct int64 (all rays for None)."""
     if rays is None:
         return np.arange(n_rays, dtype=np.int64)
-    rays = np.asarray(rays, np.int64).reshape(-1)
+    rays = np.ascontiguousarray(np.asarray(rays, np.int64).reshape(-1))
     if rays.size > 1 and not np.all(rays[1:] > rays[:-1]):  # a live loop's lists are sorted already
         rays = distinct(rays)
     if rays.size and (rays[0] < 0 or rays[-1] >= n_rays):
