@@ -7,7 +7,9 @@
    preemption by other processes included) and the thread's CPU time (the session's own
    work) are both given. Run once without a design and once with one (a height-field
    sheet 0.1 mm under the surface the program cuts), so the live and look-ahead gouge
-   checks are in the figure;
+   checks are in the figure. The session is warmed up first, as the CLI does (no JIT
+   load in a poll); target: p99 <= 5 ms with the design (issue 15), read beside the
+   load average (other processes' work shows in the wall figures, not in the CPU ones);
 2. dry-run speed: the bundled example at full speed (simulated s per wall s, the session
    processing every state of a 50 Hz poll as fast as it can).
 
@@ -28,6 +30,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 SHARED = Path(os.environ.get("DEXMON_SHARED", ROOT.parent / "shared"))
+#: the live loop's latency target per state at 50 Hz (issue 15), ms
+TARGET_P99_MS = 5.0
 
 
 def wavy_design(moves, path: Path, spacing: float = 0.5, below: float = 0.1) -> Path:
@@ -83,6 +87,7 @@ def latency(resolution: float, seconds: float, design: bool = False) -> dict:
         session = Session(job, moves, program=prog, run=writer, alerter=Alerter(run=writer),
                           program_text=program.read_text())
         setup = time.perf_counter() - t0
+        warm = session.warm_up()  # as the CLI does before connecting: no JIT load in a poll
         stats = _follow(session, moves, seconds)
         writer.close()
     return {"bench": "live_latency", "program": program.name, "design": bool(design),
@@ -90,8 +95,8 @@ def latency(resolution: float, seconds: float, design: bool = False) -> dict:
             "rays": int(session.live.frame.n_rays), **stats,
             "findings": len(session.findings), "lookahead_behind_rows": session.lookahead.behind(
                 session.last_sync.progress), "setup_s": round(setup, 3),
-            "load_avg_1m": round(os.getloadavg()[0], 2), "cores": os.cpu_count(),
-            "target_p99_ms": 10.0, "ok": stats["p99_ms"] <= 10.0}
+            "warm_up_s": round(warm, 3), "load_avg_1m": round(os.getloadavg()[0], 2), "cores": os.cpu_count(),
+            "target_p99_ms": TARGET_P99_MS, "ok": stats["p99_ms"] <= TARGET_P99_MS}
 
 
 def _follow(session, moves, seconds: float) -> dict:
@@ -123,7 +128,8 @@ def _follow(session, moves, seconds: float) -> dict:
     return {"states": int(lat.size), "p50_ms": round(float(np.percentile(lat, 50)), 3),
             "p99_ms": round(float(np.percentile(lat, 99)), 3), "max_ms": round(float(lat.max()), 3),
             "cpu_p50_ms": round(float(np.percentile(cpu, 50)), 3),
-            "cpu_p99_ms": round(float(np.percentile(cpu, 99)), 3)}
+            "cpu_p99_ms": round(float(np.percentile(cpu, 99)), 3), "cpu_max_ms": round(float(cpu.max()), 3),
+            "slowest_state": int(lat.argmax())}
 
 
 def dry_run_speed() -> dict:

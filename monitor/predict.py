@@ -31,6 +31,7 @@ import numpy as np
 
 from monitor.job import Job, JobError, Solid, work_system_index
 from monitor.sync import ProgramPath
+from sim.checks.arrays import distinct
 from sim.checks.findings import Finding
 from sim.errors import InputError
 from sim.frame import Frame
@@ -527,8 +528,8 @@ class LiveChecks:
     def cut(self, points: np.ndarray, rows: np.ndarray, spindle_rpm: float | None = None,
             arrived_row: int | None = None):
         """Cut the polyline ``points`` (k+1, 3) mm (work tip), piece ``q`` belonging to
-        program row ``rows[q]`` (int, (k,)); return ``(removed mm^3, changed rays int64,
-        findings)``.
+        program row ``rows[q]`` (int, (k,)); return ``(removed mm^3, changed rays int64
+        sorted and distinct, findings)``.
 
         ``spindle_rpm``: the speed the controller reports (None: take the program's).
         ``arrived_row``: the row of the piece that ended at ``points[0]`` (the last one
@@ -553,8 +554,8 @@ class LiveChecks:
             if res.changed_rays.size:
                 changed.append(res.changed_rays)
             found += f
-        rays = np.unique(np.concatenate(changed)) if len(changed) > 1 else (
-            changed[0] if changed else np.zeros(0, np.int64))
+        # sorted: the trace record takes them as they are (np.unique would hash them first)
+        rays = distinct(np.concatenate(changed)).astype(np.int64, copy=False) if changed else np.zeros(0, np.int64)
         return removed, rays, found
 
     def _fill(self, pts: np.ndarray, rows: np.ndarray, spindle_rpm) -> np.ndarray:

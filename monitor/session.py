@@ -54,14 +54,13 @@ from monitor.machine import in_force
 from monitor.predict import (LiveChecks, Lookahead, Workpiece, build_workpiece, finding_record, lead_time,
                              limits_in_work, reference_wco, row_shifts, work_moves)
 from monitor.sync import ProgramPath, ProgramSync, SyncResult, row_seconds
+from sim.checks.arrays import distinct
 from sim.gcode.moves import MoveKind
 
 #: progress jumps larger than this (program s) re-anchor the look-ahead on the live model
 JUMP_S = 2.0
 #: a trace chunk is written every this many stages
 TRACE_CHUNK_STAGES = 50
-#: keyframe work (array elements copied / changes replayed) done per trace chunk written
-TRACE_KEYFRAME_BUDGET = 1 << 20
 
 
 @dataclass
@@ -220,7 +219,8 @@ class Session:
             try:
                 from sim.trace import Trace
 
-                trace = Trace(scratch, stage=0)  # before the cuts, so it sees them change rays
+                # as the live one, before the cuts, so it sees them change rays
+                trace = Trace(scratch, stage=0, auto_maintain=False, keep_history=False)
             except Exception:  # the trace is a replay aid; warming it is optional
                 trace = None
         moving = np.nonzero(np.isin(self.moves["kind"], (MoveKind.RAPID, MoveKind.FEED, MoveKind.ARC_CW,
@@ -485,10 +485,11 @@ class Session:
             return []
         res = Cutter(self.live, self.wp.default_tool, self.wp.tol, tools=self.wp.tools).cut_moves(
             pieces, move_ids=ids, record_changes=True)
-        rays = np.unique(res.changed_rays).astype(np.int64) if res.changed_rays is not None else np.zeros(0, np.int64)
+        rays = (distinct(res.changed_rays).astype(np.int64) if res.changed_rays is not None
+                else np.zeros(0, np.int64))
         self.stage += 1
         if self.view is not None and rays.size:
-            self._changed = rays if self._changed is None else np.union1d(self._changed, rays)
+            self._changed = rays if self._changed is None else distinct(np.concatenate([self._changed, rays]))
         if self.run is not None:
             pts = np.concatenate([pieces["start"][:1, :3], pieces["end"][:, :3]])
             self.run.append_cut(self.stage, {"points": pts}, t=state.t, move_id=r1 + 1, line=int(s.line))
@@ -525,7 +526,7 @@ class Session:
         removed, rays, found = self.live_checks.cut(pts, rows, rpm, arrived_row=self._prev_row)
         self._prev_row = int(rows[-1])
         if self.view is not None and rays.size:
-            self._changed = rays if self._changed is None else np.union1d(self._changed, rays)
+            self._changed = rays if self._changed is None else distinct(np.concatenate([self._changed, rays]))
         if self.run is not None:
             self.run.append_cut(self.stage, {"points": pts}, t=state.t, move_id=s.row + 1, line=s.line)
             if removed > 0 and rays.size:
@@ -623,8 +624,10 @@ class Session:
         except ImportError:
             return
         try:
-            # keyframes are built at the run file writer's cadence (flush_trace), not in polls
-            self._trace = Trace(self.live, stage=0, auto_maintain=False).ready_for_records()
+            # the trace only encodes the stages for the run file: it keeps no history (no
+            # keyframes, columns of one chunk), so no poll pays for growing or indexing it
+            self._trace = Trace(self.live, stage=0, auto_maintain=False, keep_history=False)
+            self._trace.ready_for_records()
             self.run.append_trace_chunk(0, 0, self._trace.take_chunk())
         except Exception:  # the trace is a replay aid; the monitor runs without it
             self._trace = None
@@ -643,8 +646,6 @@ class Session:
         if self._trace is not None and self.run is not None and self.stage > self._trace_from:
             self.run.append_trace_chunk(self._trace_from + 1, self.stage, self._trace.take_chunk())
             self._trace_from = self.stage
-            # a slice of any keyframe work due (the trace's in-memory index), off the polls
-            self._trace.maintain(TRACE_KEYFRAME_BUDGET)
 
     def check_setup(self, inch: bool = False, reports_wco: bool = True, t: float | None = None) -> list[dict]:
         """Alert what cannot be the setup the user meant, before any cutting is judged

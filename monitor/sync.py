@@ -331,8 +331,14 @@ class ProgramSync:
             seg_lines = self.path.lines[self.path.row]
             self._line_order = np.argsort(seg_lines, kind="stable")
             self._line_sorted = seg_lines[self._line_order]
-        a = int(np.searchsorted(self._line_sorted, line, side="left"))
-        b = int(np.searchsorted(self._line_sorted, line, side="right"))
+        # the key in the array's own dtype: another one makes searchsorted convert the
+        # whole array (every segment) on each call
+        bounds = np.iinfo(self._line_sorted.dtype)
+        if not bounds.min <= line <= bounds.max:  # no row has such a line
+            return None
+        key = self._line_sorted.dtype.type(line)
+        a = int(np.searchsorted(self._line_sorted, key, side="left"))
+        b = int(np.searchsorted(self._line_sorted, key, side="right"))
         if b <= a:
             return None
         segs = self._line_order[a:b]

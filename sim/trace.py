@@ -59,6 +59,7 @@ import numpy as np
 from sim import dexel_store as ds
 from sim import sweep_kernels as K
 from sim import trace_kernels as tk
+from sim.checks.arrays import distinct
 from sim.errors import InputError
 from sim.frame import Frame
 from sim.grid import DexelGrid
@@ -272,9 +273,12 @@ def _batch_stages(last_stage: int, stages, n_moves: int) -> np.ndarray:
 
 
 def _rays_arg(rays, n_rays: int) -> np.ndarray:
+    """``rays`` as sorted distinct int64 (all rays for None)."""
     if rays is None:
         return np.arange(n_rays, dtype=np.int64)
-    rays = np.unique(np.asarray(rays, np.int64).reshape(-1))
+    rays = np.ascontiguousarray(np.asarray(rays, np.int64).reshape(-1))
+    if rays.size > 1 and not np.all(rays[1:] > rays[:-1]):  # a live loop's lists are sorted already
+        rays = distinct(rays)
     if rays.size and (rays[0] < 0 or rays[-1] >= n_rays):
         raise InputError(f"ray index out of range 0..{n_rays - 1}")
     return rays
@@ -617,7 +621,7 @@ class ZTrace(_BlockLog):
         compiled pass over ``rays``; keyframe work due is done a slice at a time.
         """
         stage = self.last_stage + 1 if stage is None else _check_stage(self.last_stage, stage)
-        if not grid.frame.same_rays(self.frame):
+        if grid.frame is not self.frame and not grid.frame.same_rays(self.frame):
             raise InputError("recorded grid is not on the trace's dexel frame")
         rays = _rays_arg(rays, self.n_rays)
         # the rays' segments as a one-move journal: one compiled pass does the rest
@@ -835,7 +839,32 @@ class ZTrace(_BlockLog):
     def _events(self, b0: int, b1: int) -> int:
         return int(self._f_ptr.a[b1] - self._f_ptr.a[b0] + self._g_ptr.a[b1] - self._g_ptr.a[b0])
 
+    def forget_blocks(self) -> None:
+        """Drop every recorded block and keyframe (and the first stage's model), keeping
+        the model at the last stage that records diff against and the columns' room.
+
+        For a trace whose blocks are handed on as they come (a :class:`Trace` made with
+        ``keep_history=False``): memory and work per record then stay those of one chunk
+        however long the run (no column doubling, no keyframe). The trace records on from
+        its last stage but rebuilds no stage: read its chunks back with
+        :meth:`Trace.from_chunks`."""
+        self._ensure_mirror()
+        self.first_stage = self.last_stage
+        for c in (self._stage, self._b_id, self._f_rs, self._f_rl, self._f_val, self._f_id, self._g_ray,
+                  self._g_count, self._g_near, self._g_far, self._g_nid, self._g_fid):
+            c.n = 0
+        for c in (self._f_ptr, self._g_ptr, self._gs_ptr, self._r_ptr):
+            c.n = 0
+            c.push(0)
+        self._init = None
+        self._keyframes = []
+        self._due, self._builder = [], None
+        self._next_due = np.iinfo(np.int64).max  # no keyframe: there is no history to index
+
     def _key_for(self, b: int) -> _Keyframe:
+        if not self._keyframes:
+            raise InputError("this trace hands its blocks on as it records (keep_history=False) and "
+                             "rebuilds no stage: read its chunks back with Trace.from_chunks")
         key = self._keyframes[0]
         for k in self._keyframes:
             if k.block <= b:
@@ -1038,6 +1067,8 @@ class ZTrace(_BlockLog):
         arrays not counted)."""
         def parts(v):
             return v.chunks if isinstance(v, _Chunked) else [v]
+        if not self._keyframes:  # forgotten (forget_blocks)
+            return 0
         seen = {id(p) for v in self._keyframes[0].data.values() for p in parts(v)}
         # chunks that are views of the stock's arrays are the stock's bytes
         seen |= {id(p) for k in self._keyframes for v in k.data.values() for p in parts(v)
@@ -1055,6 +1086,8 @@ class ZTrace(_BlockLog):
     # --- serialisation -------------------------------------------------------------
     def header_arrays(self) -> dict[str, np.ndarray]:
         """Frame, tolerance and the model at the first stage (run-length coded where it pays)."""
+        if self._init is None:
+            raise InputError("this trace handed its header and blocks on (keep_history=False)")
         g = DexelGrid(self.frame, self.tol, self._init)
         n, f, ni, fi, c = g.segments_of(np.arange(self.n_rays))
         out = {"frame": frame_to_array(self.frame),
@@ -1697,12 +1730,15 @@ class SharedTimeTrace(TimeTrace):
         self._stage = z._stage  # the same blocks: stages, last stage, lookups come with it
         self.frame = z.frame
         self.n_rays = z.n_rays
-        self.first_stage = z.first_stage
         self.auto_maintain = True
         self.truncated = False
         self._cursors: dict[int, tuple] = {}
 
     # the log is the z-trace's
+    @property
+    def first_stage(self) -> int:
+        return self._z.first_stage
+
     @property
     def n_changes(self) -> int:
         return self._z.n_changes
@@ -1822,7 +1858,7 @@ class Trace:
 
     def __init__(self, grid: DexelGrid, stage: int = 0, z: bool = True, time: bool = True,
                  keyframe_every: int | None = None, auto_maintain: bool = True,
-                 shared_time: bool = True):
+                 shared_time: bool = True, keep_history: bool = True):
         self.frame = grid.frame
         self.z = ZTrace(grid, stage, keyframe_every) if z else None
         if time and self.z is not None and shared_time:
@@ -1837,6 +1873,11 @@ class Trace:
         self._sent_z = 0
         self._sent_t = 0
         self._header_sent = False
+        #: False: :meth:`take_chunk` drops what it hands on (a live loop writing a run
+        #: file: bounded memory and work however long the run; see ZTrace.forget_blocks)
+        self.keep_history = bool(keep_history)
+        if not self.keep_history and (self.z is None or self._own_t):
+            raise InputError("a trace that hands its blocks on needs a z-trace with a shared time-trace")
 
     @property
     def last_stage(self) -> int:
@@ -1937,7 +1978,8 @@ class Trace:
         return top.reshape(g.frame.shape), tid.reshape(g.frame.shape)
 
     def take_chunk(self) -> dict[str, np.ndarray]:
-        """Arrays recorded since the last call (headers on the first); {} when nothing new."""
+        """Arrays recorded since the last call (headers on the first); {} when nothing new.
+        Without ``keep_history`` the trace then forgets them."""
         out: dict[str, np.ndarray] = {}
         if not self._header_sent:
             if self.z is not None:
@@ -1951,6 +1993,9 @@ class Trace:
         if self.t is not None and self.t.n_blocks > self._sent_t:
             out.update({"t/" + k: v for k, v in self.t._blocks_arrays(self._sent_t, self.t.n_blocks).items()})
             self._sent_t = self.t.n_blocks
+        if not self.keep_history and self.z.n_blocks:
+            self.z.forget_blocks()  # the shared time-trace's blocks are the z-trace's
+            self._sent_z = self._sent_t = 0
         return out
 
     def to_arrays(self) -> dict[str, np.ndarray]:

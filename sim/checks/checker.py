@@ -45,11 +45,18 @@ class Checker:
         The undercut tolerance is at least the scallop a ball leaves at the path's
         stepover (:mod:`.scallop`), so that a clean finishing raster raises no scallop
         crests as undercut. False when the user asked for an undercut tolerance.
+    exact_excess_while_cutting : bool
+        The error map kept by :meth:`cut_and_check` also holds the exact size of the
+        material left. Off by default: cutting reports gouges only (their sizes stay
+        exact) and :meth:`assess_model` assesses the material left afresh, while the exact
+        search on that side is most of the check's cost when the cut surface lies just
+        above the design (a finishing pass).
     """
 
     def __init__(self, stock: DexelGrid, tool: Tool, design=None, fixtures=(), limits=None,
                  tol: Tolerance = DEFAULT, tools: dict | None = None, max_depth_of_cut: float | None = None,
-                 max_ramp_deg: float = 10.0, min_volume: float | None = None, undercut_from_path: bool = True):
+                 max_ramp_deg: float = 10.0, min_volume: float | None = None, undercut_from_path: bool = True,
+                 exact_excess_while_cutting: bool = False):
         if not isinstance(stock, DexelGrid):
             raise InputError(f"Checker needs a DexelGrid stock, got {type(stock).__name__}")
         self.grid = stock
@@ -74,6 +81,7 @@ class Checker:
         self.engagement = (motion.Engagement(self.frame, stock.top(), tool, chord=tol.chord)
                            if needs_engagement and self.frame.is_top else None)
         self.undercut_from_path = bool(undercut_from_path)
+        self.exact_excess_while_cutting = bool(exact_excess_while_cutting)
         #: (scallop.Raster, Tool) the undercut tolerance followed (set by assess_model)
         self.undercut_basis = None
         self._lines = np.zeros(1, np.int64)  # move id -> program line
@@ -215,7 +223,8 @@ class Checker:
             for mine in touched.values():  # they follow the flutes too
                 mine.cut_moves(moves, move_ids=ids.astype(np.int32), record_changes=False)
         if error_map is not None and res.changed_rays.size:
-            rays = error_map.update(grid, self.design, res.changed_rays, self.tol, design_rays=design_rays)
+            rays = error_map.update(grid, self.design, res.changed_rays, self.tol, design_rays=design_rays,
+                                    exact_excess=self.exact_excess_while_cutting)
             if rays.size and np.nanmin(error_map.gouge[rays]) < -self.tol.gouge:
                 out += error_map.findings(self.tol, self._lines, rays=rays, undercut=False, join=self.reach())
         return res, self.annotate(merge_findings(out))

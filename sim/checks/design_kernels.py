@@ -11,6 +11,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from sim.dexel_store import get_seg
 from sim.solids import orient2d
 
 
@@ -231,61 +232,78 @@ def point_errors(rays, s_pts, nu, spacing, ptr, hit_s, hit_tri, tri_dz, sheet, l
     outside; ``+inf`` on rays that miss the design. ``out_dv`` gets ``dv``.
     """
     for q in range(rays.size):
-        r = rays[q]
-        s = s_pts[q]
-        best, bt, above = _nearest_crossing(hit_s, hit_tri, ptr[r], ptr[r + 1], s)
-        out_dv[q] = best
-        if bt < 0:
-            out_err[q] = np.inf
-            continue
-        inside = (above > 0) if sheet else ((above % 2) == 1)
-        limit = limit_in if inside else limit_out
-        err = best * tri_dz[bt]
-        if best > limit:
-            rad = min(best, search)
-            px = (r % nu) * spacing
-            py = (r // nu) * spacing
-            best2, found = _nearest(px, py, s, rad * rad, bt, tri, tri_lo, tri_hi, bin_size, nbu, nbv,
-                                    bptr, bitems)
-            err = np.sqrt(best2) if found else best
-        out_err[q] = -err if inside else err
+        out_err[q], out_dv[q] = _point_error(rays[q], s_pts[q], nu, spacing, ptr, hit_s, hit_tri, tri_dz, sheet,
+                                             limit_in, limit_out, search, tri, tri_lo, tri_hi, bin_size, nbu,
+                                             nbv, bptr, bitems)
+
+
+@nb.njit(cache=True, inline="always")
+def _point_error(r, s, nu, spacing, ptr, hit_s, hit_tri, tri_dz, sheet, limit_in, limit_out, search, tri,
+                 tri_lo, tri_hi, bin_size, nbu, nbv, bptr, bitems):
+    """``(signed error, dv)`` of the point at ``s`` on design ray ``r`` (see
+    :func:`point_errors`)."""
+    best, bt, above = _nearest_crossing(hit_s, hit_tri, ptr[r], ptr[r + 1], s)
+    if bt < 0:
+        return np.inf, best
+    inside = (above > 0) if sheet else ((above % 2) == 1)
+    limit = limit_in if inside else limit_out
+    err = best * tri_dz[bt]
+    if best > limit:
+        rad = min(best, search)
+        px = (r % nu) * spacing
+        py = (r // nu) * spacing
+        best2, found = _nearest(px, py, s, rad * rad, bt, tri, tri_lo, tri_hi, bin_size, nbu, nbv, bptr, bitems)
+        err = np.sqrt(best2) if found else best
+    return (-err if inside else err), best
 
 
 @nb.njit(cache=True)
-def worst_per_ray(pr, is_far, err, pid, ps, dv, gouge, gouge_id, gouge_s, gouge_len,
-                  excess, excess_id, excess_s, excess_len):
-    """Per ray, the most negative and the most positive error of its points.
-
-    Points come grouped by ray ``pr``; within a ray the near faces are looked at before
-    the far faces and the first of equal errors wins. ``gouge = min(err, 0)`` and
-    ``excess = max(err, 0)`` with the id and ``s`` of that point; ``*_len`` is its ``dv``
-    when the error has that sign, else 0.
-    """
-    n = pr.size
-    a = 0
-    while a < n:
-        r = pr[a]
-        b = a + 1
-        while b < n and pr[b] == r:
-            b += 1
-        lo_k = -1
-        hi_k = -1
+def update_rays(S, rays, design_rays, cut_only, nu, spacing, ptr, hit_s, hit_tri, tri_dz, sheet, limit_in,
+                limit_out, search, tri, tri_lo, tri_hi, bin_size, nbu, nbv, bptr, bitems, gouge, gouge_id,
+                gouge_s, gouge_len, excess, excess_id, excess_s, excess_len):
+    """The error map of rays ``rays`` of the dexel store ``S`` in one pass: every face of
+    their segments (``cut_only``: only faces with an id, i.e. a move made them) assessed
+    with :func:`point_errors` on design ray ``design_rays[q]``, and per ray the most
+    negative and the most positive error kept: ``gouge = min(err, 0)`` and ``excess =
+    max(err, 0)`` with the face id and ``s`` of that point, ``*_len`` its ``dv`` when the
+    error has that sign, else 0. The near faces are looked at before the far faces and the
+    first of equal errors wins. Rays with no assessed face get NaN in ``gouge`` and
+    ``excess``."""
+    for q in range(rays.size):
+        r = rays[q]
+        dr = design_rays[q]
+        gouge[r] = np.nan
+        excess[r] = np.nan
+        lo_e = 0.0
+        hi_e = 0.0
+        lo_dv = 0.0
+        hi_dv = 0.0
+        lo_s = 0.0
+        hi_s = 0.0
+        lo_id = 0
+        hi_id = 0
+        seen = False
         for far in range(2):
-            for k in range(a, b):
-                if is_far[k] != far:
+            for k in range(S[0][r]):
+                n, f, nid, fid = get_seg(S, r, k)
+                pid = fid if far else nid
+                if cut_only and pid == 0:
                     continue
-                if lo_k < 0 or err[k] < err[lo_k]:
-                    lo_k = k
-                if hi_k < 0 or err[k] > err[hi_k]:
-                    hi_k = k
-        e = err[lo_k]
-        gouge[r] = min(e, 0.0)
-        gouge_id[r] = pid[lo_k]
-        gouge_s[r] = ps[lo_k]
-        gouge_len[r] = dv[lo_k] if e < 0.0 else 0.0
-        e = err[hi_k]
-        excess[r] = max(e, 0.0)
-        excess_id[r] = pid[hi_k]
-        excess_s[r] = ps[hi_k]
-        excess_len[r] = dv[hi_k] if e > 0.0 else 0.0
-        a = b
+                ps = np.float64(f) if far else np.float64(n)
+                e, dv = _point_error(dr, ps, nu, spacing, ptr, hit_s, hit_tri, tri_dz, sheet, limit_in,
+                                     limit_out, search, tri, tri_lo, tri_hi, bin_size, nbu, nbv, bptr, bitems)
+                if not seen or e < lo_e:
+                    lo_e, lo_dv, lo_s, lo_id = e, dv, ps, pid
+                if not seen or e > hi_e:
+                    hi_e, hi_dv, hi_s, hi_id = e, dv, ps, pid
+                seen = True
+        if not seen:
+            continue
+        gouge[r] = min(lo_e, 0.0)
+        gouge_id[r] = lo_id
+        gouge_s[r] = lo_s
+        gouge_len[r] = lo_dv if lo_e < 0.0 else 0.0
+        excess[r] = max(hi_e, 0.0)
+        excess_id[r] = hi_id
+        excess_s[r] = hi_s
+        excess_len[r] = hi_dv if hi_e > 0.0 else 0.0

@@ -207,7 +207,7 @@ class DesignModel:
 
     # --- the error ------------------------------------------------------------------
     def errors(self, rays, s, tol: Tolerance = DEFAULT, refine_fraction: float = 1.0,
-               search: float | None = None, with_dv: bool = False):
+               search: float | None = None, with_dv: bool = False, exact_outside: bool = True):
         """Signed error of dexel points ``(rays[q], s[q])``: float64 (n,) mm.
 
         Positive = material left (undercut), negative = gouge. Huang's estimate ``dv
@@ -220,6 +220,11 @@ class DesignModel:
         get ``+inf`` (outside: material where the part has none).
 
         ``with_dv``: also return ``dv`` (float64 (n,) mm; inf where the ray misses).
+
+        ``exact_outside=False``: points outside the design all keep the estimate (only the
+        gouge side is refined), for callers that judge gouges only: the sign, and every
+        error inside the design, are the same; the search on the material-left side is
+        most of the cost when the cut surface lies just above the design.
         """
         rays = np.ascontiguousarray(rays, np.int64)
         s = np.ascontiguousarray(s, np.float64)
@@ -229,8 +234,8 @@ class DesignModel:
         dv = np.empty(rays.size)
         f = self.frame
         K.point_errors(rays, s, f.nu, f.spacing, self.ptr, self.hit_s, self.hit_tri, self.tri_dz,
-                       not self.closed, refine_fraction * tol.gouge, refine_fraction * tol.undercut,
-                       search, self.tri, self.tri_lo, self.tri_hi, bin_size, nbu, nbv, bptr, bitems,
+                       not self.closed, refine_fraction * tol.gouge,
+                       refine_fraction * tol.undercut if exact_outside else np.inf, search, self.tri, self.tri_lo, self.tri_hi, bin_size, nbu, nbv, bptr, bitems,
                        err, dv)
         return (err, dv) if with_dv else err
 
@@ -302,34 +307,29 @@ class ErrorMap:
         return out.reshape(self.frame.shape)
 
     def update(self, grid, design: DesignModel, rays, tol: Tolerance, faces: str = "cut",
-               design_rays=None) -> np.ndarray:
+               design_rays=None, exact_excess: bool = True) -> np.ndarray:
         """Re-assess every dexel point of the given flat rays of ``grid``; return the rays
         (int64) that have an assessed point. ``faces="cut"`` assesses only faces a move
         made (id != 0, Huang's "updated dexels"); ``"all"`` every face.
 
         ``design_rays``: a function mapping ``grid`` ray indices to the design's (when
-        ``grid`` is a window of the design's frame, as in look-ahead)."""
+        ``grid`` is a window of the design's frame, as in look-ahead).
+
+        ``exact_excess=False``: the material-left side keeps Huang's estimate
+        (:meth:`DesignModel.errors` ``exact_outside``): ``gouge`` and the gouge findings
+        are the same, ``excess`` is not exact (for a map that reports
+        gouges only, like the one :meth:`Checker.cut_and_check` keeps)."""
         rays = distinct(np.asarray(rays, np.int64))
-        self.gouge[rays] = np.nan
-        self.excess[rays] = np.nan
         if rays.size == 0:
             return rays
-        near, far, nid, fid, counts = grid.segments_of(rays)
-        # points grouped by ray: near and far face of each segment side by side
-        pr = np.repeat(np.repeat(rays, counts), 2)
-        ps = np.stack([near, far], axis=1).reshape(-1).astype(np.float64)
-        pid = np.stack([nid, fid], axis=1).reshape(-1)
-        is_far = np.zeros(pr.size, np.uint8)
-        is_far[1::2] = 1
-        if faces == "cut":
-            keep = pid != 0
-            pr, ps, pid, is_far = pr[keep], ps[keep], pid[keep], is_far[keep]
-        if pr.size == 0:
-            return pr
-        dr = pr if design_rays is None else design_rays(pr)
-        err, dv = design.errors(dr, ps, tol, with_dv=True)
-        K.worst_per_ray(pr, is_far, err, pid, ps, dv, self.gouge, self.gouge_id, self.gouge_s, self.gouge_len,
-                        self.excess, self.excess_id, self.excess_s, self.excess_len)
+        dr = rays if design_rays is None else np.ascontiguousarray(design_rays(rays), np.int64)
+        d, f = design, design.frame
+        bin_size, nbu, nbv, bptr, bitems = d._binned()
+        # one compiled pass: the rays' faces gathered, assessed and reduced per ray
+        K.update_rays(grid.S, rays, dr, faces == "cut", f.nu, f.spacing, d.ptr, d.hit_s, d.hit_tri, d.tri_dz,
+                      not d.closed, tol.gouge, tol.undercut if exact_excess else np.inf, 1.5 * tol.interest,
+                      d.tri, d.tri_lo, d.tri_hi, bin_size, nbu, nbv, bptr, bitems, self.gouge, self.gouge_id,
+                      self.gouge_s, self.gouge_len, self.excess, self.excess_id, self.excess_s, self.excess_len)
         return rays[~np.isnan(self.gouge[rays])]
 
     def findings(self, tol: Tolerance, move_lines=None, rays=None, undercut: bool = True,

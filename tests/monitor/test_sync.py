@@ -152,6 +152,19 @@ def test_reported_line_wins_and_off_path_is_lost():
     assert r.how == "lost" and r.progress == pytest.approx(path.row_t0[4] + 0.1, abs=1e-6)
 
 
+def test_a_reported_line_no_row_can_have_is_not_matched_but_tracked():
+    # lines are int32 in the move table; a controller may report any number (a corrupt
+    # N word): beyond that range the state is followed by position, as for an unknown line
+    m = raster()
+    path = ProgramPath.from_moves(m)
+    sync = ProgramSync(path)
+    p = path.point_at(path.row_t0[4] + 0.1)
+    assert sync.update(p, t=0.0, line=int(m["line"][4])).how == "line"
+    for q, line in enumerate((2**31, 2**40, 99_999)):
+        r = sync.update(p, t=0.02 * (q + 1), line=line)
+        assert r.how == "track" and r.row == 4
+
+
 def test_path_measures():
     path = ProgramPath.from_moves(raster())
     assert path.length_at(path.duration) == pytest.approx(path.s1[-1])

@@ -196,6 +196,58 @@ def test_over_covering_rays_records_only_changes():
     assert z.n_changes == n
 
 
+def test_rays_in_any_order_with_repeats_record_as_the_sorted_distinct_ones():
+    # a live loop hands sorted distinct rays (taken as they are); any other order is sorted
+    g1, g2 = box(20, 20, 1.0), box(20, 20, 1.0)
+    t1, t2 = Trace(g1), Trace(g2)
+    rng = np.random.default_rng(2)
+    for s in range(1, 12):
+        r1 = ball_cut(g1, (s % 17 + 1, (5 * s) % 17 + 1, 9.5 - 0.2 * s), 2.5, s)
+        r2 = ball_cut(g2, (s % 17 + 1, (5 * s) % 17 + 1, 9.5 - 0.2 * s), 2.5, s)
+        mixed = rng.permutation(np.concatenate([r2, r2[::3]]))
+        t1.record(g1, np.unique(r1), s)
+        t2.record(g2, mixed, s)
+    a, b = t1.take_chunk(), t2.take_chunk()
+    assert a.keys() == b.keys()
+    for k in a:
+        assert np.array_equal(a[k], b[k]), k
+    with pytest.raises(InputError, match="out of range"):
+        t2.record(g2, np.array([3, 2, g2.frame.n_rays]), 12)
+
+
+def test_a_trace_that_hands_its_blocks_on_writes_the_same_chunks_and_keeps_nothing():
+    # a live loop writes each chunk to the run file: the trace need not keep it
+    g1, g2 = box(20, 20, 1.0), box(20, 20, 1.0)
+    keep = Trace(g1, keyframe_every=50)
+    stream = Trace(g2, keyframe_every=50, auto_maintain=False, keep_history=False).ready_for_records()
+    snaps = {0: g2.copy()}
+    kept, streamed = [], []
+    for s in range(1, 41):
+        centre = (s % 17 + 1, (7 * s) % 17 + 1, 9.6 - 0.15 * s)
+        keep.record(g1, ball_cut(g1, centre, 2.5, s), s)
+        stream.record(g2, ball_cut(g2, centre, 2.5, s), s)
+        snaps[s] = g2.copy()
+        if s % 7 == 0 or s == 40:
+            kept.append(keep.take_chunk())
+            streamed.append(stream.take_chunk())
+            assert stream.z.n_blocks == 0 and stream.z.n_changes == 0 and stream.last_stage == s
+    assert len(keep.z._keyframes) > 2 and stream.z._keyframes == []
+    for a, b in zip(kept, streamed):
+        assert a.keys() == b.keys()
+        for k in a:
+            assert np.array_equal(a[k], b[k]), k
+    back = Trace.from_chunks(streamed)
+    for s, snap in snaps.items():
+        assert same_model(back.grid_at(s), snap), s
+    # it records on from its last stage, but rebuilds none
+    with pytest.raises(InputError, match="decrease"):
+        stream.record(g2, None, 39)
+    with pytest.raises(InputError, match="keep_history"):
+        stream.grid_at(40)
+    with pytest.raises(InputError, match="shared time-trace"):
+        Trace(box(4, 4, 1.0), shared_time=False, keep_history=False)
+
+
 def test_keyframes_stay_bounded_on_long_runs():
     g = box(20, 20, 1.0)
     z = ZTrace(g, keyframe_every=10, max_keyframes=6)

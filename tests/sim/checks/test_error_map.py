@@ -155,6 +155,53 @@ def test_update_keeps_the_worst_point_of_every_ray(design):
         assert np.array_equal(getattr(em, key + "_len")[has], ln[has])
 
 
+@pytest.mark.parametrize("exact_excess", [True, False])
+def test_update_of_cut_faces_on_a_window_is_the_reference_reduction_of_those_faces(design, exact_excess):
+    """Faces a move made (id != 0) only, on a window of the design's frame mapped back to
+    its rays (as look-ahead windows are), over a subset of rays given unsorted: the
+    reference reduction of exactly those points."""
+    f = design.frame
+    i0, j0, i1, j1 = 10, 6, 70, 50
+    wf = f.window(i0, i1, j0, j1)
+    rng = np.random.default_rng(8)
+    counts = rng.integers(0, 3, wf.n_rays)
+    seg_ray = np.repeat(np.arange(wf.n_rays), counts)
+    k = np.arange(seg_ray.size) - np.repeat(np.cumsum(counts) - counts, counts)
+    near = 4.0 + 6.0 * k + np.round(rng.uniform(0, 3, seg_ray.size), 1)
+    far = near + np.round(rng.uniform(0.5, 3.0, seg_ray.size), 1)
+    ids = rng.integers(0, 4, (seg_ray.size, 2)).astype(np.int32)  # a quarter are stock faces (0)
+    grid = DexelGrid(wf)
+    grid._write_rays(np.arange(wf.n_rays), counts, near.astype(np.float32), far.astype(np.float32),
+                     ids[:, 0], ids[:, 1])
+
+    def to_full(r):
+        return (r // wf.nu + j0) * f.nu + (r % wf.nu + i0)
+
+    asked = rng.permutation(rng.integers(0, wf.n_rays, wf.n_rays // 2))
+    tol = Tolerance(gouge=0.01, undercut=0.05)
+    em = ErrorMap(wf)
+    got = em.update(grid, design, asked, tol, design_rays=to_full, exact_excess=exact_excess)
+    rays = distinct(asked)
+    nr, fr, ni, fi, c = grid.segments_of(rays)
+    pr = np.repeat(np.repeat(rays, c), 2)
+    ps = np.stack([nr, fr], 1).reshape(-1).astype(float)
+    pid = np.stack([ni, fi], 1).reshape(-1)
+    is_far = np.tile([0, 1], pr.size // 2)
+    keep = pid != 0
+    pr, ps, pid, is_far = pr[keep], ps[keep], pid[keep], is_far[keep]
+    err, dv = design.errors(to_full(pr), ps, tol, with_dv=True, exact_outside=exact_excess)
+    ref = reference_worst(pr, err, pid, ps, dv, is_far, wf.n_rays)
+    assert np.array_equal(got, distinct(pr)) and got.size < rays.size  # rays of stock faces only: none
+    for key in ("gouge", "excess"):
+        val, ids_, s_, ln = ref[key]
+        assert np.array_equal(getattr(em, key), val, equal_nan=True)
+        has = ~np.isnan(val)
+        assert has.sum() > 500
+        assert np.array_equal(getattr(em, key + "_id")[has], ids_[has])
+        assert np.array_equal(getattr(em, key + "_s")[has], s_[has])
+        assert np.array_equal(getattr(em, key + "_len")[has], ln[has])
+
+
 @pytest.mark.parametrize("a", [[], [3], [5, 1, 5, 2, 2, 9, 1], np.random.default_rng(0).integers(0, 50, 500)])
 def test_distinct_is_numpy_unique(a):
     a = np.asarray(a, np.int64)
@@ -199,3 +246,95 @@ def test_undercut_regions_are_separate_in_range_and_placed_at_their_worst_point(
     assert b.depth == pytest.approx(0.8, abs=0.01)
     assert b.position[0] == pytest.approx(60, abs=0.6) and b.position[2] == pytest.approx(15.3, abs=1e-3)
     assert 0 <= b.position[1] <= 40
+
+
+# --- gouges only: the material-left side on Huang's estimate (the live loop's fast path) ----
+
+def test_errors_without_exact_outside_are_the_same_inside_and_the_estimate_outside(design):
+    f = design.frame
+    rng = np.random.default_rng(11)
+    rays = rng.integers(0, f.n_rays, 3000)
+    s = rng.uniform(5, 18, rays.size)
+    tol = Tolerance(gouge=0.01, undercut=0.05, interest=2.0)
+    exact, dv = design.errors(rays, s, tol, with_dv=True)
+    fast, dv_fast = design.errors(rays, s, tol, with_dv=True, exact_outside=False)
+    assert np.array_equal(dv_fast, dv)
+    _, nz, inside, _ = design.vertical(rays, s)
+    hit = np.isfinite(dv)
+    assert (hit & inside).sum() > 300 and (hit & ~inside).sum() > 300
+    # inside the design (gouges): bit for bit the exact path
+    assert np.array_equal(fast[inside], exact[inside])
+    # outside: the estimate dv |n.d|, on the same side; the exact path refined some of them
+    out = hit & ~inside
+    assert np.array_equal(fast[out], dv[out] * nz[out]) and np.all(fast[out] >= 0)
+    assert not np.array_equal(fast[out], exact[out])
+    assert np.array_equal(fast[~hit], exact[~hit])
+
+
+def test_update_without_exact_excess_keeps_every_gouge_and_its_findings(design):
+    f = design.frame
+    rng = np.random.default_rng(4)
+    counts = rng.integers(0, 4, f.n_rays)
+    seg_ray = np.repeat(np.arange(f.n_rays), counts)
+    k = np.arange(seg_ray.size) - np.repeat(np.cumsum(counts) - counts, counts)
+    near = 4.0 + 5.0 * k + np.round(rng.uniform(0, 2, seg_ray.size), 1)
+    far = near + np.round(rng.uniform(0.5, 2.5, seg_ray.size), 1)
+    ids = rng.integers(0, 50, (seg_ray.size, 2)).astype(np.int32)
+    grid = DexelGrid(f)
+    grid._write_rays(np.arange(f.n_rays), counts, near.astype(np.float32), far.astype(np.float32), ids[:, 0], ids[:, 1])
+    tol = Tolerance(gouge=0.01, undercut=0.05, interest=2.0)
+    exact, fast = ErrorMap(f), ErrorMap(f)
+    rays = np.arange(f.n_rays)
+    assert np.array_equal(exact.update(grid, design, rays, tol, faces="all"),
+                          fast.update(grid, design, rays, tol, faces="all", exact_excess=False))
+    assert np.array_equal(fast.gouge, exact.gouge, equal_nan=True)
+    g = np.nan_to_num(exact.gouge) < 0
+    assert g.sum() > 100
+    for key in ("gouge_id", "gouge_s", "gouge_len"):
+        assert np.array_equal(getattr(fast, key)[g], getattr(exact, key)[g])
+    lines = np.arange(60) * 10
+    want = [x.to_json() for x in exact.findings(tol, lines, undercut=False, join=3.0)]
+    assert want and [x.to_json() for x in fast.findings(tol, lines, undercut=False, join=3.0)] == want
+    assert not np.array_equal(fast.excess, exact.excess, equal_nan=True)  # the estimate there
+
+
+def test_checker_finds_the_same_while_cutting_without_the_exact_excess():
+    """A ball raster polled in small batches over a part with a sloping top, partly too
+    deep: the gouges found while cutting, the gouge map and the final assessment are the
+    same whether the error map kept while cutting holds the exact material left or not."""
+    from sim.checks.checker import Checker
+    from sim.checks.report import final_findings
+    from sim.solids import box_grid
+    from sim.tools import parse_tool_spec
+    from tests.sim.checks.helpers import polyline
+
+    frame = Frame.top(-5, -5, 65, 45, 0.5)
+    pts = [(-8, -8, 30), (-8, -8, 14.7)]
+    for k, y in enumerate(np.arange(-8, 49, 2.0)):
+        xs = (-8, 68) if k % 2 == 0 else (68, -8)
+        pts += [(xs[0], y, 14.7), (xs[1], y, 14.7)]
+    moves = polyline(pts)
+    # pieces as the live loop cuts them: each row split in three
+    pieces = np.repeat(moves, 3)
+    a, b = np.repeat(moves["start"][:, :3], 3, axis=0), np.repeat(moves["end"][:, :3], 3, axis=0)
+    third = np.tile([0.0, 1.0, 2.0], len(moves))[:, None] / 3
+    pieces["start"][:, :3] = a + third * (b - a)
+    pieces["end"][:, :3] = a + (third + 1 / 3) * (b - a)
+    ids = np.repeat(np.arange(1, len(moves) + 1), 3)
+    found, checkers = [], []
+    for exact in (True, False):
+        ch = Checker(box_grid(frame, (-5, -5, 0), (65, 45, 20)), parse_tool_spec("ball:6"),
+                     design=_two_block_design(), tol=Tolerance(gouge=0.01), exact_excess_while_cutting=exact)
+        during = []
+        for a in range(len(pieces)):
+            _, got = ch.cut_and_check(pieces[a:a + 1], move_ids=ids[a:a + 1])
+            during += [x.to_json() for x in got]
+        found.append(during)
+        checkers.append(ch)
+    assert sum(x["kind"] == "gouge" for x in found[0]) > 0
+    assert found[1] == found[0]
+    exact, fast = checkers
+    assert np.array_equal(fast.error_map.gouge, exact.error_map.gouge, equal_nan=True)
+    assert not np.array_equal(fast.error_map.excess, exact.error_map.excess, equal_nan=True)
+    after = [[x.to_json() for x in final_findings(ch)] for ch in checkers]
+    assert any(x["kind"] == "undercut" for x in after[0]) and after[1] == after[0]
