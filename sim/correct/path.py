@@ -1,0 +1,182 @@
+"""Correct a whole move table (Huang & Oliver 1994, section 4) on the tool tips.
+
+:func:`correct_moves` walks the table in order. Each straight row (rapid or feed) runs
+from where the corrected path stands to its programmed end and goes through
+:func:`sim.correct.kernels.correct_move`: left alone when it does not gouge beyond the
+tolerance, else its end moved by the guide vector and the row split where its sweep still
+gouges. Arcs, probes and the like are never changed here: one that gouges, or whose start
+the correction moved, is *refused* (the caller names its line), unless the table was
+linearised first.
+
+All positions are tool tips (the table's ``start``/``end`` less ``tool_length``) in the
+design's world coordinates, mm.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sim.correct import kernels as K
+from sim.correct.gouge import GougeProbe
+from sim.gcode.moves import MoveKind, tip_positions
+from sim.tolerance import Tolerance
+
+#: rows the correction may reshape
+STRAIGHT = (MoveKind.RAPID, MoveKind.FEED)
+#: rows that move the tool but are never reshaped (an arc is another arc from another start)
+FIXED_MOTION = (MoveKind.ARC_CW, MoveKind.ARC_CCW, MoveKind.PROBE)
+#: two tips closer than this are the same point, mm
+SAME_POINT = 1e-7
+#: most points one row may become
+MAX_POINTS_PER_ROW = 4096
+
+
+@dataclass
+class Refusal:
+    """A row the correction would have to change but may not: ``row`` index, why."""
+
+    row: int
+    reason: str
+
+
+@dataclass
+class Correction:
+    """The corrected path.
+
+    ``start`` / ``end`` (n, 3): the tip where each row starts and ends on the corrected
+    path (rows without motion: where the path stands). ``points[k]``: the tips row ``k``
+    visits, last = ``end[k]`` (None: the row as programmed, one point). ``changed`` (n,)
+    bool: rows whose points differ from the program's. ``refused``: rows that needed a
+    change the correction may not make. Stats: ``poses`` positions looked at, ``corrected``
+    poses moved, ``guide_steps``, ``splits``, ``lifts``; ``largest_shift`` (mm, the
+    farthest a corrected point lies from its programmed move), ``added_length`` (mm of
+    path added), ``worst_gouge`` (mm, the deepest gouge a row had before correction).
+    """
+
+    start: np.ndarray
+    end: np.ndarray
+    points: list
+    changed: np.ndarray
+    refused: list = field(default_factory=list)
+    poses: int = 0
+    corrected: int = 0
+    guide_steps: int = 0
+    splits: int = 0
+    lifts: int = 0
+    largest_shift: float = 0.0
+    added_length: float = 0.0
+    worst_gouge: float = 0.0
+
+
+def correct_moves(moves: np.ndarray, probe: GougeProbe, tools: dict, default_tool, tol: Tolerance,
+                  min_segment: float = 0.02, margin: float = 0.5, max_iter: int = 30) -> Correction:
+    """Correct every straight row of ``moves`` (MOVE_DTYPE, coordinates of ``probe``'s
+    design) so that no sweep gouges the design deeper than ``tol.gouge``.
+
+    ``tools``: {tool number: Tool}; rows use ``tools[row.tool]`` or ``default_tool``.
+    ``min_segment`` (mm): pieces shorter than this are lifted rather than split.
+    ``margin``: corrected poses and pieces are freed to ``margin * tol.gouge`` so that
+    rounding the coordinates to the program's decimals keeps them within the tolerance.
+    """
+    n = len(moves)
+    p_start = tip_positions(moves, "start")
+    p_end = tip_positions(moves, "end")
+    kinds = moves["kind"]
+    t_l = float(tol.gouge)
+    target = margin * t_l
+    start = p_start.copy()
+    end = p_end.copy()
+    points: list = [None] * n
+    changed = np.zeros(n, bool)
+    out = Correction(start, end, points, changed)
+    stats = np.zeros(4, np.int64)
+    buf = np.empty((MAX_POINTS_PER_ROW, 3))
+    cur = None  # where the corrected path stands
+    params = {}
+    for k in range(n):
+        kind = int(kinds[k])
+        if cur is None:
+            cur = p_start[k].copy()
+        start[k] = cur
+        moved = bool(np.abs(cur - p_start[k]).max() > SAME_POINT)
+        if kind in STRAIGHT:
+            tool = tools.get(int(moves["tool"][k]), default_tool)
+            tp = params.get(id(tool))
+            if tp is None:
+                tp = params[id(tool)] = probe.params(tool)
+            q = p_end[k].copy()
+            out.poses += 1
+            m, status = K.correct_move(tp, cur, q, probe.frame_tuple, probe.arrays, t_l, target, probe.search,
+                                       float(min_segment), int(max_iter), buf, stats)
+            if status == K.FULL:
+                out.refused.append(Refusal(k, f"correcting it needs more than {MAX_POINTS_PER_ROW} points"))
+                m = 0
+            elif status == K.NOT_CLEAN:
+                out.refused.append(Refusal(k, "no position near it clears the design"))
+                m = 0
+            if m == 0:
+                cur = p_end[k].copy()
+                end[k] = cur
+                continue
+            pts = buf[:m].copy()
+            if m > 1 or np.abs(pts[-1] - p_end[k]).max() > SAME_POINT:
+                points[k] = pts
+                changed[k] = True
+                g = probe.move(tool, p_start[k], p_end[k], t_l)
+                out.worst_gouge = max(out.worst_gouge, g.depth, probe.pose(tool, p_end[k], t_l).depth)
+                out.largest_shift = max(out.largest_shift, _farthest(pts, p_start[k], p_end[k]))
+                out.added_length += _length(np.vstack([cur[None], pts])) - _length(np.vstack([cur[None], p_end[k][None]]))
+            cur = pts[-1].copy()
+            end[k] = cur
+        elif kind in FIXED_MOTION:
+            if moved:
+                out.refused.append(Refusal(k, f"it starts where the correction moved the tool "
+                                              f"({_fmt(cur)} instead of {_fmt(p_start[k])})"))
+            cur = p_end[k].copy()
+            end[k] = cur
+        else:
+            # a dwell, tool change, stop: the machine stays where the path stands
+            end[k] = cur if np.abs(p_end[k] - p_start[k]).max() <= SAME_POINT else p_end[k]
+            cur = end[k].copy()
+    out.corrected, out.guide_steps, out.splits, out.lifts = (int(v) for v in stats)
+    return out
+
+
+def check_fixed_rows(moves: np.ndarray, probe: GougeProbe, tools: dict, default_tool, tol: Tolerance,
+                     chord: float) -> list[Refusal]:
+    """Arcs that gouge the design deeper than ``tol.gouge`` (their chords within ``chord``
+    mm, checked like straight moves): they need a correction only ``--linearize`` allows."""
+    from sim.gcode.linearize import linearize
+
+    arcs = np.flatnonzero(np.isin(moves["kind"], (MoveKind.ARC_CW, MoveKind.ARC_CCW)))
+    out = []
+    for k in arcs:
+        tool = tools.get(int(moves["tool"][k]), default_tool)
+        chords = linearize(moves[k:k + 1], chord)
+        a = tip_positions(chords, "start")
+        b = tip_positions(chords, "end")
+        worst = max(probe.move(tool, p, q, tol.gouge).depth for p, q in zip(a, b))
+        if worst > 0:
+            out.append(Refusal(int(k), f"the arc gouges the design by {worst:.3f} mm"))
+    return out
+
+
+def _farthest(pts: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    """Largest distance (mm) from ``pts`` (m, 3) to the segment ``a -> b``."""
+    d = b - a
+    dd = float(d @ d)
+    t = np.zeros(len(pts)) if dd == 0 else np.clip((pts - a) @ d / dd, 0.0, 1.0)
+    return float(np.linalg.norm(pts - (a + t[:, None] * d), axis=1).max())
+
+
+def _length(pts: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
+
+
+def _fmt(p) -> str:
+    return "X{:.4f} Y{:.4f} Z{:.4f}".format(*(float(v) for v in p[:3]))
+
+
+__all__ = ["Correction", "Refusal", "check_fixed_rows", "correct_moves"]
