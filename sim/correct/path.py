@@ -48,7 +48,8 @@ class Correction:
     ``start`` / ``end`` (n, 3): the tip where each row starts and ends on the corrected
     path (rows without motion: where the path stands). ``points[k]``: the tips row ``k``
     visits, last = ``end[k]`` (None: the row as programmed, one point). ``changed`` (n,)
-    bool: rows whose points differ from the program's. ``refused``: rows that needed a
+    bool: rows whose points differ from the program's. ``orig_start`` / ``orig_end``: the
+    programmed tips. ``refused``: rows that needed a
     change the correction may not make. Stats: ``poses`` positions looked at, ``corrected``
     poses moved, ``guide_steps``, ``splits``, ``lifts``; ``largest_shift`` (mm, the
     farthest a corrected point lies from its programmed move), ``added_length`` (mm of
@@ -59,6 +60,8 @@ class Correction:
     end: np.ndarray
     points: list
     changed: np.ndarray
+    orig_start: np.ndarray = None
+    orig_end: np.ndarray = None
     refused: list = field(default_factory=list)
     poses: int = 0
     corrected: int = 0
@@ -90,7 +93,7 @@ def correct_moves(moves: np.ndarray, probe: GougeProbe, tools: dict, default_too
     end = p_end.copy()
     points: list = [None] * n
     changed = np.zeros(n, bool)
-    out = Correction(start, end, points, changed)
+    out = Correction(start, end, points, changed, orig_start=p_start, orig_end=p_end)
     stats = np.zeros(4, np.int64)
     buf = np.empty((MAX_POINTS_PER_ROW, 3))
     cur = None  # where the corrected path stands

@@ -1,0 +1,275 @@
+"""Write a corrected path back into the program's own text.
+
+Every line the correction does not touch is kept byte for byte. A line whose move changed
+gets its X Y Z words replaced by the first point of its corrected move and keeps
+everything else it says (G and M words, F, S, comments); the further points follow it as
+new lines in the same motion mode. Changed lines end with ``(dexmon: corrected line N)``,
+new ones with ``(dexmon: inserted for line N)``, N the original line. A straight line that
+omits an axis the correction moved before it gets that axis written out (G90), and a G91
+line after a moved point gets its increments from where the tool now stands.
+
+Coordinates are written in the line's units (G20: inches) and work system, from the
+row's own work offset (``machine - wco``, the interpreter's), with :data:`DECIMALS`
+decimals; Z is rounded up, never down, so rounding cannot deepen a cut.
+
+What cannot be rewritten safely is refused with an :class:`~sim.errors.InputError`
+naming ``file:line``: a change inside a subroutine file or an o-word loop, a line whose
+coordinates are expressions, a line with G53 / G28 / G30 / G92 / G10 / a canned cycle /
+a probe, G93 inverse time, cutter compensation, a program end on a line that must become
+several.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sim.correct.path import SAME_POINT, Correction
+from sim.errors import InputError
+from sim.gcode.moves import MoveKind
+from sim.gcode.parser import parse_line
+
+#: decimals written per unit (mm: 0.1 um; inch: 0.25 um)
+DECIMALS = {"mm": 4, "inch": 5}
+#: G codes a rewritten line may carry (they take effect before its motion, or are modal
+#: settings the new lines after it inherit)
+SAFE_G = {0.0, 1.0, 4.0, 17.0, 18.0, 19.0, 20.0, 21.0, 40.0, 43.0, 49.0, 54.0, 55.0, 56.0, 57.0, 58.0, 59.0,
+          59.1, 59.2, 59.3, 61.0, 61.1, 64.0, 90.0, 91.0, 90.1, 91.1, 94.0}
+#: M codes that end or pause the program: a line carrying one cannot become several
+STOP_M = {0.0, 1.0, 2.0, 30.0, 60.0}
+
+_AXIS_WORD = re.compile(r"[XYZxyz][ \t]*([+-]?(?:[0-9]+\.?[0-9]*|\.[0-9]+))")
+
+
+@dataclass
+class Rewrite:
+    """The new program text and what changed: ``changed`` original lines (1-based),
+    ``inserted`` new lines."""
+
+    text: bytes
+    changed: list = field(default_factory=list)
+    inserted: int = 0
+
+
+def rewrite_program(data: bytes, filename: str, program, correction: Correction, to_prog: np.ndarray) -> Rewrite:
+    """The corrected program.
+
+    ``data``: the main file's bytes; ``program``: its :class:`sim.gcode.Program` (the
+    table the correction ran on, row for row); ``to_prog`` (n, 3) mm: what turns a
+    corrected tip of row k into the program's work coordinates of that row.
+    """
+    text = data.decode("utf-8", "surrogateescape")
+    if text.startswith("\ufeff"):
+        bom, text = "\ufeff", text[1:]
+    else:
+        bom = ""
+    lines = text.splitlines(keepends=True)
+    moves = program.moves
+    plan = _plan(moves, correction, lines, program, filename)
+    out = Rewrite(b"")
+    new_lines = list(lines)
+    for line, rows in plan.items():
+        idx = line - 1
+        if not 0 <= idx < len(lines):
+            raise InputError("the correction changes a line the file does not have", where=f"{filename}:{line}")
+        new_lines[idx] = _rewrite_line(lines[idx], line, rows, moves, correction, to_prog, program, filename)
+        out.changed.append(line)
+        out.inserted += new_lines[idx].count("(dexmon: inserted for line")
+    out.text = (bom + "".join(new_lines)).encode("utf-8", "surrogateescape")
+    return out
+
+
+def _plan(moves, correction: Correction, lines, program, filename) -> dict:
+    """{line: [rows]} of the main-file lines that must be rewritten (refusing what
+    cannot be)."""
+    n = len(moves)
+    need = correction.changed.copy()
+    moved = np.abs(correction.start - correction.orig_start) > SAME_POINT
+    for k in np.flatnonzero(moved.any(axis=1) & ~need):
+        k = int(k)
+        if int(moves["kind"][k]) in (MoveKind.RAPID, MoveKind.FEED):
+            # the row starts elsewhere than programmed: its line keeps its end only if it
+            # names, absolutely, every axis that moved
+            need[k] = not _keeps_end(moves, k, moved[k], lines, program)
+        else:
+            need[k] = True
+    plan: dict = {}
+    for k in np.flatnonzero(need):
+        k = int(k)
+        f, line = int(moves["file"][k]), int(moves["line"][k])
+        if f != 0:
+            raise InputError("the correction has to change a move made in a subroutine file; correct it by hand",
+                             where=f"{filename}: line {line} of file {f}")
+        plan.setdefault(line, []).append(k)
+    # a line run more than once (an o-word loop or subroutine) cannot be rewritten for one pass
+    for line, rows in plan.items():
+        same = np.flatnonzero((moves["file"] == 0) & (moves["line"] == line))
+        if same.size and (same[-1] - same[0] + 1 != same.size):
+            raise InputError("the correction has to change a line that runs more than once (an o-word loop or "
+                             "subroutine); correct it by hand", where=f"{filename}:{line}")
+        plan[line] = [int(r) for r in same]
+    return dict(sorted(plan.items()))
+
+
+def _keeps_end(moves, k: int, moved, lines, program) -> bool:
+    """Row k, started from a moved point, still ends where programmed: a main-file G90
+    line naming every moved axis."""
+    line = int(moves["line"][k])
+    if int(moves["file"][k]) != 0 or not 0 < line <= len(lines):
+        return False
+    try:
+        block = parse_line(lines[line - 1].rstrip("\r\n"), program.dialect)
+    except Exception:  # noqa: BLE001
+        return False
+    if program.state_at(line).distance == 910 or any(g == 53.0 for g, _ in block.g):
+        return False
+    return all(a in block.words for a, m in zip("XYZ", moved) if m)
+
+
+def _rewrite_line(raw: str, line: int, rows, moves, correction: Correction, to_prog, program, filename) -> str:
+    where = f"{filename}:{line}"
+    body, ending = _split_ending(raw)
+    code_part, comment_tail = _split_semicolon(body)
+    try:
+        block = parse_line(body, program.dialect)
+    except Exception:  # noqa: BLE001 - the interpreter read it; a second reading cannot fail
+        raise InputError("cannot read the line again to rewrite it", where=where) from None
+    kinds = {int(moves["kind"][k]) for k in rows}
+    if not kinds <= {int(MoveKind.RAPID), int(MoveKind.FEED)}:
+        raise InputError("the correction has to change an arc, a canned cycle or a probe on this line; "
+                         "give --linearize MM for arcs, or correct it by hand", where=where)
+    if len(rows) != 1:
+        raise InputError(f"the line makes {len(rows)} moves (G28/G30 or a cycle) and one of them needs a "
+                         "correction; correct it by hand", where=where)
+    bad_g = sorted(g for g, _ in block.g if g not in SAFE_G)
+    if bad_g:
+        raise InputError(f"the line's move needs a correction but it carries G{bad_g[0]:g}; correct it by hand",
+                         where=where)
+    if block.has_expr and any(a in block.words for a in "XYZ"):
+        raise InputError("the line's move needs a correction but its coordinates are expressions; "
+                         "correct it by hand", where=where)
+    st = program.state_at(line)
+    if st.feed_mode == 930:
+        raise InputError("the line's move needs a correction but it is in G93 inverse time; correct it by hand",
+                         where=where)
+    if st.cutter_comp != 400:
+        raise InputError("the line's move needs a correction but cutter compensation (G41/G42) is on; "
+                         "correct it by hand", where=where)
+    k = rows[0]
+    pts = correction.points[k] if correction.points[k] is not None else correction.end[k][None, :]
+    if len(pts) > 1 and any(m in STOP_M for m, _ in block.m):
+        raise InputError("the line's move must become several but the line also stops or ends the program; "
+                         "correct it by hand", where=where)
+    inch = not st.metric
+    scale = 25.4 if inch else 1.0
+    dec = DECIMALS["inch" if inch else "mm"]
+    incremental = st.distance == 910
+    prev = (correction.start[k] + to_prog[k]) / scale
+    words = []
+    for p in pts:
+        target = (p + to_prog[k]) / scale
+        words.append(_xyz(target, prev, incremental, dec))
+        prev = _as_written(target, prev, incremental, dec)
+    first = _replace_axes(code_part, words[0], where)
+    tag = f"(dexmon: corrected line {line})"
+    out = [_join(first, tag, comment_tail, ending)]
+    motion = "G0" if int(moves["kind"][k]) == MoveKind.RAPID else "G1"
+    for w in words[1:]:
+        out.append(f"{motion} {w} (dexmon: inserted for line {line}){ending or chr(10)}")
+    if not ending and len(out) > 1:
+        out[-1] = out[-1].rstrip("\n")
+    return "".join(out)
+
+
+def _split_ending(raw: str) -> tuple[str, str]:
+    body = raw.rstrip("\r\n")
+    return body, raw[len(body):]
+
+
+def _split_semicolon(body: str) -> tuple[str, str]:
+    """The line before a ``;`` comment (outside parentheses) and the comment."""
+    depth = 0
+    for i, c in enumerate(body):
+        if c == "(":
+            depth = 1
+        elif c == ")":
+            depth = 0
+        elif c == ";" and depth == 0:
+            return body[:i], body[i:]
+    return body, ""
+
+
+def _axis_spans(code: str, where: str) -> list[tuple[int, int]]:
+    """(start, end) of every X / Y / Z word outside comments."""
+    spans = []
+    i, n = 0, len(code)
+    while i < n:
+        c = code[i]
+        if c == "(":
+            j = code.find(")", i + 1)
+            i = n if j < 0 else j + 1
+            continue
+        if c in "XYZxyz":
+            m = _AXIS_WORD.match(code, i)
+            if not m:
+                raise InputError(f"cannot read the value of its {c.upper()} word", where=where)
+            spans.append((i, m.end()))
+            i = m.end()
+            continue
+        i += 1
+    return spans
+
+
+def _replace_axes(code: str, xyz: str, where: str) -> str:
+    """``code`` with its X Y Z words taken out and ``xyz`` put where the first was (at the
+    end when it had none); the blanks after a removed word go with it."""
+    spans = _axis_spans(code, where)
+    if not spans:
+        return code.rstrip() + " " + xyz
+    out = []
+    last = 0
+    for k, (a, b) in enumerate(spans):
+        out.append(code[last:a])
+        if k == 0:
+            out.append(xyz + " ")
+        while b < len(code) and code[b] in " \t":
+            b += 1
+        last = b
+    out.append(code[last:])
+    return "".join(out)
+
+
+def _join(code: str, tag: str, semicolon: str, ending: str) -> str:
+    return f"{code.rstrip()} {tag}{(' ' + semicolon) if semicolon else ''}{ending}"
+
+
+def _fmt(v: float, dec: int) -> str:
+    s = f"{v:.{dec}f}"
+    return "0." + "0" * dec if s.startswith("-") and float(s) == 0.0 else s
+
+
+def _round_up(v: float, dec: int) -> float:
+    q = 10.0**dec
+    return math.ceil(v * q - 1e-6) / q
+
+
+def _xyz(target, prev, incremental: bool, dec: int) -> str:
+    """The X Y Z words reaching ``target`` (program units) from ``prev``."""
+    z = _round_up(float(target[2]), dec)
+    if not incremental:
+        return f"X{_fmt(target[0], dec)} Y{_fmt(target[1], dec)} Z{_fmt(z, dec)}"
+    d = dec + 2  # increments carry more digits: their rounding errors add up
+    return (f"X{_fmt(target[0] - prev[0], d)} Y{_fmt(target[1] - prev[1], d)} "
+            f"Z{_fmt(_round_up(float(target[2] - prev[2]), d), d)}")
+
+
+def _as_written(target, prev, incremental: bool, dec: int) -> np.ndarray:
+    """Where the written words put the tool (program units)."""
+    if not incremental:
+        return np.array([round(float(target[0]), dec), round(float(target[1]), dec), _round_up(float(target[2]), dec)])
+    d = dec + 2
+    return prev + np.array([round(float(target[0] - prev[0]), d), round(float(target[1] - prev[1]), d),
+                            _round_up(float(target[2] - prev[2]), d)])
