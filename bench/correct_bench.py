@@ -41,7 +41,7 @@ def one_resolution(parts: Path, resolution: float, repeat: int) -> dict:
         ["correct", str(program), "--stock", STOCK, "--tool", "ball:8", "--design", str(parts / "carpet1.stl"),
          "--resolution", str(resolution), "--tolerance", "0.002"])
     setup = _program_setup(args)
-    prog, moves = setup.load(program)
+    prog, _, moves = setup.load(program)
     probe = GougeProbe(setup.design, setup.tol)
     correct_moves(moves[:50], probe, setup.tools, setup.tool, setup.tol)  # compile / warm
     rates = []

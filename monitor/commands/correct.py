@@ -52,8 +52,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--min-segment", type=float, default=0.02, metavar="MM",
                         help="pieces of a move shorter than this are lifted instead of split (default 0.02 mm)")
     parser.add_argument("--linearize", type=float, default=None, metavar="MM",
-                        help="arcs that need a correction become straight chords within MM of the arc "
-                             "(not yet supported: arcs needing a correction are refused)")
+                        help="arcs that need a correction are written as straight chords within MM of the "
+                             "arc (without it such an arc is refused, naming its line)")
     parser.add_argument("--no-verify", action="store_true", help="write the program without checking it again")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     parser.add_argument("--dialect", choices=("linuxcnc", "grbl"), default=None)
@@ -74,9 +74,10 @@ def add_arguments(parser) -> None:
 class Setup:
     """Everything one correction needs, read from a program and flags or a job.
 
-    ``load(path)`` reads a program the same way (job settings, start position, work
-    frame) and returns ``(program, moves)``: the interpreter's result and the table in the
-    design's coordinates (tips). ``fresh_stock()`` a new stock grid; ``checker(grid)`` the
+    ``load(path, chord=None)`` reads a program the same way (job settings, start
+    position, work frame) and returns ``(program, rows, moves)``: the interpreter's
+    result, its table (arcs as chords within ``chord`` mm when given) and that table in
+    the design's coordinates (tips). ``fresh_stock()`` a new stock grid; ``checker(grid)`` the
     checks ``simulate`` runs.
     """
 
@@ -120,10 +121,11 @@ def _program_setup(args) -> Setup:
     design = DesignModel(grid.frame, args.design)
     sub_dirs = S.subroutine_dirs(args)
 
-    def load(path):
+    def load(path, chord=None):
         program = S.load_program(str(path), args.dialect or "linuxcnc", table, args.var, units, sub_dirs,
                                  args.max_loop, bool(args.block_delete))
-        return program, S._from_start(program.moves, grid, None)
+        rows = _linearized(program.moves, chord)
+        return program, rows, S._from_start(rows, grid, None)
 
     def checker(g):
         from sim.checks.checker import Checker
@@ -179,12 +181,13 @@ def _job_setup(args) -> Setup:
     sub_dirs = [str(d) for d in job.subroutine_path] + S.subroutine_dirs(args)
     ref = reference_wco(job)
 
-    def load(p):
+    def load(p, chord=None):
         program = S.load_program(str(p), job.dialect, table, job.var_file, job.machine_units, sub_dirs,
                                  args.max_loop or job.max_loop, bool(args.block_delete) or job.block_delete)
-        return program, work_moves(start_at(program.moves, job_start(job, program.moves)), ref)
+        rows = _linearized(program.moves, chord)
+        return program, rows, work_moves(start_at(rows, job_start(job, rows)), ref)
 
-    program, moves = load(job.program)
+    _, _, moves = load(job.program)
     wp = build_workpiece(job, moves)
 
     def checker(g):
@@ -195,6 +198,15 @@ def _job_setup(args) -> Setup:
 
     return Setup(Path(job.program), load, lambda: build_workpiece(job, moves).stock, checker, wp.design,
                  wp.tools, wp.default_tool, job.tolerance)
+
+
+def _linearized(moves: np.ndarray, chord: float | None) -> np.ndarray:
+    """``moves`` with its arcs as chords within ``chord`` mm (unchanged without one)."""
+    if chord is None:
+        return moves
+    from sim.gcode.linearize import linearize
+
+    return linearize(moves, chord)
 
 
 def _positive(value, name):
@@ -224,10 +236,11 @@ def run(args) -> int:
         raise InputError("directory does not exist", where=f"-o {out_path}")
     if out_path.resolve() == setup.program_path.resolve():
         raise InputError("the corrected program would overwrite the original; give another file", where="-o")
-    program, moves = setup.load(setup.program_path)
+    program, rows, moves = setup.load(setup.program_path, args.linearize)
     probe = GougeProbe(setup.design, setup.tol)
     t0 = time.perf_counter()
-    arcs = check_fixed_rows(moves, probe, setup.tools, setup.tool, setup.tol, setup.tol.chord)
+    arcs = [] if args.linearize else check_fixed_rows(moves, probe, setup.tools, setup.tool, setup.tol,
+                                                      setup.tol.chord)
     correction = correct_moves(moves, probe, setup.tools, setup.tool, setup.tol, min_segment=args.min_segment)
     seconds = time.perf_counter() - t0
     refused = sorted(arcs + correction.refused, key=lambda r: r.row)
@@ -235,12 +248,12 @@ def run(args) -> int:
     if refused:
         r = refused[0]
         more = f" ({len(refused) - 1} more lines need the same)" if len(refused) > 1 else ""
-        hint = "; --linearize is not supported yet: correct it by hand" if "arc" in r.reason else ""
+        hint = "; give --linearize MM to write it as chords" if "arc" in r.reason else ""
         raise InputError(f"needs a correction that cannot be made: {r.reason}{hint}{more}",
                          where=_where(program, moves, r.row, name))
-    to_prog = _to_program(program.moves, moves)
+    to_prog = _to_program(rows, moves)
     data = setup.program_path.read_bytes()
-    written = rewrite_program(data, name, program, correction, to_prog)
+    written = rewrite_program(data, name, program, correction, to_prog, moves=rows)
     out_path.write_bytes(written.text)
     report = {
         "program": name,
@@ -296,7 +309,7 @@ def verify(setup: Setup, out_path: Path, original_moves: np.ndarray) -> tuple[di
     from sim.checks.report import final_findings
     from sim.cut import Cutter
 
-    _, moves = setup.load(out_path)
+    _, _, moves = setup.load(out_path)
     grid = setup.fresh_stock()
     checker = setup.checker(grid)
     checker.check_program(moves)

@@ -54,12 +54,15 @@ class Rewrite:
     inserted: int = 0
 
 
-def rewrite_program(data: bytes, filename: str, program, correction: Correction, to_prog: np.ndarray) -> Rewrite:
+def rewrite_program(data: bytes, filename: str, program, correction: Correction, to_prog: np.ndarray,
+                    moves: np.ndarray | None = None) -> Rewrite:
     """The corrected program.
 
-    ``data``: the main file's bytes; ``program``: its :class:`sim.gcode.Program` (the
-    table the correction ran on, row for row); ``to_prog`` (n, 3) mm: what turns a
-    corrected tip of row k into the program's work coordinates of that row.
+    ``data``: the main file's bytes; ``program``: its :class:`sim.gcode.Program`;
+    ``moves``: the table the correction ran on, in the program's row order (default
+    ``program.moves``; with ``--linearize`` the table with arcs as chords, whose rows keep
+    their arc's line); ``to_prog`` (n, 3) mm: what turns a corrected tip of row k into
+    the program's work coordinates of that row.
     """
     text = data.decode("utf-8", "surrogateescape")
     if text.startswith("\ufeff"):
@@ -67,22 +70,75 @@ def rewrite_program(data: bytes, filename: str, program, correction: Correction,
     else:
         bom = ""
     lines = text.splitlines(keepends=True)
-    moves = program.moves
-    plan = _plan(moves, correction, lines, program, filename)
+    moves = program.moves if moves is None else moves
+    from_arc = _arc_lines(program.moves, moves)
+    plan = _plan(moves, from_arc, correction, lines, program, filename)
     out = Rewrite(b"")
     new_lines = list(lines)
-    for line, rows in plan.items():
-        idx = line - 1
-        if not 0 <= idx < len(lines):
-            raise InputError("the correction changes a line the file does not have", where=f"{filename}:{line}")
-        new_lines[idx] = _rewrite_line(lines[idx], line, rows, moves, correction, to_prog, program, filename)
+    restate = None  # (G2 or G3, line): the modal arc the chords of a line replaced
+    for idx, raw in enumerate(lines):
+        line = idx + 1
+        rows = plan.get(line)
+        if rows is None:
+            if restate is not None:
+                new_lines[idx], restate = _restate_arc(raw, restate, program.dialect)
+                if new_lines[idx] is not raw:
+                    out.changed.append(line)
+            continue
+        if from_arc[rows[0]]:
+            new_lines[idx], code = _rewrite_arc_line(raw, line, rows, moves, correction, to_prog, program, filename)
+            restate = (code, line)
+        else:
+            new_lines[idx] = _rewrite_line(raw, line, rows, moves, correction, to_prog, program, filename)
+            restate = None if _has_motion_word(raw, program.dialect) else restate
         out.changed.append(line)
         out.inserted += new_lines[idx].count("(dexmon: inserted for line")
+    missing = [ln for ln in plan if not 0 < ln <= len(lines)]
+    if missing:
+        raise InputError("the correction changes a line the file does not have", where=f"{filename}:{missing[0]}")
     out.text = (bom + "".join(new_lines)).encode("utf-8", "surrogateescape")
     return out
 
 
-def _plan(moves, correction: Correction, lines, program, filename) -> dict:
+def _arc_lines(prog_moves: np.ndarray, moves: np.ndarray) -> np.ndarray:
+    """bool (n,): rows of ``moves`` that come from an arc of the program (its chords)."""
+    arc = np.isin(prog_moves["kind"], (MoveKind.ARC_CW, MoveKind.ARC_CCW))
+    keys = set(zip(prog_moves["file"][arc].tolist(), prog_moves["line"][arc].tolist()))
+    if not keys:
+        return np.zeros(len(moves), bool)
+    return np.array([(f, ln) in keys for f, ln in zip(moves["file"].tolist(), moves["line"].tolist())], bool)
+
+
+#: G codes of the motion group (a line naming one does not lean on the modal motion)
+_MOTION_G = {0.0, 1.0, 2.0, 3.0, 5.0, 5.1, 5.2, 33.0, 33.1, 38.2, 38.3, 38.4, 38.5, 73.0, 76.0, 80.0, 81.0, 82.0,
+             83.0, 84.0, 85.0, 86.0, 87.0, 88.0, 89.0}
+
+
+def _has_motion_word(raw: str, dialect: str) -> bool:
+    try:
+        return any(g in _MOTION_G for g, _ in parse_line(raw.rstrip("\r\n"), dialect).g)
+    except Exception:  # noqa: BLE001
+        return True
+
+
+def _restate_arc(raw: str, restate, dialect: str):
+    """A line after arc chords: one leaning on the modal arc gets its G2/G3 back."""
+    code, line = restate
+    try:
+        block = parse_line(raw.rstrip("\r\n"), dialect)
+    except Exception:  # noqa: BLE001
+        return raw, None
+    if any(g in _MOTION_G for g, _ in block.g):
+        return raw, None
+    if not any(a in block.words for a in "XYZABCIJKR"):
+        return raw, restate
+    body, ending = _split_ending(raw)
+    code_part, tail = _split_semicolon(body)
+    return _join(f"{code} {code_part.lstrip()}", f"(dexmon: {code} restated after the chords of line {line})",
+                 tail, ending), None
+
+
+def _plan(moves, from_arc, correction: Correction, lines, program, filename) -> dict:
     """{line: [rows]} of the main-file lines that must be rewritten (refusing what
     cannot be)."""
     n = len(moves)
@@ -90,7 +146,7 @@ def _plan(moves, correction: Correction, lines, program, filename) -> dict:
     moved = np.abs(correction.start - correction.orig_start) > SAME_POINT
     for k in np.flatnonzero(moved.any(axis=1) & ~need):
         k = int(k)
-        if int(moves["kind"][k]) in (MoveKind.RAPID, MoveKind.FEED):
+        if int(moves["kind"][k]) in (MoveKind.RAPID, MoveKind.FEED) and not from_arc[k]:
             # the row starts elsewhere than programmed: its line keeps its end only if it
             # names, absolutely, every axis that moved
             need[k] = not _keeps_end(moves, k, moved[k], lines, program)
@@ -130,13 +186,11 @@ def _keeps_end(moves, k: int, moved, lines, program) -> bool:
 
 
 def _rewrite_line(raw: str, line: int, rows, moves, correction: Correction, to_prog, program, filename) -> str:
+    """A straight line: its X Y Z words go to the first corrected point, the others follow."""
     where = f"{filename}:{line}"
     body, ending = _split_ending(raw)
     code_part, comment_tail = _split_semicolon(body)
-    try:
-        block = parse_line(body, program.dialect)
-    except Exception:  # noqa: BLE001 - the interpreter read it; a second reading cannot fail
-        raise InputError("cannot read the line again to rewrite it", where=where) from None
+    block = _read(body, program, where)
     kinds = {int(moves["kind"][k]) for k in rows}
     if not kinds <= {int(MoveKind.RAPID), int(MoveKind.FEED)}:
         raise InputError("the correction has to change an arc, a canned cycle or a probe on this line; "
@@ -144,7 +198,61 @@ def _rewrite_line(raw: str, line: int, rows, moves, correction: Correction, to_p
     if len(rows) != 1:
         raise InputError(f"the line makes {len(rows)} moves (G28/G30 or a cycle) and one of them needs a "
                          "correction; correct it by hand", where=where)
-    bad_g = sorted(g for g, _ in block.g if g not in SAFE_G)
+    st = _writable_state(block, program, line, where, SAFE_G)
+    words = _coordinate_words(rows, correction, to_prog, st)
+    if len(words) > 1 and any(m in STOP_M for m, _ in block.m):
+        raise InputError("the line's move must become several but the line also stops or ends the program; "
+                         "correct it by hand", where=where)
+    first = _replace_axes(code_part, words[0], where)
+    out = [_join(first, f"(dexmon: corrected line {line})", comment_tail, ending)]
+    motion = "G0" if int(moves["kind"][rows[0]]) == MoveKind.RAPID else "G1"
+    out += [f"{motion} {w} (dexmon: inserted for line {line})" + (ending or "\n") for w in words[1:]]
+    if not ending:
+        out[-1] = out[-1].rstrip("\n")
+    return "".join(out)
+
+
+#: words an arc line may carry to be written as chords (its geometry, feed, line number)
+_ARC_WORDS = set("XYZIJKRPFN")
+
+
+def _rewrite_arc_line(raw: str, line: int, rows, moves, correction: Correction, to_prog, program, filename):
+    """An arc line as G1 chords (``--linearize``): its corrected points, the first line
+    keeping its modal G words and F. Returns the text and the arc's G code (G2/G3)."""
+    where = f"{filename}:{line}"
+    body, ending = _split_ending(raw)
+    block = _read(body, program, where)
+    other = sorted(set(block.words) - _ARC_WORDS)
+    if other or block.m:
+        what = other[0] if other else "M"
+        raise InputError(f"the arc needs a correction but its line also carries {what} words; correct it by hand",
+                         where=where)
+    st = _writable_state(block, program, line, where, SAFE_G | {2.0, 3.0})
+    if block.has_expr:
+        raise InputError("the arc needs a correction but its words are expressions; correct it by hand",
+                         where=where)
+    code = "G2" if st.motion == 20 else "G3"
+    words = _coordinate_words(rows, correction, to_prog, st)
+    modal = " ".join(f"G{g:g}" for g, _ in block.g if g not in (2.0, 3.0))
+    feed = f" F{block.words['F']:g}" if "F" in block.words else ""
+    first = f"{modal + ' ' if modal else ''}G1 {words[0]}{feed} (dexmon: corrected line {line}, the arc as chords)"
+    eol = ending or "\n"
+    out = [first + eol] + [f"G1 {w} (dexmon: inserted for line {line})" + eol for w in words[1:]]
+    if not ending:
+        out[-1] = out[-1].rstrip("\n")
+    return "".join(out), code
+
+
+def _read(body: str, program, where: str):
+    try:
+        return parse_line(body, program.dialect)
+    except Exception:  # noqa: BLE001 - the interpreter read it; a second reading cannot fail
+        raise InputError("cannot read the line again to rewrite it", where=where) from None
+
+
+def _writable_state(block, program, line: int, where: str, allowed_g: set):
+    """The modal state the line's words are read in, refusing what cannot be rewritten."""
+    bad_g = sorted(g for g, _ in block.g if g not in allowed_g)
     if bad_g:
         raise InputError(f"the line's move needs a correction but it carries G{bad_g[0]:g}; correct it by hand",
                          where=where)
@@ -158,30 +266,25 @@ def _rewrite_line(raw: str, line: int, rows, moves, correction: Correction, to_p
     if st.cutter_comp != 400:
         raise InputError("the line's move needs a correction but cutter compensation (G41/G42) is on; "
                          "correct it by hand", where=where)
-    k = rows[0]
-    pts = correction.points[k] if correction.points[k] is not None else correction.end[k][None, :]
-    if len(pts) > 1 and any(m in STOP_M for m, _ in block.m):
-        raise InputError("the line's move must become several but the line also stops or ends the program; "
-                         "correct it by hand", where=where)
+    return st
+
+
+def _coordinate_words(rows, correction: Correction, to_prog, st) -> list[str]:
+    """The X Y Z words of every point the rows now visit, in the line's units and
+    distance mode (G91: from where the tool stands)."""
     inch = not st.metric
     scale = 25.4 if inch else 1.0
     dec = DECIMALS["inch" if inch else "mm"]
     incremental = st.distance == 910
-    prev = (correction.start[k] + to_prog[k]) / scale
+    prev = (correction.start[rows[0]] + to_prog[rows[0]]) / scale
     words = []
-    for p in pts:
-        target = (p + to_prog[k]) / scale
-        words.append(_xyz(target, prev, incremental, dec))
-        prev = _as_written(target, prev, incremental, dec)
-    first = _replace_axes(code_part, words[0], where)
-    tag = f"(dexmon: corrected line {line})"
-    out = [_join(first, tag, comment_tail, ending)]
-    motion = "G0" if int(moves["kind"][k]) == MoveKind.RAPID else "G1"
-    for w in words[1:]:
-        out.append(f"{motion} {w} (dexmon: inserted for line {line}){ending or chr(10)}")
-    if not ending and len(out) > 1:
-        out[-1] = out[-1].rstrip("\n")
-    return "".join(out)
+    for k in rows:
+        pts = correction.points[k] if correction.points[k] is not None else correction.end[k][None, :]
+        for p in pts:
+            target = (p + to_prog[k]) / scale
+            words.append(_xyz(target, prev, incremental, dec))
+            prev = _as_written(target, prev, incremental, dec)
+    return words
 
 
 def _split_ending(raw: str) -> tuple[str, str]:

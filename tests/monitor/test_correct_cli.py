@@ -203,3 +203,24 @@ def test_carpet_with_an_8mm_ball_comes_out_gouge_free_with_its_undercut_reported
     orig = prog.read_bytes().splitlines(keepends=True)
     it = iter(orig)
     assert all(any(k == o for o in it) for k in kept)
+
+
+def test_with_linearize_a_gouging_arc_becomes_chords_and_the_next_modal_arc_is_restated(tmp_path, capsys):
+    text = ("G21 G90\nG0 Z5\nG0 X-8 Y15\nG1 Z-5 F600\nG1 X10\nG2 X20 Y15 Z-5.5 I5 J-2\nX30 Y15 Z-4 I5 J-2\n"
+            "X40 Y15 I5 J-2\nG1 X48\nG0 Z5\nM2\n")
+    rc, doc, err, out = correct_program(tmp_path, capsys, text, "--linearize", "0.01")
+    assert rc == 0, err
+    fixed = out.read_text().splitlines()
+    assert "(dexmon: corrected line 6, the arc as chords)" in "\n".join(fixed)
+    # line 7 starts where the correction moved line 6's end: chords too; line 8 leaned on
+    # the modal G2 the chords replaced, so it says G2 again and is still an arc
+    restated = [ln for ln in fixed if "G2 restated" in ln]
+    assert len(restated) == 1 and restated[0].startswith("G2 X40 Y15 I5 J-2")
+    assert doc["changed_lines"] == [6, 7, 8]
+    assert simulate_gouges(capsys, tmp_path, out) == []
+    from sim.gcode import MoveKind, load_program
+
+    m = load_program(out).moves
+    k = [i for i in range(len(m)) if "G2 restated" in fixed[m["line"][i] - 1]]
+    assert k and m["kind"][k[0]] == MoveKind.ARC_CW
+    assert [a for a in fixed if "dexmon" not in a] == [a for i, a in enumerate(text.splitlines()) if i not in (5, 6, 7)]
