@@ -191,6 +191,8 @@ def _rewrite_line(raw: str, line: int, rows, moves, correction: Correction, to_p
     body, ending = _split_ending(raw)
     code_part, comment_tail = _split_semicolon(body)
     block = _read(body, program, where)
+    # a dwell, tool change or program end on the line happens before or after its motion
+    rows = [k for k in rows if int(moves["kind"][k]) in _MOTION_KINDS]
     kinds = {int(moves["kind"][k]) for k in rows}
     if not kinds <= {int(MoveKind.RAPID), int(MoveKind.FEED)}:
         raise InputError("the correction has to change an arc, a canned cycle or a probe on this line; "
@@ -203,6 +205,9 @@ def _rewrite_line(raw: str, line: int, rows, moves, correction: Correction, to_p
     if len(words) > 1 and any(m in STOP_M for m, _ in block.m):
         raise InputError("the line's move must become several but the line also stops or ends the program; "
                          "correct it by hand", where=where)
+    if len(words) > 1 and any(a in block.words for a in "ABC"):
+        raise InputError("the line's move must become several but it also turns a rotary axis; "
+                         "correct it by hand", where=where)
     first = _replace_axes(code_part, words[0], where)
     out = [_join(first, f"(dexmon: corrected line {line})", comment_tail, ending)]
     motion = "G0" if int(moves["kind"][rows[0]]) == MoveKind.RAPID else "G1"
@@ -211,6 +216,10 @@ def _rewrite_line(raw: str, line: int, rows, moves, correction: Correction, to_p
         out[-1] = out[-1].rstrip("\n")
     return "".join(out)
 
+
+#: rows that move the tool
+_MOTION_KINDS = {int(MoveKind.RAPID), int(MoveKind.FEED), int(MoveKind.ARC_CW), int(MoveKind.ARC_CCW),
+                 int(MoveKind.PROBE)}
 
 #: words an arc line may carry to be written as chords (its geometry, feed, line number)
 _ARC_WORDS = set("XYZIJKRPFN")
@@ -252,6 +261,9 @@ def _read(body: str, program, where: str):
 
 def _writable_state(block, program, line: int, where: str, allowed_g: set):
     """The modal state the line's words are read in, refusing what cannot be rewritten."""
+    if block.deleted:
+        raise InputError("the line's move needs a correction but the line is under block delete ('/'); "
+                         "correct it by hand", where=where)
     bad_g = sorted(g for g, _ in block.g if g not in allowed_g)
     if bad_g:
         raise InputError(f"the line's move needs a correction but it carries G{bad_g[0]:g}; correct it by hand",

@@ -224,3 +224,15 @@ def test_with_linearize_a_gouging_arc_becomes_chords_and_the_next_modal_arc_is_r
     k = [i for i in range(len(m)) if "G2 restated" in fixed[m["line"][i] - 1]]
     assert k and m["kind"][k[0]] == MoveKind.ARC_CW
     assert [a for a in fixed if "dexmon" not in a] == [a for i, a in enumerate(text.splitlines()) if i not in (5, 6, 7)]
+
+
+@pytest.mark.parametrize("dip, says", [
+    ("/G1 X20 Z-5.3", "block delete"),
+    ("G1 X20 Z#1", "expressions"),
+    ("G53 G1 X20 Z-5.3", "G53"),
+])
+def test_a_line_that_cannot_be_rewritten_safely_is_refused_naming_it(tmp_path, capsys, dip, says):
+    text = f"G21 G90\n#1 = -5.3\nG0 Z5\nG0 X-8 Y15\nG1 Z-5 F600\n{dip}\nG1 X48 Z-5\nG0 Z5\nM2\n"
+    rc, doc, err, out = correct_program(tmp_path, capsys, text)
+    assert rc == 2 and f"{tmp_path / 'p.nc'}:6" in err and says in err, err
+    assert not out.exists()
