@@ -140,10 +140,7 @@ def _job_setup(args) -> Setup:
     import dataclasses
 
     from monitor.commands import simulate as S
-    from monitor.job import ToolDef, load_job, parse_solid_spec, require
-    from monitor.predict import MIN_VOLUME, build_workpiece, reference_wco, work_moves
-    from monitor.start import job_start, start_at
-    from sim.tooltable import read_tool_table
+    from monitor.job import ToolDef, load_job, parse_solid_spec
 
     path = Path(args.program)
     if not path.is_file():
@@ -171,19 +168,31 @@ def _job_setup(args) -> Setup:
     t_l = _positive(args.tolerance, "--tolerance")
     if t_l:
         job.tolerance = dataclasses.replace(job.tolerance, gouge=t_l)
+    return setup_from_job(job, args.max_loop, bool(args.block_delete), S.subroutine_dirs(args), where=str(path))
+
+
+def setup_from_job(job, max_loop=None, block_delete: bool = False, sub_dirs=(), where: str = "job") -> Setup:
+    """The :class:`Setup` of a :class:`monitor.job.Job` (its program, stock, tools,
+    design, tolerance, start position and work frame, as ``simulate`` reads them)."""
+    from monitor.commands import simulate as S
+    from monitor.job import require
+    from monitor.predict import MIN_VOLUME, build_workpiece, reference_wco, work_moves
+    from monitor.start import job_start, start_at
+    from sim.tooltable import read_tool_table
+
     require(job, "program", "stock", "tools")
     if job.design is None:
         raise InputError("the job has no [design] and no --design was given: the correction is against it",
-                         where=str(path))
+                         where=where)
     if not Path(job.program).is_file():
-        raise InputError("no such program file", where=f"{path}: [program] path {job.program}")
+        raise InputError("no such program file", where=f"{where}: [program] path {job.program}")
     table = read_tool_table(job.tool_table, job.machine_units) if job.tool_table else None
-    sub_dirs = [str(d) for d in job.subroutine_path] + S.subroutine_dirs(args)
+    dirs = [str(d) for d in job.subroutine_path] + list(sub_dirs)
     ref = reference_wco(job)
 
     def load(p, chord=None):
-        program = S.load_program(str(p), job.dialect, table, job.var_file, job.machine_units, sub_dirs,
-                                 args.max_loop or job.max_loop, bool(args.block_delete) or job.block_delete)
+        program = S.load_program(str(p), job.dialect, table, job.var_file, job.machine_units, dirs,
+                                 max_loop or job.max_loop, block_delete or job.block_delete)
         rows = _linearized(program.moves, chord)
         return program, rows, work_moves(start_at(rows, job_start(job, rows)), ref)
 

@@ -147,6 +147,31 @@ def correct_moves(moves: np.ndarray, probe: GougeProbe, tools: dict, default_too
     return out
 
 
+def correct_span(moves: np.ndarray, a: int, b: int, probe: GougeProbe, tools: dict, default_tool, tol: Tolerance,
+                 **kw) -> Correction:
+    """Correct rows ``a <= k < b`` only: the path before them as programmed, the row after
+    them starting where the corrected span ends (a look-ahead's proposal for one gouge).
+    Keywords as :func:`correct_moves`."""
+    n = len(moves)
+    p_start = tip_positions(moves, "start")
+    p_end = tip_positions(moves, "end")
+    out = Correction(p_start.copy(), p_end.copy(), [None] * n, np.zeros(n, bool), orig_start=p_start,
+                     orig_end=p_end)
+    sub = correct_moves(moves[a:b], probe, tools, default_tool, tol, **kw)
+    out.start[a:b] = sub.start
+    out.end[a:b] = sub.end
+    out.points[a:b] = sub.points
+    out.changed[a:b] = sub.changed
+    out.refused = [Refusal(r.row + a, r.reason) for r in sub.refused]
+    for name in ("poses", "corrected", "guide_steps", "splits", "lifts", "largest_shift", "added_length",
+                 "worst_gouge"):
+        setattr(out, name, getattr(sub, name))
+    later = np.flatnonzero(np.isin(moves["kind"][b:], STRAIGHT + FIXED_MOTION))
+    if later.size and b > a:
+        out.start[b + int(later[0])] = sub.end[-1]
+    return out
+
+
 def check_fixed_rows(moves: np.ndarray, probe: GougeProbe, tools: dict, default_tool, tol: Tolerance,
                      chord: float) -> list[Refusal]:
     """Arcs that gouge the design deeper than ``tol.gouge`` (their chords within ``chord``
@@ -182,4 +207,4 @@ def _fmt(p) -> str:
     return "X{:.4f} Y{:.4f} Z{:.4f}".format(*(float(v) for v in p[:3]))
 
 
-__all__ = ["Correction", "Refusal", "check_fixed_rows", "correct_moves"]
+__all__ = ["Correction", "Refusal", "check_fixed_rows", "correct_moves", "correct_span"]
