@@ -51,6 +51,9 @@ def add_arguments(parser) -> None:
                         help="gouge tolerance t_l in mm (default 0.002, or the job's)")
     parser.add_argument("--min-segment", type=float, default=0.02, metavar="MM",
                         help="pieces of a move shorter than this are lifted instead of split (default 0.02 mm)")
+    parser.add_argument("--refine", type=int, default=1, metavar="N",
+                        help="correct on rays N times denser than the check's (the correction sees the design "
+                             "only on its rays: a gouge between them can stay; default 1)")
     parser.add_argument("--linearize", type=float, default=None, metavar="MM",
                         help="arcs that need a correction are written as straight chords within MM of the "
                              "arc (without it such an arc is refused, naming its line)")
@@ -89,6 +92,8 @@ class Setup:
     tools: dict
     tool: object
     tol: object
+    #: the design on the rays the correction runs on (``--refine``: denser than the check's)
+    fine: object = None
 
 
 def _program_setup(args) -> Setup:
@@ -120,6 +125,7 @@ def _program_setup(args) -> Setup:
     tol = Tolerance(gouge=t_l or DEFAULT.gouge)
     design = DesignModel(grid.frame, args.design)
     sub_dirs = S.subroutine_dirs(args)
+    fine = design if args.refine == 1 else DesignModel(refined(grid.frame, args.refine), args.design)
 
     def load(path, chord=None):
         program = S.load_program(str(path), args.dialect or "linuxcnc", table, args.var, units, sub_dirs,
@@ -133,7 +139,7 @@ def _program_setup(args) -> Setup:
         return Checker(g, tool, design=design, tol=tol, tools=tools or None)
 
     return Setup(Path(args.program), load, lambda: S.build_stock(args.stock, resolution, args.memory_limit),
-                 checker, design, tools, tool, tol)
+                 checker, design, tools, tool, tol, fine)
 
 
 def _job_setup(args) -> Setup:
@@ -168,10 +174,12 @@ def _job_setup(args) -> Setup:
     t_l = _positive(args.tolerance, "--tolerance")
     if t_l:
         job.tolerance = dataclasses.replace(job.tolerance, gouge=t_l)
-    return setup_from_job(job, args.max_loop, bool(args.block_delete), S.subroutine_dirs(args), where=str(path))
+    return setup_from_job(job, args.max_loop, bool(args.block_delete), S.subroutine_dirs(args), where=str(path),
+                          refine=args.refine)
 
 
-def setup_from_job(job, max_loop=None, block_delete: bool = False, sub_dirs=(), where: str = "job") -> Setup:
+def setup_from_job(job, max_loop=None, block_delete: bool = False, sub_dirs=(), where: str = "job",
+                   refine: int = 1) -> Setup:
     """The :class:`Setup` of a :class:`monitor.job.Job` (its program, stock, tools,
     design, tolerance, start position and work frame, as ``simulate`` reads them)."""
     from monitor.commands import simulate as S
@@ -205,8 +213,22 @@ def setup_from_job(job, max_loop=None, block_delete: bool = False, sub_dirs=(), 
         return Checker(g, wp.default_tool, design=wp.design, fixtures=wp.fixtures, tol=job.tolerance,
                        tools=wp.tools, min_volume=MIN_VOLUME)
 
+    fine = wp.design
+    if refine > 1:
+        from sim.checks.error_map import DesignModel
+
+        offset = job.design.offset if job.design.kind == "stl" else (0.0, 0.0, 0.0)
+        fine = DesignModel(refined(wp.frame, refine), wp.design.mesh, offset=offset, name=wp.design.name)
     return Setup(Path(job.program), load, lambda: build_workpiece(job, moves).stock, checker, wp.design,
-                 wp.tools, wp.default_tool, job.tolerance)
+                 wp.tools, wp.default_tool, job.tolerance, fine)
+
+
+def refined(frame, n: int):
+    """``frame`` with ``n`` times denser rays over the same rectangle (its rays among them)."""
+    from sim.frame import Frame
+
+    return Frame(frame.origin, frame.direction, frame.u, frame.spacing / n, (frame.nu - 1) * n + 1,
+                 (frame.nv - 1) * n + 1)
 
 
 def _linearized(moves: np.ndarray, chord: float | None) -> np.ndarray:
@@ -237,6 +259,8 @@ def run(args) -> int:
     from sim.correct.rewrite import rewrite_program
 
     _positive(args.min_segment, "--min-segment")
+    if not 1 <= args.refine <= 8:
+        raise InputError(f"must be a whole number from 1 to 8, got {args.refine}", where="--refine")
     if args.linearize is not None:
         _positive(args.linearize, "--linearize")
     setup = _job_setup(args) if str(args.program).lower().endswith(".toml") else _program_setup(args)
@@ -246,7 +270,7 @@ def run(args) -> int:
     if out_path.resolve() == setup.program_path.resolve():
         raise InputError("the corrected program would overwrite the original; give another file", where="-o")
     program, rows, moves = setup.load(setup.program_path, args.linearize)
-    probe = GougeProbe(setup.design, setup.tol)
+    probe = GougeProbe(setup.fine or setup.design, setup.tol)
     t0 = time.perf_counter()
     arcs = [] if args.linearize else check_fixed_rows(moves, probe, setup.tools, setup.tool, setup.tol,
                                                       setup.tol.chord)

@@ -236,3 +236,22 @@ def test_a_line_that_cannot_be_rewritten_safely_is_refused_naming_it(tmp_path, c
     rc, doc, err, out = correct_program(tmp_path, capsys, text)
     assert rc == 2 and f"{tmp_path / 'p.nc'}:6" in err and says in err, err
     assert not out.exists()
+
+
+def test_refine_corrects_on_denser_rays_so_a_finer_check_finds_no_gouge_either(tmp_path, capsys, shared):
+    """The correction sees the design on its rays only: corrected on the 0.4 mm rays, a
+    0.2 mm check still finds what lay between them; ``--refine 2`` corrects on 0.2 mm rays."""
+    parts = shared / "corpus" / "parts"
+    lines = (parts / "carpet1_ball6_finish.ngc").read_text().splitlines(keepends=True)
+    prog = tmp_path / "carpet_start.ngc"
+    prog.write_text("".join(lines[:1200]) + "G0 Z10.1979\nM5\nM30\n")
+    design = parts / "carpet1.stl"
+    found = {}
+    for refine in ("1", "2"):
+        out = tmp_path / f"fixed{refine}.ngc"
+        rc, doc, err = run(capsys, prog, "--stock", CARPET_STOCK, "--tool", "ball:8", "--design", design,
+                           "--resolution", "0.4", "--refine", refine, "-o", out, "--json")
+        assert rc == 0 and doc["verified"]["gouges"] == 0, err
+        found[refine] = simulate_gouges(capsys, tmp_path, out, "box:0,-82,-10,10,66,5.197857", "ball:8", design,
+                                        "0.2", "0.002")
+    assert found["1"] and found["2"] == []
