@@ -37,6 +37,9 @@ OK = 0
 FULL = 1          # more points than the output buffer holds
 NOT_CLEAN = 2     # the pose could not be freed (never expected for a height-field design)
 
+#: most points one move may become
+MAX_POINTS = 4096
+
 
 @nb.njit(cache=True)
 def sweep_gouge(tp, x0, y0, z0, x1, y1, z1, frame, design, thr, search, out):
@@ -292,3 +295,105 @@ def correct_move(tp, p0, q, frame, design, t_l, target, search, min_len, max_ite
         cur[:] = a
         stack[ns - 1] = b
     return n, OK
+
+
+#: row codes of :func:`correct_rows`
+ROW_STRAIGHT = 0  # rapid or feed: corrected
+ROW_FIXED = 1     # arc or probe: never reshaped (refused when its start moved)
+ROW_STILL = 2     # no motion: the path stands where it is
+#: per-row statuses of :func:`correct_rows` beyond those of :func:`correct_move`
+MOVED_FIXED = 3
+
+
+@nb.njit(cache=True)
+def _dist_to_segment(p, a, b):
+    d0 = b[0] - a[0]
+    d1 = b[1] - a[1]
+    d2 = b[2] - a[2]
+    dd = d0 * d0 + d1 * d1 + d2 * d2
+    t = 0.0
+    if dd > 0.0:
+        t = ((p[0] - a[0]) * d0 + (p[1] - a[1]) * d1 + (p[2] - a[2]) * d2) / dd
+        t = min(max(t, 0.0), 1.0)
+    e0 = p[0] - a[0] - t * d0
+    e1 = p[1] - a[1] - t * d1
+    e2 = p[2] - a[2] - t * d2
+    return math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+
+
+@nb.njit(cache=True)
+def correct_rows(codes, tool_idx, tps, p_start, p_end, frame, design, t_l, target, search, min_len, max_iter,
+                 start, end, pts, offs, status, before, shift, added, stats):
+    """:func:`correct_move` along a whole table, the corrected path chained row to row.
+
+    ``codes`` (n,) :data:`ROW_STRAIGHT` / :data:`ROW_FIXED` / :data:`ROW_STILL`;
+    ``tps`` (k, 7) tool parameters, ``tool_idx`` (n,) the row's; ``p_start``/``p_end``
+    (n, 3) programmed tips. Fills ``start``/``end`` (n, 3) on the corrected path, the
+    points of straight rows ``pts[offs[k]:offs[k + 1]]``, ``status`` (n,) per row (OK,
+    FULL, NOT_CLEAN, MOVED_FIXED), and for rows that changed: ``before`` the programmed
+    move's deepest gouge (mm), ``shift`` the farthest corrected point from it (mm),
+    ``added`` the path length added (mm). Returns the number of rows done (less than n
+    when ``pts`` is full: grow it and call again).
+    """
+    n = codes.size
+    buf = np.empty((MAX_POINTS, 3))
+    res = np.empty(G_SIZE)
+    cur = p_start[0].copy()
+    used = 0
+    offs[0] = 0
+    for k in range(n):
+        start[k] = cur
+        status[k] = OK
+        c = codes[k]
+        if c == ROW_STRAIGHT:
+            tp = tps[tool_idx[k]]
+            q = p_end[k].copy()
+            m, st = correct_move(tp, cur, q, frame, design, t_l, target, search, min_len, max_iter, buf, stats)
+            if st != OK:
+                status[k] = st
+                m = 0
+            if used + m > pts.shape[0]:
+                return k
+            if m == 0:
+                cur = p_end[k].copy()
+                end[k] = cur
+                offs[k + 1] = used
+                continue
+            pts[used:used + m] = buf[:m]
+            offs[k + 1] = used + m
+            used += m
+            last = buf[m - 1]
+            moved = max(abs(last[0] - q[0]), abs(last[1] - q[1]), abs(last[2] - q[2])) > 1e-7
+            if m > 1 or moved:
+                a = p_start[k]
+                sweep_gouge(tp, a[0], a[1], a[2], q[0], q[1], q[2], frame, design, t_l, search, res)
+                deep = res[G_DEPTH]
+                sweep_gouge(tp, q[0], q[1], q[2], q[0], q[1], q[2], frame, design, t_l, search, res)
+                before[k] = max(deep, res[G_DEPTH])
+                far = 0.0
+                length = 0.0
+                prev = cur
+                for i in range(m):
+                    far = max(far, _dist_to_segment(buf[i], a, q))
+                    length += math.sqrt((buf[i, 0] - prev[0]) ** 2 + (buf[i, 1] - prev[1]) ** 2
+                                        + (buf[i, 2] - prev[2]) ** 2)
+                    prev = buf[i]
+                shift[k] = far
+                added[k] = length - math.sqrt((q[0] - cur[0]) ** 2 + (q[1] - cur[1]) ** 2 + (q[2] - cur[2]) ** 2)
+            cur = last.copy()
+            end[k] = cur
+        elif c == ROW_FIXED:
+            a = p_start[k]
+            if max(abs(cur[0] - a[0]), abs(cur[1] - a[1]), abs(cur[2] - a[2])) > 1e-7:
+                status[k] = MOVED_FIXED
+            cur = p_end[k].copy()
+            end[k] = cur
+            offs[k + 1] = used
+        else:
+            a = p_start[k]
+            b = p_end[k]
+            if max(abs(b[0] - a[0]), abs(b[1] - a[1]), abs(b[2] - a[2])) > 1e-7:
+                cur = b.copy()
+            end[k] = cur
+            offs[k + 1] = used
+    return n

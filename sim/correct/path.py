@@ -30,7 +30,7 @@ FIXED_MOTION = (MoveKind.ARC_CW, MoveKind.ARC_CCW, MoveKind.PROBE)
 #: two tips closer than this are the same point, mm
 SAME_POINT = 1e-7
 #: most points one row may become
-MAX_POINTS_PER_ROW = 4096
+MAX_POINTS_PER_ROW = K.MAX_POINTS
 
 
 @dataclass
@@ -84,66 +84,58 @@ def correct_moves(moves: np.ndarray, probe: GougeProbe, tools: dict, default_too
     rounding the coordinates to the program's decimals keeps them within the tolerance.
     """
     n = len(moves)
-    p_start = tip_positions(moves, "start")
-    p_end = tip_positions(moves, "end")
+    p_start = np.ascontiguousarray(tip_positions(moves, "start"))
+    p_end = np.ascontiguousarray(tip_positions(moves, "end"))
     kinds = moves["kind"]
+    codes = np.full(n, K.ROW_STILL, np.int8)
+    codes[np.isin(kinds, STRAIGHT)] = K.ROW_STRAIGHT
+    codes[np.isin(kinds, FIXED_MOTION)] = K.ROW_FIXED
+    # one parameter row per tool the straight rows use
+    numbers = sorted(set(int(t) for t in moves["tool"][codes == K.ROW_STRAIGHT]))
+    by_number = {num: tools.get(num, default_tool) for num in numbers}
+    tps = np.array([probe.params(by_number[num]) for num in numbers] or [np.zeros(7)], np.float64)
+    lut = {num: i for i, num in enumerate(numbers)}
+    tool_idx = np.array([lut.get(int(t), 0) for t in moves["tool"]], np.int64) if n else np.zeros(0, np.int64)
+    start = np.empty((n, 3))
+    end = np.empty((n, 3))
+    offs = np.zeros(n + 1, np.int64)
+    status = np.zeros(n, np.int8)
+    before = np.zeros(n)
+    shift = np.zeros(n)
+    added = np.zeros(n)
+    stats = np.zeros(4, np.int64)
+    pts = np.empty((2 * n + 1024, 3))
     t_l = float(tol.gouge)
-    target = margin * t_l
-    start = p_start.copy()
-    end = p_end.copy()
+    while n:
+        stats[:] = 0
+        done = K.correct_rows(codes, tool_idx, tps, p_start, p_end, probe.frame_tuple, probe.arrays, t_l,
+                              margin * t_l, probe.search, float(min_segment), int(max_iter), start, end, pts, offs,
+                              status, before, shift, added, stats)
+        if done == n:
+            break
+        pts = np.empty((2 * pts.shape[0], 3))  # more points than room: again with twice the room
     points: list = [None] * n
     changed = np.zeros(n, bool)
     out = Correction(start, end, points, changed, orig_start=p_start, orig_end=p_end)
-    stats = np.zeros(4, np.int64)
-    buf = np.empty((MAX_POINTS_PER_ROW, 3))
-    cur = None  # where the corrected path stands
-    params = {}
-    for k in range(n):
-        kind = int(kinds[k])
-        if cur is None:
-            cur = p_start[k].copy()
-        start[k] = cur
-        moved = bool(np.abs(cur - p_start[k]).max() > SAME_POINT)
-        if kind in STRAIGHT:
-            tool = tools.get(int(moves["tool"][k]), default_tool)
-            tp = params.get(id(tool))
-            if tp is None:
-                tp = params[id(tool)] = probe.params(tool)
-            q = p_end[k].copy()
-            out.poses += 1
-            m, status = K.correct_move(tp, cur, q, probe.frame_tuple, probe.arrays, t_l, target, probe.search,
-                                       float(min_segment), int(max_iter), buf, stats)
-            if status == K.FULL:
-                out.refused.append(Refusal(k, f"correcting it needs more than {MAX_POINTS_PER_ROW} points"))
-                m = 0
-            elif status == K.NOT_CLEAN:
-                out.refused.append(Refusal(k, "no position near it clears the design"))
-                m = 0
-            if m == 0:
-                cur = p_end[k].copy()
-                end[k] = cur
-                continue
-            pts = buf[:m].copy()
-            if m > 1 or np.abs(pts[-1] - p_end[k]).max() > SAME_POINT:
-                points[k] = pts
-                changed[k] = True
-                g = probe.move(tool, p_start[k], p_end[k], t_l)
-                out.worst_gouge = max(out.worst_gouge, g.depth, probe.pose(tool, p_end[k], t_l).depth)
-                out.largest_shift = max(out.largest_shift, _farthest(pts, p_start[k], p_end[k]))
-                out.added_length += _length(np.vstack([cur[None], pts])) - _length(np.vstack([cur[None], p_end[k][None]]))
-            cur = pts[-1].copy()
-            end[k] = cur
-        elif kind in FIXED_MOTION:
-            if moved:
-                out.refused.append(Refusal(k, f"it starts where the correction moved the tool "
-                                              f"({_fmt(cur)} instead of {_fmt(p_start[k])})"))
-            cur = p_end[k].copy()
-            end[k] = cur
-        else:
-            # a dwell, tool change, stop: the machine stays where the path stands
-            end[k] = cur if np.abs(p_end[k] - p_start[k]).max() <= SAME_POINT else p_end[k]
-            cur = end[k].copy()
+    for k in np.flatnonzero(codes == K.ROW_STRAIGHT):
+        k = int(k)
+        st = int(status[k])
+        if st == K.FULL:
+            out.refused.append(Refusal(k, f"correcting it needs more than {MAX_POINTS_PER_ROW} points"))
+        elif st == K.NOT_CLEAN:
+            out.refused.append(Refusal(k, "no position near it clears the design"))
+        elif offs[k + 1] - offs[k] > 1 or np.abs(end[k] - p_end[k]).max() > SAME_POINT:
+            points[k] = pts[offs[k]:offs[k + 1]].copy()
+            changed[k] = True
+    for k in np.flatnonzero(status == K.MOVED_FIXED):
+        out.refused.append(Refusal(int(k), f"it starts where the correction moved the tool "
+                                           f"({_fmt(start[k])} instead of {_fmt(p_start[k])})"))
+    out.refused.sort(key=lambda r: r.row)
+    out.poses = int((codes == K.ROW_STRAIGHT).sum())
     out.corrected, out.guide_steps, out.splits, out.lifts = (int(v) for v in stats)
+    out.worst_gouge = float(before.max()) if n else 0.0
+    out.largest_shift = float(shift.max()) if n else 0.0
+    out.added_length = float(added.sum())
     return out
 
 
@@ -189,18 +181,6 @@ def check_fixed_rows(moves: np.ndarray, probe: GougeProbe, tools: dict, default_
         if worst > 0:
             out.append(Refusal(int(k), f"the arc gouges the design by {worst:.3f} mm"))
     return out
-
-
-def _farthest(pts: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
-    """Largest distance (mm) from ``pts`` (m, 3) to the segment ``a -> b``."""
-    d = b - a
-    dd = float(d @ d)
-    t = np.zeros(len(pts)) if dd == 0 else np.clip((pts - a) @ d / dd, 0.0, 1.0)
-    return float(np.linalg.norm(pts - (a + t[:, None] * d), axis=1).max())
-
-
-def _length(pts: np.ndarray) -> float:
-    return float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
 
 
 def _fmt(p) -> str:
