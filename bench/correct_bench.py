@@ -5,8 +5,10 @@ gouges it by about 0.34 mm.
 Prints one JSON line per resolution: positions (rows looked at) per second of the
 correction alone (median of ``--repeat`` runs), the poses it moved, splits and lifts, the
 lines changed and inserted, and the check of the written program through ``dexmon
-simulate``'s checks (gouges left, undercut left) with its wall time; ``load`` is
-``os.getloadavg()`` beside the figures (this machine is shared: absolute speeds drift).
+simulate``'s checks (gouges left, undercut left) with its wall time, and ``finer_check``:
+the same check on rays twice as dense (what lies between the rays the correction saw);
+``load`` is ``os.getloadavg()`` beside the figures (this machine is shared: absolute
+speeds drift).
 
 Usage: python bench/correct_bench.py [SHARED_DIR] [--resolution 0.4,0.2] [--repeat 3]
 """
@@ -57,13 +59,31 @@ def one_resolution(parts: Path, resolution: float, repeat: int) -> dict:
         t0 = time.perf_counter()
         verified, undercut = verify(setup, out, moves)
         check_s = time.perf_counter() - t0
+        finer = finer_check(parts, out, resolution / 2)
     return {"case": "correct carpet1 ball:8 (whole path)", "resolution": resolution, "positions": corr.poses,
             "positions_per_s": round(statistics.median(rates), 1), "runs": [round(r, 1) for r in rates],
             "poses_moved": corr.corrected, "guide_steps": corr.guide_steps, "splits": corr.splits, "lifts": corr.lifts,
             "lines_changed": len(written.changed), "lines_inserted": written.inserted,
             "gouge_before_mm": round(corr.worst_gouge, 4), "largest_shift_mm": round(corr.largest_shift, 4),
             "gouges_after": verified["gouges"], "undercut_left": undercut, "check_s": round(check_s, 2),
+            "finer_check": finer,
             "load": [round(v, 2) for v in os.getloadavg()]}
+
+
+def finer_check(parts: Path, program: Path, resolution: float) -> dict:
+    """``dexmon simulate --design`` of the corrected program on rays twice as dense as the
+    correction's: the deepest gouge left between the rays it saw."""
+    import contextlib
+    import io
+
+    from monitor.cli import main as cli
+
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        cli(["simulate", str(program), "--stock", STOCK, "--tool", "ball:8", "--resolution", str(resolution),
+             "--design", str(parts / "carpet1.stl"), "--tolerance", "0.002", "--json"])
+    gouges = [f for f in json.loads(buf.getvalue())["findings"] if f["kind"] == "gouge"]
+    return {"resolution": resolution, "gouges": len(gouges), "worst_mm": max((f["depth"] for f in gouges), default=0.0)}
 
 
 def main() -> int:
