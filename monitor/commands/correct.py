@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,8 +35,6 @@ HELP = "correct a gouging program against its design (Huang & Oliver's guide vec
 
 
 def add_arguments(parser) -> None:
-    from monitor.commands import simulate
-
     parser.add_argument("program", help="G-code program (.nc/.ngc/.gcode) or a job file (.toml)")
     parser.add_argument("-o", "--output", default=None, metavar="FIXED.nc",
                         help="where to write the corrected program (default: PROGRAM with .corrected before "
@@ -70,7 +67,6 @@ def add_arguments(parser) -> None:
     parser.add_argument("--block-delete", action="store_true", default=None)
     parser.add_argument("--memory-limit", type=float, default=4096.0, metavar="MB",
                         help="refuse grids needing more than this (default 4096 MB)")
-    del simulate
 
 
 @dataclass
@@ -399,6 +395,3 @@ def summary_text(r: dict) -> str:
             lines.append("undercut left by the correction: none")
     return "\n".join(lines)
 
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(2)

@@ -141,7 +141,6 @@ def _restate_arc(raw: str, restate, dialect: str):
 def _plan(moves, from_arc, correction: Correction, lines, program, filename) -> dict:
     """{line: [rows]} of the main-file lines that must be rewritten (refusing what
     cannot be)."""
-    n = len(moves)
     need = correction.changed.copy()
     moved = np.abs(correction.start - correction.orig_start) > SAME_POINT
     for k in np.flatnonzero(moved.any(axis=1) & ~need):

@@ -89,6 +89,7 @@ def simulate_gouges(capsys, tmp_path, program: Path, stock="box:-5,-5,-20,45,35,
     rc = main(["simulate", str(program), "--stock", stock, "--tool", tool, "--design",
                str(design or block_design(tmp_path)), "--resolution", resolution, "--tolerance", tolerance, "--json"])
     out, _ = capsys.readouterr()
+    assert rc in (0, 1), out
     return [f for f in json.loads(out)["findings"] if f["kind"] == "gouge"]
 
 
