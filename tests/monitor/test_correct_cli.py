@@ -256,3 +256,11 @@ def test_refine_corrects_on_denser_rays_so_a_finer_check_finds_no_gouge_either(t
         found[refine] = simulate_gouges(capsys, tmp_path, out, "box:0,-82,-10,10,66,5.197857", "ball:8", design,
                                         "0.2", "0.002")
     assert found["1"] and found["2"] == []
+
+
+def test_a_canned_cycle_that_gouges_is_refused_naming_its_line_even_with_linearize(tmp_path, capsys):
+    text = "G21 G90\nG0 Z5\nG0 X20 Y15\nG81 X20 Y15 Z-6 R1 F100\nG80\nG0 Z5\nM2\n"
+    for extra in ((), ("--linearize", "0.01")):
+        rc, doc, err, out = correct_program(tmp_path, capsys, text, *extra)
+        assert rc == 2 and f"{tmp_path / 'p.nc'}:4" in err and "cycle" in err, err
+        assert not out.exists()
