@@ -10,6 +10,7 @@ gets its reason written instead.
 
 from __future__ import annotations
 
+import threading
 import time
 from pathlib import Path
 
@@ -27,20 +28,35 @@ class Proposer:
         self.job = job
         self.path = Path(path)
         self._ready = None
+        self._failed = None
+        # read the program and cast the design off the monitor's loop, from the start:
+        # the first proposal then only waits for what is left of it
+        self._thread = threading.Thread(target=self._prepare, name="dexmon-propose", daemon=True)
+        self._thread.start()
 
-    def _setup(self):
-        if self._ready is None:
-            from monitor.commands.correct import _to_program, setup_from_job
-            from sim.correct.gouge import GougeProbe
+    def _prepare(self) -> None:
+        from monitor.commands.correct import _to_program, setup_from_job
+        from sim.correct.gouge import GougeProbe
+        from sim.correct.path import correct_moves
 
+        try:
             setup = setup_from_job(self.job)
             program, rows, moves = setup.load(setup.program_path)
-            self._ready = (setup, program, rows, moves, GougeProbe(setup.design, setup.tol),
-                           _to_program(rows, moves), setup.program_path.read_bytes())
+            probe = GougeProbe(setup.design, setup.tol)
+            correct_moves(moves[:2], probe, setup.tools, setup.tool, setup.tol)  # compiled before it is needed
+            self._ready = (setup, program, rows, moves, probe, _to_program(rows, moves),
+                           setup.program_path.read_bytes())
+        except Exception as exc:  # said with the first proposal asked for
+            self._failed = exc
+
+    def _setup(self):
+        self._thread.join()
+        if self._failed is not None:
+            raise self._failed
         return self._ready
 
     def __call__(self, finding: dict) -> dict | None:
-        from sim.correct.path import correct_span
+        from sim.correct.path import check_fixed_rows, correct_span
         from sim.correct.rewrite import rewrite_program
 
         setup, program, rows, moves, probe, to_prog, data = self._setup()
@@ -51,11 +67,15 @@ class Proposer:
         name = str(setup.program_path)
         head = (f"# {time.strftime('%Y-%m-%d %H:%M:%S')} gouge predicted at line {finding.get('line')} "
                 f"({float(finding.get('depth') or 0.0):.3f} mm): proposed by dexmon, NOT sent to the machine\n")
-        corr = correct_span(moves, int(sel[0]), int(sel[-1]) + 1, probe, setup.tools, setup.tool, setup.tol)
+        a, b = int(sel[0]), int(sel[-1]) + 1
+        corr = correct_span(moves, a, b, probe, setup.tools, setup.tool, setup.tol)
+        refused = [(r.row + a, r.reason) for r in check_fixed_rows(moves[a:b], probe, setup.tools, setup.tool,
+                                                                   setup.tol, setup.tol.chord)]
+        refused += [(r.row, r.reason) for r in corr.refused]
         try:
-            if corr.refused:
-                r = corr.refused[0]
-                raise InputError(r.reason, where=f"{name}:{int(moves['line'][r.row])}")
+            if refused:
+                row, reason = min(refused)
+                raise InputError(f"{reason}: correct it by hand", where=f"{name}:{int(moves['line'][row])}")
             written = rewrite_program(data, name, program, corr, to_prog, moves=rows)
         except InputError as exc:
             text = head + f"# no proposal: {exc}\n"
