@@ -387,6 +387,10 @@ def summary_text(r: dict) -> str:
                          f"{v['gouge_lines'][:10]})")
         else:
             lines.append(f"check: gouge-free at {r['tolerance_mm']:g} mm (dexmon simulate's checks)")
+        others = {k: n for k, n in v["findings"].items() if k not in ("gouge", "undercut")}
+        if others:
+            lines.append("other findings of the check (not the correction's to fix): "
+                         + ", ".join(f"{k} {n}" for k, n in sorted(others.items())))
         u = r["undercut_left"]
         if u["max_mm"] > 0:
             lines.append(f"undercut left by the correction: {u['volume_mm3']:.3f} mm^3 over {u['area_mm2']:.2f} mm^2, "

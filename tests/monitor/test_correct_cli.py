@@ -264,3 +264,14 @@ def test_a_canned_cycle_that_gouges_is_refused_naming_its_line_even_with_lineari
         rc, doc, err, out = correct_program(tmp_path, capsys, text, *extra)
         assert rc == 2 and f"{tmp_path / 'p.nc'}:4" in err and "cycle" in err, err
         assert not out.exists()
+
+
+def test_the_text_report_says_what_changed_and_what_the_check_found(tmp_path, capsys):
+    from monitor.commands.dry_run import EXAMPLE_JOB
+
+    rc = main(["correct", str(EXAMPLE_JOB), "-o", str(tmp_path / "fixed.nc")])
+    out = capsys.readouterr().out
+    assert rc == 0
+    assert "1 lines changed, 0 inserted" in out and "deepest gouge before 0.5000 mm" in out
+    assert "check: gouge-free at 0.05 mm" in out and "rapid_into_stock 1" in out
+    assert f"wrote {tmp_path / 'fixed.nc'}" in out
