@@ -6,7 +6,9 @@ everything else it says (G and M words, F, S, comments); the further points foll
 new lines in the same motion mode. Changed lines end with ``(dexmon: corrected line N)``,
 new ones with ``(dexmon: inserted for line N)``, N the original line. A straight line that
 omits an axis the correction moved before it gets that axis written out (G90), and a G91
-line after a moved point gets its increments from where the tool now stands.
+line after a moved point gets its increments from where the tool now stands. With
+``--linearize`` an arc line that must change is written as G1 chords, and the next line
+that leaned on its modal G2/G3 says it again.
 
 Coordinates are written in the line's units (G20: inches) and work system, from the
 row's own work offset (``machine - wco``, the interpreter's), with :data:`DECIMALS`
@@ -15,8 +17,8 @@ decimals; Z is rounded up, never down, so rounding cannot deepen a cut.
 What cannot be rewritten safely is refused with an :class:`~sim.errors.InputError`
 naming ``file:line``: a change inside a subroutine file or an o-word loop, a line whose
 coordinates are expressions, a line with G53 / G28 / G30 / G92 / G10 / a canned cycle /
-a probe, G93 inverse time, cutter compensation, a program end on a line that must become
-several.
+a probe, G93 inverse time, cutter compensation, block delete, a program end or a rotary
+move on a line that must become several.
 """
 
 from __future__ import annotations
@@ -156,8 +158,9 @@ def _plan(moves, from_arc, correction: Correction, lines, program, filename) -> 
         k = int(k)
         f, line = int(moves["file"][k]), int(moves["line"][k])
         if f != 0:
+            files = getattr(program, "files", [])
             raise InputError("the correction has to change a move made in a subroutine file; correct it by hand",
-                             where=f"{filename}: line {line} of file {f}")
+                             where=f"{files[f] if f < len(files) else filename}:{line}")
         plan.setdefault(line, []).append(k)
     # a line run more than once (an o-word loop or subroutine) cannot be rewritten for one pass
     for line, rows in plan.items():

@@ -275,3 +275,10 @@ def test_the_text_report_says_what_changed_and_what_the_check_found(tmp_path, ca
     assert "1 lines changed, 0 inserted" in out and "deepest gouge before 0.5000 mm" in out
     assert "check: gouge-free at 0.05 mm" in out and "rapid_into_stock 1" in out
     assert f"wrote {tmp_path / 'fixed.nc'}" in out
+
+
+def test_a_move_in_a_subroutine_file_that_needs_a_correction_is_refused_naming_that_file(tmp_path, capsys):
+    (tmp_path / "dip.ngc").write_text("o<dip> sub\nG1 X20 Z-5.3\nG1 X48 Z-5\no<dip> endsub\nM2\n")
+    text = "G21 G90\nG0 Z5\nG0 X-8 Y15\nG1 Z-5 F600\no<dip> call\nG0 Z5\nM2\n"
+    rc, doc, err, out = correct_program(tmp_path, capsys, text)
+    assert rc == 2 and f"{tmp_path / 'dip.ngc'}:2" in err and "subroutine" in err, err
