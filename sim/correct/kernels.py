@@ -323,7 +323,7 @@ def _dist_to_segment(p, a, b):
 
 @nb.njit(cache=True)
 def correct_rows(codes, tool_idx, tps, p_start, p_end, frame, design, t_l, target, search, min_len, max_iter,
-                 start, end, pts, offs, status, before, shift, added, stats):
+                 start, end, pts, offs, status, before, shift, stats):
     """:func:`correct_move` along a whole table, the corrected path chained row to row.
 
     ``codes`` (n,) :data:`ROW_STRAIGHT` / :data:`ROW_FIXED` / :data:`ROW_STILL`;
@@ -331,8 +331,8 @@ def correct_rows(codes, tool_idx, tps, p_start, p_end, frame, design, t_l, targe
     (n, 3) programmed tips. Fills ``start``/``end`` (n, 3) on the corrected path, the
     points of straight rows ``pts[offs[k]:offs[k + 1]]``, ``status`` (n,) per row (OK,
     FULL, NOT_CLEAN, MOVED_FIXED), and for rows that changed: ``before`` the programmed
-    move's deepest gouge (mm), ``shift`` the farthest corrected point from it (mm),
-    ``added`` the path length added (mm). Returns the number of rows done (less than n
+    move's deepest gouge (mm) and ``shift`` the farthest corrected point from it (mm).
+    Returns the number of rows done (less than n
     when ``pts`` is full: grow it and call again).
     """
     n = codes.size
@@ -371,15 +371,9 @@ def correct_rows(codes, tool_idx, tps, p_start, p_end, frame, design, t_l, targe
                 sweep_gouge(tp, q[0], q[1], q[2], q[0], q[1], q[2], frame, design, t_l, search, res)
                 before[k] = max(deep, res[G_DEPTH])
                 far = 0.0
-                length = 0.0
-                prev = cur
                 for i in range(m):
                     far = max(far, _dist_to_segment(buf[i], a, q))
-                    length += math.sqrt((buf[i, 0] - prev[0]) ** 2 + (buf[i, 1] - prev[1]) ** 2
-                                        + (buf[i, 2] - prev[2]) ** 2)
-                    prev = buf[i]
                 shift[k] = far
-                added[k] = length - math.sqrt((q[0] - cur[0]) ** 2 + (q[1] - cur[1]) ** 2 + (q[2] - cur[2]) ** 2)
             cur = last.copy()
             end[k] = cur
         elif c == ROW_FIXED:

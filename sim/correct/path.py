@@ -102,7 +102,6 @@ def correct_moves(moves: np.ndarray, probe: GougeProbe, tools: dict, default_too
     status = np.zeros(n, np.int8)
     before = np.zeros(n)
     shift = np.zeros(n)
-    added = np.zeros(n)
     stats = np.zeros(4, np.int64)
     pts = np.empty((2 * n + 1024, 3))
     t_l = float(tol.gouge)
@@ -110,7 +109,7 @@ def correct_moves(moves: np.ndarray, probe: GougeProbe, tools: dict, default_too
         stats[:] = 0
         done = K.correct_rows(codes, tool_idx, tps, p_start, p_end, probe.frame_tuple, probe.arrays, t_l,
                               margin * t_l, probe.search, float(min_segment), int(max_iter), start, end, pts, offs,
-                              status, before, shift, added, stats)
+                              status, before, shift, stats)
         if done == n:
             break
         pts = np.empty((2 * pts.shape[0], 3))  # more points than room: again with twice the room
@@ -135,8 +134,19 @@ def correct_moves(moves: np.ndarray, probe: GougeProbe, tools: dict, default_too
     out.corrected, out.guide_steps, out.splits, out.lifts = (int(v) for v in stats)
     out.worst_gouge = float(before.max()) if n else 0.0
     out.largest_shift = float(shift.max()) if n else 0.0
-    out.added_length = float(added.sum())
+    out.added_length = _path_length(out, codes == K.ROW_STRAIGHT) - float(
+        np.linalg.norm(p_end[codes == K.ROW_STRAIGHT] - p_start[codes == K.ROW_STRAIGHT], axis=1).sum())
     return out
+
+
+def _path_length(c: Correction, rows: np.ndarray) -> float:
+    """Length (mm) of the corrected path over ``rows`` (bool (n,)): each row from where it
+    starts through its points."""
+    total = float(np.linalg.norm(c.end[rows] - c.start[rows], axis=1).sum())
+    for k in np.flatnonzero(rows & c.changed):
+        pts = np.vstack([c.start[k][None], c.points[k]])
+        total += float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum()) - float(np.linalg.norm(c.end[k] - c.start[k]))
+    return total
 
 
 def correct_span(moves: np.ndarray, a: int, b: int, probe: GougeProbe, tools: dict, default_tool, tol: Tolerance,

@@ -4,6 +4,7 @@ sees them, with every line that needs no change kept byte for byte."""
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -282,3 +283,11 @@ def test_a_move_in_a_subroutine_file_that_needs_a_correction_is_refused_naming_t
     text = "G21 G90\nG0 Z5\nG0 X-8 Y15\nG1 Z-5 F600\no<dip> call\nG0 Z5\nM2\n"
     rc, doc, err, out = correct_program(tmp_path, capsys, text)
     assert rc == 2 and f"{tmp_path / 'dip.ngc'}:2" in err and "subroutine" in err, err
+
+
+def test_the_added_length_counts_every_move_the_correction_reshaped_or_restarted(tmp_path, capsys):
+    # the dip's two legs (4 mm along X, 0.8 mm down and up) become two level 4 mm moves
+    text = "G21 G90\nG0 Z5\nG0 X-8 Y15\nG1 Z-5 F600\nG1 X12\nG1 X16 Z-5.8\nG1 X20 Z-5\nG1 X48\nG0 Z5\nM2\n"
+    rc, doc, err, out = correct_program(tmp_path, capsys, text)
+    assert rc == 0, err
+    assert doc["added_length_mm"] == pytest.approx(8.0 - 2 * math.hypot(4.0, 0.8), abs=1e-3)
