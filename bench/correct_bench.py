@@ -65,6 +65,7 @@ def one_resolution(parts: Path, resolution: float, repeat: int) -> dict:
             "poses_moved": corr.corrected, "guide_steps": corr.guide_steps, "splits": corr.splits, "lifts": corr.lifts,
             "lines_changed": len(written.changed), "lines_inserted": written.inserted,
             "gouge_before_mm": round(corr.worst_gouge, 4), "largest_shift_mm": round(corr.largest_shift, 4),
+            "added_length_mm": round(corr.added_length, 3),
             "gouges_after": verified["gouges"], "undercut_left": undercut, "check_s": round(check_s, 2),
             "finer_check": finer,
             "load": [round(v, 2) for v in os.getloadavg()]}
