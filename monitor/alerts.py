@@ -177,12 +177,17 @@ class Alerter:
         mm within which two findings of one kind sharing a program line are the same finding.
     resume_how : str
         How to go on after a feed hold, said with it (default :data:`RESUME_HOW`).
+    propose : callable or None
+        Called with each new *predicted* gouge; returns ``{"file", "lines", "message"}``
+        of the corrected lines it wrote for the user (:mod:`monitor.propose`), said as a
+        ``proposal`` record; never sends anything to the machine.
     """
 
     def __init__(self, console=None, json_stream: TextIO | None = None, bell: bool = False,
                  feed_hold: Callable[[], None] | None = None, run=None, radius: float = 5.0, line_radius: float = 25.0,
-                 resume_how: str = RESUME_HOW):
+                 resume_how: str = RESUME_HOW, propose: Callable[[dict], dict | None] | None = None):
         self.console = console
+        self.propose = propose
         self.json_stream = json_stream
         self.bell = bell
         self.feed_hold = feed_hold
@@ -319,6 +324,14 @@ class Alerter:
             self._record("json", f.get("kind", ""), t, finding_id)
         if self.feed_hold is not None and f.get("kind") in HOLD_KINDS:
             self._hold(f, finding_id, t)
+        if self.propose is not None and f.get("kind") == "gouge" and f.get("predicted"):
+            try:
+                got = self.propose(f)
+            except Exception as exc:  # a proposal is a courtesy: it must never stop the monitor
+                got = {"file": None, "lines": [], "message": f"no correction proposed for line {f.get('line')}: {exc}"}
+            if got is not None:
+                self._say({"event": "proposal", "id": finding_id, "line": f.get("line"), "t": t, **got}, "cyan",
+                          "proposal", finding_id)
 
     def _hold(self, f: dict, finding_id: int, t) -> None:
         """Send the feed hold for finding ``f`` and say so at once on every channel."""

@@ -24,6 +24,7 @@ COMMANDS: dict[str, str] = {
     "replay": "replay",
     "report": "report",
     "view": "view",
+    "correct": "correct",
 }
 
 #: one-line help shown in ``dexmon --help`` (kept here so --help imports nothing heavy)
@@ -36,6 +37,7 @@ SUMMARY: dict[str, str] = {
     "replay": "rebuild, picture or export any stage of a recorded run",
     "report": "write an HTML report of a recorded run",
     "view": "show a recorded run in the browser (3-D view, timeline, listing, findings)",
+    "correct": "correct a gouging program against its design and write a safe one",
 }
 
 #: the errors that mean "bad input or environment", reported as one line

@@ -79,12 +79,24 @@ def add_common_arguments(parser) -> None:
                            "until Ctrl-C")
     parser.add_argument("--view-fps", type=float, default=DEFAULT_VIEW_FPS, metavar="N",
                         help=f"frames per second at most for --view/--frames (default {DEFAULT_VIEW_FPS:g})")
+    parser.add_argument("--propose", metavar="FILE", default=None,
+                        help="for each predicted gouge, append the corrected lines dexmon correct would write "
+                             "to FILE (a proposal for you; nothing is sent to the machine)")
     add_job_arguments(parser)
 
 
 def add_arguments(parser) -> None:
     parser.add_argument("job", help="job file (TOML)")
     add_common_arguments(parser)
+
+
+def _proposer(args, job: Job):
+    """The ``--propose FILE`` hook (:mod:`monitor.propose`), None without it."""
+    if not getattr(args, "propose", None):
+        return None
+    from monitor.propose import Proposer
+
+    return Proposer(job, args.propose)
 
 
 def run_session(args, job: Job, controller, done=None, default_run_dir: str | Path = "runs",
@@ -116,7 +128,8 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
                           feed_hold=controller.feed_hold if job.feed_hold else None, run=writer,
                           resume_how=RESUME_HOW if resume_after is None else
                           f"dry run: dexmon resumes the virtual machine in {resume_after:g} s "
-                          f"(a real machine waits: {RESUME_HOW})")
+                          f"(a real machine waits: {RESUME_HOW})",
+                          propose=_proposer(args, job))
         program_text = job.program.read_text(errors="replace") if job.program else ""
         session = Session(job, moves, run=writer, alerter=alerter, program_text=program_text, program=program,
                           controller_limits=_machine_limits(controller))
