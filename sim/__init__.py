@@ -6,6 +6,9 @@ Units: millimetres and seconds.
 """
 
 from sim.errors import SimError, InputError
+from sim.kernel_cache import use_fingerprinted_cache
 from sim.tolerance import Tolerance
+
+use_fingerprinted_cache()   # before any kernel module is imported (see sim.kernel_cache)
 
 __all__ = ["InputError", "SimError", "Tolerance"]
