@@ -338,10 +338,10 @@ def _bull_depth(a0, rc, R, k2, c2, lo, e2, d):
 
     ``F`` has the sign of ``h*'(d)^2 (1 - e^2/d^2) - m^2`` (``h*'`` the torus' slope),
     which rises with ``d``: ``F < 0`` at ``lo`` (see :func:`_rows_bull`), ``F >= 0`` at
-    ``R``. Newton steps on the polynomial from ``d`` (the neighbouring ray's root), kept in
-    the shrinking bracket by bisection, until a step is within 1e-13 mm (quadratic
-    convergence: the root is then good to the last bits, and the height error, second
-    order in it, is far below 1e-9 mm even at the rim).
+    ``R``. Newton steps on the polynomial from the guess ``d``, kept in the shrinking
+    bracket by bisection, until a Newton step is within 1e-9 mm: convergence is
+    quadratic, so the root is then good to ~1e-15 mm and the height, whose error is
+    second order in it, to far below 1e-9 mm even near the rim (the oracle tests check).
     """
     hi = R
     if not lo < hi:
@@ -360,7 +360,7 @@ def _bull_depth(a0, rc, R, k2, c2, lo, e2, d):
             return d
         dF = 2.0 * (t * p + k2 * d * t * t - c2 * d)
         dn = d - F / dF
-        if abs(dn - d) <= 1e-13:  # converged (the step may land on the bracket's end)
+        if abs(dn - d) <= 1e-9:  # converged (the step may land on the bracket's end)
             return min(max(dn, lo), hi)
         if not (lo < dn < hi):  # Newton left the bracket (or dF <= 0): bisect
             dn = 0.5 * (lo + hi)
@@ -370,17 +370,45 @@ def _bull_depth(a0, rc, R, k2, c2, lo, e2, d):
     return d
 
 
+@nb.njit(cache=True, inline="always")
+def _bull_depth_slope(a0, k2, c2, e, d):
+    """d(root)/d|e| of :func:`_bull_depth` at the root ``d``: ``-F_e / F_d``."""
+    t = d - a0
+    dF = 2.0 * (t * (k2 * d * d - e * e) + k2 * d * t * t - c2 * d)
+    return 2.0 * e * t * t / dF if dF > 0.0 else 0.0
+
+
+#: knots of the per-move table of bull-nose roots over |e| in [0, R] (see _rows_bull)
+BULL_KNOTS = 48
+
+
+@nb.njit(cache=True, inline="always")
+def _bull_guess(tab_d, tab_s, h, e):
+    """The root of :func:`_bull_depth` at ``|e| = e`` by cubic Hermite interpolation of
+    the per-move table (roots ``tab_d`` and slopes ``tab_s`` at knots ``k h``)."""
+    x = e / h
+    k = min(int(x), tab_d.size - 2)
+    u = x - k
+    v = 1.0 - u
+    return (v * v * ((1.0 + 2.0 * u) * tab_d[k] + u * h * tab_s[k])
+            + u * u * ((3.0 - 2.0 * u) * tab_d[k + 1] - v * h * tab_s[k + 1]))
+
+
 @nb.njit(cache=True, error_model="numpy", boundscheck=False)
 def _rows_bull(R, rc, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
-               row_ilo, row_off, cnt, near, far, lo, hi, flag):
+               row_ilo, row_off, cnt, near, far, lo, hi, flag, behind):
     """Bull-nose on the rays of one move (see :func:`_rows_ball`).
 
     The lowest point over a ray at ``(a, e)`` lies at ``s* = a - sign(m) w``,
-    ``w = sqrt(d^2 - e^2)``, where ``d`` depends on ``e`` only (:func:`_bull_depth`;
+    ``w = sqrt(d^2 - e^2)``, where ``d`` depends on ``|e|`` only (:func:`_bull_depth`;
     ``w = 0`` on a level move) - clamped to the part of the move within reach, as
-    ``z + h*(d(s))`` is convex in ``s``. Per row the ``w`` of each ray comes first (one
-    root per row when the move runs along the rows, else each ray's from its
-    neighbour's), then the intervals in a branch-free loop like the ball's.
+    ``z + h*(d(s))`` is convex in ``s``. A row along the move (X) needs one root, a
+    move along Y one per column; other moves one per ray, each from the cubic
+    interpolation of a per-move table of ``BULL_KNOTS`` roots over ``|e|`` in a step or
+    two. Then the intervals in a branch-free loop like the ball's. ``behind`` (a move
+    chained to the previous one, see :func:`cut_linear_batch`): a row along the move
+    leaves out the rays with ``s* < 0``, whose lowest point is the start pose, already
+    cut by the previous move.
     """
     a0 = R - rc
     rc2 = rc * rc
@@ -395,6 +423,32 @@ def _rows_bull(R, rc, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jl
     for jj in range(nrows):
         nmax = max(nmax, row_off[jj + 1] - row_off[jj])
     w_row = np.zeros(nmax)
+    h_tab = R / BULL_KNOTS
+    tab_d = np.empty(BULL_KNOTS + 1)
+    tab_s = np.empty(BULL_KNOTS + 1)
+    if m != 0.0 and de != 0.0:  # the table (rows along the move start from the last row's root)
+        tab_d[0] = d_e0
+        tab_s[0] = 0.0
+        for k in range(1, BULL_KNOTS + 1):
+            e = min(k * h_tab, R)
+            d = _bull_depth(a0, rc, R, k2, c2, max(d_e0, e), e * e, tab_d[k - 1] + h_tab * tab_s[k - 1])
+            tab_d[k] = d
+            tab_s[k] = _bull_depth_slope(a0, k2, c2, e, d)
+    # a move across the rows (along Y): e depends on the column only, one root per column
+    by_column = m != 0.0 and de != 0.0 and da == 0.0
+    i_min = nu
+    i_max = 0
+    for jj in range(nrows):
+        if row_off[jj + 1] > row_off[jj]:
+            i_min = min(i_min, row_ilo[jj])
+            i_max = max(i_max, row_ilo[jj] + row_off[jj + 1] - row_off[jj])
+    w_col = np.zeros(max(i_max - i_min, 0) if by_column else 0)
+    for i in range(w_col.size):
+        e = abs((rx0 + (i_min + i) * sp) * uy)
+        if e < R:
+            d = _bull_depth(a0, rc, R, k2, c2, max(d_e0, e), e * e, _bull_guess(tab_d, tab_s, h_tab, e))
+            w_col[i] = math.sqrt(max((d - e) * (d + e), 0.0))
+    d_row = np.nan
     for jj in range(nrows):
         i0 = row_ilo[jj]
         o = row_off[jj]
@@ -405,32 +459,55 @@ def _rows_bull(R, rc, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jl
         e_0 = -rx * uy + ry * ux
         base = (jlo + jj) * nu + i0
         w_r = w_row[:nq]
-        if m != 0.0:
-            d = np.nan
-            for q in range(nq if de != 0.0 else min(nq, 1)):
-                e = abs(e_0 + q * de)
-                if e < R:
-                    d = _bull_depth(a0, rc, R, k2, c2, max(d_e0, e), e * e, d)
-                    w_r[q] = math.sqrt(max((d - e) * (d + e), 0.0))
+        q_a = 0
+        q_b = nq
+        if de == 0.0:  # the row runs along the move: one root
+            e = abs(e_0)
+            w = 0.0
+            if m != 0.0 and e < R:
+                d_row = _bull_depth(a0, rc, R, k2, c2, max(d_e0, e), e * e, d_row)
+                w = math.sqrt(max((d_row - e) * (d_row + e), 0.0))
+            w_r[:] = w
+            if behind and da != 0.0:
+                # leave out a <= cut: s* = a - sg w <= -1e-9 there (a spare ray is harmless)
+                x = (sg * w - 1e-9 - a_0) / da
+                if da > 0.0:
+                    q_a = min(max(int(math.floor(x)) + 1, 0), nq)
                 else:
-                    w_r[q] = 0.0
-            if de == 0.0:
-                w_r[:] = w_r[0] if nq > 0 else 0.0
-        lo_r = lo[o:o + nq]
-        hi_r = hi[o:o + nq]
-        fl_r = flag[o:o + nq]
-        cn_r = cnt[base:base + nq]
-        ne_r = near[base:base + nq]
-        fa_r = far[base:base + nq]
-        for q in range(nq):
-            a = a_0 + q * da
-            e = e_0 + q * de
+                    q_b = max(min(int(math.ceil(x)), nq), 0)
+                for q in range(q_a):
+                    flag[o + q] = False
+                for q in range(q_b, nq):
+                    flag[o + q] = False
+        elif by_column:
+            w_r = w_col[i0 - i_min:i0 - i_min + nq]
+        elif m != 0.0:
+            for q in range(nq):
+                e = abs(e_0 + q * de)
+                w = 0.0
+                if e < R:
+                    d = _bull_depth(a0, rc, R, k2, c2, max(d_e0, e), e * e, _bull_guess(tab_d, tab_s, h_tab, e))
+                    w = math.sqrt(max((d - e) * (d + e), 0.0))
+                w_r[q] = w
+        # the loop over the rays kept, from 0 (unit-stride views, as in _rows_ball)
+        a_q = a_0 + q_a * da
+        e_q = e_0 + q_a * de
+        w_k = w_r[q_a:q_b]
+        lo_r = lo[o + q_a:o + q_b]
+        hi_r = hi[o + q_a:o + q_b]
+        fl_r = flag[o + q_a:o + q_b]
+        cn_r = cnt[base + q_a:base + q_b]
+        ne_r = near[base + q_a:base + q_b]
+        fa_r = far[base + q_a:base + q_b]
+        for q in range(q_b - q_a):
+            a = a_q + q * da
+            e = e_q + q * de
             e2 = e * e
             qc = Rc2 - e2
             rho_c = math.sqrt(max(qc, 0.0))
             s_lo = max(a - rho_c, 0.0)
             s_hi = min(a + rho_c, ell)
-            s = min(max(a - sg * w_r[q], s_lo), s_hi)
+            s = min(max(a - sg * w_k[q], s_lo), s_hi)
             w = a - s
             t = max(math.sqrt(e2 + w * w) - a0, 0.0)
             v = np.float32(z0 + m * s + h_off + rc - math.sqrt(max(rc2 - t * t, 0.0)))
@@ -998,7 +1075,7 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                        row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
         elif ell > 0.0 and code == CODE_BULL:
             _rows_bull(R, tp[2], Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
-                       row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
+                       row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag, skip_behind)
         elif ell > 0.0 and code == CODE_CONE:
             _rows_cone(tp[3], Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
                        row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
