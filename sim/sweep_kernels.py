@@ -339,9 +339,10 @@ def _bull_depth(a0, rc, R, k2, c2, lo, e2, d):
     ``F`` has the sign of ``h*'(d)^2 (1 - e^2/d^2) - m^2`` (``h*'`` the torus' slope),
     which rises with ``d``: ``F < 0`` at ``lo`` (see :func:`_rows_bull`), ``F >= 0`` at
     ``R``. Newton steps on the polynomial from the guess ``d``, kept in the shrinking
-    bracket by bisection, until a Newton step is within 1e-9 mm: convergence is
-    quadratic, so the root is then good to ~1e-15 mm and the height, whose error is
-    second order in it, to far below 1e-9 mm even near the rim (the oracle tests check).
+    bracket by bisection, until a Newton step is within 1e-7 mm: convergence is
+    quadratic, so the root after that step is good to ~1e-14 mm (times ``F''/2F'``), and
+    the height, whose error is second order in the root's, to far below 1e-9 mm, even
+    near the rim where ``h*''`` grows without bound (the oracle tests check to 1e-9).
     """
     hi = R
     if not lo < hi:
@@ -360,7 +361,7 @@ def _bull_depth(a0, rc, R, k2, c2, lo, e2, d):
             return d
         dF = 2.0 * (t * p + k2 * d * t * t - c2 * d)
         dn = d - F / dF
-        if abs(dn - d) <= 1e-9:  # converged (the step may land on the bracket's end)
+        if abs(dn - d) <= 1e-7:  # converged (the step may land on the bracket's end)
             return min(max(dn, lo), hi)
         if not (lo < dn < hi):  # Newton left the bracket (or dF <= 0): bisect
             dn = 0.5 * (lo + hi)
@@ -423,6 +424,7 @@ def _rows_bull(R, rc, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jl
     for jj in range(nrows):
         nmax = max(nmax, row_off[jj + 1] - row_off[jj])
     w_row = np.zeros(nmax)
+    fix_row = np.empty(nmax, np.bool_)
     h_tab = R / BULL_KNOTS
     tab_d = np.empty(BULL_KNOTS + 1)
     tab_s = np.empty(BULL_KNOTS + 1)
@@ -482,13 +484,28 @@ def _rows_bull(R, rc, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jl
         elif by_column:
             w_r = w_col[i0 - i_min:i0 - i_min + nq]
         elif m != 0.0:
+            # one Newton step from the table's guess for every ray (branch-free, so that
+            # it vectorises), then the full search where that step was not yet small
+            fix = fix_row[:nq]
             for q in range(nq):
-                e = abs(e_0 + q * de)
-                w = 0.0
-                if e < R:
-                    d = _bull_depth(a0, rc, R, k2, c2, max(d_e0, e), e * e, _bull_guess(tab_d, tab_s, h_tab, e))
-                    w = math.sqrt(max((d - e) * (d + e), 0.0))
-                w_r[q] = w
+                e = min(abs(e_0 + q * de), R)
+                d_lo = max(d_e0, e)
+                d = min(max(_bull_guess(tab_d, tab_s, h_tab, e), d_lo), R)
+                t = d - a0
+                p = k2 * d * d - e * e
+                step = (t * t * p - c2 * d * d) / (2.0 * (t * p + k2 * d * t * t - c2 * d))
+                d = min(max(d - step, d_lo), R)
+                w_r[q] = math.sqrt(max((d - e) * (d + e), 0.0))
+                fix[q] = not abs(step) <= 1e-7  # as _bull_depth's test (NaN: search)
+            for q in range(nq):
+                if fix[q]:
+                    e = abs(e_0 + q * de)
+                    w = 0.0
+                    if e < R:
+                        d = _bull_depth(a0, rc, R, k2, c2, max(d_e0, e), e * e,
+                                        _bull_guess(tab_d, tab_s, h_tab, e))
+                        w = math.sqrt(max((d - e) * (d + e), 0.0))
+                    w_r[q] = w
         # the loop over the rays kept, from 0 (unit-stride views, as in _rows_ball)
         a_q = a_0 + q_a * da
         e_q = e_0 + q_a * de
