@@ -1,7 +1,7 @@
 """Material-removal benchmark: one JSON line per case.
 
     python bench/sim_bench.py [--shared ../shared] [--case wavy_finish] [--no-check]
-                              [--mode plain|record|journal ...]
+                              [--mode plain|record|journal ...] [--pairs 5] [--shapes]
 
 Cases (stock box 0,0,0,100,100,20 at 0.1 mm, 1001 x 1001 rays):
 
@@ -25,6 +25,18 @@ Then, per ``BASELINE_RUNS`` entry (ball and flat on ``wavy_finish``), a line wit
 ``bench/zmap_baseline.py`` timed in ``--pairs`` interleaved pairs in this process;
 ``ratio_median`` (baseline seconds / dexmon seconds, median of the pairs) is the figure
 to quote (see :func:`run_baseline_pairs`).
+
+``--shapes`` prints only these lines: first ``mode: shape_pairs`` for the ball itself
+(its height check), then one per ``SHAPE_RUNS`` entry (bull-nose ``bull:6:1``, vbit
+``vbit:6:90``, drill ``drill:6``, all L=20) on ``wavy_finish``, each timed against the
+ball in ``--pairs`` interleaved pairs of plain cuts in this process: ``ratio_median``
+(shape seconds / ball seconds, median of the pairs; <= 2 means at least half the
+ball's speed), ``shape_max_err_mm`` (4000 random rays against a golden-section
+minimisation of the swept tool over every move within reach; rim rays within 1e-6 mm
+accepted either side) and ``load_avg``. Then ``mode: reach_rate``: rays within the
+cutting radius of each chord, summed, per second of plain cut, for the flat end mill
+pocketing ``pocket_rough`` and the ball finishing ``wavy_finish`` (interleaved pairs,
+medians; the same units, so the two are comparable).
 """
 
 from __future__ import annotations
@@ -505,7 +517,7 @@ def main(argv=None) -> int:
     ap.add_argument("--mode", choices=["plain", "record", "journal"], action="append",
                     help="what the cut records (default: plain and journal)")
     ap.add_argument("--pairs", type=int, default=5,
-                    help="interleaved dexmon/baseline pairs per baseline run (default 5; 0: none)")
+                    help="interleaved pairs per baseline run and per shape (default 5; 0: no baseline)")
     ap.add_argument("--shapes", action="store_true",
                     help="only the tool shapes against the ball, and the rays-in-reach rates")
     args = ap.parse_args(argv)

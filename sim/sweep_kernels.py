@@ -135,7 +135,7 @@ def linear_interval(tp, x0, y0, z0, dz, ell, ux, uy, rx, ry):
             elif g <= -1.0:
                 s = s_hi
             else:
-                s = a - abs(e) * g / math.sqrt(1.0 - g * g)
+                s = a - abs(e) * (g / math.sqrt(1.0 - g * g))
         if s < s_lo:
             s = s_lo
         elif s > s_hi:
@@ -289,7 +289,7 @@ def _rows_cone(cot, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo,
     g = m / cot
     at_start = g >= 1.0
     at_end = g <= -1.0
-    sq = math.sqrt(1.0 - g * g) if not (at_start or at_end) else 1.0
+    gs = g / math.sqrt(1.0 - g * g) if not (at_start or at_end) else 0.0  # no division per ray
     for jj in range(nrows):
         i0 = row_ilo[jj]
         o = row_off[jj]
@@ -315,7 +315,7 @@ def _rows_cone(cot, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo,
             rho_c = math.sqrt(max(qc, 0.0))
             s_lo = max(a - rho_c, 0.0)
             s_hi = min(a + rho_c, ell)
-            s_mid = a - abs(e) * g / sq
+            s_mid = a - abs(e) * gs
             s = s_lo if at_start else (s_hi if at_end else s_mid)
             s = min(max(s, s_lo), s_hi)
             w = a - s
