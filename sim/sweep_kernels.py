@@ -516,25 +516,42 @@ def _rows_bull(R, rc, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jl
         cn_r = cnt[base + q_a:base + q_b]
         ne_r = near[base + q_a:base + q_b]
         fa_r = far[base + q_a:base + q_b]
-        for q in range(q_b - q_a):
-            a = a_q + q * da
-            e = e_q + q * de
-            e2 = e * e
+        if de == 0.0:  # e, and so the reach across the path, are the row's
+            e2 = e_q * e_q
             qc = Rc2 - e2
             rho_c = math.sqrt(max(qc, 0.0))
-            s_lo = max(a - rho_c, 0.0)
-            s_hi = min(a + rho_c, ell)
-            s = min(max(a - sg * w_k[q], s_lo), s_hi)
-            w = a - s
-            t = max(math.sqrt(e2 + w * w) - a0, 0.0)
-            v = np.float32(z0 + m * s + h_off + rc - math.sqrt(max(rc2 - t * t, 0.0)))
-            top = np.float32(z0 + h_top + max(m * s_lo, m * s_hi))
-            ok = (qc >= 0.0) & (s_lo <= s_hi) & (v < top)
-            lo_r[q] = v
-            hi_r[q] = top
-            c = cn_r[q]
-            one = (v < fa_r[q]) & (top > ne_r[q])
-            fl_r[q] = ok & ((c > 1) | ((c == 1) & one))
+            for q in range(q_b - q_a):
+                v, top, ok = _bull_ray(a_q + q * da, e2, qc, rho_c, w_k[q], sg, a0, rc, rc2, z0, m,
+                                       ell, h_off, h_top)
+                lo_r[q] = v
+                hi_r[q] = top
+                c = cn_r[q]
+                fl_r[q] = ok & ((c > 1) | ((c == 1) & (v < fa_r[q]) & (top > ne_r[q])))
+        else:
+            for q in range(q_b - q_a):
+                e2 = (e_q + q * de) ** 2
+                qc = Rc2 - e2
+                v, top, ok = _bull_ray(a_q + q * da, e2, qc, math.sqrt(max(qc, 0.0)), w_k[q], sg, a0,
+                                       rc, rc2, z0, m, ell, h_off, h_top)
+                lo_r[q] = v
+                hi_r[q] = top
+                c = cn_r[q]
+                fl_r[q] = ok & ((c > 1) | ((c == 1) & (v < fa_r[q]) & (top > ne_r[q])))
+
+
+@nb.njit(cache=True, inline="always")
+def _bull_ray(a, e2, qc, rho_c, w_star, sg, a0, rc, rc2, z0, m, ell, h_off, h_top):
+    """Interval ``(lo, hi)`` (float32) of the bull-nose sweep on one ray of
+    :func:`_rows_bull` (``qc = Rc^2 - e^2``, ``rho_c`` its root, ``w_star`` the ray's
+    ``w``) and whether the ray is within reach."""
+    s_lo = max(a - rho_c, 0.0)
+    s_hi = min(a + rho_c, ell)
+    s = min(max(a - sg * w_star, s_lo), s_hi)
+    w = a - s
+    t = max(math.sqrt(e2 + w * w) - a0, 0.0)
+    v = np.float32(z0 + m * s + h_off + rc - math.sqrt(max(rc2 - t * t, 0.0)))
+    top = np.float32(z0 + h_top + max(m * s_lo, m * s_hi))
+    return v, top, (qc >= 0.0) & (s_lo <= s_hi) & (v < top)
 
 
 @nb.njit(cache=True)
