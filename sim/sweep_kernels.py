@@ -277,13 +277,14 @@ def _rows_flat(Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrow
 
 @nb.njit(cache=True, error_model="numpy", boundscheck=False)
 def _rows_cone(cot, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
-               row_ilo, row_off, cnt, near, far, lo, hi, flag):
+               row_ilo, row_off, cnt, near, far, lo, hi, flag, behind):
     """Cone (vbit / drill point) on the rays of one move (see :func:`_rows_ball`).
 
     Same arithmetic as :func:`linear_interval`'s cone: the lowest point of
     ``m s + cot sqrt(e^2 + (a - s)^2)`` at ``s = a - |e| g / sqrt(1 - g^2)``, ``g = m / cot``,
     or at the start (end) when the move climbs (descends) steeper than the cone; the
     case is the same for every ray of the move, so the loop stays branch-free.
+    ``behind``: a chained move (see :func:`_rows_bull`).
     """
     Rc2 = Rc * Rc
     g = m / cot
@@ -301,15 +302,34 @@ def _rows_cone(cot, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo,
         da = sp * ux
         de = -sp * uy
         base = (jlo + jj) * nu + i0
-        lo_r = lo[o:o + nq]
-        hi_r = hi[o:o + nq]
-        fl_r = flag[o:o + nq]
-        cn_r = cnt[base:base + nq]
-        ne_r = near[base:base + nq]
-        fa_r = far[base:base + nq]
-        for q in range(nq):
-            a = a0 + q * da
-            e = e0 + q * de
+        q_a = 0
+        q_b = nq
+        if behind and de == 0.0 and da != 0.0 and not at_end:
+            # a row along a chained move leaves out the rays whose lowest point is the start
+            # pose: s* <= 0 within reach of it, a <= min(|e| g / sqrt(1 - g^2), rho_c)
+            # (a <= rho_c when climbing steeper than the cone); a spare ray is harmless
+            rho_row = math.sqrt(max(Rc2 - e0 * e0, 0.0))
+            cut = min(rho_row, abs(e0) * gs) if not at_start else rho_row
+            x = (cut - 1e-9 - a0) / da
+            if da > 0.0:
+                q_a = min(max(int(math.floor(x)) + 1, 0), nq)
+            else:
+                q_b = max(min(int(math.ceil(x)), nq), 0)
+            for q in range(q_a):
+                flag[o + q] = False
+            for q in range(q_b, nq):
+                flag[o + q] = False
+        a_q = a0 + q_a * da  # the loop from 0 over unit-stride views, as in _rows_ball
+        e_q = e0 + q_a * de
+        lo_r = lo[o + q_a:o + q_b]
+        hi_r = hi[o + q_a:o + q_b]
+        fl_r = flag[o + q_a:o + q_b]
+        cn_r = cnt[base + q_a:base + q_b]
+        ne_r = near[base + q_a:base + q_b]
+        fa_r = far[base + q_a:base + q_b]
+        for q in range(q_b - q_a):
+            a = a_q + q * da
+            e = e_q + q * de
             e2 = e * e
             qc = Rc2 - e2
             rho_c = math.sqrt(max(qc, 0.0))
@@ -1112,7 +1132,7 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                        row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag, skip_behind)
         elif ell > 0.0 and code == CODE_CONE:
             _rows_cone(tp[3], Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
-                       row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
+                       row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag, skip_behind)
         else:
             _rows_any(tp, x0, y0, z0, dz, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
                       row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)

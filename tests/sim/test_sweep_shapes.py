@@ -204,3 +204,20 @@ def test_batch_cut_of_a_chained_path_matches_the_oracle(spec):
     frame = Frame.top(4.03, 4.07, 20.03, 20.07, 0.1)
     n, rim = cut_and_compare(tool, segments, frame)
     assert rim < 0.01 * n
+
+
+@pytest.mark.parametrize("spec", ["vbit:6:90", "drill:6", "bull:6:1"])
+def test_batch_cut_of_steep_chained_moves_along_x_matches_the_oracle(spec):
+    # rows along the move leave out the rays whose lowest point is the start pose; on a
+    # cone climbing nearly as steep as its flank that is only the part within reach of it
+    tool = parse_tool_spec(spec + ":L=20")
+    slopes = [0.9, 0.5, 0.0, 0.8, -0.3, 0.95, 0.6, 1.2]
+    p = np.array([8.0, 12.03, 3.0])
+    segments = []
+    for k in range(70):
+        q = p + np.array([0.13, 0.0, 0.13 * slopes[k % len(slopes)]])
+        segments.append((p, q))
+        p = q
+    frame = Frame.top(4.01, 8.02, 21.01, 16.02, 0.1)
+    n, rim = cut_and_compare(tool, segments, frame)
+    assert rim < 0.01 * n
