@@ -974,7 +974,10 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     whose lowest point of the sweep lies at the start (behind it): the previous move's
     end pose was already cut there, as deep, and its flutes reached above ``top_bound``,
     so nothing is left for this move on those rays. For a level or climbing flat end mill
-    and for a ball that is every ray with ``a <= -R |sin(slope)|`` (``a`` along the move).
+    and for a ball that is every ray with ``a <= -R |sin(slope)|`` (``a`` along the move);
+    for the other shapes see :func:`_behind_cut` (the bull-nose and cone row kernels
+    also leave out, on rows along the move, the rays past that half-plane whose lowest
+    point is the start).
 
     Per move, the intervals of all rays within reach are computed first (one call,
     vectorised for flat and ball), then compared with the stored material; one-segment
