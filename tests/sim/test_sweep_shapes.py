@@ -1,9 +1,10 @@
 """Exact sweeps of the bull-nose and the cone (vbit, drill) against an independent oracle.
 
-The oracle parametrises the move by ``t`` in [0, 1] along the 3-D tip segment, finds the
-part of the move within reach of each ray from the quadratic ``|p(t) - ray| = Rc`` and
-minimises the convex ``z(t) + lowest_height(d(t))`` (:meth:`Tool.lowest_height`) by golden
-section to the last bit - no slope, no root, no closed form shared with the kernels.
+The oracle (:func:`bench.sim_bench.sweep_floor`, also the benchmark's height check)
+parametrises the move by ``t`` in [0, 1] along the 3-D tip segment, finds the part of
+the move within reach of each ray from the quadratic ``|p(t) - ray| = Rc`` and minimises
+the convex ``z(t) + lowest_height(d(t))`` (:meth:`Tool.lowest_height`) by golden section
+to the last bit - no slope, no root, no closed form shared with the kernels.
 Both kernels are checked: :func:`sim.sweep_kernels.linear_interval` (float64, 1e-9 mm)
 and the batch cut's row kernels through :class:`Cutter` (heights stored as float32;
 exact to 1e-6 mm). Rays within 1e-6 mm of the swept rim may fall either side and are
@@ -17,6 +18,7 @@ import math
 import numpy as np
 import pytest
 
+from bench.sim_bench import sweep_floor
 from sim import sweep
 from sim.cut import Cutter
 from sim.frame import Frame
@@ -27,46 +29,6 @@ from sim.tools import parse_tool_spec
 SHAPES = ["bull:6:1", "bull:8:3", "bull:6:3", "bull:6:0.25", "vbit:6:90", "vbit:10:30",
           "drill:6", "drill:3:150"]
 STOCK_TOP = 15.0
-GOLD = (math.sqrt(5.0) - 1.0) / 2.0
-
-
-def sweep_floor(tool, p0, p1, x, y, iters=80):
-    """Lowest point (mm) of ``tool`` swept from tip ``p0`` to ``p1`` on the vertical rays at
-    ``(x, y)`` (1-D arrays), float64; NaN where the move never reaches the ray."""
-    p0 = np.asarray(p0, np.float64)
-    dv = np.asarray(p1, np.float64) - p0
-    Rc = tool.cutting_radius
-    fx, fy = x - p0[0], y - p0[1]
-    A = dv[0] ** 2 + dv[1] ** 2
-    if A == 0.0:
-        reach = fx * fx + fy * fy <= Rc * Rc
-        t0, t1 = np.zeros_like(x), np.ones_like(x)
-    else:
-        B = -(fx * dv[0] + fy * dv[1])
-        C = fx * fx + fy * fy - Rc * Rc
-        disc = B * B - A * C
-        sq = np.sqrt(np.maximum(disc, 0.0))
-        t0, t1 = (-B - sq) / A, (-B + sq) / A
-        reach = (disc >= 0) & (t0 <= 1) & (t1 >= 0)
-        t0, t1 = np.clip(t0, 0, 1), np.clip(t1, 0, 1)
-
-    def f(t):
-        d = np.hypot(p0[0] + t * dv[0] - x, p0[1] + t * dv[1] - y)
-        return p0[2] + t * dv[2] + tool.lowest_height(np.minimum(d, Rc))
-
-    lo, hi = t0.copy(), t1.copy()
-    c, e = hi - GOLD * (hi - lo), lo + GOLD * (hi - lo)
-    fc, fe = f(c), f(e)
-    for _ in range(iters):
-        left = fc < fe  # the minimum of a convex function lies in [lo, e]
-        hi = np.where(left, e, hi)
-        lo = np.where(left, lo, c)
-        t = np.where(left, hi - GOLD * (hi - lo), lo + GOLD * (hi - lo))  # the new probe
-        ft = f(t)
-        c, e = np.where(left, t, e), np.where(left, c, t)
-        fc, fe = np.where(left, ft, fe), np.where(left, fc, ft)
-    best = np.minimum(np.minimum(f(t0), f(t1)), np.minimum(fc, fe))
-    return np.where(reach, best, np.nan)
 
 
 def path_distance(p0, p1, x, y):
@@ -93,7 +55,8 @@ def random_moves(rng, n):
     for k in range(n):
         ell = [0.0, 0.02, 0.5, 3.0, 6.0][k % 5]
         ang = [rng.uniform(0, 2 * math.pi), 0.0, math.pi / 2, math.pi, 0.75 * math.pi][(k // 5) % 5]
-        slope = [0.0, 1e-3, 0.2, 0.6, 1.0, 1.7, 5.0, 40.0][rng.integers(8)] * (1 if rng.random() < 0.5 else -1)
+        slope = [0.0, 1e-3, 0.2, 0.6, 1.0, 1.7, 5.0, 40.0][rng.integers(8)]
+        slope *= 1 if rng.random() < 0.5 else -1
         p0 = np.array([10 + rng.uniform(-0.5, 0.5), 10 + rng.uniform(-0.5, 0.5), 6.0 + rng.uniform(0, 1)])
         dz = slope * ell if ell > 0 else rng.uniform(-4, 4)
         dz = float(np.clip(dz, -5.0, 5.0))
