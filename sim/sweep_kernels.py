@@ -327,26 +327,43 @@ def _rows_cone(cot, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo,
         cn_r = cnt[base + q_a:base + q_b]
         ne_r = near[base + q_a:base + q_b]
         fa_r = far[base + q_a:base + q_b]
-        for q in range(q_b - q_a):
-            a = a_q + q * da
-            e = e_q + q * de
-            e2 = e * e
+        if de == 0.0:  # e, and so the reach across the path, are the row's
+            e2 = e_q * e_q
             qc = Rc2 - e2
             rho_c = math.sqrt(max(qc, 0.0))
-            s_lo = max(a - rho_c, 0.0)
-            s_hi = min(a + rho_c, ell)
-            s_mid = a - abs(e) * gs
-            s = s_lo if at_start else (s_hi if at_end else s_mid)
-            s = min(max(s, s_lo), s_hi)
-            w = a - s
-            v = np.float32(z0 + m * s + h_off + math.sqrt(e2 + w * w) * cot)
-            t = np.float32(z0 + h_top + max(m * s_lo, m * s_hi))
-            ok = (qc >= 0.0) & (s_lo <= s_hi) & (v < t)
-            lo_r[q] = v
-            hi_r[q] = t
-            c = cn_r[q]
-            one = (v < fa_r[q]) & (t > ne_r[q])
-            fl_r[q] = ok & ((c > 1) | ((c == 1) & one))
+            for q in range(q_b - q_a):
+                v, t, ok = _cone_ray(a_q + q * da, e_q, e2, qc, rho_c, gs, at_start, at_end, cot, z0, m,
+                                     ell, h_off, h_top)
+                lo_r[q] = v
+                hi_r[q] = t
+                c = cn_r[q]
+                fl_r[q] = ok & ((c > 1) | ((c == 1) & (v < fa_r[q]) & (t > ne_r[q])))
+        else:
+            for q in range(q_b - q_a):
+                e = e_q + q * de
+                e2 = e * e
+                qc = Rc2 - e2
+                v, t, ok = _cone_ray(a_q + q * da, e, e2, qc, math.sqrt(max(qc, 0.0)), gs, at_start, at_end,
+                                     cot, z0, m, ell, h_off, h_top)
+                lo_r[q] = v
+                hi_r[q] = t
+                c = cn_r[q]
+                fl_r[q] = ok & ((c > 1) | ((c == 1) & (v < fa_r[q]) & (t > ne_r[q])))
+
+
+@nb.njit(cache=True, inline="always")
+def _cone_ray(a, e, e2, qc, rho_c, gs, at_start, at_end, cot, z0, m, ell, h_off, h_top):
+    """Interval ``(lo, hi)`` (float32) of the cone's sweep on one ray of
+    :func:`_rows_cone` (``qc = Rc^2 - e^2``, ``rho_c`` its root) and whether the ray is
+    within reach."""
+    s_lo = max(a - rho_c, 0.0)
+    s_hi = min(a + rho_c, ell)
+    s = s_lo if at_start else (s_hi if at_end else a - abs(e) * gs)
+    s = min(max(s, s_lo), s_hi)
+    w = a - s
+    v = np.float32(z0 + m * s + h_off + math.sqrt(e2 + w * w) * cot)
+    t = np.float32(z0 + h_top + max(m * s_lo, m * s_hi))
+    return v, t, (qc >= 0.0) & (s_lo <= s_hi) & (v < t)
 
 
 @nb.njit(cache=True, inline="always")
