@@ -521,13 +521,16 @@ def _rows_bull(R, rc, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jl
         elif by_column:
             w_r = w_col[i0 - i_min:i0 - i_min + nq]
         elif m != 0.0:
-            # one Newton step from the table's guess for every ray (branch-free, so that
-            # it vectorises), then the full search where that step was not yet small
+            # the table's guesses (its lookups keep this loop scalar), one Newton step from
+            # them for every ray (branch-free, so that it vectorises), then the full search
+            # where that step was not yet small
             fix = fix_row[:nq]
+            for q in range(nq):
+                w_r[q] = _bull_guess(tab_d, tab_s, h_tab, min(abs(e_0 + q * de), R))
             for q in range(nq):
                 e = min(abs(e_0 + q * de), R)
                 d_lo = max(d_e0, e)
-                d = min(max(_bull_guess(tab_d, tab_s, h_tab, e), d_lo), R)
+                d = min(max(w_r[q], d_lo), R)
                 t = d - a0
                 p = k2 * d * d - e * e
                 step = (t * t * p - c2 * d * d) / (2.0 * (t * p + k2 * d * t * t - c2 * d))
