@@ -417,7 +417,7 @@ def _bull_depth_slope(a0, k2, c2, e, d):
 
 
 #: knots of the per-move table of bull-nose roots over |e| in [0, R] (see _rows_bull)
-BULL_KNOTS = 48
+BULL_KNOTS = 128
 
 
 @nb.njit(cache=True, inline="always")
@@ -465,7 +465,9 @@ def _rows_bull(R, rc, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jl
     h_tab = R / BULL_KNOTS
     tab_d = np.empty(BULL_KNOTS + 1)
     tab_s = np.empty(BULL_KNOTS + 1)
-    if m != 0.0 and de != 0.0:  # the table (rows along the move start from the last row's root)
+    # a move across the rows (along Y): e depends on the column only, one root per column
+    by_column = m != 0.0 and de != 0.0 and da == 0.0
+    if m != 0.0 and de != 0.0 and not by_column:  # the table, for diagonal moves only
         tab_d[0] = d_e0
         tab_s[0] = 0.0
         for k in range(1, BULL_KNOTS + 1):
@@ -473,8 +475,6 @@ def _rows_bull(R, rc, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jl
             d = _bull_depth(a0, rc, R, k2, c2, max(d_e0, e), e * e, tab_d[k - 1] + h_tab * tab_s[k - 1])
             tab_d[k] = d
             tab_s[k] = _bull_depth_slope(a0, k2, c2, e, d)
-    # a move across the rows (along Y): e depends on the column only, one root per column
-    by_column = m != 0.0 and de != 0.0 and da == 0.0
     i_min = nu
     i_max = 0
     for jj in range(nrows):
@@ -482,10 +482,11 @@ def _rows_bull(R, rc, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jl
             i_min = min(i_min, row_ilo[jj])
             i_max = max(i_max, row_ilo[jj] + row_off[jj + 1] - row_off[jj])
     w_col = np.zeros(max(i_max - i_min, 0) if by_column else 0)
-    for i in range(w_col.size):
+    d = np.nan
+    for i in range(w_col.size):  # each column's search from the last column's root
         e = abs((rx0 + (i_min + i) * sp) * uy)
         if e < R:
-            d = _bull_depth(a0, rc, R, k2, c2, max(d_e0, e), e * e, _bull_guess(tab_d, tab_s, h_tab, e))
+            d = _bull_depth(a0, rc, R, k2, c2, max(d_e0, e), e * e, d)
             w_col[i] = math.sqrt(max((d - e) * (d + e), 0.0))
     d_row = np.nan
     for jj in range(nrows):
