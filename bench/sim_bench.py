@@ -1,7 +1,7 @@
 """Material-removal benchmark: one JSON line per case.
 
     python bench/sim_bench.py [--shared ../shared] [--case wavy_finish] [--no-check]
-                              [--mode plain|record|journal ...]
+                              [--mode plain|record|journal ...] [--pairs 5] [--shapes]
 
 Cases (stock box 0,0,0,100,100,20 at 0.1 mm, 1001 x 1001 rays):
 
@@ -35,6 +35,18 @@ Then, per ``BASELINE_RUNS`` entry (ball and flat on ``wavy_finish``), a line wit
 ``bench/zmap_baseline.py`` timed in ``--pairs`` interleaved pairs in this process;
 ``ratio_median`` (baseline seconds / dexmon seconds, median of the pairs) is the figure
 to quote (see :func:`run_baseline_pairs`).
+
+``--shapes`` prints only these lines: first ``mode: shape_pairs`` for the ball itself
+(its height check), then one per ``SHAPE_RUNS`` entry (bull-nose ``bull:6:1``, vbit
+``vbit:6:90``, drill ``drill:6``, all L=20) on ``wavy_finish``, each timed against the
+ball in ``--pairs`` interleaved pairs of plain cuts in this process: ``ratio_median``
+(shape seconds / ball seconds, median of the pairs; <= 2 means at least half the
+ball's speed), ``shape_max_err_mm`` (4000 random rays against a golden-section
+minimisation of the swept tool over every move within reach; rim rays within 1e-6 mm
+accepted either side) and ``load_avg``. Then ``mode: reach_rate``: rays within the
+cutting radius of each chord, summed, per second of plain cut, for the flat end mill
+pocketing ``pocket_rough`` and the ball finishing ``wavy_finish`` (interleaved pairs,
+medians; the same units, so the two are comparable).
 """
 
 from __future__ import annotations
@@ -60,7 +72,8 @@ from sim.frame import Frame  # noqa: E402
 from sim.gcode import load_program  # noqa: E402
 from sim.gcode.moves import MoveKind, empty_moves, tip_positions  # noqa: E402
 from sim.grid import DexelGrid  # noqa: E402
-from sim.sweep import arc_points  # noqa: E402
+from sim.sweep import PLANE_AXES, arc_points, chord_step_angle  # noqa: E402
+from sim.tolerance import DEFAULT  # noqa: E402
 from sim.tools import parse_tool_spec  # noqa: E402
 
 from bench import zmap_baseline  # noqa: E402
@@ -92,8 +105,9 @@ def warm_up(tool, moves) -> None:
 
 # --- the independent reference ------------------------------------------------------
 
-def _pieces(moves):
-    """Straight tip segments of every motion row; arcs sampled every 0.01 mm."""
+def _pieces(moves, chord: float | None = None):
+    """Straight tip segments of every motion row; arcs sampled every 0.01 mm or, with
+    ``chord``, into the chords the exact cut uses (sagitta within ``chord`` mm)."""
     kind = moves["kind"]
     s = tip_positions(moves, "start")
     e = tip_positions(moves, "end")
@@ -105,8 +119,15 @@ def _pieces(moves):
         elif kind[k] in (MoveKind.ARC_CW, MoveKind.ARC_CCW):
             c = np.array(moves["center"][k], float)
             c[2] -= moves["tool_length"][k]
-            pts = arc_points(s[k], e[k], c, int(moves["plane"][k]), int(moves["turns"][k]) or 1,
-                             kind[k] == MoveKind.ARC_CW, max_step_length=0.01)
+            plane = int(moves["plane"][k])
+            if chord is None:
+                step = {"max_step_length": 0.01}
+            else:
+                pq = list(PLANE_AXES[plane][:2])
+                radius = max(float(np.hypot(*(s[k][pq] - c[pq]))), 1e-9)
+                step = {"max_step_angle": chord_step_angle(radius, chord)}
+            pts = arc_points(s[k], e[k], c, plane, int(moves["turns"][k]) or 1,
+                             kind[k] == MoveKind.ARC_CW, **step)
             p0.extend(pts[:-1])
             p1.extend(pts[1:])
     return np.array(p0), np.array(p1)
@@ -181,6 +202,198 @@ def reference_heights(frame: Frame, tool, moves, top: float, dr: float = 0.0) ->
         sub = H[j0:j1, i0:i1]
         H[j0:j1, i0:i1] = np.where(touch, np.minimum(sub, low), sub)
     return np.maximum(H, STOCK[2])
+
+
+# --- any tool shape: a sampled reference and the reach of each chord --------------------
+
+GOLD = (math.sqrt(5.0) - 1.0) / 2.0
+
+
+def sweep_floor(tool, p0, p1, x, y, iters: int = 80) -> np.ndarray:
+    """Lowest point (mm) of ``tool`` swept along straight tip moves ``p0 -> p1`` on the
+    vertical rays at ``(x, y)``, float64; NaN where the move never reaches the ray.
+
+    Shapes broadcast: ``p0``, ``p1`` (3,) or (n, 3), ``x``, ``y`` (n,). Independent of the
+    kernels: the move is parametrised by ``t`` in [0, 1] along the 3-D tip segment, the
+    part within reach of the ray comes from the quadratic ``|p(t) - ray| = Rc`` in XY, and
+    the convex ``z(t) + tool.lowest_height(d(t))`` is minimised by golden section to the
+    last bit (``iters`` steps shrink the bracket 0.618**iters; 80 reach 1e-16 of the move).
+    """
+    p0 = np.asarray(p0, np.float64)
+    dv = np.asarray(p1, np.float64) - p0
+    Rc = tool.cutting_radius
+    fx, fy = x - p0[..., 0], y - p0[..., 1]
+    A = dv[..., 0] ** 2 + dv[..., 1] ** 2
+    level = A == 0.0  # a vertical move: every t is within reach or none
+    B = -(fx * dv[..., 0] + fy * dv[..., 1])
+    C = fx * fx + fy * fy - Rc * Rc
+    disc = B * B - A * C
+    sq = np.sqrt(np.maximum(disc, 0.0))
+    A1 = np.where(level, 1.0, A)
+    t0 = np.where(level, 0.0, (-B - sq) / A1)
+    t1 = np.where(level, 1.0, (-B + sq) / A1)
+    reach = np.where(level, C <= 0.0, (disc >= 0) & (t0 <= 1) & (t1 >= 0))
+    t0, t1 = np.clip(t0, 0, 1), np.clip(t1, 0, 1)
+
+    def f(t):
+        d = np.hypot(p0[..., 0] + t * dv[..., 0] - x, p0[..., 1] + t * dv[..., 1] - y)
+        return p0[..., 2] + t * dv[..., 2] + tool.lowest_height(np.minimum(d, Rc))
+
+    lo, hi = t0, t1
+    c, e = hi - GOLD * (hi - lo), lo + GOLD * (hi - lo)
+    fc, fe = f(c), f(e)
+    for _ in range(iters):
+        left = fc < fe  # the minimum of a convex function lies in [lo, e]
+        hi = np.where(left, e, hi)
+        lo = np.where(left, lo, c)
+        t = np.where(left, hi - GOLD * (hi - lo), lo + GOLD * (hi - lo))  # the new probe
+        ft = f(t)
+        c, e = np.where(left, t, e), np.where(left, c, t)
+        fc, fe = np.where(left, ft, fe), np.where(left, fc, ft)
+    best = np.minimum(np.minimum(f(t0), f(t1)), np.minimum(fc, fe))
+    return np.where(reach, best, np.nan)
+
+
+def _path_distance(P0, P1, x, y) -> np.ndarray:
+    """XY distance of each ray ``(x, y)`` from the tip path ``P0 -> P1`` (broadcast)."""
+    d = P1[..., :2] - P0[..., :2]
+    L2 = d[..., 0] ** 2 + d[..., 1] ** 2
+    fx, fy = x - P0[..., 0], y - P0[..., 1]
+    t = np.clip((fx * d[..., 0] + fy * d[..., 1]) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
+    return np.hypot(fx - t * d[..., 0], fy - t * d[..., 1])
+
+
+def sampled_check(grid: DexelGrid, tool, moves, n_rays: int = 4000, seed: int = 15) -> dict:
+    """Heights of ``n_rays`` random rays of ``grid`` (cut from fresh stock by ``moves``)
+    against :func:`sweep_floor` over every move within reach (arcs sampled every 0.01 mm).
+
+    A ray within 1e-6 mm of a move's rim may fall either side: the reference is taken
+    without and with those moves. ``shape_max_err_mm``: how far the cut heights lie
+    outside that bracket; ``shape_rays``: the rays checked; ``shape_rim_rays``: those
+    with a rim move.
+    """
+    frame = grid.frame
+    rng = np.random.default_rng(seed)
+    rays = np.sort(rng.choice(frame.n_rays, size=min(n_rays, frame.n_rays), replace=False))
+    x = frame.origin[0] + (rays % frame.nu) * frame.spacing
+    y = frame.origin[1] + (rays // frame.nu) * frame.spacing
+    P0, P1 = _pieces(moves)
+    Rc = tool.cutting_radius
+    ray_of, move_of, rim = [], [], []
+    for k0 in range(0, len(P0), 2000):  # pairs (ray, move) within reach, a block at a time
+        dist = _path_distance(P0[k0:k0 + 2000, None], P1[k0:k0 + 2000, None], x[None], y[None])
+        km, ir = np.nonzero(dist <= Rc + 1e-6)
+        ray_of.append(ir)
+        move_of.append(km + k0)
+        rim.append(np.abs(dist[km, ir] - Rc) < 1e-6)
+    ray_of, move_of, rim = (np.concatenate(v) for v in (ray_of, move_of, rim))
+    floor = sweep_floor(tool, P0[move_of], P1[move_of], x[ray_of], y[ray_of])
+    floor = np.where(np.isnan(floor), STOCK[5], floor)  # a rim pair just outside the reach
+    ref_in = np.full(rays.size, STOCK[5])
+    ref_out = np.full(rays.size, STOCK[5])
+    np.minimum.at(ref_in, ray_of[~rim], floor[~rim])
+    np.minimum.at(ref_out, ray_of, floor)
+    ref_in, ref_out = np.maximum(ref_in, STOCK[2]), np.maximum(ref_out, STOCK[2])
+    top = np.nan_to_num(grid.top().reshape(-1)[rays].astype(np.float64), nan=STOCK[2])
+    err = np.maximum(0.0, np.maximum(top - ref_in, ref_out - top))
+    return {"shape_rays": int(rays.size), "shape_rim_rays": int(np.unique(ray_of[rim]).size),
+            "shape_max_err_mm": float(f"{err.max():.3g}")}
+
+
+def rays_in_reach(frame: Frame, tool, moves) -> int:
+    """Rays within the cutting radius of each chord the exact cut sweeps, summed."""
+    P0, P1 = _pieces(moves, chord=DEFAULT.chord)
+    Rc = tool.cutting_radius
+    sp = frame.spacing
+    total = 0
+    for a, b in zip(P0, P1):
+        i0 = max(0, int(math.ceil((min(a[0], b[0]) - Rc - frame.origin[0]) / sp)))
+        i1 = min(frame.nu - 1, int(math.floor((max(a[0], b[0]) + Rc - frame.origin[0]) / sp)))
+        j0 = max(0, int(math.ceil((min(a[1], b[1]) - Rc - frame.origin[1]) / sp)))
+        j1 = min(frame.nv - 1, int(math.floor((max(a[1], b[1]) + Rc - frame.origin[1]) / sp)))
+        if i1 < i0 or j1 < j0:
+            continue
+        x = frame.origin[0] + np.arange(i0, i1 + 1) * sp
+        y = frame.origin[1] + np.arange(j0, j1 + 1) * sp
+        total += int((_path_distance(a, b, x[None, :], y[:, None]) <= Rc).sum())
+    return total
+
+
+#: the shapes timed against the ball on ``wavy_finish`` by ``--shapes``
+SHAPE_BASE = "ball:6:L=20"
+SHAPE_RUNS = ("bull:6:1:L=20", "vbit:6:90:L=20", "drill:6:L=20")
+
+
+def _median_pairs(first, second, pairs: int) -> tuple[list, list]:
+    """Seconds of ``first()`` and ``second()`` in ``pairs`` interleaved pairs (the order
+    alternates so a drifting machine load favours neither)."""
+    ta, tb = [], []
+    for k in range(max(1, pairs)):
+        if k % 2 == 0:
+            ta.append(first())
+            tb.append(second())
+        else:
+            tb.append(second())
+            ta.append(first())
+    return ta, tb
+
+
+def run_shape_pairs(shared: Path, pairs: int = 5, check: bool = True) -> list[dict]:
+    """Each of ``SHAPE_RUNS`` against the ball on ``wavy_finish``, timed in interleaved
+    pairs of plain cuts on fresh stock in this process: ``ratio_median`` is the median
+    over the pairs of shape seconds / ball seconds (< 1: faster than the ball); with the
+    sampled height check of the shape's cut (:func:`sampled_check`). The first line is
+    the ball's own check."""
+    moves = load_program(shared / CASES["wavy_finish"][0]).moves
+    ball = parse_tool_spec(SHAPE_BASE)
+    warm_up(ball, moves)
+    out = []
+    if check:
+        _, grid = _time_dexmon(ball, moves)
+        out.append({"case": "wavy_finish", "mode": "shape_pairs", "tool": SHAPE_BASE,
+                    **sampled_check(grid, ball, moves)})
+    for spec in SHAPE_RUNS:
+        tool = parse_tool_spec(spec)
+        warm_up(tool, moves)
+        grids = []
+
+        def shape():
+            t, g = _time_dexmon(tool, moves)
+            grids[:] = [g]
+            return t
+
+        tb, ts = _median_pairs(lambda: _time_dexmon(ball, moves)[0], shape, pairs)
+        line = {"case": "wavy_finish", "mode": "shape_pairs", "tool": spec, "base": SHAPE_BASE,
+                "base_s": round(statistics.median(tb), 4), "shape_s": round(statistics.median(ts), 4),
+                "ratio_median": round(statistics.median([s / b for s, b in zip(ts, tb)]), 3),
+                "ratios": [round(s / b, 3) for s, b in zip(ts, tb)], "pairs": len(ts)}
+        if check:
+            line.update(sampled_check(grids[0], tool, moves))
+        line["load_avg"] = [round(v, 2) for v in os.getloadavg()]
+        out.append(line)
+    return out
+
+
+def run_reach_rate(shared: Path, pairs: int = 5) -> dict:
+    """Rays within reach of each chord, summed, per second of plain cut: the flat end
+    mill pocketing ``pocket_rough`` beside the ball finishing ``wavy_finish`` (same
+    units; interleaved pairs, medians)."""
+    runs = {}
+    for name in ("wavy_finish", "pocket_rough"):
+        tool = parse_tool_spec(CASES[name][1])
+        moves = load_program(shared / CASES[name][0]).moves
+        warm_up(tool, moves)
+        runs[name] = (tool, moves, rays_in_reach(stock_grid().frame, tool, moves))
+    (tw, mw, nw), (tp, mp, npk) = runs["wavy_finish"], runs["pocket_rough"]
+    sw, sp_ = _median_pairs(lambda: _time_dexmon(tw, mw)[0], lambda: _time_dexmon(tp, mp)[0], pairs)
+    return {"mode": "reach_rate",
+            "ball_finish": {"case": "wavy_finish", "tool": CASES["wavy_finish"][1], "rays_in_reach": nw,
+                            "seconds": round(statistics.median(sw), 4),
+                            "rays_per_s": round(nw / statistics.median(sw))},
+            "flat_pocket": {"case": "pocket_rough", "tool": CASES["pocket_rough"][1], "rays_in_reach": npk,
+                            "seconds": round(statistics.median(sp_), 4),
+                            "rays_per_s": round(npk / statistics.median(sp_))},
+            "pairs": len(sw), "load_avg": [round(v, 2) for v in os.getloadavg()]}
 
 
 def run_case(name: str, shared: Path, check: bool, repeat: int = 3, mode: str = "plain") -> dict:
@@ -502,7 +715,9 @@ def main(argv=None) -> int:
     ap.add_argument("--mode", choices=["plain", "record", "journal"], action="append",
                     help="what the cut records (default: plain and journal)")
     ap.add_argument("--pairs", type=int, default=5,
-                    help="interleaved dexmon/baseline pairs per baseline run (default 5; 0: none)")
+                    help="interleaved pairs per baseline run and per shape (default 5; 0: no baseline)")
+    ap.add_argument("--shapes", action="store_true",
+                    help="only the tool shapes against the ball, and the rays-in-reach rates")
     ap.add_argument("--big", action="store_true",
                     help="only the 1M against 10M rays comparison (see run_big)")
     ap.add_argument("--big-rss", action="store_true", help=argparse.SUPPRESS)
@@ -517,6 +732,11 @@ def main(argv=None) -> int:
     if not shared.is_dir():
         print(f"sim_bench: {shared} not found (pass --shared)", file=sys.stderr)
         return 2
+    if args.shapes:
+        for line in run_shape_pairs(shared, max(1, args.pairs), not args.no_check):
+            print(json.dumps(line), flush=True)
+        print(json.dumps(run_reach_rate(shared, max(1, args.pairs))), flush=True)
+        return 0
     for name in args.case or list(CASES):
         for mode in args.mode or ["plain", "journal"]:
             print(json.dumps(run_case(name, shared, not args.no_check and mode == "plain",

@@ -11,9 +11,9 @@ Two families:
   height of the tool at that distance. ``z + h*(d)`` is convex in ``s`` for the convex
   tools, so the minimum is found in closed form (flat: an end of the range; ball: the
   capsule, ``s* = a - rho * dz / |P1 - P0|``; vbit/drill: the same with the cone slope)
-  or, for the bull-nose torus, in closed form for level moves and otherwise as the root
-  of the monotone derivative (Illinois steps with bisection, bracket to ~1e-12 mm;
-  the ends of the range are evaluated too).
+  or, for the bull-nose torus, in closed form for level moves and otherwise from the
+  distance to the axis at the lowest point, the one root of a quartic found by
+  safeguarded Newton steps (:func:`_bull_depth`).
 
 * **Instances of motion** (:func:`pose_intervals`, :func:`cut_poses`): any frame, any tool
   axis, any profile of revolution (a polyline of frusta, Huang & Oliver eq. 3-5). Each
@@ -139,73 +139,26 @@ def linear_interval(tp, x0, y0, z0, dz, ell, ux, uy, rx, ry):
             elif g <= -1.0:
                 s = s_hi
             else:
-                s = a - abs(e) * g / math.sqrt(1.0 - g * g)
+                s = a - abs(e) * (g / math.sqrt(1.0 - g * g))
         if s < s_lo:
             s = s_lo
         elif s > s_hi:
             s = s_hi
         w = a - s
         return z0 + m * s + h_off + _hstar(code, R, rc, cot, math.sqrt(e * e + w * w)), hi
-    # bull-nose: f(s) = z(s) + h*(d(s)) is convex (h* convex, non-decreasing; d convex)
-    e2 = e * e
-    if m == 0.0:  # level move: the lowest point is where the ray passes closest
-        s = min(max(a, s_lo), s_hi)
-        return z0 + h_off + _hstar(code, R, rc, cot, math.sqrt(e2 + (a - s) ** 2)), hi
-    # otherwise the root of the monotone f'(s) = m - h*'(d) (a - s) / d, bracketed by
-    # Illinois steps with a bisection every third step (never slower than halving)
-    ga = _bull_slope(R, rc, m, a, e2, s_lo)
-    gb = _bull_slope(R, rc, m, a, e2, s_hi)
-    if ga >= 0.0:
-        s = s_lo
-    elif gb <= 0.0:
-        s = s_hi
-    else:
-        lo_s = s_lo
-        hi_s = s_hi
-        side = 0
-        s = 0.5 * (lo_s + hi_s)
-        for it in range(200):
-            if hi_s - lo_s <= 1e-12 * (1.0 + abs(hi_s)):
-                break
-            if it % 3 == 2:
-                s = 0.5 * (lo_s + hi_s)
-            else:
-                s = (lo_s * gb - hi_s * ga) / (gb - ga)
-                if not (lo_s < s < hi_s):
-                    s = 0.5 * (lo_s + hi_s)
-            g = _bull_slope(R, rc, m, a, e2, s)
-            if g == 0.0:
-                break
-            if g < 0.0:
-                lo_s = s
-                ga = g
-                if side == -1:
-                    gb *= 0.5
-                side = -1
-            else:
-                hi_s = s
-                gb = g
-                if side == 1:
-                    ga *= 0.5
-                side = 1
-    fa = za + _hstar(code, R, rc, cot, math.sqrt(e2 + (a - s_lo) ** 2))
-    fb = zb + _hstar(code, R, rc, cot, math.sqrt(e2 + (a - s_hi) ** 2))
-    fs = z0 + m * s + _hstar(code, R, rc, cot, math.sqrt(e2 + (a - s) ** 2))
-    return min(fa, fb, fs) + h_off, hi
-
-
-@nb.njit(cache=True, inline="always")
-def _bull_slope(R, rc, m, a, e2, s):
-    """d/ds of ``m s + h*(d(s))`` for the bull-nose, ``d(s) = sqrt(e^2 + (a - s)^2)``."""
-    w = a - s
-    d = math.sqrt(e2 + w * w)
-    t = d - (R - rc)
-    if t <= 0.0 or d == 0.0:
-        return m
-    q = rc * rc - t * t
-    if q <= 0.0:
-        q = 1e-300  # the rim: an infinitely steep wall
-    return m - (t / math.sqrt(q)) * (w / d)
+    # bull-nose: z(s) + h*(d(s)) is convex in s, lowest at s* = a - sign(m) sqrt(d^2 - e^2)
+    # with d the root of a quartic in (max(d_e0, |e|), R), d_e0 the root on the path (see
+    # _bull_depth); level moves pass closest at s = a
+    w = 0.0
+    ae = abs(e)
+    if m != 0.0 and ae < R:
+        k2 = 1.0 + m * m
+        d_e0 = R - rc + rc * abs(m) / math.sqrt(k2)
+        d = _bull_depth(R - rc, rc, R, k2, rc * rc * m * m, max(d_e0, ae), e * e, np.nan)
+        w = math.sqrt(max((d - ae) * (d + ae), 0.0))
+    s = a - w if m > 0.0 else a + w
+    s = min(max(s, s_lo), s_hi)
+    return z0 + m * s + h_off + _hstar(code, R, rc, cot, math.sqrt(e * e + (a - s) ** 2)), hi
 
 
 @nb.njit(cache=True)
@@ -333,22 +286,23 @@ def _rows_flat(Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrow
 
 @nb.njit(cache=True, error_model="numpy", boundscheck=False)
 def _rows_cone(cot, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows, row_ia,
-               row_ilo, row_off, cnt, near, far, lo, hi, flag):
+               row_ilo, row_off, cnt, near, far, lo, hi, flag, behind):
     """Cone (vbit / drill point) on the rays of one move (see :func:`_rows_ball`).
 
     Same arithmetic as :func:`linear_interval`'s cone: the lowest point of
     ``m s + cot sqrt(e^2 + (a - s)^2)`` at ``s = a - |e| g / sqrt(1 - g^2)``, ``g = m / cot``,
     or at the start (end) when the move climbs (descends) steeper than the cone; the
     case is the same for every ray of the move, so the loop stays branch-free.
+    ``behind``: a chained move (see :func:`_rows_bull`).
     """
     Rc2 = Rc * Rc
     g = m / cot
     at_start = g >= 1.0
     at_end = g <= -1.0
-    sq = math.sqrt(1.0 - g * g) if not (at_start or at_end) else 1.0
+    gs = g / math.sqrt(1.0 - g * g) if not (at_start or at_end) else 0.0  # no division per ray
     for jj in range(nrows):
         i0 = row_ilo[jj]
-        qa = i0 - row_ia[jj]
+        qa = i0 - row_ia[jj]  # rays counted from the row's box start (see _rows_ball)
         o = row_off[jj]
         nq = row_off[jj + 1] - o
         rx = rx0 + row_ia[jj] * sp
@@ -358,167 +312,298 @@ def _rows_cone(cot, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo,
         da = sp * ux
         de = -sp * uy
         base = (jlo + jj) * nu + i0
-        lo_r = lo[o:o + nq]
-        hi_r = hi[o:o + nq]
-        fl_r = flag[o:o + nq]
-        cn_r = cnt[base:base + nq]
-        ne_r = near[base:base + nq]
-        fa_r = far[base:base + nq]
-        for q in range(nq):
-            a = a0 + (q + qa) * da
-            e = e0 + (q + qa) * de
-            e2 = e * e
+        q_a = 0
+        q_b = nq
+        if behind and de == 0.0 and da != 0.0 and not at_end:
+            # a row along a chained move leaves out the rays whose lowest point is the start
+            # pose: s* <= 0 within reach of it, a <= min(|e| g / sqrt(1 - g^2), rho_c)
+            # (a <= rho_c when climbing steeper than the cone); a spare ray is harmless
+            rho_row = math.sqrt(max(Rc2 - e0 * e0, 0.0))
+            cut = min(rho_row, abs(e0) * gs) if not at_start else rho_row
+            x = (cut - 1e-9 - a0) / da
+            if da > 0.0:
+                q_a = min(max(int(math.floor(x)) + 1 - qa, 0), nq)
+            else:
+                q_b = max(min(int(math.ceil(x)) - qa, nq), 0)
+            for q in range(q_a):
+                flag[o + q] = False
+            for q in range(q_b, nq):
+                flag[o + q] = False
+        k_a = qa + q_a  # the loop from 0 over unit-stride views, as in _rows_ball
+        e_q = e0 + k_a * de
+        lo_r = lo[o + q_a:o + q_b]
+        hi_r = hi[o + q_a:o + q_b]
+        fl_r = flag[o + q_a:o + q_b]
+        cn_r = cnt[base + q_a:base + q_b]
+        ne_r = near[base + q_a:base + q_b]
+        fa_r = far[base + q_a:base + q_b]
+        if de == 0.0:  # e, and so the reach across the path, are the row's
+            e2 = e_q * e_q
             qc = Rc2 - e2
             rho_c = math.sqrt(max(qc, 0.0))
-            s_lo = max(a - rho_c, 0.0)
-            s_hi = min(a + rho_c, ell)
-            s_mid = a - abs(e) * g / sq
-            s = s_lo if at_start else (s_hi if at_end else s_mid)
-            s = min(max(s, s_lo), s_hi)
-            w = a - s
-            v = np.float32(z0 + m * s + h_off + math.sqrt(e2 + w * w) * cot)
-            t = np.float32(z0 + h_top + max(m * s_lo, m * s_hi))
-            ok = (qc >= 0.0) & (s_lo <= s_hi) & (v < t)
-            lo_r[q] = v
-            hi_r[q] = t
-            c = cn_r[q]
-            one = (v < fa_r[q]) & (t > ne_r[q])
-            fl_r[q] = ok & ((c > 1) | ((c == 1) & one))
+            for q in range(q_b - q_a):
+                v, t, ok = _cone_ray(a0 + (k_a + q) * da, e_q, e2, qc, rho_c, gs, at_start, at_end, cot, z0, m,
+                                     ell, h_off, h_top)
+                lo_r[q] = v
+                hi_r[q] = t
+                c = cn_r[q]
+                fl_r[q] = ok & ((c > 1) | ((c == 1) & (v < fa_r[q]) & (t > ne_r[q])))
+        else:
+            for q in range(q_b - q_a):
+                e = e0 + (k_a + q) * de
+                e2 = e * e
+                qc = Rc2 - e2
+                v, t, ok = _cone_ray(a0 + (k_a + q) * da, e, e2, qc, math.sqrt(max(qc, 0.0)), gs, at_start, at_end,
+                                     cot, z0, m, ell, h_off, h_top)
+                lo_r[q] = v
+                hi_r[q] = t
+                c = cn_r[q]
+                fl_r[q] = ok & ((c > 1) | ((c == 1) & (v < fa_r[q]) & (t > ne_r[q])))
 
 
 @nb.njit(cache=True, inline="always")
-def _bull_root(R, rc, m, a, e2, lo_s, hi_s, ga, gb, s0):
-    """Root of the bull-nose slope (:func:`_bull_slope`) in ``(lo_s, hi_s)`` where it goes
-    from ``ga < 0`` to ``gb > 0``; ``s0`` (NaN if none) is a guess - the root of the
-    neighbouring ray, a few ulps away along a row. Secant steps from the guess, kept in
-    the shrinking bracket, with a bisection whenever the bracket fails to halve in two
-    steps; stops when the bracket or the step is within ~1e-12 mm."""
-    s = s0
-    if not (lo_s < s < hi_s):
-        s = (lo_s * gb - hi_s * ga) / (gb - ga)
-        if not (lo_s < s < hi_s):
-            s = 0.5 * (lo_s + hi_s)
-    s_old = np.nan
-    g_old = np.nan
-    width = hi_s - lo_s
-    for it in range(200):
-        g = _bull_slope(R, rc, m, a, e2, s)
-        if g == 0.0:
-            return s
-        if g < 0.0:
-            lo_s = s
-            ga = g
-        else:
-            hi_s = s
-            gb = g
-        if hi_s - lo_s <= 1e-12 * (1.0 + abs(hi_s)):
-            break
-        if g_old == g_old and g != g_old:
-            sn = s - g * (s - s_old) / (g - g_old)
-        else:
-            sn = (lo_s * gb - hi_s * ga) / (gb - ga)
-        if it % 2 == 1:
-            if hi_s - lo_s > 0.5 * width:
-                sn = 0.5 * (lo_s + hi_s)
-            width = hi_s - lo_s
-        if not (lo_s < sn < hi_s):
-            sn = 0.5 * (lo_s + hi_s)
-        tol = 1e-12 * (1.0 + abs(sn))
-        if abs(sn - s) <= tol:
-            # a tiny step is not proof (the slope is near-vertical at the rim): the root
-            # is at sn only if the slope changes sign across it
-            sa = sn - tol
-            sb = sn + tol
-            if lo_s < sa and sb < hi_s:
-                gl = _bull_slope(R, rc, m, a, e2, sa)
-                gh = _bull_slope(R, rc, m, a, e2, sb)
-                if gl <= 0.0 <= gh:
-                    return sn
-                if gl > 0.0:
-                    hi_s = sa
-                    gb = gl
-                else:
-                    lo_s = sb
-                    ga = gh
-            sn = 0.5 * (lo_s + hi_s)
-            g = np.nan  # no secant through a bisection point
-        s_old = s
-        g_old = g
-        s = sn
-    return s
+def _cone_ray(a, e, e2, qc, rho_c, gs, at_start, at_end, cot, z0, m, ell, h_off, h_top):
+    """Interval ``(lo, hi)`` (float32) of the cone's sweep on one ray of
+    :func:`_rows_cone` (``qc = Rc^2 - e^2``, ``rho_c`` its root) and whether the ray is
+    within reach."""
+    s_lo = max(a - rho_c, 0.0)
+    s_hi = min(a + rho_c, ell)
+    s = s_lo if at_start else (s_hi if at_end else a - abs(e) * gs)
+    s = min(max(s, s_lo), s_hi)
+    w = a - s
+    v = np.float32(z0 + m * s + h_off + math.sqrt(e2 + w * w) * cot)
+    t = np.float32(z0 + h_top + max(m * s_lo, m * s_hi))
+    return v, t, (qc >= 0.0) & (s_lo <= s_hi) & (v < t)
 
 
-@nb.njit(cache=True, error_model="numpy")
+@nb.njit(cache=True, inline="always")
+def _bull_depth(a0, rc, R, k2, c2, lo, e2, d):
+    """Distance (mm) from the axis, in ``(lo, R)``, of the bull-nose's lowest point over a
+    ray at ``e2 = e^2`` from the path of a move of slope ``m != 0``: the one root of
+    ``F(d) = (d - a0)^2 ((1 + m^2) d^2 - e^2) - rc^2 m^2 d^2``, ``k2 = 1 + m^2``,
+    ``c2 = rc^2 m^2``, ``a0 = R - rc``.
+
+    ``F`` has the sign of ``h*'(d)^2 (1 - e^2/d^2) - m^2`` (``h*'`` the torus' slope),
+    which rises with ``d``: ``F < 0`` at ``lo`` (see :func:`_rows_bull`), ``F >= 0`` at
+    ``R``. Newton steps on the polynomial from the guess ``d``, kept in the shrinking
+    bracket by bisection, until a Newton step is within 1e-7 mm: convergence is
+    quadratic, so the root after that step is good to ~1e-14 mm (times ``F''/2F'``), and
+    the height, whose error is second order in the root's, to far below 1e-9 mm, even
+    near the rim where ``h*''`` grows without bound (the oracle tests check to 1e-9).
+    """
+    hi = R
+    if not lo < hi:
+        return hi
+    if not (lo < d < hi):
+        d = 0.5 * (lo + hi)
+    for _ in range(200):
+        t = d - a0
+        p = k2 * d * d - e2
+        F = t * t * p - c2 * d * d
+        if F < 0.0:
+            lo = d
+        elif F > 0.0:
+            hi = d
+        else:
+            return d
+        dF = 2.0 * (t * p + k2 * d * t * t - c2 * d)
+        dn = d - F / dF
+        if abs(dn - d) <= 1e-7:  # converged (the step may land on the bracket's end)
+            return min(max(dn, lo), hi)
+        if not (lo < dn < hi):  # Newton left the bracket (or dF <= 0): bisect
+            dn = 0.5 * (lo + hi)
+            if hi - lo <= 1e-13:
+                return dn
+        d = dn
+    return d
+
+
+@nb.njit(cache=True, inline="always")
+def _bull_depth_slope(a0, k2, c2, e, d):
+    """d(root)/d|e| of :func:`_bull_depth` at the root ``d``: ``-F_e / F_d``."""
+    t = d - a0
+    dF = 2.0 * (t * (k2 * d * d - e * e) + k2 * d * t * t - c2 * d)
+    return 2.0 * e * t * t / dF if dF > 0.0 else 0.0
+
+
+#: knots of the per-move table of bull-nose roots over |e| in [0, R] (see _rows_bull)
+BULL_KNOTS = 128
+
+
+@nb.njit(cache=True, inline="always")
+def _bull_guess(tab_d, tab_s, h, e):
+    """The root of :func:`_bull_depth` at ``|e| = e`` by cubic Hermite interpolation of
+    the per-move table (roots ``tab_d`` and slopes ``tab_s`` at knots ``k h``)."""
+    x = e / h
+    k = min(int(x), tab_d.size - 2)
+    u = x - k
+    v = 1.0 - u
+    return (v * v * ((1.0 + 2.0 * u) * tab_d[k] + u * h * tab_s[k])
+            + u * u * ((3.0 - 2.0 * u) * tab_d[k + 1] - v * h * tab_s[k + 1]))
+
+
+@nb.njit(cache=True, error_model="numpy", boundscheck=False)
 def _rows_bull(R, rc, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows, row_ia,
-               row_ilo, row_off, cnt, near, far, lo, hi, flag):
-    """Bull-nose on the rays of one move (see :func:`_rows_ball`), by the same formulas as
-    :func:`linear_interval`: closed form for level moves, else the root of the monotone
-    slope, each ray's search started from its neighbour's root (:func:`_bull_root`)."""
+               row_ilo, row_off, cnt, near, far, lo, hi, flag, behind):
+    """Bull-nose on the rays of one move (see :func:`_rows_ball`).
+
+    The lowest point over a ray at ``(a, e)`` lies at ``s* = a - sign(m) w``,
+    ``w = sqrt(d^2 - e^2)``, where ``d`` depends on ``|e|`` only (:func:`_bull_depth`;
+    ``w = 0`` on a level move) - clamped to the part of the move within reach, as
+    ``z + h*(d(s))`` is convex in ``s``. A row along the move (X) needs one root, a
+    move along Y one per column; other moves one per ray, each from the cubic
+    interpolation of a per-move table of ``BULL_KNOTS`` roots over ``|e|`` in a step or
+    two. Then the intervals in a branch-free loop like the ball's. ``behind`` (a move
+    chained to the previous one, see :func:`cut_linear_batch`): a row along the move
+    leaves out the rays with ``s* < 0``, whose lowest point is the start pose, already
+    cut by the previous move.
+    """
+    a0 = R - rc
+    rc2 = rc * rc
     Rc2 = Rc * Rc
+    k2 = 1.0 + m * m
+    c2 = rc2 * m * m
+    sg = 1.0 if m > 0.0 else (-1.0 if m < 0.0 else 0.0)
+    d_e0 = a0 + rc * abs(m) / math.sqrt(k2)  # the root on the path (e = 0): F < 0 below it
+    da = sp * ux
+    de = -sp * uy
+    nmax = 0
+    for jj in range(nrows):
+        nmax = max(nmax, row_off[jj + 1] - row_off[jj])
+    w_row = np.zeros(nmax)
+    fix_row = np.empty(nmax, np.bool_)
+    h_tab = R / BULL_KNOTS
+    tab_d = np.empty(BULL_KNOTS + 1)
+    tab_s = np.empty(BULL_KNOTS + 1)
+    # a move across the rows (along Y): e depends on the column only, one root per column
+    by_column = m != 0.0 and de != 0.0 and da == 0.0
+    if m != 0.0 and de != 0.0 and not by_column:  # the table, for diagonal moves only
+        tab_d[0] = d_e0
+        tab_s[0] = 0.0
+        for k in range(1, BULL_KNOTS + 1):
+            e = min(k * h_tab, R)
+            d = _bull_depth(a0, rc, R, k2, c2, max(d_e0, e), e * e, tab_d[k - 1] + h_tab * tab_s[k - 1])
+            tab_d[k] = d
+            tab_s[k] = _bull_depth_slope(a0, k2, c2, e, d)
+    i_min = nu
+    i_max = 0
+    for jj in range(nrows):
+        if row_off[jj + 1] > row_off[jj]:
+            i_min = min(i_min, row_ilo[jj])
+            i_max = max(i_max, row_ilo[jj] + row_off[jj + 1] - row_off[jj])
+    w_col = np.zeros(max(i_max - i_min, 0) if by_column else 0)
+    d = np.nan
+    for i in range(w_col.size):  # each column's search from the last column's root
+        e = abs((rx0 + (i_min + i) * sp) * uy)
+        if e < R:
+            d = _bull_depth(a0, rc, R, k2, c2, max(d_e0, e), e * e, d)
+            w_col[i] = math.sqrt(max((d - e) * (d + e), 0.0))
+    d_row = np.nan
     for jj in range(nrows):
         i0 = row_ilo[jj]
-        qa = i0 - row_ia[jj]
+        qa = i0 - row_ia[jj]  # rays counted from the row's box start (see _rows_ball)
         o = row_off[jj]
         nq = row_off[jj + 1] - o
         rx = rx0 + row_ia[jj] * sp
         ry = ry0 + (jlo + jj) * sp
-        a0 = rx * ux + ry * uy
-        e0 = -rx * uy + ry * ux
-        da = sp * ux
-        de = -sp * uy
+        a_0 = rx * ux + ry * uy
+        e_0 = -rx * uy + ry * ux
         base = (jlo + jj) * nu + i0
-        s_prev = np.nan
-        for q in range(nq):
-            a = a0 + (q + qa) * da
-            e = e0 + (q + qa) * de
-            e2 = e * e
-            qc = Rc2 - e2
-            flag[o + q] = False
-            if qc < 0.0:
-                continue
-            rho_c = math.sqrt(qc)
-            s_lo = max(a - rho_c, 0.0)
-            s_hi = min(a + rho_c, ell)
-            if s_lo > s_hi:
-                continue
-            za = z0 + m * s_lo
-            zb = z0 + m * s_hi
-            top = (za if za > zb else zb) + h_top
-            c = cnt[base + q]
-            if c == 0:
-                continue
-            if c == 1:
-                # a bound first: the tool is nowhere lower than its lowest tip height plus
-                # h* at the ray's distance from the path; a ray whose material lies below
-                # that bound is out of reach (the exact test below would say the same)
-                w0 = a - min(max(a, 0.0), ell)
-                bound = np.float32((za if za < zb else zb) + h_off
-                                   + _hstar(CODE_BULL, R, rc, 0.0, math.sqrt(e2 + w0 * w0)))
-                if bound >= far[base + q]:
-                    continue
-            if m == 0.0:
-                s = min(max(a, s_lo), s_hi)
-                low = z0 + h_off + _hstar(CODE_BULL, R, rc, 0.0, math.sqrt(e2 + (a - s) ** 2))
-            else:
-                ga = _bull_slope(R, rc, m, a, e2, s_lo)
-                gb = _bull_slope(R, rc, m, a, e2, s_hi)
-                if ga >= 0.0:
-                    s = s_lo
-                elif gb <= 0.0:
-                    s = s_hi
+        w_r = w_row[:nq]
+        q_a = 0
+        q_b = nq
+        if de == 0.0:  # the row runs along the move: one root
+            e = abs(e_0)
+            w = 0.0
+            if m != 0.0 and e < R:
+                d_row = _bull_depth(a0, rc, R, k2, c2, max(d_e0, e), e * e, d_row)
+                w = math.sqrt(max((d_row - e) * (d_row + e), 0.0))
+            w_r[:] = w
+            if behind and da != 0.0:
+                # leave out a <= cut: s* = a - sg w <= -1e-9 there (a spare ray is harmless)
+                x = (sg * w - 1e-9 - a_0) / da
+                if da > 0.0:
+                    q_a = min(max(int(math.floor(x)) + 1 - qa, 0), nq)
                 else:
-                    s = _bull_root(R, rc, m, a, e2, s_lo, s_hi, ga, gb, s_prev)
-                    s_prev = s
-                fa = za + _hstar(CODE_BULL, R, rc, 0.0, math.sqrt(e2 + (a - s_lo) ** 2))
-                fb = zb + _hstar(CODE_BULL, R, rc, 0.0, math.sqrt(e2 + (a - s_hi) ** 2))
-                fs = z0 + m * s + _hstar(CODE_BULL, R, rc, 0.0, math.sqrt(e2 + (a - s) ** 2))
-                low = min(fa, fb, fs) + h_off
-            v = np.float32(low)
-            t = np.float32(top)
-            lo[o + q] = v
-            hi[o + q] = t
-            flag[o + q] = (low < top) and (v < t) and (c > 1 or (c == 1 and v < far[base + q]
-                                                             and t > near[base + q]))
+                    q_b = max(min(int(math.ceil(x)) - qa, nq), 0)
+                for q in range(q_a):
+                    flag[o + q] = False
+                for q in range(q_b, nq):
+                    flag[o + q] = False
+        elif by_column:
+            w_r = w_col[i0 - i_min:i0 - i_min + nq]
+        elif m != 0.0:
+            # the table's guesses (its lookups keep this loop scalar), one Newton step from
+            # them for every ray (branch-free, so that it vectorises), then the full search
+            # where that step was not yet small
+            fix = fix_row[:nq]
+            for q in range(nq):
+                w_r[q] = _bull_guess(tab_d, tab_s, h_tab, min(abs(e_0 + (qa + q) * de), R))
+            for q in range(nq):
+                e = min(abs(e_0 + (qa + q) * de), R)
+                d_lo = max(d_e0, e)
+                d = min(max(w_r[q], d_lo), R)
+                t = d - a0
+                p = k2 * d * d - e * e
+                step = (t * t * p - c2 * d * d) / (2.0 * (t * p + k2 * d * t * t - c2 * d))
+                d = min(max(d - step, d_lo), R)
+                w_r[q] = math.sqrt(max((d - e) * (d + e), 0.0))
+                fix[q] = not abs(step) <= 1e-7  # as _bull_depth's test (NaN: search)
+            for q in range(nq):
+                if fix[q]:
+                    e = abs(e_0 + (qa + q) * de)
+                    w = 0.0
+                    if e < R:
+                        d = _bull_depth(a0, rc, R, k2, c2, max(d_e0, e), e * e,
+                                        _bull_guess(tab_d, tab_s, h_tab, e))
+                        w = math.sqrt(max((d - e) * (d + e), 0.0))
+                    w_r[q] = w
+        # the loop over the rays kept, from 0 (unit-stride views, as in _rows_ball)
+        k_a = qa + q_a
+        e_q = e_0 + k_a * de
+        w_k = w_r[q_a:q_b]
+        lo_r = lo[o + q_a:o + q_b]
+        hi_r = hi[o + q_a:o + q_b]
+        fl_r = flag[o + q_a:o + q_b]
+        cn_r = cnt[base + q_a:base + q_b]
+        ne_r = near[base + q_a:base + q_b]
+        fa_r = far[base + q_a:base + q_b]
+        if de == 0.0:  # e, and so the reach across the path, are the row's
+            e2 = e_q * e_q
+            qc = Rc2 - e2
+            rho_c = math.sqrt(max(qc, 0.0))
+            for q in range(q_b - q_a):
+                v, top, ok = _bull_ray(a_0 + (k_a + q) * da, e2, qc, rho_c, w_k[q], sg, a0, rc, rc2, z0, m,
+                                       ell, h_off, h_top)
+                lo_r[q] = v
+                hi_r[q] = top
+                c = cn_r[q]
+                fl_r[q] = ok & ((c > 1) | ((c == 1) & (v < fa_r[q]) & (top > ne_r[q])))
+        else:
+            for q in range(q_b - q_a):
+                e2 = (e_0 + (k_a + q) * de) ** 2
+                qc = Rc2 - e2
+                v, top, ok = _bull_ray(a_0 + (k_a + q) * da, e2, qc, math.sqrt(max(qc, 0.0)), w_k[q], sg, a0,
+                                       rc, rc2, z0, m, ell, h_off, h_top)
+                lo_r[q] = v
+                hi_r[q] = top
+                c = cn_r[q]
+                fl_r[q] = ok & ((c > 1) | ((c == 1) & (v < fa_r[q]) & (top > ne_r[q])))
+
+
+@nb.njit(cache=True, inline="always")
+def _bull_ray(a, e2, qc, rho_c, w_star, sg, a0, rc, rc2, z0, m, ell, h_off, h_top):
+    """Interval ``(lo, hi)`` (float32) of the bull-nose sweep on one ray of
+    :func:`_rows_bull` (``qc = Rc^2 - e^2``, ``rho_c`` its root, ``w_star`` the ray's
+    ``w``) and whether the ray is within reach."""
+    s_lo = max(a - rho_c, 0.0)
+    s_hi = min(a + rho_c, ell)
+    s = min(max(a - sg * w_star, s_lo), s_hi)
+    w = a - s
+    t = max(math.sqrt(e2 + w * w) - a0, 0.0)
+    v = np.float32(z0 + m * s + h_off + rc - math.sqrt(max(rc2 - t * t, 0.0)))
+    top = np.float32(z0 + h_top + max(m * s_lo, m * s_hi))
+    return v, top, (qc >= 0.0) & (s_lo <= s_hi) & (v < top)
 
 
 @nb.njit(cache=True)
@@ -865,6 +950,33 @@ def _trace_due(ts, mv):
     return False
 
 
+@nb.njit(cache=True, inline="always")
+def _behind_cut(code, R, rc, cot, m, sin_t):
+    """``(skip, a_cut)``: on a move chained to the previous one, the rays with
+    ``a <= a_cut`` (mm along the move from its start) have the lowest point of the sweep
+    at the start, where the previous move's end pose already cut them (see
+    :func:`cut_linear_batch`); ``skip`` False when no such half-plane is known.
+
+    The lowest point lies at ``s* <= a`` on a level or climbing move for every convex
+    tool but the flat one descending. Descending: the ball at ``s* <= a + R |sin t|``
+    (the capsule); the bull-nose, a ball of radius ``rc`` about each point of its flat
+    of radius ``R - rc``, at ``s* <= a + (R - rc) + rc |sin t|``; the cone, at
+    ``s* = a + |e| |g| / sqrt(1 - g^2)`` with ``g = m / cot`` and ``|e| <= R``, or at the
+    end of the move when ``g <= -1``. A spare 1e-9 mm keeps rays on the line cut.
+    """
+    if code == CODE_BALL:
+        return True, -R * abs(sin_t) - 1e-9
+    if m >= 0.0:
+        return True, -1e-9
+    if code == CODE_BULL:
+        return True, -(R - rc) - rc * abs(sin_t) - 1e-9
+    if code == CODE_CONE:
+        g = -m / cot
+        if g < 1.0:
+            return True, -R * g / math.sqrt(1.0 - g * g) - 1e-9
+    return False, 0.0
+
+
 @nb.njit(cache=True)
 def _stadium_span(ax, ay, dx, dy, rad, y):
     """X range ``(lo, hi)`` of the line at height ``y`` within ``rad`` of the segment from
@@ -943,7 +1055,10 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     whose lowest point of the sweep lies at the start (behind it): the previous move's
     end pose was already cut there, as deep, and its flutes reached above ``top_bound``,
     so nothing is left for this move on those rays. For a level or climbing flat end mill
-    and for a ball that is every ray with ``a <= -R |sin(slope)|`` (``a`` along the move).
+    and for a ball that is every ray with ``a <= -R |sin(slope)|`` (``a`` along the move);
+    for the other shapes see :func:`_behind_cut` (the bull-nose and cone row kernels
+    also leave out, on rows along the move, the rays past that half-plane whose lowest
+    point is the start).
 
     Rays within reach, per row: those within ``Rc`` (+ ``REACH_PAD``) of the move's XY
     segment (its stadium; :func:`_stadium_span`); none in a row where the tool's lowest
@@ -1056,12 +1171,7 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
         a_cut = 0.0
         if (not probe and k > 0 and ell > 0.0 and P1[k - 1, 0] == x0 and P1[k - 1, 1] == y0
                 and P1[k - 1, 2] == z0 and min(P0[k - 1, 2], z0) + h_top >= top_bound):
-            if code == CODE_BALL:
-                skip_behind = True
-                a_cut = -R * abs(sin_t) - 1e-9
-            elif code == CODE_FLAT and m >= 0.0:
-                skip_behind = True
-                a_cut = -1e-9
+            skip_behind, a_cut = _behind_cut(code, R, tp[2], tp[3], m, sin_t)
         # the tool's lowest point in a row at distance dym from the path: at or above
         # zmin + h_off + h*(dym); a row where that clears every top cannot change
         zmin = min(z0, z0 + dz) + h_off
@@ -1128,10 +1238,10 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                        row_ia, row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
         elif ell > 0.0 and code == CODE_BULL:
             _rows_bull(R, tp[2], Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
-                       row_ia, row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
+                       row_ia, row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag, skip_behind)
         elif ell > 0.0 and code == CODE_CONE:
             _rows_cone(tp[3], Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
-                       row_ia, row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)
+                       row_ia, row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag, skip_behind)
         else:
             _rows_any(tp, x0, y0, z0, dz, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
                       row_ilo, row_off, cnt, near, far, buf_lo, buf_hi, flag)

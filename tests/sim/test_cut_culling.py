@@ -95,12 +95,7 @@ def _cut_box_rows(S, gx0, gy0, sp, nu, nv, P0, P1, seg_id, tp, eps, top_bound):
         a_cut = 0.0
         if (k > 0 and ell > 0.0 and P1[k - 1, 0] == x0 and P1[k - 1, 1] == y0
                 and P1[k - 1, 2] == z0 and min(P0[k - 1, 2], z0) + h_top >= top_bound):
-            if code == K.CODE_BALL:
-                skip_behind = True
-                a_cut = -R * abs(sin_t) - 1e-9
-            elif code == K.CODE_FLAT and m >= 0.0:
-                skip_behind = True
-                a_cut = -1e-9
+            skip_behind, a_cut = K._behind_cut(code, R, tp[2], tp[3], m, sin_t)
         nrows = jhi - jlo + 1
         row_off[0] = 0
         for jj in range(nrows):
@@ -134,10 +129,10 @@ def _cut_box_rows(S, gx0, gy0, sp, nu, nv, P0, P1, seg_id, tp, eps, top_bound):
                          row_ilo, row_ilo, row_off, S[0], S[1], S[2], lo, hi, flag)
         elif ell > 0.0 and code == K.CODE_BULL:
             K._rows_bull(R, tp[2], Rc, tp[4], h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
-                         row_ilo, row_ilo, row_off, S[0], S[1], S[2], lo, hi, flag)
+                         row_ilo, row_ilo, row_off, S[0], S[1], S[2], lo, hi, flag, skip_behind)
         elif ell > 0.0 and code == K.CODE_CONE:
             K._rows_cone(tp[3], Rc, tp[4], h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
-                         row_ilo, row_ilo, row_off, S[0], S[1], S[2], lo, hi, flag)
+                         row_ilo, row_ilo, row_off, S[0], S[1], S[2], lo, hi, flag, skip_behind)
         else:
             K._rows_any(tp, x0, y0, z0, dz, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
                         row_ilo, row_off, S[0], S[1], S[2], lo, hi, flag)
