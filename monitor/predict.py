@@ -152,9 +152,8 @@ def _solid_grid(frame: Frame, solid: Solid, mesh, tol: Tolerance) -> DexelGrid:
         lo, hi = solid.bounds()
         return solids.box_grid(frame, lo, hi, tol=tol)
     if solid.kind == "cylinder":
-        cx, cy, r, z0, z1 = solid.cylinder
-        o = solid.offset
-        return solids.cylinder_grid(frame, (cx + o[0], cy + o[1], z0 + o[2]), (0, 0, 1), r, z1 - z0, tol=tol)
+        base, direction, r, h = solid.cylinder_placement()
+        return solids.cylinder_grid(frame, base, direction, r, h, tol=tol)
     return solids.mesh_grid(frame, mesh, tol=tol)
 
 
@@ -214,6 +213,10 @@ class Workpiece:
     default_tool: object
     tol: Tolerance
     fixture_names: list[str] = field(default_factory=list)
+    #: the machine's kinematics (None: 3-axis) and the machine pose (6,) of the work frame's
+    #: origin (the job's reference work offset): rows with rotation are cut on the turned part
+    kinematics: object | None = None
+    origin: np.ndarray | None = None
 
     def tool(self, number: int):
         return self.tools.get(int(number), self.default_tool)
@@ -254,7 +257,19 @@ def build_workpiece(job: Job, moves: np.ndarray) -> Workpiece:
             blo, bhi = job.design.bounds()
             mesh = trimesh.creation.box(bounds=[blo, bhi])
             design = DesignModel(frame, mesh, name="design box")
-    return Workpiece(frame, stock, fixtures, design, tools, default, job.tolerance, names)
+    rotary = job.kinematics if job.kinematics.rotaries else None
+    return Workpiece(frame, stock, fixtures, design, tools, default, job.tolerance, names,
+                     kinematics=rotary, origin=work_origin(job) if rotary is not None else None)
+
+
+def work_origin(job: Job) -> np.ndarray:
+    """Machine X Y Z (mm) A B C (deg) of the job's work zero, (6,): the job's
+    ``work_offset`` when it gives one, else its .var file's (zeros without one). The
+    kinematics' points (``rot_point``) are machine coordinates; this places the model."""
+    out = reference_wco(job)
+    if job.work_offset is not None:
+        out[:3] = job.work_offset
+    return out
 
 
 def _fixture_grid(solid: Solid, mesh, spacing: float, reach: float, tol: Tolerance) -> DexelGrid:
@@ -316,7 +331,8 @@ def make_checker(wp: Workpiece, stock: DexelGrid, limits: dict | None, wco):
     from sim.checks.checker import Checker
 
     return Checker(stock, wp.default_tool, design=wp.design, fixtures=wp.fixtures,
-                   limits=limits_in_work(limits, wco), tol=wp.tol, tools=wp.tools, min_volume=MIN_VOLUME)
+                   limits=limits_in_work(limits, wco), tol=wp.tol, tools=wp.tools, min_volume=MIN_VOLUME,
+                   kinematics=wp.kinematics, origin=wp.origin)
 
 
 def _checked(checker, rows: np.ndarray, ids: np.ndarray, wco):

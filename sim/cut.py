@@ -13,8 +13,14 @@ How each move row is swept (tip positions from :func:`sim.gcode.moves.tip_positi
   along the true arc.
 * DWELL, TOOL_CHANGE, PROBE, PAUSE, END rows remove nothing.
 
-The A B C columns are ignored: moves are 3-axis with the tool axis along +Z. Tilted and
-5-axis poses go through :meth:`Cutter.cut_poses` / :meth:`Cutter.cut_segment` with axes.
+The A B C columns turn nothing unless the Cutter has a :class:`sim.kinematics.Kinematics`
+with rotaries (``kinematics=``): then a batch with any row whose rotaries are not all 0
+(or change) is cut by instances of motion of the machine axes interpolated linearly
+(:func:`sim.kinematics.move_instances`, no tool point moves more than
+``tol.instance_fraction * spacing`` between two), each placed on the part by the
+kinematics (see :meth:`Cutter._rotary_poses`). Without one (the default) the moves are
+3-axis with the tool axis along +Z. Tilted and 5-axis poses can also be cut directly
+through :meth:`Cutter.cut_poses` / :meth:`Cutter.cut_segment` with axes.
 Rapids cut like feeds (the checks decide whether that was allowed); the cutter does not
 judge ``center_cutting`` either.
 """
@@ -33,6 +39,7 @@ from sim import sweep_kernels as K
 from sim.errors import InputError
 from sim.gcode.moves import MoveKind, tip_positions
 from sim.grid import DexelGrid
+from sim.kinematics import ROTARY_COLUMN, Kinematics, instance_poses
 from sim.tolerance import DEFAULT, Tolerance
 from sim.tools import Body, Tool
 
@@ -224,14 +231,29 @@ class Cutter:
     ``tool`` column of the move table (rows whose tool is not in the dict use ``tool``).
     threads: how many threads a large batch may cut on (bands of rows, :mod:`sim.bands`);
     default :func:`sim.bands.default_threads`; 1 keeps every cut on the calling thread.
+    kinematics: the machine's :class:`sim.kinematics.Kinematics` (default None: 3-axis,
+    A B C ignored). origin: (6,) machine X Y Z (mm) A B C (deg) of the grid's frame
+    origin, the job's reference work offset (default 0): a row's machine pose is its
+    ``start``/``end`` plus ``origin`` (X Y Z as the gauge point, the row's tool length
+    added back), and the tips the kinematics puts on the part are shifted back by
+    ``origin[:3]`` into the grid's frame.
     """
 
     def __init__(self, grid: DexelGrid, tool: Tool, tol: Tolerance = DEFAULT,
-                 tools: dict[int, Tool] | None = None, threads: int | None = None):
+                 tools: dict[int, Tool] | None = None, threads: int | None = None,
+                 kinematics: Kinematics | None = None, origin=None):
         if not isinstance(grid, DexelGrid):
             raise InputError(f"Cutter needs a DexelGrid, got {type(grid).__name__}")
         if not isinstance(tool, Tool):
             raise InputError(f"Cutter needs a Tool, got {type(tool).__name__}")
+        if kinematics is not None and not isinstance(kinematics, Kinematics):
+            raise InputError(f"Cutter kinematics must be a sim.kinematics.Kinematics, got "
+                             f"{type(kinematics).__name__}")
+        # a kinematics that turns nothing is the 3-axis cutter, with no per-batch test
+        self.kinematics = kinematics if kinematics is not None and kinematics.rotaries else None
+        self.origin = np.zeros(6) if origin is None else np.asarray(origin, np.float64).reshape(6).copy()
+        self._rot_cols = (np.array([ROTARY_COLUMN[r] for r in self.kinematics.rotaries])
+                          if self.kinematics is not None else None)
         self.grid = grid
         self.tool = tool
         self.tol = tol
@@ -340,7 +362,7 @@ class Cutter:
             self._execute(work, body, out, probe=True, log=None)
             return float(out[0] * self.grid.frame.spacing**2)
         scratch = self.grid.copy()
-        Cutter(scratch, self.tool, self.tol)._execute(work, body, out, probe=False, log=None)
+        self._child(scratch)._execute(work, body, out, probe=False, log=None)
         return float(out[0] * self.grid.frame.spacing**2)
 
     # --- planning -----------------------------------------------------------------------
@@ -389,19 +411,26 @@ class Cutter:
         lin = ((kind == _LINEAR_KINDS[0]) | (kind == _LINEAR_KINDS[1])) & ~bad
         arc = ((kind == _ARC_KINDS[0]) | (kind == _ARC_KINDS[1])) & ~bad
         exact = self._exact(body)
+        turning = self._turning_rows(moves, lin | arc)
+        if turning is not None:  # a batch with rotation is cut by instances, in row order
+            exact = False
         if exact and not arc.any():  # the live monitor's few rows per poll: no per-row work
             work.segments(start[lin], end[lin], rows[lin], ids[lin])
             return work
         length = body.flute_length if isinstance(body, Tool) else body.top
         # the pieces of every row: (first point, last point) arrays per row
         pieces: dict[int, np.ndarray] = {}
+        tilted: dict[int, np.ndarray] = {}  # row -> its instances' axes (rows with rotation)
         for k in np.nonzero(arc)[0]:
             center = np.array(moves["center"][k], np.float64)
             center[2] -= moves["tool_length"][k]
             cw = kind[k] == int(MoveKind.ARC_CW)
             plane = int(moves["plane"][k])
             turns = int(moves["turns"][k]) or 1
-            if exact:
+            if turning is not None and turning[k]:
+                pieces[k], tilted[k] = self._rotary_poses(moves[k], start[k], end[k], body,
+                                                          arc=(center, plane, turns, cw))
+            elif exact:
                 pq = sweep.PLANE_AXES[plane][:2]
                 radius = max(float(np.hypot(*(start[k][list(pq)] - center[list(pq)]))), 1e-9)
                 pieces[k] = sweep.arc_points(start[k], end[k], center, plane, turns, cw,
@@ -412,7 +441,10 @@ class Cutter:
             multi[rows[k]] = True
         if not exact:
             for k in np.nonzero(lin)[0]:
-                pieces[k], _ = sweep.instances(start[k], end[k], _Z_AXIS, _Z_AXIS, length, self._step())
+                if turning is not None and turning[k]:
+                    pieces[k], tilted[k] = self._rotary_poses(moves[k], start[k], end[k], body)
+                else:
+                    pieces[k], _ = sweep.instances(start[k], end[k], _Z_AXIS, _Z_AXIS, length, self._step())
                 multi[rows[k]] = True
         # sizes per row -> offsets, then fill linear rows vectorised and the rest per row
         if exact:
@@ -439,11 +471,61 @@ class Cutter:
             tips = np.empty((total, 3))
             for k, pts in pieces.items():
                 tips[off[k]:off[k + 1]] = pts
+            axes = np.broadcast_to(_Z_AXIS, tips.shape).copy()
+            for k, ax in tilted.items():
+                axes[off[k]:off[k + 1]] = ax
             work.pose_tip.append(tips)
-            work.pose_axis.append(np.broadcast_to(_Z_AXIS, tips.shape).copy())
+            work.pose_axis.append(axes)
             work.pose_move.append(rows[owner].astype(np.int64))
             work.pose_id.append(ids[owner].astype(np.int32))
         return work
+
+    def _turning_rows(self, moves, moving) -> np.ndarray | None:
+        """Which ``moving`` rows a rotary of the kinematics turns (not all 0 at both ends,
+        machine angles: the row's plus ``origin``), bool (n,); None when none does (or
+        there is no kinematics), so a 3-axis batch pays one test at most."""
+        if self._rot_cols is None:
+            return None
+        o = self.origin[self._rot_cols]
+        a0 = moves["start"][:, self._rot_cols] + o
+        a1 = moves["end"][:, self._rot_cols] + o
+        turning = moving & ((a0 != 0.0).any(axis=1) | (a1 != 0.0).any(axis=1))
+        return turning if turning.any() else None
+
+    def _rotary_poses(self, row, tip0, tip1, body, arc=None) -> tuple[np.ndarray, np.ndarray]:
+        """Instances of motion of one row with rotation: tips and axes ((k, 3) each) in the
+        grid's frame. ``tip0``/``tip1`` (3,) mm are the row's tips as the table gives them
+        (its X Y Z less its tool length); ``arc``: (centre (3,) tip coords, plane, turns,
+        clockwise) for an arc row. Every machine axis moves linearly (along the arc for
+        X Y Z of an arc), as GRBL and LinuxCNC's joint moves do; the count bounds how far
+        any point of ``body`` (its profile's radius x height) moves between two."""
+        kin = self.kinematics
+        L = float(row["tool_length"])
+        lift = np.array([0.0, 0.0, L])
+        a = np.concatenate([tip0 + lift, row["start"][3:]]) + self.origin
+        b = np.concatenate([tip1 + lift, row["end"][3:]]) + self.origin
+        prof = body.profile
+        height, radius = float(prof[-1, 0]), float(prof[:, 1].max())
+        count = int(kin.instance_counts(a, b, L, height, radius, self._step())[0])
+        if arc is None:
+            poses = instance_poses(a, b, count)
+        else:
+            center, plane, turns, cw = arc
+            pts = sweep.arc_points(tip0, tip1, center, plane, turns, cw, max_step_length=self._step())
+            if len(pts) - 1 < count:  # the rotaries need finer steps than the arc's path
+                pts = sweep.arc_points(tip0, tip1, center, plane, turns, cw,
+                                       max_step_length=self._step() * (len(pts) - 1) / count)
+            f = np.linspace(0.0, 1.0, len(pts))[:, None]
+            poses = np.empty((len(pts), 6))
+            poses[:, :3] = pts + lift + self.origin[:3]
+            poses[:, 3:] = a[3:] + f * (b[3:] - a[3:])
+        tips, axes = kin.forward(poses, L)
+        return tips - self.origin[:3], axes
+
+    def _child(self, grid: DexelGrid) -> "Cutter":
+        """A Cutter on another grid (a scratch copy, a window) with this one's tool,
+        tolerance, kinematics and origin."""
+        return Cutter(grid, self.tool, self.tol, kinematics=self.kinematics, origin=self.origin)
 
     def _segment_work(self, p0, p1, move_id, axis, axis1, body) -> _Work:
         p0 = np.asarray(p0, np.float64).reshape(1, 3)
@@ -607,6 +689,9 @@ class Cutter:
             r = float(np.linalg.norm(start[0] - np.where(np.isfinite(c), c, start[0])))
             pts = np.concatenate([pts, c[None, :] - r, c[None, :] + r])
             pts = pts[np.isfinite(pts).all(axis=1)]
+        if self._turning_rows(moves, np.ones(len(moves), bool)) is not None:
+            # a turning part: the tool reaches wherever the rotation takes it; the whole grid
+            return self._child(self.grid.copy())._cut_with(moves, body)
         prof = body.profile
         reach = float(prof[:, 1].max()) + float(prof[-1, 0])
         local = f.to_local(pts)
@@ -617,7 +702,7 @@ class Cutter:
         if i1 <= i0 or j1 <= j0:
             return np.zeros(1)
         scratch = self.grid.window(i0, i1, j0, j1)
-        sub = Cutter(scratch, self.tool, self.tol)
+        sub = self._child(scratch)
         res = sub._cut_with(moves, body)
         return res
 

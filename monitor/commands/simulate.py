@@ -379,7 +379,8 @@ def _run_job(args) -> int:
         checker = Checker(wp.stock, wp.default_tool, design=wp.design, fixtures=wp.fixtures,
                           limits=limits_in_work(job.limits, wco), tol=job.tolerance, tools=wp.tools,
                           max_depth_of_cut=_positive(args.max_depth_of_cut, "--max-depth-of-cut"),
-                          min_volume=MIN_VOLUME, undercut_from_path=not (job.undercut_given or t_h))
+                          min_volume=MIN_VOLUME, undercut_from_path=not (job.undercut_given or t_h),
+                          kinematics=wp.kinematics, origin=wp.origin)
     out = {"job": str(path)}
     notes = []
     used = set(int(t) for t in moves["tool"])
