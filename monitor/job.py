@@ -58,7 +58,7 @@ needs; paths are relative to the job file's folder)::
     [alerts]
     actions = ["log", "bell"]   # "feed_hold" lets dexmon hold the feed on a finding
     [machine]                   # program timing (lead times); each key overrides the controller's
-    max_rate = [5000, 5000, 2000]   # mm/min (one number: every axis)
+    max_rate = [5000, 5000, 2000]   # mm/min (one number: every axis; six: + A B C deg/min)
     acceleration = [300, 300, 200]  # mm/s^2
     junction_deviation = 0.01       # mm
     start = [0, 0, 0]           # where the machine stands when the program starts: machine
@@ -205,6 +205,15 @@ class Job:
     #: the machine's kinematics ([machine] kinematics and its parameters): how A B C turn
     #: the part or the tool (sim.kinematics); plain 3-axis by default
     kinematics: Kinematics = field(default_factory=Trivial)
+
+    @property
+    def program_dialect(self) -> str:
+        """The dialect the program is read in: ``dialect``, and on a grbl machine whose
+        kinematics has rotaries, ``"grbl+"`` those letters (grblHAL with 4+ axes takes
+        their words; plain Grbl 1.1 refuses A B C)."""
+        if self.dialect == "grbl" and self.kinematics.rotaries:
+            return "grbl+" + "".join(sorted(self.kinematics.rotaries))
+        return self.dialect
 
     def tool(self, number: int) -> ToolDef | None:
         """The tool for tool number ``number`` (the default tool when it is not listed)."""
@@ -569,7 +578,9 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
                 v = t[key]
                 if isinstance(v, (int, float)) and not isinstance(v, bool):
                     v = [v, v, v]
-                vals = ctx.numbers(v, 3, f"[machine] {key}", f"{unit}, one or three")
+                # six: X Y Z and the rotaries A B C (deg/min, deg/s^2)
+                count = 6 if isinstance(v, list) and len(v) == 6 else 3
+                vals = ctx.numbers(v, count, f"[machine] {key}", f"{unit}, one, three (X Y Z) or six (+ A B C)")
                 if min(vals) <= 0:
                     raise ctx.err(f"[machine] {key}", f"positive numbers ({unit})", t[key])
                 m[key] = vals

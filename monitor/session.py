@@ -85,7 +85,7 @@ def load_moves(job: Job) -> tuple[np.ndarray, object]:
     from monitor.start import job_start, start_at
     from sim.gcode import Limits, load_program
 
-    program = load_program(job.program, dialect=job.dialect, tool_table=job.tool_table, var_file=job.var_file,
+    program = load_program(job.program, dialect=job.program_dialect, tool_table=job.tool_table, var_file=job.var_file,
                            machine_units=job.machine_units, limits=Limits(max_loop=job.max_loop),
                            block_delete=job.block_delete,
                            subroutine_path=[str(d) for d in job.subroutine_path] or None)

@@ -359,7 +359,7 @@ def _run_job(args) -> int:
         raise InputError("no such program file", where=f"{path}: [program] path {job.program}")
     table = read_tool_table(job.tool_table, job.machine_units) if job.tool_table else None
     # one frame: the job's work system; rows in other systems land at their offsets from it
-    program = load_program(job.program, job.dialect, table, job.var_file, job.machine_units,
+    program = load_program(job.program, job.program_dialect, table, job.var_file, job.machine_units,
                            [str(d) for d in job.subroutine_path], args.max_loop or job.max_loop,
                            bool(args.block_delete) or job.block_delete)
     # from where the machine starts, as a dry run does (monitor.start)
