@@ -544,7 +544,9 @@ class LiveChecks:
             arrived_row: int | None = None):
         """Cut the polyline ``points`` (k+1, 3) mm (work tip), piece ``q`` belonging to
         program row ``rows[q]`` (int, (k,)); return ``(removed mm^3, changed rays int64,
-        findings)``.
+        findings)``. ``points`` (k+1, 6) adds the work A B C (deg) at each point (a
+        rotary job: the pieces turn as the machine did); with 3 columns each piece takes
+        its row's programmed angles.
 
         ``spindle_rpm``: the speed the controller reports (None: take the program's).
         ``arrived_row``: the row of the piece that ended at ``points[0]`` (the last one
@@ -580,10 +582,14 @@ class LiveChecks:
         m["line"] = self._line[rows]
         m["kind"] = self._kind[rows]
         start, end = m["start"], m["end"]
-        start[:, :3] = pts[:-1]
-        end[:, :3] = pts[1:]
-        start[:, 3:] = self._rot0[rows]
-        end[:, 3:] = self._rot1[rows]
+        if pts.shape[1] == 6:
+            start[:] = pts[:-1]
+            end[:] = pts[1:]
+        else:
+            start[:, :3] = pts[:-1]
+            end[:, :3] = pts[1:]
+            start[:, 3:] = self._rot0[rows]
+            end[:, 3:] = self._rot1[rows]
         m["feed"] = self._feed[rows]
         m["tool"] = self._tool[rows]
         if spindle_rpm is None:
