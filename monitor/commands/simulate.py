@@ -393,7 +393,8 @@ def _run_job(args) -> int:
     notes.append(design_note(checker, job.design.stl if job.design is not None else None))
     return _simulate(args, str(job.program), moves, wp.stock, wp.default_tool, wp.tools, checker, out,
                      true_volume=stock_true_volume(solid=job.stock), notes=[n for n in notes if n], inch=program.inch,
-                     machine={**DEFAULT_MACHINE, **(job.machine or {})})
+                     machine={**DEFAULT_MACHINE, **(job.machine or {})}, kinematics=wp.kinematics,
+                     origin=wp.origin)
 
 
 def _setup_findings(moves, grid, tool, tools, checker, inch: bool) -> list:
@@ -430,8 +431,10 @@ def move_start_times(moves: np.ndarray, machine=None) -> np.ndarray:
 
 
 def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, true_volume=None,
-              notes=(), inch: bool = False, machine=None) -> int:
+              notes=(), inch: bool = False, machine=None, kinematics=None, origin=None) -> int:
     """Cut (and check) ``moves`` into ``grid``; print the report; return the exit status.
+    ``kinematics``/``origin``: the job's rotaries for the unchecked cut (the checker has
+    its own).
 
     With checks, a setup that cannot be meant (:mod:`sim.checks.setup`: the path never
     reaches the stock, the design is not in the stock) is reported first, as findings.
@@ -461,7 +464,8 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
 
             notes = [*notes, note(*checker.undercut_basis, checker.tol.undercut)]
     else:
-        per_move = Cutter(grid, tool, tools=tools or None).cut_moves(moves, record_changes=False).removed
+        per_move = Cutter(grid, tool, tools=tools or None, kinematics=kinematics, origin=origin).cut_moves(
+            moves, record_changes=False).removed
         findings = []
     seconds = time.perf_counter() - t0
     grid_after = grid.volume(weights="trapezoid")

@@ -77,3 +77,14 @@ def test_sync_follows_a_move_that_turns_only_a(ring_session):
     # every step turned the bar under the tool: a 0.5 mm deep ring is cut piece by piece
     assert all(r > 0 for r in removed)
     assert not s.findings
+
+
+def test_simulate_without_checks_cuts_on_the_turned_bar(capsys):
+    """--no-checks cuts with the job's kinematics too: the rings and flutes remove what
+    they remove with checks (it cut 3 axes, A ignored: every flute on the bar's top,
+    about a third of the volume)."""
+    main(["simulate", str(JOB), "--resolution", "0.5", "--json"])
+    checked = json.loads(capsys.readouterr().out)["removed_mm3"]
+    main(["simulate", str(JOB), "--resolution", "0.5", "--json", "--no-checks"])
+    unchecked = json.loads(capsys.readouterr().out)["removed_mm3"]
+    assert unchecked == pytest.approx(checked, rel=1e-9)
