@@ -45,6 +45,14 @@ def row_seconds(moves: np.ndarray, rapid_rate: float = DEFAULT_RAPID_RATE,
     the machine ``start/end`` columns.
     """
     lengths = row_lengths(moves, position)
+    # the rotaries' degrees count as mm, as the timing counts them (sim.gcode.timing):
+    # a row turning only A takes time (only rows that turn: 3-axis rows keep their length)
+    p0, p1 = _ends(moves, position)
+    turn = np.asarray(p1[:, 3:6] - p0[:, 3:6], np.float64)
+    turning = np.any(turn != 0.0, axis=1)
+    if turning.any():
+        lengths = lengths.copy()
+        lengths[turning] = np.hypot(lengths[turning], np.linalg.norm(turn[turning], axis=1))
     kind = moves["kind"]
     feed = np.where(kind == MoveKind.RAPID, rapid_rate, moves["feed"]).astype(np.float64)
     # G93 inverse time: the row takes 1/F minutes whatever its length

@@ -88,3 +88,41 @@ def test_simulate_without_checks_cuts_on_the_turned_bar(capsys):
     main(["simulate", str(JOB), "--resolution", "0.5", "--json", "--no-checks"])
     unchecked = json.loads(capsys.readouterr().out)["removed_mm3"]
     assert unchecked == pytest.approx(checked, rel=1e-9)
+
+
+def test_stock_cylinder_along_x_and_its_errors():
+    from monitor.job import JobError, parse_job_text
+
+    job = parse_job_text('[stock]\ncylinder = [1, 2, 5, 0, 60]\naxis = "x"\n')
+    assert job.stock.axis == "x"
+    assert job.stock.bounds() == ((0.0, -4.0, -3.0), (60.0, 6.0, 7.0))
+    assert job.stock.cylinder_placement() == ((0.0, 1.0, 2.0), (1.0, 0.0, 0.0), 5.0, 60.0)
+    # a Z cylinder stays what it was
+    z = parse_job_text("[stock]\ncylinder = [1, 2, 5, 0, 10]\n").stock
+    assert z.bounds() == ((-4.0, -3.0, 0.0), (6.0, 7.0, 10.0))
+    with pytest.raises(JobError, match=r'\[stock\] axis: expected "x", "y" or "z"'):
+        parse_job_text('[stock]\ncylinder = [1, 2, 5, 0, 60]\naxis = "a"\n')
+    with pytest.raises(JobError, match=r"\[stock\] cylinder: expected radius > 0 and x0 < x1"):
+        parse_job_text('[stock]\ncylinder = [1, 2, 5, 60, 0]\naxis = "x"\n')
+    with pytest.raises(JobError, match=r"\[stock\].*axis"):
+        parse_job_text('[stock]\nbox = [0, 0, 0, 1, 1, 1]\naxis = "x"\n')
+
+
+def test_program_path_with_angles_makes_a_turn_a_segment():
+    """A row turning only A is a point in X Y Z; with the rotary scale it has a length,
+    and positions along the turn project onto it in order."""
+    from monitor.sync import ProgramPath, ProgramSync
+    from sim.gcode.program import interpret
+
+    moves = interpret("G21 G90\nG0 X10 Z5\nG1 A90 F900\nG1 X20 F900\n").moves
+    flat = ProgramPath.from_moves(moves)
+    six = ProgramPath.from_moves(moves, rotary_scale=0.2)
+    turn = int(np.nonzero(moves["line"] == 3)[0][0])
+    assert six.p0.shape[1] == 6 and len(six) == len(flat)
+    seg = int(np.nonzero(six.row == turn)[0][0])
+    assert np.linalg.norm(flat.p1[seg] - flat.p0[seg]) == 0.0
+    assert np.linalg.norm(six.p1[seg] - six.p0[seg]) == pytest.approx(18.0)
+    sync = ProgramSync(six)
+    got = [sync.update([10, 0, 5, 0.2 * a, 0, 0], t=k * 0.1) for k, a in enumerate((0, 30, 60, 90))]
+    assert [g.row for g in got[1:]] == [turn] * 3
+    assert got[1].progress < got[2].progress < got[3].progress
