@@ -254,6 +254,9 @@ class Cutter:
         self.origin = np.zeros(6) if origin is None else np.asarray(origin, np.float64).reshape(6).copy()
         self._rot_cols = (np.array([ROTARY_COLUMN[r] for r in self.kinematics.rotaries])
                           if self.kinematics is not None else None)
+        #: rotary batches: cut the body above the height that can reach material off
+        #: (:meth:`_reaching_profile`); False cuts with the whole body (the tests' reference)
+        self.trim_body = True
         self.grid = grid
         self.tool = tool
         self.tol = tol
@@ -522,6 +525,57 @@ class Cutter:
         tips, axes = kin.forward(poses, L)
         return tips - self.origin[:3], axes
 
+    def _material_box(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(lo, hi) (3,) frame-local mm of the material now in the grid (ray feet of the
+        rays holding any, from the lowest near to the highest far); None when empty."""
+        f = self.grid.frame
+        counts = self.grid.counts
+        rows = np.nonzero(counts.any(axis=1))[0]
+        if rows.size == 0:
+            return None
+        cols = np.nonzero(counts.any(axis=0))[0]
+        held = self.grid.store["count"] > 0
+        top = self.grid.top()
+        lo = np.array([cols[0] * f.spacing, rows[0] * f.spacing, float(self.grid.store["near"][held].min())])
+        hi = np.array([cols[-1] * f.spacing, rows[-1] * f.spacing, float(np.nanmax(top))])
+        return lo, hi
+
+    def _reaching_profile(self, prof: np.ndarray, tips: np.ndarray, axes: np.ndarray) -> np.ndarray:
+        """``prof`` cut at the height along the tool above which no instance (frame-local
+        ``tips``/``axes`` (k, 3)) can reach the material's box: the same cut, a smaller
+        body (a tilted or turned tool's long flutes and shank sweep a wide footprint of
+        rays that hold nothing at their height). At least the profile's first segment."""
+        box = self._material_box()
+        bot, top = float(prof[0, 0]), float(prof[-1, 0])
+        if box is None:
+            h = bot
+        else:
+            grow = float(prof[:, 1].max()) + 2 * self.grid.frame.spacing + self.tol.length
+            lo, hi = box[0] - grow, box[1] + grow
+            # per instance, the heights h at which tip + h * axis is inside the grown box
+            enter = np.full(len(tips), bot)
+            leave = np.full(len(tips), top)
+            for c in range(3):
+                a, p = axes[:, c], tips[:, c]
+                flat = np.abs(a) < 1e-12
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    h0, h1 = (lo[c] - p) / a, (hi[c] - p) / a
+                outside = flat & ((p < lo[c]) | (p > hi[c]))
+                enter = np.where(flat, enter, np.maximum(enter, np.minimum(h0, h1)))
+                leave = np.where(flat, leave, np.minimum(leave, np.maximum(h0, h1)))
+                leave = np.where(outside, -np.inf, leave)
+            reach = leave[leave >= enter]
+            h = float(reach.max()) if reach.size else bot
+        # never below a sliver of the first segment: the kernels want a body
+        h = max(h, bot + min(self.grid.frame.spacing, float(prof[1, 0]) - bot))
+        if h >= top:
+            return prof
+        # the body below h exactly: the vertices under it and the profile's point at h
+        k = int(np.searchsorted(prof[:, 0], h, side="right"))  # prof[k-1, 0] <= h < prof[k, 0]
+        (h0, r0), (h1, r1) = prof[k - 1], prof[k]
+        r = r0 + (h - h0) / (h1 - h0) * (r1 - r0)
+        return np.ascontiguousarray(np.vstack([prof[:k], [[h, r]]]))
+
     def _child(self, grid: DexelGrid) -> "Cutter":
         """A Cutter on another grid (a scratch copy, a window) with this one's tool,
         tolerance, kinematics and origin."""
@@ -561,6 +615,8 @@ class Cutter:
             tips_l = np.ascontiguousarray(f.to_local(tips))
             axes_l = np.ascontiguousarray(np.stack([axes @ f.u, axes @ f.v, axes @ f.direction], axis=1))
             axes_l /= np.linalg.norm(axes_l, axis=1, keepdims=True)
+            if self.kinematics is not None and self.trim_body:
+                prof = self._reaching_profile(prof, tips_l, axes_l)
             rmax = float(prof[:, 1].max())
             self._cut_poses(tips_l, axes_l, pm, pid, prof, rmax, removed, probe, log, sink)
 

@@ -196,3 +196,39 @@ def test_three_axis_default_is_unchanged():
     Cutter(b, tool, kinematics=FourthAxis("A")).cut_moves(moves[:0])
     for name in ("pool_near", "pool_far", "count"):
         assert np.array_equal(ref.store[name], a.store[name])
+
+
+@pytest.mark.parametrize("case", ["4axis", "5axis"])
+def test_body_cut_to_its_reach_cuts_the_same(case):
+    """Rotary batches cut with the tool's profile stopped where no instance can reach the
+    material's box (Cutter._reaching_profile): the model is bit for bit the whole body's."""
+    if case == "4axis":
+        tool = parse_tool_spec("ball:3:L=10")
+        stock = bar(radius=8.0)
+        kin = FourthAxis("A")
+        poses = [[10 + 0.5 * k, 0, 7.0, 15.0 * k, 0, 0] for k in range(30)]
+    else:
+        tool = parse_tool_spec("ball:6:L=20")
+        frame = Frame.top(-8, -8, 28, 18, SPACING)
+        stock = box_grid(frame, (-5, -5, -10), (25, 15, 0))
+        kin = HeadHead("B", pivot_length=50.0)
+        rot = np.array([[0.0, 25 * math.sin(x / 4), 0.0] for x in range(20)])
+        tips = np.array([[x, 5.0, -0.7] for x in range(20)])
+        poses = np.hstack([kin.machine_xyz(tips, rot, 0.0), rot])
+    moves = rows(*np.asarray(poses, float))
+    trimmed, whole = stock.copy(), stock.copy()
+    a = Cutter(trimmed, tool, kinematics=kin)
+    b = Cutter(whole, tool, kinematics=kin)
+    b.trim_body = False
+    ra = a.cut_moves(moves)
+    rb = b.cut_moves(moves)
+    assert np.array_equal(ra.removed, rb.removed)
+    rays = np.arange(stock.frame.n_rays)
+    for x, y in zip(trimmed.segments_of(rays), whole.segments_of(rays)):
+        assert np.array_equal(x, y)
+    # and the trim did cut the body short
+    f = stock.frame
+    t, ax = kin.forward(np.asarray(poses, float), 0.0)
+    axes_l = np.stack([ax @ f.u, ax @ f.v, ax @ f.direction], axis=1)
+    prof = a._reaching_profile(tool.profile, f.to_local(t), axes_l)
+    assert prof[-1, 0] < tool.profile[-1, 0]
