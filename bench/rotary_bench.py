@@ -114,7 +114,7 @@ def measure(case, repeat: int, threads: int) -> dict:
         flat_s.append(time.perf_counter() - t0)
         ratios.append(rot_s[-1] / flat_s[-1])
     rot = statistics.median(rot_s)
-    return {"bench": "rotary", "program": name, "kinematics": kin.name, "tool": str(tool.spec if hasattr(tool, "spec") else tool.kind),
+    return {"bench": "rotary", "program": name, "kinematics": kin.name, "tool": tool.kind,
             "moves": int(len(moves)), "instances": count, "spacing_mm": SPACING,
             "plan_s": round(statistics.median(plan_s), 4), "cut_s": round(rot, 4),
             "instances_per_s": round(count / rot), "moves_per_s": round(len(moves) / rot, 1),

@@ -181,6 +181,30 @@ class _Log:
 
 
 
+_UNIT_OF = {"A": np.array([1.0, 0.0, 0.0]), "B": np.array([0.0, 1.0, 0.0]), "C": np.array([0.0, 0.0, 1.0])}
+
+
+def _within_radius(tips, axes, point, direction, radius: float, enter, leave):
+    """``(enter, leave)`` narrowed to the heights h at which ``tips + h * axes`` ((k, 3))
+    lies within ``radius`` of the line through ``point`` along unit ``direction``."""
+    w = tips - point
+    w = w - (w @ direction)[:, None] * direction
+    k = axes - (axes @ direction)[:, None] * direction
+    a = np.einsum("ij,ij->i", k, k)
+    b = 2.0 * np.einsum("ij,ij->i", w, k)
+    c = np.einsum("ij,ij->i", w, w) - radius * radius
+    disc = b * b - 4.0 * a * c
+    along = a < 1e-18  # the tool along the line: all heights or none
+    with np.errstate(divide="ignore", invalid="ignore"):
+        root = np.sqrt(np.maximum(disc, 0.0))
+        h0 = (-b - root) / (2.0 * a)
+        h1 = (-b + root) / (2.0 * a)
+    enter = np.where(along, enter, np.maximum(enter, h0))
+    leave = np.where(along, np.where(c <= 0, leave, -np.inf), np.minimum(leave, h1))
+    leave = np.where(~along & (disc < 0), -np.inf, leave)
+    return enter, leave
+
+
 class _Work:
     """Accumulates the pieces a batch is made of: exact segments and instance poses."""
 
@@ -540,6 +564,36 @@ class Cutter:
         hi = np.array([cols[-1] * f.spacing, rows[-1] * f.spacing, float(np.nanmax(top))])
         return lo, hi
 
+    def _axis_line(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(point, unit direction) frame-local of the innermost table axis (the part sits
+        on it: fixed on the part), or None (no table axis)."""
+        if not self.kinematics.table:
+            return None
+        ax = self.kinematics.table[-1]
+        f = self.grid.frame
+        point = f.to_local(np.asarray(ax.point, np.float64) - self.origin[:3])
+        d = _UNIT_OF[ax.letter]
+        return point, np.array([d @ f.u, d @ f.v, d @ f.direction])
+
+    def _material_radius(self, point: np.ndarray, direction: np.ndarray) -> float:
+        """Largest distance (mm) of the material from the line (frame-local): at a ray's
+        first near or last far (distance from a line is convex along a ray)."""
+        f = self.grid.frame
+        held = np.nonzero(self.grid.store["count"] > 0)[0]
+        if held.size == 0:
+            return 0.0
+        j, i = np.divmod(held, f.nu)
+        feet = np.stack([i * f.spacing, j * f.spacing, np.zeros(held.size)], axis=1)
+        top = self.grid.top().reshape(-1)[held].astype(np.float64)
+        near = self.grid.store["near"][held].astype(np.float64)
+        out = 0.0
+        for s in (near, top):
+            q = feet.copy()
+            q[:, 2] = s
+            w = q - point
+            out = max(out, float(np.linalg.norm(w - (w @ direction)[:, None] * direction, axis=1).max()))
+        return out
+
     def _reaching_profile(self, prof: np.ndarray, tips: np.ndarray, axes: np.ndarray) -> np.ndarray:
         """``prof`` cut at the height along the tool above which no instance (frame-local
         ``tips``/``axes`` (k, 3)) can reach the material's box: the same cut, a smaller
@@ -564,6 +618,12 @@ class Cutter:
                 enter = np.where(flat, enter, np.maximum(enter, np.minimum(h0, h1)))
                 leave = np.where(flat, leave, np.minimum(leave, np.maximum(h0, h1)))
                 leave = np.where(outside, -np.inf, leave)
+            # a turning part: its material stays within a radius of the part's own
+            # (innermost) table axis, a line fixed on the part: the heights inside it
+            line = self._axis_line()
+            if line is not None:
+                enter, leave = _within_radius(tips, axes, *line, self._material_radius(*line) + grow,
+                                              enter, leave)
             reach = leave[leave >= enter]
             h = float(reach.max()) if reach.size else bot
         # never below a sliver of the first segment: the kernels want a body
