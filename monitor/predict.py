@@ -362,6 +362,24 @@ def row_costs(moves: np.ndarray, reach: float, spacing: float) -> np.ndarray:
     return np.where(moving, area, 0.0) + ROW_OVERHEAD_RAYS
 
 
+def rotary_row_costs(wp: Workpiece, moves: np.ndarray, reach: float) -> np.ndarray:
+    """Extra work of rows a rotary turns, float64 (n,) swept rays: their instances of
+    motion (:meth:`sim.kinematics.Kinematics.instance_counts` of the machine poses, the
+    tallest tool) times the rays under one tool (0 for rows that do not turn)."""
+    out = np.zeros(len(moves))
+    turning = np.any(moves["start"][:, 3:] != moves["end"][:, 3:], axis=1) | \
+        np.any(moves["start"][:, 3:] != 0.0, axis=1)
+    if not turning.any():
+        return out
+    height = max(float(t.profile[-1, 0]) for t in [*wp.tools.values(), wp.default_tool])
+    origin = np.zeros(6) if wp.origin is None else np.asarray(wp.origin, np.float64)
+    step = wp.tol.instance_fraction * wp.frame.spacing
+    count = wp.kinematics.instance_counts(moves["start"][turning] + origin, moves["end"][turning] + origin,
+                                          0.0, height, reach, step)
+    out[turning] = (count + 1) * (2.0 * reach / wp.frame.spacing + 2.0) ** 2
+    return out
+
+
 class Lookahead:
     """Cut and check the program ahead of the spindle on a scratch copy of the live stock.
 
@@ -386,7 +404,10 @@ class Lookahead:
         self.limits = {k.upper(): v for k, v in (limits or {}).items()}
         self.budget_rays = float(budget_rays)
         reach = max([t.radius for t in wp.tools.values()] + [wp.default_tool.radius])
-        self.cost_cum = np.concatenate([[0.0], np.cumsum(row_costs(moves, reach, wp.frame.spacing))])
+        costs = row_costs(moves, reach, wp.frame.spacing)
+        if wp.kinematics is not None:
+            costs = costs + rotary_row_costs(wp, moves, reach)
+        self.cost_cum = np.concatenate([[0.0], np.cumsum(costs)])
         self.checker = None
         self.next_row = 0
         self.wco = np.zeros(6)

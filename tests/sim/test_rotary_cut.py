@@ -232,3 +232,14 @@ def test_body_cut_to_its_reach_cuts_the_same(case):
     axes_l = np.stack([ax @ f.u, ax @ f.v, ax @ f.direction], axis=1)
     prof = a._reaching_profile(tool.profile, f.to_local(t), axes_l)
     assert prof[-1, 0] < tool.profile[-1, 0]
+
+
+def test_instance_counts_of_many_moves_are_each_moves_own():
+    """instance_counts over (n, 6) rows on a table kinematics (it raised for n > 1: a
+    Python max over the ends' distance arrays)."""
+    kin = FourthAxis("A", rot_point=(0, 1, -2))
+    start = np.array([[0, 0, 10, 0, 0, 0], [5, 3, 12, 90, 0, 0], [1, 1, 1, 0, 0, 0]], float)
+    end = np.array([[0, 0, 10, 360, 0, 0], [6, -3, 14, 45, 0, 0], [2, 1, 1, 0, 0, 0]], float)
+    got = kin.instance_counts(start, end, 5.0, 20.0, 3.0, 0.1)
+    one = [int(kin.instance_counts(s, e, 5.0, 20.0, 3.0, 0.1)[0]) for s, e in zip(start, end)]
+    assert got.tolist() == one
