@@ -6,15 +6,16 @@ Programs (generated here, no files):
 * ``4axis``: a 3 mm ball finishing a 30 mm bar on an A axis (xyza): 20 passes 1 mm
   apart along X, each a full A turn in 36 moves of 10 degrees at the finished radius
   (14.5 mm) -- what CAM posts for a wrapped finishing pass.
-* ``5axis``: a 6 mm ball on a head-head (xyzbc-head, pivot 100 mm) rastering a 40 x 40 mm
+* ``5axis``: a 6 mm ball on a head-head (xyzbc-head, pivot 100 mm) rastering a 24 x 24 mm
   box top 0.5 mm deep, the tool tilting B = 20 sin(x / 8) degrees along each 1 mm move,
   lines 1 mm apart.
 
 Each row: moves, instances of motion (the poses the kernel cut), seconds to plan them
 (kinematics, Python) and to cut them (kernel), instances per second, and beside it the
 same X Y Z path cut as 3 axes (the exact sweep, A B C ignored) in the same process:
-``ratio`` = rotary seconds / 3-axis seconds, median of interleaved pairs. One JSON line
-per program, with ``os.getloadavg()``::
+``ratio`` = rotary seconds / 3-axis seconds, median of interleaved pairs (what turning
+costs over the closed-form sweep: every instance intersects every ray under the tool
+with every segment of its profile). One JSON line per program, with ``os.getloadavg()``::
 
     python bench/rotary_bench.py [--repeat 3] [--threads 1]
 """
@@ -70,8 +71,8 @@ def five_axis():
     """The tilting raster on a head-head machine."""
     kin = HeadHead("B", pivot_length=100.0)
     tips, rot = [], []
-    for j, y in enumerate(np.arange(0.0, 40.001, 1.0)):
-        xs = np.arange(0.0, 40.001, 1.0)
+    for j, y in enumerate(np.arange(0.0, 24.001, 1.0)):
+        xs = np.arange(0.0, 24.001, 1.0)
         if j % 2:
             xs = xs[::-1]
         for x in xs:
@@ -81,8 +82,8 @@ def five_axis():
     poses = np.zeros((len(tips), 6))
     poses[:, 3:] = rot
     poses[:, :3] = kin.machine_xyz(np.array(tips), rot, 0.0)
-    frame = Frame.top(-8, -8, 48, 48, SPACING)
-    stock = box_grid(frame, (-5, -5, -10), (45, 45, 0))
+    frame = Frame.top(-8, -8, 32, 32, SPACING)
+    stock = box_grid(frame, (-5, -5, -10), (29, 29, 0))
     return "5axis", kin, parse_tool_spec("ball:6:L=20"), stock, _rows(poses)
 
 
