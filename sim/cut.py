@@ -27,6 +27,7 @@ judge ``center_cutting`` either.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
@@ -181,6 +182,8 @@ class _Log:
 
 
 
+#: points on each rim circle of the tool where :meth:`Cutter._fewest_instances` measures
+_RIM = 16
 _UNIT_OF = {"A": np.array([1.0, 0.0, 0.0]), "B": np.array([0.0, 1.0, 0.0]), "C": np.array([0.0, 0.0, 1.0])}
 
 
@@ -535,6 +538,8 @@ class Cutter:
         height, radius = float(prof[-1, 0]), float(prof[:, 1].max())
         count = int(kin.instance_counts(a, b, L, height, radius, self._step())[0])
         if arc is None:
+            if count > 1:
+                count = self._fewest_instances(instance_poses(a, b, count), L, height, radius)
             poses = instance_poses(a, b, count)
         else:
             center, plane, turns, cw = arc
@@ -635,6 +640,39 @@ class Cutter:
         (h0, r0), (h1, r1) = prof[k - 1], prof[k]
         r = r0 + (h - h0) / (h1 - h0) * (r1 - r0)
         return np.ascontiguousarray(np.vstack([prof[:k], [[h, r]]]))
+
+    def _fewest_instances(self, dense: np.ndarray, L: float, height: float, radius: float) -> int:
+        """The fewest equal steps of the move through machine poses ``dense`` ((k+1, 6),
+        equal steps within the bound of :meth:`Kinematics.instance_counts`) that keep
+        every point of the tool (the ``radius`` x ``height`` cylinder) within ``step`` of
+        where it was.
+
+        The bound adds the gauge point's travel and each rotation's separately; on a
+        5-axis move whose linear axes follow the rotation (the tip nearly still) the tool
+        moves far less. A rigid motion moves a point by an affine function of it, so the
+        largest move over the cylinder is on its two rim circles (sampled 16 times, the
+        rest of the circle within (2 / cos(pi/16) - 1) of the samples' largest: the
+        circumscribed 16-gon holds the circle, and the image of its vertices is bounded
+        so); the move between two instances is at most the sum of the dense steps
+        between them."""
+        step = self._step()
+        ang = np.arange(_RIM) * (2 * np.pi / _RIM)
+        rim = np.stack([radius * np.cos(ang), radius * np.sin(ang), np.zeros(_RIM)], axis=1)
+        local = np.concatenate([rim, rim + [0.0, 0.0, height]])
+        pts = self.kinematics.tool_points(dense, L, local)
+        moved = np.linalg.norm(np.diff(pts, axis=0), axis=2).max(axis=1) * (2.0 / math.cos(math.pi / _RIM) - 1.0)
+        cum = np.concatenate([[0.0], np.cumsum(moved)])
+        k = len(moved)
+        count = max(1, int(math.ceil(cum[-1] / step)))
+        while count < k:
+            # each sparse step's dense steps, rounded outward
+            edges = np.arange(count + 1) * (k / count)
+            lo, hi = np.floor(edges[:-1]).astype(np.int64), np.ceil(edges[1:]).astype(np.int64)
+            worst = float((cum[np.minimum(hi, k)] - cum[lo]).max())
+            if worst <= step:
+                return count
+            count = min(k, int(math.ceil(count * worst / step)) + 1)
+        return k
 
     def _child(self, grid: DexelGrid) -> "Cutter":
         """A Cutter on another grid (a scratch copy, a window) with this one's tool,

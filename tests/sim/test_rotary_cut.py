@@ -14,7 +14,7 @@ import pytest
 from sim.cut import Cutter
 from sim.frame import Frame
 from sim.gcode.moves import MoveKind, empty_moves
-from sim.kinematics import FourthAxis, HeadHead, Trivial
+from sim.kinematics import FourthAxis, HeadHead, Trivial, instance_poses
 from sim.solids import box_grid, cylinder_grid
 from sim.tolerance import DEFAULT
 from sim.tools import parse_tool_spec
@@ -243,3 +243,26 @@ def test_instance_counts_of_many_moves_are_each_moves_own():
     got = kin.instance_counts(start, end, 5.0, 20.0, 3.0, 0.1)
     one = [int(kin.instance_counts(s, e, 5.0, 20.0, 3.0, 0.1)[0]) for s, e in zip(start, end)]
     assert got.tolist() == one
+
+
+def test_fewest_instances_keep_every_tool_point_within_the_step():
+    """A 5-axis move that tilts the tool about its tip (the linear axes following the
+    head, as a TCP post does): the sum-of-motions bound counts the pivot's swing; the
+    instances actually planned are far fewer, and no point of the tool (360 points on
+    each rim, checked here independently) moves more than the step between two."""
+    kin = HeadHead("B", pivot_length=100.0)
+    tool = parse_tool_spec("ball:6:L=20")
+    grid = box_grid(Frame.top(-10, -10, 10, 10, SPACING), (-5, -5, -5), (5, 5, 0))
+    cutter = Cutter(grid, tool, kinematics=kin)
+    rot = np.array([[0.0, -15.0, 0.0], [0.0, 15.0, 0.0]])
+    tips = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, -1.0]])
+    a, b = np.hstack([kin.machine_xyz(tips, rot, 0.0), rot])
+    move = rows(a, b)
+    tips_got, _ = cutter._rotary_poses(move[0], a[:3], b[:3], tool)
+    bound = int(kin.instance_counts(a, b, 0.0, 20.0, 3.0, cutter._step())[0])
+    count = len(tips_got) - 1
+    assert count < bound / 3
+    ang = np.radians(np.arange(360))
+    rim = np.stack([3 * np.cos(ang), 3 * np.sin(ang), np.zeros(360)], axis=1)
+    pts = kin.tool_points(instance_poses(a, b, count), 0.0, np.concatenate([rim, rim + [0, 0, 20]]))
+    assert np.linalg.norm(np.diff(pts, axis=0), axis=2).max() <= cutter._step()
