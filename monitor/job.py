@@ -28,6 +28,8 @@ needs; paths are relative to the job file's folder)::
     [stock]                     # in work coordinates, mm
     box = [0, 0, 0, 60, 40, 20] # or: cylinder = [cx, cy, radius, z0, z1]; or: stl = "stock.stl"
     offset = [0, 0, 0]          # moves an STL into place
+    # a bar on a 4th axis: cylinder = [cy, cz, radius, x0, x1] with axis = "x" (on the A
+    # axis: cy, cz = rot_point's y, z less the work offset); axis = "y": [cx, cz, r, y0, y1]
 
     [[fixtures]]
     name = "clamp"
@@ -56,7 +58,7 @@ needs; paths are relative to the job file's folder)::
     [alerts]
     actions = ["log", "bell"]   # "feed_hold" lets dexmon hold the feed on a finding
     [machine]                   # program timing (lead times); each key overrides the controller's
-    max_rate = [5000, 5000, 2000]   # mm/min (one number: every axis)
+    max_rate = [5000, 5000, 2000]   # mm/min (one number: every axis; six: + A B C deg/min)
     acceleration = [300, 300, 200]  # mm/s^2
     junction_deviation = 0.01       # mm
     start = [0, 0, 0]           # where the machine stands when the program starts: machine
@@ -110,10 +112,11 @@ class JobError(InputError):
 
 @dataclass(frozen=True)
 class Solid:
-    """A placed solid: a box, a Z-axis cylinder or an STL, in work coordinates (mm).
+    """A placed solid: a box, a cylinder or an STL, in work coordinates (mm).
 
-    ``box`` is (x0, y0, z0, x1, y1, z1); ``cylinder`` is (cx, cy, radius, z0, z1);
-    ``stl`` a path, moved by ``offset`` (3,) mm.
+    ``box`` is (x0, y0, z0, x1, y1, z1); ``cylinder`` is (c1, c2, radius, lo, hi) along
+    ``axis`` ("z": cx, cy, radius, z0, z1; "x": cy, cz, radius, x0, x1, a bar on a 4th
+    axis; "y": cx, cz, radius, y0, y1); ``stl`` a path, moved by ``offset`` (3,) mm.
     """
 
     kind: str
@@ -122,6 +125,18 @@ class Solid:
     stl: Path | None = None
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     name: str = ""
+    axis: str = "z"
+
+    def cylinder_placement(self):
+        """A cylinder's (base centre (3,), axis direction (3,), radius, height), mm."""
+        c1, c2, r, lo, hi = self.cylinder
+        k = AXES.index(self.axis)
+        across = [i for i in range(3) if i != k]
+        base = [0.0, 0.0, 0.0]
+        base[across[0]], base[across[1]], base[k] = c1, c2, lo
+        direction = [0.0, 0.0, 0.0]
+        direction[k] = 1.0
+        return tuple(b + o for b, o in zip(base, self.offset)), tuple(direction), r, hi - lo
 
     def bounds(self):
         """(lo (3,), hi (3,)) in mm, or None for an STL (known once loaded)."""
@@ -130,8 +145,10 @@ class Solid:
             b = self.box
             return (b[0] + o[0], b[1] + o[1], b[2] + o[2]), (b[3] + o[0], b[4] + o[1], b[5] + o[2])
         if self.kind == "cylinder":
-            cx, cy, r, z0, z1 = self.cylinder
-            return (cx - r + o[0], cy - r + o[1], z0 + o[2]), (cx + r + o[0], cy + r + o[1], z1 + o[2])
+            base, direction, r, h = self.cylinder_placement()
+            lo = tuple(b - r * (1 - d) for b, d in zip(base, direction))
+            hi = tuple(b + r * (1 - d) + h * d for b, d in zip(base, direction))
+            return lo, hi
         return None
 
 
@@ -188,6 +205,15 @@ class Job:
     #: the machine's kinematics ([machine] kinematics and its parameters): how A B C turn
     #: the part or the tool (sim.kinematics); plain 3-axis by default
     kinematics: Kinematics = field(default_factory=Trivial)
+
+    @property
+    def program_dialect(self) -> str:
+        """The dialect the program is read in: ``dialect``, and on a grbl machine whose
+        kinematics has rotaries, ``"grbl+"`` those letters (grblHAL with 4+ axes takes
+        their words; plain Grbl 1.1 refuses A B C)."""
+        if self.dialect == "grbl" and self.kinematics.rotaries:
+            return "grbl+" + "".join(sorted(self.kinematics.rotaries))
+        return self.dialect
 
     def tool(self, number: int) -> ToolDef | None:
         """The tool for tool number ``number`` (the default tool when it is not listed)."""
@@ -263,7 +289,7 @@ def _split_numbers(text: str):
 
 def _solid(ctx: _Ctx, t: dict, where: str, allow=("box", "cylinder", "stl")) -> Solid:
     t = ctx.table(t, where)
-    ctx.no_unknown(t, set(allow) | {"offset", "name"}, where)
+    ctx.no_unknown(t, set(allow) | {"offset", "name"} | ({"axis"} if "cylinder" in t else set()), where)
     given = [k for k in allow if k in t]
     if len(given) != 1:
         raise JobError(f"{where or 'solid'}: expected exactly one of {', '.join(allow)}, got "
@@ -277,10 +303,16 @@ def _solid(ctx: _Ctx, t: dict, where: str, allow=("box", "cylinder", "stl")) -> 
             raise ctx.err(f"{where} box".strip(), "x0 < x1, y0 < y1, z0 < z1", list(b))
         return Solid("box", box=b, offset=offset, name=name)
     if kind == "cylinder":
-        c = ctx.numbers(t["cylinder"], 5, f"{where} cylinder".strip(), "mm: cx, cy, radius, z0, z1")
+        axis = t.get("axis", "z")
+        if not isinstance(axis, str) or axis.lower() not in AXES:
+            raise ctx.err(f"{where} axis".strip(), '"x", "y" or "z" (the cylinder\'s axis)', axis)
+        axis = axis.lower()
+        a, b = [c for c in AXES if c != axis]
+        c = ctx.numbers(t["cylinder"], 5, f"{where} cylinder".strip(),
+                        f"mm: c{a}, c{b}, radius, {axis}0, {axis}1")
         if not (c[2] > 0 and c[4] > c[3]):
-            raise ctx.err(f"{where} cylinder".strip(), "radius > 0 and z0 < z1", list(c))
-        return Solid("cylinder", cylinder=c, offset=offset, name=name)
+            raise ctx.err(f"{where} cylinder".strip(), f"radius > 0 and {axis}0 < {axis}1", list(c))
+        return Solid("cylinder", cylinder=c, offset=offset, name=name, axis=axis)
     return Solid("stl", stl=ctx.path(t["stl"], f"{where} stl".strip()), offset=offset, name=name)
 
 
@@ -546,7 +578,9 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
                 v = t[key]
                 if isinstance(v, (int, float)) and not isinstance(v, bool):
                     v = [v, v, v]
-                vals = ctx.numbers(v, 3, f"[machine] {key}", f"{unit}, one or three")
+                # six: X Y Z and the rotaries A B C (deg/min, deg/s^2)
+                count = 6 if isinstance(v, list) and len(v) == 6 else 3
+                vals = ctx.numbers(v, count, f"[machine] {key}", f"{unit}, one, three (X Y Z) or six (+ A B C)")
                 if min(vals) <= 0:
                     raise ctx.err(f"[machine] {key}", f"positive numbers ({unit})", t[key])
                 m[key] = vals

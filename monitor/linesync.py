@@ -156,7 +156,7 @@ class StreamedLines:
         cands = self.window(state)
         if not cands:
             return state.line
-        got = self._nearest(np.asarray(tip, np.float64)[:3], cands, sync)
+        got = self._nearest(np.asarray(tip, np.float64)[:sync.path.p0.shape[1]], cands, sync)
         return state.line if got is None else got
 
     def _nearest(self, tip: np.ndarray, cands: list[int], sync) -> int | None:

@@ -79,7 +79,7 @@ def in_force(job_machine: dict | None, controller: ControllerLimits | None, job_
 
 
 def _xyz(values) -> str:
-    return " ".join(f"{a}{float(v):g}" for a, v in zip("XYZ", values))
+    return " ".join(f"{a}{float(v):g}" for a, v in zip("XYZABC", values))
 
 
 def _ranges(travel: dict | None) -> str:

@@ -153,9 +153,8 @@ def _solid_grid(frame: Frame, solid: Solid, mesh, tol: Tolerance) -> DexelGrid:
         lo, hi = solid.bounds()
         return solids.box_grid(frame, lo, hi, tol=tol)
     if solid.kind == "cylinder":
-        cx, cy, r, z0, z1 = solid.cylinder
-        o = solid.offset
-        return solids.cylinder_grid(frame, (cx + o[0], cy + o[1], z0 + o[2]), (0, 0, 1), r, z1 - z0, tol=tol)
+        base, direction, r, h = solid.cylinder_placement()
+        return solids.cylinder_grid(frame, base, direction, r, h, tol=tol)
     return solids.mesh_grid(frame, mesh, tol=tol)
 
 
@@ -215,6 +214,10 @@ class Workpiece:
     default_tool: object
     tol: Tolerance
     fixture_names: list[str] = field(default_factory=list)
+    #: the machine's kinematics (None: 3-axis) and the machine pose (6,) of the work frame's
+    #: origin (the job's reference work offset): rows with rotation are cut on the turned part
+    kinematics: object | None = None
+    origin: np.ndarray | None = None
 
     def tool(self, number: int):
         return self.tools.get(int(number), self.default_tool)
@@ -255,7 +258,19 @@ def build_workpiece(job: Job, moves: np.ndarray) -> Workpiece:
             blo, bhi = job.design.bounds()
             mesh = trimesh.creation.box(bounds=[blo, bhi])
             design = DesignModel(frame, mesh, name="design box")
-    return Workpiece(frame, stock, fixtures, design, tools, default, job.tolerance, names)
+    rotary = job.kinematics if job.kinematics.rotaries else None
+    return Workpiece(frame, stock, fixtures, design, tools, default, job.tolerance, names,
+                     kinematics=rotary, origin=work_origin(job) if rotary is not None else None)
+
+
+def work_origin(job: Job) -> np.ndarray:
+    """Machine X Y Z (mm) A B C (deg) of the job's work zero, (6,): the job's
+    ``work_offset`` when it gives one, else its .var file's (zeros without one). The
+    kinematics' points (``rot_point``) are machine coordinates; this places the model."""
+    out = reference_wco(job)
+    if job.work_offset is not None:
+        out[:3] = job.work_offset
+    return out
 
 
 def _fixture_grid(solid: Solid, mesh, spacing: float, reach: float, tol: Tolerance) -> DexelGrid:
@@ -317,7 +332,8 @@ def make_checker(wp: Workpiece, stock: DexelGrid, limits: dict | None, wco):
     from sim.checks.checker import Checker
 
     return Checker(stock, wp.default_tool, design=wp.design, fixtures=wp.fixtures,
-                   limits=limits_in_work(limits, wco), tol=wp.tol, tools=wp.tools, min_volume=MIN_VOLUME)
+                   limits=limits_in_work(limits, wco), tol=wp.tol, tools=wp.tools, min_volume=MIN_VOLUME,
+                   kinematics=wp.kinematics, origin=wp.origin)
 
 
 def _checked(checker, rows: np.ndarray, ids: np.ndarray, wco):
@@ -347,6 +363,24 @@ def row_costs(moves: np.ndarray, reach: float, spacing: float) -> np.ndarray:
     return np.where(moving, area, 0.0) + ROW_OVERHEAD_RAYS
 
 
+def rotary_row_costs(wp: Workpiece, moves: np.ndarray, reach: float) -> np.ndarray:
+    """Extra work of rows a rotary turns, float64 (n,) swept rays: their instances of
+    motion (:meth:`sim.kinematics.Kinematics.instance_counts` of the machine poses, the
+    tallest tool) times the rays under one tool (0 for rows that do not turn)."""
+    out = np.zeros(len(moves))
+    turning = np.any(moves["start"][:, 3:] != moves["end"][:, 3:], axis=1) | \
+        np.any(moves["start"][:, 3:] != 0.0, axis=1)
+    if not turning.any():
+        return out
+    height = max(float(t.profile[-1, 0]) for t in [*wp.tools.values(), wp.default_tool])
+    origin = np.zeros(6) if wp.origin is None else np.asarray(wp.origin, np.float64)
+    step = wp.tol.instance_fraction * wp.frame.spacing
+    count = wp.kinematics.instance_counts(moves["start"][turning] + origin, moves["end"][turning] + origin,
+                                          0.0, height, reach, step)
+    out[turning] = (count + 1) * (2.0 * reach / wp.frame.spacing + 2.0) ** 2
+    return out
+
+
 class Lookahead:
     """Cut and check the program ahead of the spindle on a scratch copy of the live stock.
 
@@ -371,7 +405,10 @@ class Lookahead:
         self.limits = {k.upper(): v for k, v in (limits or {}).items()}
         self.budget_rays = float(budget_rays)
         reach = max([t.radius for t in wp.tools.values()] + [wp.default_tool.radius])
-        self.cost_cum = np.concatenate([[0.0], np.cumsum(row_costs(moves, reach, wp.frame.spacing))])
+        costs = row_costs(moves, reach, wp.frame.spacing)
+        if wp.kinematics is not None:
+            costs = costs + rotary_row_costs(wp, moves, reach)
+        self.cost_cum = np.concatenate([[0.0], np.cumsum(costs)])
         self.checker = None
         self.next_row = 0
         self.wco = np.zeros(6)
@@ -529,7 +566,9 @@ class LiveChecks:
             arrived_row: int | None = None):
         """Cut the polyline ``points`` (k+1, 3) mm (work tip), piece ``q`` belonging to
         program row ``rows[q]`` (int, (k,)); return ``(removed mm^3, changed rays int64
-        sorted and distinct, findings)``.
+        sorted and distinct, findings)``. ``points`` (k+1, 6) adds the work A B C (deg) at
+        each point (a rotary job: the pieces turn as the machine did); with 3 columns each
+        piece takes its row's programmed angles.
 
         ``spindle_rpm``: the speed the controller reports (None: take the program's).
         ``arrived_row``: the row of the piece that ended at ``points[0]`` (the last one
@@ -565,10 +604,14 @@ class LiveChecks:
         m["line"] = self._line[rows]
         m["kind"] = self._kind[rows]
         start, end = m["start"], m["end"]
-        start[:, :3] = pts[:-1]
-        end[:, :3] = pts[1:]
-        start[:, 3:] = self._rot0[rows]
-        end[:, 3:] = self._rot1[rows]
+        if pts.shape[1] == 6:
+            start[:] = pts[:-1]
+            end[:] = pts[1:]
+        else:
+            start[:, :3] = pts[:-1]
+            end[:, :3] = pts[1:]
+            start[:, 3:] = self._rot0[rows]
+            end[:, 3:] = self._rot1[rows]
         m["feed"] = self._feed[rows]
         m["tool"] = self._tool[rows]
         if spindle_rpm is None:

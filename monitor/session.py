@@ -63,6 +63,14 @@ JUMP_S = 2.0
 TRACE_CHUNK_STAGES = 50
 
 
+def rotary_scale(job: Job) -> float:
+    """mm per degree of A B C when the sync compares poses (:mod:`monitor.sync`): the arc
+    one degree turns at the stock's reach (half its box's diagonal; 10 mm unknown)."""
+    b = job.stock.bounds() if job.stock is not None else None
+    reach = 0.5 * float(np.linalg.norm(np.subtract(b[1], b[0]))) if b is not None else 10.0
+    return math.radians(1.0) * max(reach, 1.0)
+
+
 @dataclass
 class StepInfo:
     """What one step did (for the status line, benchmarks and tests)."""
@@ -84,7 +92,7 @@ def load_moves(job: Job) -> tuple[np.ndarray, object]:
     from monitor.start import job_start, start_at
     from sim.gcode import Limits, load_program
 
-    program = load_program(job.program, dialect=job.dialect, tool_table=job.tool_table, var_file=job.var_file,
+    program = load_program(job.program, dialect=job.program_dialect, tool_table=job.tool_table, var_file=job.var_file,
                            machine_units=job.machine_units, limits=Limits(max_loop=job.max_loop),
                            block_delete=job.block_delete,
                            subroutine_path=[str(d) for d in job.subroutine_path] or None)
@@ -151,9 +159,17 @@ class Session:
         self.path = ProgramPath.from_moves(self.moves, secs, chord=self._chord)
         # the same segments in each row's own work coordinates (a translation per row)
         self.sync_path = self.path
-        if np.any(self.row_shift != 0.0):
+        #: mm per degree of A B C in the sync's 6-D points (None: the kinematics turns nothing)
+        self.rotary_scale = rotary_scale(job) if job.kinematics.rotaries else None
+        self._prev_angles: np.ndarray | None = None  # work A B C of the last state cut (rotary jobs)
+        if np.any(self.row_shift != 0.0) or self.rotary_scale is not None:
             seg_shift = self.row_shift[self.path.row]
-            self.sync_path = replace(self.path, p0=self.path.p0 - seg_shift, p1=self.path.p1 - seg_shift)
+            p0, p1 = self.path.p0, self.path.p1
+            if self.rotary_scale is not None:  # the same segments, with their angles
+                six = ProgramPath.from_moves(self.moves, secs, chord=self._chord, rotary_scale=self.rotary_scale)
+                p0, p1 = six.p0, six.p1
+                seg_shift = np.hstack([seg_shift, np.zeros_like(seg_shift)])
+            self.sync_path = replace(self.path, p0=p0 - seg_shift, p1=p1 - seg_shift)
         self.sync = ProgramSync(self.sync_path)
         self.wp = workpiece or build_workpiece(job, moves)
         self.live = self.wp.stock
@@ -332,6 +348,12 @@ class Session:
         r = self._row(row)
         return tip if r is None else tip - self.row_shift[r]
 
+    def angles(self, state: MachineState) -> np.ndarray:
+        """The rotaries' work position A B C (3,) deg: the controller's work position when
+        it reports the offset, else its machine position (a job's ``work_offset`` is X Y Z)."""
+        a = np.asarray(state.mpos_array[3:6], np.float64)
+        return a - np.asarray(state.wco[3:6], np.float64) if self.job.work_offset is None else a
+
     def _wco(self, state: MachineState, row: int | None, learn: bool = False) -> np.ndarray:
         """Machine position of the controlled point minus the model-frame tip, (6,) mm:
         the job system's zero + the row's tool length.
@@ -385,6 +407,8 @@ class Session:
         row_hint = self.last_sync.row if self.last_sync is not None else None
         tip = self.tip(state, row_hint)
         point = self.sync_point(state, tip, row_hint)
+        if self.rotary_scale is not None:  # a move turning only A moves the sync point too
+            point = np.concatenate([point, self.rotary_scale * self.angles(state)])
         prev = self.last_sync
         line = state.line
         if self.line_source is not None:
@@ -483,7 +507,8 @@ class Session:
             pieces, ids = pieces[:-1], ids[:-1]
         else:
             return []
-        res = Cutter(self.live, self.wp.default_tool, self.wp.tol, tools=self.wp.tools).cut_moves(
+        res = Cutter(self.live, self.wp.default_tool, self.wp.tol, tools=self.wp.tools, kinematics=self.wp.kinematics,
+                   origin=self.wp.origin).cut_moves(
             pieces, move_ids=ids, record_changes=True)
         rays = (distinct(res.changed_rays).astype(np.int64) if res.changed_rays is not None
                 else np.zeros(0, np.int64))
@@ -504,7 +529,8 @@ class Session:
             from sim.cut import Cutter
 
             done = self.moves[:s.row]
-            Cutter(self.live, self.wp.default_tool, self.wp.tol, tools=self.wp.tools).cut_moves(
+            Cutter(self.live, self.wp.default_tool, self.wp.tol, tools=self.wp.tools, kinematics=self.wp.kinematics,
+                   origin=self.wp.origin).cut_moves(
                 done, move_ids=np.arange(1, s.row + 1), record_changes=False)
             if self.view is not None:  # the whole model may have changed
                 self._changed = np.arange(self.live.frame.n_rays, dtype=np.int64)
@@ -514,10 +540,17 @@ class Session:
     def _cut_live(self, tip: np.ndarray, s: SyncResult, state: MachineState) -> tuple[list[dict], float]:
         """Cut and check the path travelled since the last state; (finding records, mm^3)."""
         prev, self._prev_tip = self._prev_tip, tip
-        if prev is None or not np.all(np.isfinite(tip)) or np.linalg.norm(tip - prev) < self.wp.tol.length:
+        turned = False
+        if self.rotary_scale is not None:
+            prev_angles, self._prev_angles = self._prev_angles, self.angles(state)
+            turned = prev_angles is not None and bool(np.any(np.abs(self._prev_angles - prev_angles) > 1e-9))
+        if prev is None or not np.all(np.isfinite(tip)) or (
+                np.linalg.norm(tip - prev) < self.wp.tol.length and not turned):
             return [], 0.0
         self.stage += 1
         pts, rows = self._travelled(prev, tip, s)
+        if self.rotary_scale is not None and prev_angles is not None:
+            pts = np.hstack([pts, self._travelled_angles(prev_angles, self._prev_angles, len(pts), s)])
         # a stopped spindle counts only when both ends of the piece say so (a state after
         # M5 must not make the whole path since the last poll a stopped-spindle cut)
         rpm = _spindle_rpm(state)
@@ -576,6 +609,24 @@ class Session:
         pts = hold_still_axes(np.concatenate([prev[None], corners, tip[None]]),
                               path.p0[segs] != path.p1[segs])
         return pts, path.row[segs].astype(np.int64)
+
+    def _travelled_angles(self, a0: np.ndarray, a1: np.ndarray, count: int, s: SyncResult) -> np.ndarray:
+        """Work A B C (count, 3) deg at the points :meth:`_travelled` gave: ``a0`` at the
+        first, ``a1`` at the last, the program's angles at the corners between (moved by
+        the live deviation, interpolated as the corners' positions are)."""
+        out = np.empty((count, 3))
+        out[0], out[-1] = a0, a1
+        if count > 2:
+            path, sp, scale = self.path, self.sync_path, self.rotary_scale
+            last = self.last_sync
+            k0, k1 = path.segment_at(last.progress), path.segment_at(s.progress)
+            t1 = path.t1[k0:k1]
+            keep = np.nonzero((t1 > last.progress) & (t1 < s.progress))[0]
+            d0 = a0 - sp.point_at(last.progress)[3:] / scale
+            d1 = a1 - sp.point_at(s.progress)[3:] / scale
+            f = (t1[keep] - last.progress) / (s.progress - last.progress)
+            out[1:-1] = sp.p1[k0 + keep, 3:] / scale + d0 + f[:, None] * (d1 - d0)
+        return out
 
     def _deviation(self, tip: np.ndarray, progress: float) -> np.ndarray:
         """The live tip minus the program's tip at ``progress``, (3,) mm.

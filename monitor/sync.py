@@ -17,6 +17,11 @@ lead time of anything ahead is a difference of progresses.
 
 Feed hold and overrides need nothing special: the position stops or runs faster and the
 window, sized by elapsed time, follows.
+
+Rotary machines: with ``rotary_scale`` (mm per degree) the path's points are 6-D, the
+tip's X Y Z and the work angles A B C times the scale, and positions are given the same
+way, so a move that turns only A is a segment like any other (not a point) and the sync
+follows it.
 """
 
 from __future__ import annotations
@@ -40,6 +45,14 @@ def row_seconds(moves: np.ndarray, rapid_rate: float = DEFAULT_RAPID_RATE,
     the machine ``start/end`` columns.
     """
     lengths = row_lengths(moves, position)
+    # the rotaries' degrees count as mm, as the timing counts them (sim.gcode.timing):
+    # a row turning only A takes time (only rows that turn: 3-axis rows keep their length)
+    p0, p1 = _ends(moves, position)
+    turn = np.asarray(p1[:, 3:6] - p0[:, 3:6], np.float64)
+    turning = np.any(turn != 0.0, axis=1)
+    if turning.any():
+        lengths = lengths.copy()
+        lengths[turning] = np.hypot(lengths[turning], np.linalg.norm(turn[turning], axis=1))
     kind = moves["kind"]
     feed = np.where(kind == MoveKind.RAPID, rapid_rate, moves["feed"]).astype(np.float64)
     # G93 inverse time: the row takes 1/F minutes whatever its length
@@ -118,8 +131,9 @@ class ProgramPath:
 
     Attributes
     ----------
-    p0, p1 : float64 (m, 3)
-        Segment ends, mm (tool tip, work coordinates by default).
+    p0, p1 : float64 (m, 3), or (m, 6) with ``rotary_scale``
+        Segment ends, mm (tool tip, work coordinates by default; then A B C deg times
+        the scale).
     row : int64 (m,)
         Move-table row of each segment.
     t0, t1 : float64 (m,)
@@ -145,8 +159,11 @@ class ProgramPath:
 
     @classmethod
     def from_moves(cls, moves: np.ndarray, seconds: np.ndarray | None = None, chord: float = 0.05,
-                   position: str = "work") -> "ProgramPath":
-        """Flatten a move table (MOVE_DTYPE, n rows); ``seconds`` (n,) per row or estimated."""
+                   position: str = "work", rotary_scale: float | None = None) -> "ProgramPath":
+        """Flatten a move table (MOVE_DTYPE, n rows); ``seconds`` (n,) per row or estimated.
+
+        ``rotary_scale``: mm per degree; given, the points get the A B C columns times it
+        (6-D, see the module docstring)."""
         n = len(moves)
         secs = row_seconds(moves, position=position) if seconds is None else np.asarray(seconds, np.float64)
         if secs.shape != (n,):
@@ -158,6 +175,10 @@ class ProgramPath:
             lift[:, 2] = moves["tool_length"]
         starts = np.asarray(s[:, :3], np.float64) - lift
         ends = np.asarray(e[:, :3], np.float64) - lift
+        if rotary_scale is not None:
+            starts = np.hstack([starts, rotary_scale * np.asarray(s[:, 3:6], np.float64)])
+            ends = np.hstack([ends, rotary_scale * np.asarray(e[:, 3:6], np.float64)])
+            lift = np.hstack([lift, np.zeros((n, 3))])
         row_t1 = np.cumsum(secs)
         row_t0 = row_t1 - secs
         arc = np.isin(moves["kind"], (MoveKind.ARC_CW, MoveKind.ARC_CCW))
@@ -165,9 +186,12 @@ class ProgramPath:
             [np.zeros(n)], [np.ones(n)]
         keep = ~arc
         for r in np.nonzero(arc)[0]:
-            pts = _arc_points(moves[r], position, chord) - lift[r]
+            pts = _arc_points(moves[r], position, chord)
             k = len(pts) - 1
             f = np.linspace(0.0, 1.0, k + 1)
+            if rotary_scale is not None:  # the angles turn evenly along the arc
+                pts = np.hstack([pts, starts[r, 3:] + f[:, None] * (ends[r, 3:] - starts[r, 3:])])
+            pts = pts - lift[r]
             pieces_p0.append(pts[:-1])
             pieces_p1.append(pts[1:])
             pieces_row.append(np.full(k, r))
@@ -309,7 +333,7 @@ class ProgramSync:
         ``search``: look over the whole path (preferring ahead of the last progress)
         instead of the window around it -- after a gap, where the machine went meanwhile
         is unknown."""
-        point = np.asarray(point, np.float64)[:3]
+        point = np.asarray(point, np.float64)[:self.path.p0.shape[1]]
         dt = 0.0 if (t is None or self._last_t is None) else max(float(t) - self._last_t, 0.0)
         if t is not None:
             self._last_t = float(t)

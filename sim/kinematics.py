@@ -334,7 +334,7 @@ class Kinematics:
             # the base axis stays put: the distance from its line, largest at an end
             # (distance from a line is convex along a segment)
             e0 = _UNIT[ROTARY_ABOUT[base.letter]]
-            to_line = max(_line_distance(q, p0, e0) for q in ends) + slack
+            to_line = np.maximum(*(_line_distance(q, p0, e0) for q in ends)) + slack
             bound = bound + turn[:, ROTARY_COLUMN[base.letter] - 3] * to_line
             # an inner axis turns with the base: from its point, which stays within the
             # offsets of the base point

@@ -66,7 +66,10 @@ def virtual_controller(moves, speed: float, rate: float, clock: str = "wall"):
     from drivers.virtual.controller import VirtualController
     from drivers.virtual.machine import MachineConfig
 
-    config = MachineConfig(max_rate=VIRTUAL_MAX_RATE, accel=VIRTUAL_ACCEL, soft_limits=False)
+    # A B C as brisk as its fastest linear axis (deg/min, deg/s^2): what the timing takes
+    # for rotaries the controller does not state (sim.gcode.timing.six_axes)
+    config = MachineConfig(max_rate=VIRTUAL_MAX_RATE + (max(VIRTUAL_MAX_RATE),) * 3,
+                           accel=VIRTUAL_ACCEL + (max(VIRTUAL_ACCEL),) * 3, soft_limits=False)
     return VirtualController(moves, speed=speed, rate=rate, clock=clock, config=config)
 
 

@@ -359,7 +359,7 @@ def _run_job(args) -> int:
         raise InputError("no such program file", where=f"{path}: [program] path {job.program}")
     table = read_tool_table(job.tool_table, job.machine_units) if job.tool_table else None
     # one frame: the job's work system; rows in other systems land at their offsets from it
-    program = load_program(job.program, job.dialect, table, job.var_file, job.machine_units,
+    program = load_program(job.program, job.program_dialect, table, job.var_file, job.machine_units,
                            [str(d) for d in job.subroutine_path], args.max_loop or job.max_loop,
                            bool(args.block_delete) or job.block_delete)
     # from where the machine starts, as a dry run does (monitor.start)
@@ -379,7 +379,8 @@ def _run_job(args) -> int:
         checker = Checker(wp.stock, wp.default_tool, design=wp.design, fixtures=wp.fixtures,
                           limits=limits_in_work(job.limits, wco), tol=job.tolerance, tools=wp.tools,
                           max_depth_of_cut=_positive(args.max_depth_of_cut, "--max-depth-of-cut"),
-                          min_volume=MIN_VOLUME, undercut_from_path=not (job.undercut_given or t_h))
+                          min_volume=MIN_VOLUME, undercut_from_path=not (job.undercut_given or t_h),
+                          kinematics=wp.kinematics, origin=wp.origin)
     out = {"job": str(path)}
     notes = []
     used = set(int(t) for t in moves["tool"])
@@ -392,7 +393,8 @@ def _run_job(args) -> int:
     notes.append(design_note(checker, job.design.stl if job.design is not None else None))
     return _simulate(args, str(job.program), moves, wp.stock, wp.default_tool, wp.tools, checker, out,
                      true_volume=stock_true_volume(solid=job.stock), notes=[n for n in notes if n], inch=program.inch,
-                     machine={**DEFAULT_MACHINE, **(job.machine or {})})
+                     machine={**DEFAULT_MACHINE, **(job.machine or {})}, kinematics=wp.kinematics,
+                     origin=wp.origin)
 
 
 def _setup_findings(moves, grid, tool, tools, checker, inch: bool) -> list:
@@ -429,8 +431,10 @@ def move_start_times(moves: np.ndarray, machine=None) -> np.ndarray:
 
 
 def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, true_volume=None,
-              notes=(), inch: bool = False, machine=None) -> int:
+              notes=(), inch: bool = False, machine=None, kinematics=None, origin=None) -> int:
     """Cut (and check) ``moves`` into ``grid``; print the report; return the exit status.
+    ``kinematics``/``origin``: the job's rotaries for the unchecked cut (the checker has
+    its own).
 
     With checks, a setup that cannot be meant (:mod:`sim.checks.setup`: the path never
     reaches the stock, the design is not in the stock) is reported first, as findings.
@@ -460,7 +464,8 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
 
             notes = [*notes, note(*checker.undercut_basis, checker.tol.undercut)]
     else:
-        per_move = Cutter(grid, tool, tools=tools or None).cut_moves(moves, record_changes=False).removed
+        per_move = Cutter(grid, tool, tools=tools or None, kinematics=kinematics, origin=origin).cut_moves(
+            moves, record_changes=False).removed
         findings = []
     seconds = time.perf_counter() - t0
     grid_after = grid.volume(weights="trapezoid")

@@ -51,12 +51,16 @@ class Checker:
         exact) and :meth:`assess_model` assesses the material left afresh, while the exact
         search on that side is most of the check's cost when the cut surface lies just
         above the design (a finishing pass).
+    kinematics, origin : optional
+        The machine's :class:`sim.kinematics.Kinematics` and the grid origin's machine
+        pose (6,), passed to every :class:`Cutter` (rows with rotation are cut on the
+        turned part). Fixtures stay 3-axis.
     """
 
     def __init__(self, stock: DexelGrid, tool: Tool, design=None, fixtures=(), limits=None,
                  tol: Tolerance = DEFAULT, tools: dict | None = None, max_depth_of_cut: float | None = None,
                  max_ramp_deg: float = 10.0, min_volume: float | None = None, undercut_from_path: bool = True,
-                 exact_excess_while_cutting: bool = False):
+                 exact_excess_while_cutting: bool = False, kinematics=None, origin=None):
         if not isinstance(stock, DexelGrid):
             raise InputError(f"Checker needs a DexelGrid stock, got {type(stock).__name__}")
         self.grid = stock
@@ -64,7 +68,9 @@ class Checker:
         self.tool = tool
         self.tools = dict(tools or {})
         self.tol = tol
-        self.cutter = Cutter(stock, tool, tol, tools=self.tools or None)
+        self.kinematics = kinematics
+        self.origin = origin
+        self.cutter = self._cutter(stock)
         if design is not None and not isinstance(design, DesignModel):
             design = DesignModel(self.frame, design)
         self.design = design
@@ -94,6 +100,11 @@ class Checker:
         self._touched: dict = {}  # contact kind -> Cutter on the model less what that body touched
         self._bodies: dict = {}
         self.findings: list[Finding] = []
+
+    def _cutter(self, grid: DexelGrid) -> Cutter:
+        """A Cutter on ``grid`` with this checker's tools, tolerance and kinematics."""
+        return Cutter(grid, self.tool, self.tol, tools=self.tools or None, kinematics=self.kinematics,
+                      origin=self.origin)
 
     # --- bookkeeping --------------------------------------------------------------------
     def _remember_lines(self, moves, ids):
@@ -260,7 +271,7 @@ class Checker:
         probe the candidate's body then (so a shank following its flutes down a hole they
         cut is clear, while a holder landing on the stock is not). Bodies leading the
         flutes (moving up into material above the tool) are not seen this way."""
-        scratch = Cutter(snapshot, self.tool, self.tol, tools=self.tools or None)
+        scratch = self._cutter(snapshot)
         # the same replay with what each body touched taken away (``touched``, made at its
         # first contact and kept across batches): a move's volume is what its body touches
         # first, so the volumes of one contact's moves add up to the union of what they touched
@@ -278,8 +289,7 @@ class Checker:
                 if present[0] > self.min_volume:
                     mine = touched.get(kind)
                     if mine is None:
-                        mine = touched[kind] = Cutter(scratch.grid.copy(), self.tool, self.tol,
-                                                      tools=self.tools or None)
+                        mine = touched[kind] = self._cutter(scratch.grid.copy())
                     vol = mine.cut_moves(moves[k:k + 1], record_changes=False, body=body).removed
                 out += collisions.body_findings(moves[k:k + 1], kind, vol, ids[k:k + 1], self.min_volume,
                                                 present=present)
@@ -300,7 +310,8 @@ class Checker:
         if len(moves) == 0:
             return []
         f = self.frame
-        if not f.is_top:  # whole-grid scratch copy for frames we cannot window by XY
+        if not f.is_top or self.cutter.kinematics is not None:
+            # whole-grid scratch copy for frames we cannot window by XY (or a turning part)
             scratch = self.grid.copy()
             i0 = j0 = 0
         else:
@@ -330,7 +341,7 @@ class Checker:
         def to_full(r, _i0=i0, _j0=j0, _nu=sf.nu):
             return (r // _nu + _j0) * nu_full + (r % _nu + _i0)
 
-        cutter = Cutter(scratch, self.tool, self.tol, tools=self.tools or None)
+        cutter = self._cutter(scratch)
         emap = ErrorMap(sf) if self.design is not None else None
         eng = None
         if self.engagement is not None and sf.is_top:

@@ -23,7 +23,7 @@ from sim.gcode.lathe import lathe_message
 from sim.gcode.limits import DEFAULT_LIMITS, MAX_LINEAR_MM, MAX_ROTARY_DEG, Limits
 from sim.gcode.mcodes import M_GROUP
 from sim.gcode.moves import COOLANT_FLOOD, COOLANT_MIST, MOVE_DTYPE, MoveKind
-from sim.gcode.parser import AXES, Block, is_deleted, parse_line
+from sim.gcode.parser import AXES, Block, dialect_parts, is_deleted, parse_line
 from sim.gcode.cycles import CycleMemory
 from sim.gcode.probe import straight_probe
 from sim.gcode.state import ModalState
@@ -204,14 +204,16 @@ class Interpreter:
     def __init__(self, dialect: str = "linuxcnc", machine_units: str = "mm", tool_table=None,
                  var_params: dict | None = None, filename: str = "<string>", block_delete: bool = False,
                  limits: Limits | None = None, after_tool_change: str = "machine"):
-        if dialect not in ("linuxcnc", "grbl"):
-            raise GCodeError(f"unknown dialect {dialect!r}: expected 'linuxcnc' or 'grbl'", filename, 0)
+        try:
+            base, _ = dialect_parts(dialect)
+        except ValueError as exc:
+            raise GCodeError(str(exc), filename, 0) from None
         if machine_units not in ("mm", "inch"):
             raise GCodeError(f"machine units must be 'mm' or 'inch', got {machine_units!r}", filename, 0)
         if after_tool_change not in ("machine", "rs274"):
             raise GCodeError(f"after_tool_change must be 'machine' or 'rs274', got {after_tool_change!r}", filename, 0)
         self.dialect = dialect
-        self.grbl = dialect == "grbl"
+        self.grbl = base == "grbl"
         self.after_tool_change = after_tool_change   # see tool_length.refresh_after_tool_change
         self.machine_units = machine_units
         self.tool_table = dict(tool_table) if tool_table else {}

@@ -82,7 +82,7 @@ def strip_line(text: str, dialect: str = "linuxcnc") -> tuple[str, list[int], st
             if j < 0:
                 raise LineError("unclosed comment: '(' has no ')'", i + 1, grbl_code=1)
             body = text[i + 1 : j]
-            if "(" in body and dialect != "grbl":
+            if "(" in body and not dialect.startswith("grbl"):
                 raise LineError("nested comment: '(' inside a comment", i + 2 + body.index("("), grbl_code=1)
             squeezed = body.lstrip()
             if squeezed[:4].upper() == "MSG," or re.match(r"(?i)msg\s*,", squeezed):
@@ -286,6 +286,19 @@ class _Reader:
         return (label, kw, args, self.col(start))
 
 
+def dialect_parts(dialect: str) -> tuple[str, str]:
+    """``(base dialect, rotary letters it accepts)``: ``"grbl+A"`` is the grbl dialect of a
+    grblHAL with an A axis (it takes A words; plain ``"grbl"``, Grbl 1.1, takes none);
+    ``"linuxcnc"`` accepts A B C. Raises ValueError for anything else."""
+    base, plus, letters = str(dialect).partition("+")
+    if base == "linuxcnc" and not plus:
+        return base, "ABC"
+    if base == "grbl" and (not plus or (letters and set(letters) <= set("ABC") and len(set(letters)) == len(letters))):
+        return base, letters
+    raise ValueError(f"unknown dialect {dialect!r}: expected 'linuxcnc', 'grbl' or 'grbl+' rotary letters "
+                     f"(e.g. 'grbl+A', a grblHAL with an A axis)")
+
+
 def parse_line(text: str, dialect: str = "linuxcnc") -> Block:
     """Parse one source line into a :class:`Block`; raises ``LineError`` on bad syntax."""
     try:
@@ -295,7 +308,8 @@ def parse_line(text: str, dialect: str = "linuxcnc") -> Block:
 
 
 def _parse_line(text: str, dialect: str) -> Block:
-    grbl = dialect == "grbl"
+    grbl = dialect.startswith("grbl")
+    rotary = dialect[5:] if grbl else ""  # "grbl+A": the A word too (grblHAL)
     block = Block()
     stripped = text.strip()
     if stripped.startswith("%"):
@@ -329,7 +343,10 @@ def _parse_line(text: str, dialect: str) -> Block:
             if grbl:
                 r.fail(f"expected a command letter, found {c!r}", 1)
             r.fail(f"expected a word letter, found {c!r}")
-        if grbl and c not in "FGIJKLMNPRSTXYZ":
+        if grbl and c not in "FGIJKLMNPRSTXYZ" and c not in rotary:
+            if c in "ABC":
+                r.fail(f"GRBL does not support the {c} word (a grblHAL with a rotary {c} axis does: "
+                       f"give [machine] kinematics with {c})", 20)
             r.fail(f"GRBL does not support the {c} word", 20)
         if c in "UVW" and not grbl:
             r.fail(f"{c} axis words are not supported by this machine (XYZABC)")

@@ -7,6 +7,15 @@ junction speed from the junction deviation: ``v^2 = a * delta * sin(theta/2) /
 be able to stop within the blocks queued after it. The machine stops completely at
 dwells, tool changes, pauses, program end and spindle/coolant changes (GRBL
 synchronises the buffer there).
+
+Rotary axes are planned as grblHAL plans them: a block's length is the Euclidean norm of
+all six axis changes, degrees of A B C counted as mm (LinuxCNC counts them so too for a
+move that turns only rotaries), each axis capped by its own max rate and acceleration
+(``max_rate`` / ``acceleration`` may give 3 values, X Y Z, the rotaries then taking
+the largest of them, or 6, X Y Z A B C in deg/min and deg/s^2). A move that turns only
+A takes the time A needs, not 0 s. Inverse time (G93, the ``inverse_time`` column,
+1/min) sets a row's rate to ``inverse_time * its length``, so the row takes
+``1 / inverse_time`` minutes at full speed, as GRBL does.
 """
 
 from __future__ import annotations
@@ -24,8 +33,8 @@ from sim.gcode.moves import MoveKind
 class MachineLimits:
     """Per-axis limits, GRBL's defaults: ``$110..$112`` mm/min, ``$120..$122`` mm/s^2, ``$11``, ``$12``."""
 
-    max_rate: tuple = (500.0, 500.0, 500.0)       # mm/min, X Y Z
-    acceleration: tuple = (10.0, 10.0, 10.0)      # mm/s^2, X Y Z
+    max_rate: tuple = (500.0, 500.0, 500.0)       # mm/min, X Y Z (+ A B C deg/min)
+    acceleration: tuple = (10.0, 10.0, 10.0)      # mm/s^2, X Y Z (+ A B C deg/s^2)
     junction_deviation: float = 0.01              # mm
     arc_tolerance: float = 0.002                  # mm
     planner_blocks: int = 16                      # GRBL: 15 buffered + the one running
@@ -45,6 +54,16 @@ class MachineLimits:
         if "planner_blocks" in cfg:
             kw["planner_blocks"] = int(cfg["planner_blocks"])
         return cls(**kw)
+
+
+def six_axes(values) -> np.ndarray:
+    """Per-axis limits (6,) X Y Z A B C from 3 (the rotaries take the largest) or 6 values."""
+    v = np.asarray(values, np.float64).reshape(-1)
+    if v.size == 6:
+        return v
+    if v.size != 3:
+        raise ValueError(f"expected 3 (X Y Z) or 6 (X Y Z A B C) axis limits, got {v.size}")
+    return np.concatenate([v, np.full(3, v.max())])
 
 
 def _limit_by_axis(limit_vec: np.ndarray, unit: np.ndarray) -> np.ndarray:
@@ -130,16 +149,21 @@ def cycle_time(moves: np.ndarray, machine=None) -> tuple[float, np.ndarray]:
         r, _a, sw, _ax = arc_rows_geometry(moves[is_arc])
         counts[is_arc] = chord_counts(r, sw, machine.arc_tolerance)
     owner = np.repeat(np.arange(n), counts)
-    delta = lin["end"][:, :3] - lin["start"][:, :3]
+    delta = lin["end"] - lin["start"]  # X Y Z mm, A B C deg (as mm)
     length = np.linalg.norm(delta, axis=1)
     unit = np.divide(delta, length[:, None], out=np.zeros_like(delta), where=length[:, None] > 0)
-    max_rate = np.asarray(machine.max_rate, dtype=np.float64)
-    accel = np.asarray(machine.acceleration, dtype=np.float64) * 3600.0  # mm/min^2
+    max_rate = six_axes(machine.max_rate)
+    accel = six_axes(machine.acceleration) * 3600.0  # mm/min^2
     kinds = lin["kind"]
     moving = (length > 0) & np.isin(kinds, [MoveKind.RAPID, MoveKind.FEED, MoveKind.ARC_CW, MoveKind.ARC_CCW,
                                             MoveKind.PROBE])
     rate_cap = _limit_by_axis(max_rate, unit)
-    feed = np.where(kinds == MoveKind.RAPID, rate_cap, np.minimum(lin["feed"], rate_cap))
+    programmed = lin["feed"]
+    inverse = lin["inverse_time"]
+    if np.any(inverse > 0):  # G93: the whole row (all its chords) in 1 / F minutes
+        row_length = np.bincount(owner, weights=length, minlength=n)[owner]
+        programmed = np.where(inverse > 0, inverse * row_length, programmed)
+    feed = np.where(kinds == MoveKind.RAPID, rate_cap, np.minimum(programmed, rate_cap))
     feed = np.where(feed > 0, feed, rate_cap)
     acc = _limit_by_axis(accel, unit)
     # keep only moving blocks for planning; stops between them come from the others

@@ -175,7 +175,7 @@ def test_machine_limits_for_timing_and_their_errors():
     assert job.machine == {"max_rate": (6000.0, 6000.0, 2500.0), "acceleration": (400.0, 400.0, 400.0),
                            "junction_deviation": 0.02}
     assert parse_job_text("").machine is None
-    with pytest.raises(JobError, match=r"\[machine\] max_rate: expected 3 numbers \(mm/min, one or three\)"):
+    with pytest.raises(JobError, match=r"\[machine\] max_rate: expected 3 numbers \(mm/min, one, three \(X Y Z\) or six \(\+ A B C\)\)"):
         parse_job_text('[machine]\nmax_rate = [1, 2]\n')
     with pytest.raises(JobError, match=r"\[machine\] acceleration: expected positive numbers"):
         parse_job_text('[machine]\nacceleration = [1, 0, 2]\n')

@@ -1,0 +1,52 @@
+(dexmon bundled example: 4th-axis engraving wrapped round a 25 mm bar)
+(work zero on the A axis at the bar's left end; the bar's top is Z12.5)
+G21 G90 G94 G17
+T1 M6
+M3 S12000
+G0 Z16
+G0 X10 Y0 A0
+(a ring at X10)
+G1 Z12 F200
+G1 A360 F1800
+G0 Z16
+G0 A0
+(eight flutes along the bar, 45 degrees apart)
+G0 X15 A0
+G1 Z12 F200
+G1 X45 F600
+G0 Z16
+G0 X15 A45
+G1 Z12 F200
+G1 X45 F600
+G0 Z16
+G0 X15 A90
+G1 Z12 F200
+G1 X45 F600
+G0 Z16
+G0 X15 A135
+G1 Z12 F200
+G1 X45 F600
+G0 Z16
+G0 X15 A180
+G1 Z12 F200
+G1 X45 F600
+G0 Z16
+G0 X15 A225
+G1 Z10.5 F200
+G1 X45 F600
+G0 Z16
+G0 X15 A270
+G1 Z12 F200
+G1 X45 F600
+G0 Z16
+G0 X15 A315
+G1 Z12 F200
+G1 X45 F600
+G0 Z16
+(a ring at X50)
+G0 X50 A0
+G1 Z12 F200
+G1 A360 F1800
+G0 Z16
+M5
+M2

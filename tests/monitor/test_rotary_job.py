@@ -1,0 +1,128 @@
+"""The bundled rotary example (a 4th-axis engraving, monitor/examples/rotary_job): its one
+planted fault (line 35 plunges 2 mm instead of 0.5) is found by ``simulate`` and, ahead
+of the spindle, by ``dry-run``; the live session follows moves that turn only A."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drivers.state import MachineState, RunState
+from monitor.cli import main
+from monitor.job import load_job
+from monitor.session import Session, load_moves
+
+JOB = Path(__file__).resolve().parents[2] / "monitor" / "examples" / "rotary_job" / "job.toml"
+FAULT_LINE = 35
+RING_LINE = 10  # G1 A360 F1800 at X10 Z12: a ring turned by A alone
+
+
+def lines_of(capsys):
+    return [json.loads(x) for x in capsys.readouterr().out.splitlines() if x.startswith("{")]
+
+
+def test_simulate_finds_the_planted_plunge(capsys):
+    code = main(["simulate", str(JOB), "--resolution", "0.5", "--json"])
+    doc = json.loads(capsys.readouterr().out)
+    assert code == 1
+    assert [(f["kind"], f["line"]) for f in doc["findings"]] == [("gouge", FAULT_LINE)]
+    # 2 mm deep into a design 1 mm under the bar's surface
+    assert doc["findings"][0]["depth"] == pytest.approx(1.0, abs=0.01)
+
+
+def test_dry_run_predicts_the_plunge_with_lead_time(capsys, tmp_path):
+    code = main(["dry-run", str(JOB), "--speed", "50", "--clock", "sim", "--resolution", "0.5", "--json",
+                 "--run", str(tmp_path / "run.sqlite")])
+    out = lines_of(capsys)
+    assert code == 1
+    findings = [x for x in out if x["event"] == "finding"]
+    assert [(f["kind"], f["line"]) for f in findings] == [("gouge", FAULT_LINE)]
+    assert findings[0]["predicted"] and findings[0]["lead_time_s"] > 0
+    summary = out[-1]
+    assert summary["event"] == "summary" and summary["ended"] == "done" and summary["bad"] == 0
+
+
+@pytest.fixture(scope="module")
+def ring_session():
+    job = load_job(JOB)
+    job.resolution = 0.5
+    moves, program = load_moves(job)
+    return Session(job, moves, program=program), moves
+
+
+def test_sync_follows_a_move_that_turns_only_a(ring_session):
+    """The tool stands still in X Y Z while A turns 0 -> 360: the sync walks along the
+    ring's row (it used to see one point, the row's start), and each step cuts."""
+    s, moves = ring_session
+    ring = int(np.nonzero(moves["line"] == RING_LINE)[0][0])
+    # on the ring's start: the plunge (line 9) has just ended at Z12
+    t = 0.0
+    s.step(MachineState(t=t, mpos=(10.0, 0.0, 16.0, 0.0, 0.0, 0.0), state=RunState.RUN, spindle=12000))
+    progress, removed = [], []
+    for k, z in enumerate(np.linspace(16.0, 12.0, 5)):
+        t += 0.2
+        s.step(MachineState(t=t, mpos=(10.0, 0.0, z, 0.0, 0.0, 0.0), state=RunState.RUN, spindle=12000))
+    for a in np.arange(10.0, 361.0, 10.0):
+        t += 0.05
+        info = s.step(MachineState(t=t, mpos=(10.0, 0.0, 12.0, a, 0.0, 0.0), state=RunState.RUN,
+                                   spindle=12000))
+        assert info.sync.row == ring, (a, info.sync)
+        progress.append(info.sync.progress)
+        removed.append(info.removed)
+    assert np.all(np.diff(progress) > 0)
+    assert progress[-1] == pytest.approx(s.path.row_t1[ring], abs=1e-6)
+    # every step turned the bar under the tool: a 0.5 mm deep ring is cut piece by piece
+    assert all(r > 0 for r in removed)
+    assert not s.findings
+
+
+def test_simulate_without_checks_cuts_on_the_turned_bar(capsys):
+    """--no-checks cuts with the job's kinematics too: the rings and flutes remove what
+    they remove with checks (it cut 3 axes, A ignored: every flute on the bar's top,
+    about a third of the volume)."""
+    main(["simulate", str(JOB), "--resolution", "0.5", "--json"])
+    checked = json.loads(capsys.readouterr().out)["removed_mm3"]
+    main(["simulate", str(JOB), "--resolution", "0.5", "--json", "--no-checks"])
+    unchecked = json.loads(capsys.readouterr().out)["removed_mm3"]
+    assert unchecked == pytest.approx(checked, rel=1e-9)
+
+
+def test_stock_cylinder_along_x_and_its_errors():
+    from monitor.job import JobError, parse_job_text
+
+    job = parse_job_text('[stock]\ncylinder = [1, 2, 5, 0, 60]\naxis = "x"\n')
+    assert job.stock.axis == "x"
+    assert job.stock.bounds() == ((0.0, -4.0, -3.0), (60.0, 6.0, 7.0))
+    assert job.stock.cylinder_placement() == ((0.0, 1.0, 2.0), (1.0, 0.0, 0.0), 5.0, 60.0)
+    # a Z cylinder stays what it was
+    z = parse_job_text("[stock]\ncylinder = [1, 2, 5, 0, 10]\n").stock
+    assert z.bounds() == ((-4.0, -3.0, 0.0), (6.0, 7.0, 10.0))
+    with pytest.raises(JobError, match=r'\[stock\] axis: expected "x", "y" or "z"'):
+        parse_job_text('[stock]\ncylinder = [1, 2, 5, 0, 60]\naxis = "a"\n')
+    with pytest.raises(JobError, match=r"\[stock\] cylinder: expected radius > 0 and x0 < x1"):
+        parse_job_text('[stock]\ncylinder = [1, 2, 5, 60, 0]\naxis = "x"\n')
+    with pytest.raises(JobError, match=r"\[stock\].*axis"):
+        parse_job_text('[stock]\nbox = [0, 0, 0, 1, 1, 1]\naxis = "x"\n')
+
+
+def test_program_path_with_angles_makes_a_turn_a_segment():
+    """A row turning only A is a point in X Y Z; with the rotary scale it has a length,
+    and positions along the turn project onto it in order."""
+    from monitor.sync import ProgramPath, ProgramSync
+    from sim.gcode.program import interpret
+
+    moves = interpret("G21 G90\nG0 X10 Z5\nG1 A90 F900\nG1 X20 F900\n").moves
+    flat = ProgramPath.from_moves(moves)
+    six = ProgramPath.from_moves(moves, rotary_scale=0.2)
+    turn = int(np.nonzero(moves["line"] == 3)[0][0])
+    assert six.p0.shape[1] == 6 and len(six) == len(flat)
+    seg = int(np.nonzero(six.row == turn)[0][0])
+    assert np.linalg.norm(flat.p1[seg] - flat.p0[seg]) == 0.0
+    assert np.linalg.norm(six.p1[seg] - six.p0[seg]) == pytest.approx(18.0)
+    sync = ProgramSync(six)
+    got = [sync.update([10, 0, 5, 0.2 * a, 0, 0], t=k * 0.1) for k, a in enumerate((0, 30, 60, 90))]
+    assert [g.row for g in got[1:]] == [turn] * 3
+    assert got[1].progress < got[2].progress < got[3].progress
