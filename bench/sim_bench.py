@@ -626,10 +626,10 @@ def _vm_hwm_mb() -> float | None:
     return None
 
 
-def _time_dexmon(tool, moves) -> tuple[float, DexelGrid]:
+def _time_dexmon(tool, moves, threads: int | None = None) -> tuple[float, DexelGrid]:
     """Wall seconds of dexmon's plain cut of ``moves`` into fresh stock, and the grid."""
     grid = stock_grid()
-    cutter = Cutter(grid, tool)
+    cutter = Cutter(grid, tool, threads=threads)
     w0 = time.perf_counter()
     cutter.cut_moves(moves, record_changes=False)
     return time.perf_counter() - w0, grid

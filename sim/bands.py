@@ -226,7 +226,7 @@ class _BandTraces(_Buffers):
                 int(ts[:, K.TS_NR].sum()))
 
 
-def cut_in_bands(grid, kernel, seg_move: np.ndarray, bounds: np.ndarray, removed: np.ndarray,
+def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
                  log=None, sink=None, reach: np.ndarray | None = None, threads: int | None = None) -> None:
     """Run a linear batch cut band by band on threads, and merge what the bands recorded.
 
@@ -235,14 +235,17 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, bounds: np.ndarray, removed
     returning the kernel's status (``state[0]``, counted from the slice's start, says
     where to begin: the slice holds one segment before the chunk, for the kernel to look
     back at).
-    bounds: row bounds of the bands (:func:`plan_bands`); removed: float64 (n_moves,)
+    plan(a, b): the row bounds of the bands (:func:`plan_bands`, at most ``threads``) for
+    the segments ``a .. b-1``: planned per chunk, as a chunk of a raster covers only part of
+    the rows and bands planned for the whole batch would leave all its work to one;
+    removed: float64 (n_moves,)
     accumulates the length removed per move (mm). log: the cutter's change log (no
     journal) or None; sink: the trace sink (``sim.trace._Sink``) or None; reach: the rays
     within reach of each segment (:func:`reach_rays`: they bound the changes a band logs).
     """
-    n_bands = len(bounds) - 1
+    threads = threads or default_threads()
+    n_bands = threads   # buffers for as many bands as a chunk may have
     n_moves = removed.size
-    threads = min(threads or default_threads(), n_bands)
     store = grid.store
     rem = np.zeros((n_bands, n_moves))
     pools = np.zeros((n_bands, 2), np.int64)   # each band's [top, end) in the pool; empty at first
@@ -265,7 +268,8 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, bounds: np.ndarray, removed
             traces.start_chunk(m0, m1, changes)
         if logs is not None:
             logs.start_chunk(m0, m1, changes)
-        todo = list(range(n_bands))
+        bounds = plan(a, b)
+        todo = list(range(len(bounds) - 1))
         while todo:
             def run(t, S=grid.S):
                 band_S = (*S[:11], pools[t])
@@ -291,7 +295,7 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, bounds: np.ndarray, removed
         if logs is not None:
             _merge_logs(log, logs, states, m0, m1)
         if traces is not None:
-            _merge_traces(sink, traces, m0, m1, ci == len(chunks) - 1, ex)
+            _merge_traces(sink, traces, m0, m1, ci == len(chunks) - 1)
     removed += rem.sum(axis=0)
     _end_pool_ranges(store, pools)
 
@@ -344,16 +348,17 @@ def _merge_log_kernel(m0, m1, counts, ray, depth, out_ray, out_depth, out_counts
     return n
 
 
-def _merge_traces(sink, traces: _BandTraces, m0: int, m1: int, last: bool, ex) -> None:
+def _merge_traces(sink, traces: _BandTraces, m0: int, m1: int, last: bool) -> None:
     """Append the bands' trace events of moves ``m0 .. m1-1`` to the sink's columns, close
     their blocks, and take a keyframe now if one fell due (not after the batch's last
     chunk: the sink's end does that).
 
     Where each band's events of each move go is worked out first (move by move, band by
-    band); then every band copies its own on a thread of its own, which also shares out
-    the first touch of the columns' fresh pages. A band whose first run of far rays goes
-    on from the previous band's last one (a move reaching both edges of a narrow grid)
-    adds its length to that run afterwards, as one core would have made one run.
+    band), then each band's are copied there. (Copied on the calling thread: most of the
+    cost is the first touch of the columns' fresh pages, and two threads touching the same
+    pages took longer, not shorter.) A band whose first run of far rays goes on from the
+    previous band's last one (a move reaching both edges of a narrow grid) adds its length
+    to that run afterwards, as one core would have made one run.
     """
     nb_ = traces.n_bands
     m = m1 - m0
@@ -384,14 +389,8 @@ def _merge_traces(sink, traces: _BandTraces, m0: int, m1: int, last: bool, ex) -
     band_cols = (a["rs"], a["f_val"], a["rl"], a["g_ray"], a["g_count"], a["g_near"], a["g_far"],
                  a["g_nid"], a["g_fid"])
 
-    def copy(t):
+    for t in range(nb_):
         _copy_band_events(t, starts, cnt, dest, join, *band_cols, *cols)
-
-    if ex is not None and nb_ > 1:
-        list(ex.map(copy, range(nb_)))
-    else:
-        for t in range(nb_):
-            copy(t)
     jt, jq = np.nonzero(join)
     if jt.size:
         np.add.at(cols[2], dest[3, jt, jq] - 1, rl_b[jt, starts[3, jt, jq]])
@@ -402,7 +401,7 @@ def _merge_traces(sink, traces: _BandTraces, m0: int, m1: int, last: bool, ex) -
         sink.chunk_done(m1 - 1)
 
 
-@nb.njit(cache=True, nogil=True)
+@nb.njit(cache=True)
 def _copy_band_events(t, starts, cnt, dest, join, b_rs, b_val, b_rl, b_gray, b_gcnt, b_gn, b_gf, b_gni,
                       b_gfi, rs, val, rl, gray, gcnt, gn, gf, gni, gfi):
     """Copy band ``t``'s events of each move to where :func:`_merge_traces` placed them

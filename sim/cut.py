@@ -18,7 +18,7 @@ with rotaries (``kinematics=``): then a batch with any row whose rotaries are no
 (or change) is cut by instances of motion of the machine axes interpolated linearly
 (:func:`sim.kinematics.move_instances`, no tool point moves more than
 ``tol.instance_fraction * spacing`` between two), each placed on the part by the
-kinematics (see :meth:`Cutter._rotary_poses`). Without one (the default) the moves are
+kinematics (see :mod:`sim.rotary_plan`). Without one (the default) the moves are
 3-axis with the tool axis along +Z. Tilted and 5-axis poses can also be cut directly
 through :meth:`Cutter.cut_poses` / :meth:`Cutter.cut_segment` with axes.
 Rapids cut like feeds (the checks decide whether that was allowed); the cutter does not
@@ -27,7 +27,6 @@ judge ``center_cutting`` either.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, field
 
@@ -40,7 +39,8 @@ from sim import sweep_kernels as K
 from sim.errors import InputError
 from sim.gcode.moves import MoveKind, tip_positions
 from sim.grid import DexelGrid
-from sim.kinematics import ROTARY_COLUMN, Kinematics, instance_poses
+from sim.kinematics import Kinematics
+from sim.rotary_plan import RotaryPlan
 from sim.tolerance import DEFAULT, Tolerance
 from sim.tools import Body, Tool
 
@@ -182,32 +182,6 @@ class _Log:
 
 
 
-#: points on each rim circle of the tool where :meth:`Cutter._fewest_instances` measures
-_RIM = 16
-_UNIT_OF = {"A": np.array([1.0, 0.0, 0.0]), "B": np.array([0.0, 1.0, 0.0]), "C": np.array([0.0, 0.0, 1.0])}
-
-
-def _within_radius(tips, axes, point, direction, radius: float, enter, leave):
-    """``(enter, leave)`` narrowed to the heights h at which ``tips + h * axes`` ((k, 3))
-    lies within ``radius`` of the line through ``point`` along unit ``direction``."""
-    w = tips - point
-    w = w - (w @ direction)[:, None] * direction
-    k = axes - (axes @ direction)[:, None] * direction
-    a = np.einsum("ij,ij->i", k, k)
-    b = 2.0 * np.einsum("ij,ij->i", w, k)
-    c = np.einsum("ij,ij->i", w, w) - radius * radius
-    disc = b * b - 4.0 * a * c
-    along = a < 1e-18  # the tool along the line: all heights or none
-    with np.errstate(divide="ignore", invalid="ignore"):
-        root = np.sqrt(np.maximum(disc, 0.0))
-        h0 = (-b - root) / (2.0 * a)
-        h1 = (-b + root) / (2.0 * a)
-    enter = np.where(along, enter, np.maximum(enter, h0))
-    leave = np.where(along, np.where(c <= 0, leave, -np.inf), np.minimum(leave, h1))
-    leave = np.where(~along & (disc < 0), -np.inf, leave)
-    return enter, leave
-
-
 class _Work:
     """Accumulates the pieces a batch is made of: exact segments and instance poses."""
 
@@ -279,8 +253,6 @@ class Cutter:
         # a kinematics that turns nothing is the 3-axis cutter, with no per-batch test
         self.kinematics = kinematics if kinematics is not None and kinematics.rotaries else None
         self.origin = np.zeros(6) if origin is None else np.asarray(origin, np.float64).reshape(6).copy()
-        self._rot_cols = (np.array([ROTARY_COLUMN[r] for r in self.kinematics.rotaries])
-                          if self.kinematics is not None else None)
         #: rotary batches: cut the body above the height that can reach material off
         #: (:meth:`_reaching_profile`); False cuts with the whole body (the tests' reference)
         self.trim_body = True
@@ -291,6 +263,8 @@ class Cutter:
         self.threads = bands.default_threads() if threads is None else max(1, int(threads))
         self._top = grid.frame.is_top  # frames are immutable; asked on every batch
         self._params: dict[int, tuple] = {}  # id(body) -> (body, kernel parameters)
+        self._rotary = (RotaryPlan(grid, self.kinematics, self.origin, self._step(), tol.length)
+                        if self.kinematics is not None else None)
 
     # --- public API ---------------------------------------------------------------------
     def cut_moves(self, moves: np.ndarray, move_ids=None, record_changes: bool = True,
@@ -441,7 +415,7 @@ class Cutter:
         lin = ((kind == _LINEAR_KINDS[0]) | (kind == _LINEAR_KINDS[1])) & ~bad
         arc = ((kind == _ARC_KINDS[0]) | (kind == _ARC_KINDS[1])) & ~bad
         exact = self._exact(body)
-        turning = self._turning_rows(moves, lin | arc)
+        turning = self._rotary.turning_rows(moves, lin | arc) if self._rotary else None
         if turning is not None:  # a batch with rotation is cut by instances, in row order
             exact = False
         if exact and not arc.any():  # the live monitor's few rows per poll: no per-row work
@@ -458,7 +432,7 @@ class Cutter:
             plane = int(moves["plane"][k])
             turns = int(moves["turns"][k]) or 1
             if turning is not None and turning[k]:
-                pieces[k], tilted[k] = self._rotary_poses(moves[k], start[k], end[k], body,
+                pieces[k], tilted[k] = self._rotary.poses(moves[k], start[k], end[k], body,
                                                           arc=(center, plane, turns, cw))
             elif exact:
                 pq = sweep.PLANE_AXES[plane][:2]
@@ -472,7 +446,7 @@ class Cutter:
         if not exact:
             for k in np.nonzero(lin)[0]:
                 if turning is not None and turning[k]:
-                    pieces[k], tilted[k] = self._rotary_poses(moves[k], start[k], end[k], body)
+                    pieces[k], tilted[k] = self._rotary.poses(moves[k], start[k], end[k], body)
                 else:
                     pieces[k], _ = sweep.instances(start[k], end[k], _Z_AXIS, _Z_AXIS, length, self._step())
                 multi[rows[k]] = True
@@ -509,169 +483,6 @@ class Cutter:
             work.pose_move.append(rows[owner].astype(np.int64))
             work.pose_id.append(ids[owner].astype(np.int32))
         return work
-
-    def _turning_rows(self, moves, moving) -> np.ndarray | None:
-        """Which ``moving`` rows a rotary of the kinematics turns (not all 0 at both ends,
-        machine angles: the row's plus ``origin``), bool (n,); None when none does (or
-        there is no kinematics), so a 3-axis batch pays one test at most."""
-        if self._rot_cols is None:
-            return None
-        o = self.origin[self._rot_cols]
-        a0 = moves["start"][:, self._rot_cols] + o
-        a1 = moves["end"][:, self._rot_cols] + o
-        turning = moving & ((a0 != 0.0).any(axis=1) | (a1 != 0.0).any(axis=1))
-        return turning if turning.any() else None
-
-    def _rotary_poses(self, row, tip0, tip1, body, arc=None) -> tuple[np.ndarray, np.ndarray]:
-        """Instances of motion of one row with rotation: tips and axes ((k, 3) each) in the
-        grid's frame. ``tip0``/``tip1`` (3,) mm are the row's tips as the table gives them
-        (its X Y Z less its tool length); ``arc``: (centre (3,) tip coords, plane, turns,
-        clockwise) for an arc row. Every machine axis moves linearly (along the arc for
-        X Y Z of an arc), as GRBL and LinuxCNC's joint moves do; the count bounds how far
-        any point of ``body`` (its profile's radius x height) moves between two."""
-        kin = self.kinematics
-        L = float(row["tool_length"])
-        lift = np.array([0.0, 0.0, L])
-        a = np.concatenate([tip0 + lift, row["start"][3:]]) + self.origin
-        b = np.concatenate([tip1 + lift, row["end"][3:]]) + self.origin
-        prof = body.profile
-        height, radius = float(prof[-1, 0]), float(prof[:, 1].max())
-        count = int(kin.instance_counts(a, b, L, height, radius, self._step())[0])
-        if arc is None:
-            if count > 1:
-                count = self._fewest_instances(instance_poses(a, b, count), L, height, radius)
-            poses = instance_poses(a, b, count)
-        else:
-            center, plane, turns, cw = arc
-            pts = sweep.arc_points(tip0, tip1, center, plane, turns, cw, max_step_length=self._step())
-            if len(pts) - 1 < count:  # the rotaries need finer steps than the arc's path
-                pts = sweep.arc_points(tip0, tip1, center, plane, turns, cw,
-                                       max_step_length=self._step() * (len(pts) - 1) / count)
-            f = np.linspace(0.0, 1.0, len(pts))[:, None]
-            poses = np.empty((len(pts), 6))
-            poses[:, :3] = pts + lift + self.origin[:3]
-            poses[:, 3:] = a[3:] + f * (b[3:] - a[3:])
-        tips, axes = kin.forward(poses, L)
-        return tips - self.origin[:3], axes
-
-    def _material_box(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """(lo, hi) (3,) frame-local mm of the material now in the grid (ray feet of the
-        rays holding any, from the lowest near to the highest far); None when empty."""
-        f = self.grid.frame
-        counts = self.grid.counts
-        rows = np.nonzero(counts.any(axis=1))[0]
-        if rows.size == 0:
-            return None
-        cols = np.nonzero(counts.any(axis=0))[0]
-        held = self.grid.store["count"] > 0
-        lo = np.array([cols[0] * f.spacing, rows[0] * f.spacing, float(self.grid.store["near"][held].min())])
-        hi = np.array([cols[-1] * f.spacing, rows[-1] * f.spacing, self.grid.max_top()])
-        return lo, hi
-
-    def _axis_line(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """(point, unit direction) frame-local of the innermost table axis (the part sits
-        on it: fixed on the part), or None (no table axis)."""
-        if not self.kinematics.table:
-            return None
-        ax = self.kinematics.table[-1]
-        f = self.grid.frame
-        point = f.to_local(np.asarray(ax.point, np.float64) - self.origin[:3])
-        d = _UNIT_OF[ax.letter]
-        return point, np.array([d @ f.u, d @ f.v, d @ f.direction])
-
-    def _material_radius(self, point: np.ndarray, direction: np.ndarray) -> float:
-        """Largest distance (mm) of the material from the line (frame-local): at a ray's
-        first near or last far (distance from a line is convex along a ray)."""
-        f = self.grid.frame
-        held = np.nonzero(self.grid.store["count"] > 0)[0]
-        if held.size == 0:
-            return 0.0
-        j, i = np.divmod(held, f.nu)
-        feet = np.stack([i * f.spacing, j * f.spacing, np.zeros(held.size)], axis=1)
-        top = self.grid.top().reshape(-1)[held].astype(np.float64)
-        near = self.grid.store["near"][held].astype(np.float64)
-        out = 0.0
-        for s in (near, top):
-            q = feet.copy()
-            q[:, 2] = s
-            w = q - point
-            out = max(out, float(np.linalg.norm(w - (w @ direction)[:, None] * direction, axis=1).max()))
-        return out
-
-    def _reaching_profile(self, prof: np.ndarray, tips: np.ndarray, axes: np.ndarray) -> np.ndarray:
-        """``prof`` cut at the height along the tool above which no instance (frame-local
-        ``tips``/``axes`` (k, 3)) can reach the material's box: the same cut, a smaller
-        body (a tilted or turned tool's long flutes and shank sweep a wide footprint of
-        rays that hold nothing at their height). At least the profile's first segment."""
-        box = self._material_box()
-        bot, top = float(prof[0, 0]), float(prof[-1, 0])
-        if box is None:
-            h = bot
-        else:
-            grow = float(prof[:, 1].max()) + 2 * self.grid.frame.spacing + self.tol.length
-            lo, hi = box[0] - grow, box[1] + grow
-            # per instance, the heights h at which tip + h * axis is inside the grown box
-            enter = np.full(len(tips), bot)
-            leave = np.full(len(tips), top)
-            for c in range(3):
-                a, p = axes[:, c], tips[:, c]
-                flat = np.abs(a) < 1e-12
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    h0, h1 = (lo[c] - p) / a, (hi[c] - p) / a
-                outside = flat & ((p < lo[c]) | (p > hi[c]))
-                enter = np.where(flat, enter, np.maximum(enter, np.minimum(h0, h1)))
-                leave = np.where(flat, leave, np.minimum(leave, np.maximum(h0, h1)))
-                leave = np.where(outside, -np.inf, leave)
-            # a turning part: its material stays within a radius of the part's own
-            # (innermost) table axis, a line fixed on the part: the heights inside it
-            line = self._axis_line()
-            if line is not None:
-                enter, leave = _within_radius(tips, axes, *line, self._material_radius(*line) + grow,
-                                              enter, leave)
-            reach = leave[leave >= enter]
-            h = float(reach.max()) if reach.size else bot
-        # never below a sliver of the first segment: the kernels want a body
-        h = max(h, bot + min(self.grid.frame.spacing, float(prof[1, 0]) - bot))
-        if h >= top:
-            return prof
-        # the body below h exactly: the vertices under it and the profile's point at h
-        k = int(np.searchsorted(prof[:, 0], h, side="right"))  # prof[k-1, 0] <= h < prof[k, 0]
-        (h0, r0), (h1, r1) = prof[k - 1], prof[k]
-        r = r0 + (h - h0) / (h1 - h0) * (r1 - r0)
-        return np.ascontiguousarray(np.vstack([prof[:k], [[h, r]]]))
-
-    def _fewest_instances(self, dense: np.ndarray, L: float, height: float, radius: float) -> int:
-        """The fewest equal steps of the move through machine poses ``dense`` ((k+1, 6),
-        equal steps within the bound of :meth:`Kinematics.instance_counts`) that keep
-        every point of the tool (the ``radius`` x ``height`` cylinder) within ``step`` of
-        where it was.
-
-        The bound adds the gauge point's travel and each rotation's separately; on a
-        5-axis move whose linear axes follow the rotation (the tip nearly still) the tool
-        moves far less. A rigid motion moves a point by an affine function of it, so the
-        largest move over the cylinder is on its two rim circles (sampled 16 times, the
-        rest of the circle within (2 / cos(pi/16) - 1) of the samples' largest: the
-        circumscribed 16-gon holds the circle, and the image of its vertices is bounded
-        so); the move between two instances is at most the sum of the dense steps
-        between them."""
-        step = self._step()
-        ang = np.arange(_RIM) * (2 * np.pi / _RIM)
-        rim = np.stack([radius * np.cos(ang), radius * np.sin(ang), np.zeros(_RIM)], axis=1)
-        local = np.concatenate([rim, rim + [0.0, 0.0, height]])
-        pts = self.kinematics.tool_points(dense, L, local)
-        moved = np.linalg.norm(np.diff(pts, axis=0), axis=2).max(axis=1) * (2.0 / math.cos(math.pi / _RIM) - 1.0)
-        cum = np.concatenate([[0.0], np.cumsum(moved)])
-        k = len(moved)
-        count = max(1, int(math.ceil(cum[-1] / step)))
-        while count < k:
-            # each sparse step's dense steps, rounded outward
-            edges = np.arange(count + 1) * (k / count)
-            lo, hi = np.floor(edges[:-1]).astype(np.int64), np.ceil(edges[1:]).astype(np.int64)
-            worst = float((cum[np.minimum(hi, k)] - cum[lo]).max())
-            if worst <= step:
-                return count
-            count = min(k, int(math.ceil(count * worst / step)) + 1)
-        return k
 
     def _child(self, grid: DexelGrid) -> "Cutter":
         """A Cutter on another grid (a scratch copy, a window) with this one's tool,
@@ -713,7 +524,7 @@ class Cutter:
             axes_l = np.ascontiguousarray(np.stack([axes @ f.u, axes @ f.v, axes @ f.direction], axis=1))
             axes_l /= np.linalg.norm(axes_l, axis=1, keepdims=True)
             if self.kinematics is not None and self.trim_body:
-                prof = self._reaching_profile(prof, tips_l, axes_l)
+                prof = self._rotary.reaching_profile(prof, tips_l, axes_l)
             rmax = float(prof[:, 1].max())
             self._cut_poses(tips_l, axes_l, pm, pid, prof, rmax, removed, probe, log, sink)
 
@@ -735,16 +546,16 @@ class Cutter:
         top_bound = np.inf
         if len(p0) >= 64 and not probe:  # lets chained moves skip rays already cut
             top_bound = grid.max_top()
-        bounds = None
         if self.threads > 1 and not probe and not journal and reach.sum() >= bands.MIN_PARALLEL_RAYS:
-            bounds = bands.plan_bands(p0, p1, tp[6], f.origin[1], f.spacing, f.nv, self.threads)
-        if bounds is not None and len(bounds) > 2:
+            def plan(a, b):
+                return bands.plan_bands(p0[a:b], p1[a:b], tp[6], f.origin[1], f.spacing, f.nv, self.threads)
+
             def band_cut(S, st, B, T, ts, rem, band, segs):
                 a, b = segs
                 return K.cut_linear_batch(S, f.origin[0], f.origin[1], f.spacing, f.nu, f.nv, p0[a:b],
                                           p1[a:b], sm[a:b], sid[a:b], tp, eps, False, record, False, rem,
                                           B, st, traced, T, ts, top_bound, band[0], band[1])
-            bands.cut_in_bands(grid, band_cut, sm, bounds, removed, log, sink, reach, self.threads)
+            bands.cut_in_bands(grid, band_cut, sm, plan, removed, log, sink, reach, self.threads)
             return
         self._loop(lambda S, st, B, T, ts: K.cut_linear_batch(
             S, f.origin[0], f.origin[1], f.spacing, f.nu, f.nv, p0, p1, sm, sid, tp, eps,
@@ -768,16 +579,18 @@ class Cutter:
             # each pose's rows: from the bottom to the top of the (tilted) body, grown by rmax
             lo = tips + prof[0, 0] * axes
             hi = tips + prof[-1, 0] * axes
-            bounds = bands.plan_bands(lo, hi, rmax, 0.0, f.spacing, f.nv, self.threads)
-            if len(bounds) > 2:
-                def band_cut(S, st, B, T, ts, rem, band, segs):
-                    a, b = segs
-                    return K.cut_poses(S, f.spacing, f.nu, f.nv, tips[a:b], axes[a:b], pm[a:b], pid[a:b],
-                                       prof, rmax, eps, False, record, False, rem, B, st, traced, T, ts,
-                                       band[0], band[1])
-                bands.cut_in_bands(self.grid, band_cut, pm, bounds, removed, log, sink,
-                                   np.full(len(tips), per_pose), self.threads)
-                return
+
+            def plan(a, b):
+                return bands.plan_bands(lo[a:b], hi[a:b], rmax, 0.0, f.spacing, f.nv, self.threads)
+
+            def band_cut(S, st, B, T, ts, rem, band, segs):
+                a, b = segs
+                return K.cut_poses(S, f.spacing, f.nu, f.nv, tips[a:b], axes[a:b], pm[a:b], pid[a:b],
+                                   prof, rmax, eps, False, record, False, rem, B, st, traced, T, ts,
+                                   band[0], band[1])
+            bands.cut_in_bands(self.grid, band_cut, pm, plan, removed, log, sink,
+                               np.full(len(tips), per_pose), self.threads)
+            return
         self._loop(lambda S, st, B, T, ts: K.cut_poses(
             S, f.spacing, f.nu, f.nv, tips, axes, pm, pid, prof, rmax, eps, probe, record,
             journal, removed, B, st, traced, T, ts, 0, int(f.nv)), log, sink)
@@ -841,7 +654,7 @@ class Cutter:
             r = float(np.linalg.norm(start[0] - np.where(np.isfinite(c), c, start[0])))
             pts = np.concatenate([pts, c[None, :] - r, c[None, :] + r])
             pts = pts[np.isfinite(pts).all(axis=1)]
-        if self._turning_rows(moves, np.ones(len(moves), bool)) is not None:
+        if self._rotary and self._rotary.turning_rows(moves, np.ones(len(moves), bool)) is not None:
             # a turning part: the tool reaches wherever the rotation takes it; the whole grid
             return self._child(self.grid.copy())._cut_with(moves, body)
         prof = body.profile

@@ -61,7 +61,7 @@ def ray_ys(limit):
 
 def planned(cutter, moves):
     """Steps between the instances the cutter plans for the one row of ``moves``."""
-    tips, _ = cutter._rotary_poses(moves[0], moves["start"][0, :3], moves["end"][0, :3], cutter.tool)
+    tips, _ = cutter._rotary.poses(moves[0], moves["start"][0, :3], moves["end"][0, :3], cutter.tool)
     return len(tips) - 1
 
 
@@ -209,7 +209,7 @@ def test_three_axis_default_is_unchanged():
 @pytest.mark.parametrize("case", ["4axis", "5axis"])
 def test_body_cut_to_its_reach_cuts_the_same(case):
     """Rotary batches cut with the tool's profile stopped where no instance can reach the
-    material's box (Cutter._reaching_profile): the model is bit for bit the whole body's."""
+    material's box (sim.rotary_plan.RotaryPlan.reaching_profile): the model is bit for bit the whole body's."""
     if case == "4axis":
         tool = parse_tool_spec("ball:3:L=10")
         stock = bar(radius=8.0)
@@ -238,7 +238,7 @@ def test_body_cut_to_its_reach_cuts_the_same(case):
     f = stock.frame
     t, ax = kin.forward(np.asarray(poses, float), 0.0)
     axes_l = np.stack([ax @ f.u, ax @ f.v, ax @ f.direction], axis=1)
-    prof = a._reaching_profile(tool.profile, f.to_local(t), axes_l)
+    prof = a._rotary.reaching_profile(tool.profile, f.to_local(t), axes_l)
     assert prof[-1, 0] < tool.profile[-1, 0]
 
 
@@ -266,7 +266,7 @@ def test_fewest_instances_keep_every_tool_point_within_the_step():
     tips = np.array([[0.0, 0.0, -1.0], [1.0, 0.0, -1.0]])
     a, b = np.hstack([kin.machine_xyz(tips, rot, 0.0), rot])
     move = rows(a, b)
-    tips_got, _ = cutter._rotary_poses(move[0], a[:3], b[:3], tool)
+    tips_got, _ = cutter._rotary.poses(move[0], a[:3], b[:3], tool)
     bound = int(kin.instance_counts(a, b, 0.0, 20.0, 3.0, cutter._step())[0])
     count = len(tips_got) - 1
     assert count < bound / 3
