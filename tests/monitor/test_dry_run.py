@@ -44,7 +44,9 @@ def check_planted(findings):
 
 def test_cli_dry_run_bundled_example(tmp_path, capsys):
     run = tmp_path / "run.sqlite"
-    code = main(["dry-run", "--speed", "20", "--json", "--run", str(run)])
+    # the sim clock: the machine moves per poll, so the lead times do not hang on how busy
+    # the computer is (with the wall clock at 20x a loaded machine saw the gouge arrive first)
+    code = main(["dry-run", "--speed", "20", "--clock", "sim", "--json", "--run", str(run)])
     out = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
     assert code == 1
     assert out[0] == {"event": "start", "run": str(run), "program": str(load_job(EXAMPLE_JOB).program),
