@@ -142,31 +142,12 @@ def _job_setup(args) -> Setup:
     import dataclasses
 
     from monitor.commands import simulate as S
-    from monitor.job import ToolDef, load_job, parse_solid_spec
+    from monitor.job import load_job
 
     path = Path(args.program)
     if not path.is_file():
         raise InputError("no such job file", where=str(path))
-    job = load_job(path)
-    if args.stock:
-        job.stock = parse_solid_spec(args.stock if ":" in args.stock else f"stl:{args.stock}", "--stock")
-    if args.tool:
-        job.default_tool = ToolDef(0, args.tool)
-        job.tools = {}
-    if args.tool_table:
-        job.tool_table = Path(args.tool_table)
-    if args.dialect:
-        job.dialect = args.dialect
-    if args.var:
-        job.var_file = Path(args.var)
-    if args.machine_units:
-        job.machine_units = args.machine_units
-    if args.resolution is not None:
-        job.resolution = _positive(args.resolution, "--resolution")
-    if args.design:
-        spec = args.design
-        job.design = parse_solid_spec(spec if ":" in spec and not spec.lower().endswith((".stl", ".obj"))
-                                      else f"stl:{spec}", "--design")
+    job = S.apply_job_flags(load_job(path), args)
     t_l = _positive(args.tolerance, "--tolerance")
     if t_l:
         job.tolerance = dataclasses.replace(job.tolerance, gouge=t_l)

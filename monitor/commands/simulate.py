@@ -159,6 +159,44 @@ def subroutine_dirs(args) -> list[str]:
     return dirs
 
 
+def apply_job_flags(job, args):
+    """``job`` with what the command-line flags replace: ``--stock``, ``--tool`` (the job's
+    tools dropped), ``--tool-table``, ``--dialect``, ``--var``, ``--machine-units``,
+    ``--subroutine-path``, ``--resolution``, ``--design`` (``simulate`` and ``correct``
+    read a job the same way). InputError naming the flag for a bad value."""
+    from monitor.job import ToolDef, parse_solid_spec
+
+    if getattr(args, "stock", None):
+        spec = args.stock if ":" in args.stock else f"stl:{args.stock}"
+        job.stock = parse_solid_spec(spec, "--stock")
+    if getattr(args, "tool", None):
+        job.default_tool = ToolDef(0, args.tool)
+        job.tools = {}
+    if getattr(args, "tool_table", None):
+        job.tool_table = Path(args.tool_table)
+    if getattr(args, "dialect", None):
+        job.dialect = args.dialect
+    # the job's [program] var / machine_units / subroutine_path, each replaced by its flag
+    if getattr(args, "var", None):
+        if not Path(args.var).is_file():
+            raise InputError("no such parameter (.var) file", where=f"--var {args.var}")
+        job.var_file = Path(args.var)
+    if getattr(args, "machine_units", None) or getattr(args, "tool_table_units", None):
+        job.machine_units = machine_units(args)
+    sub_dirs = subroutine_dirs(args)
+    if sub_dirs:
+        job.subroutine_path = [Path(d) for d in sub_dirs]
+    if getattr(args, "resolution", None) is not None:
+        if not (math.isfinite(args.resolution) and args.resolution > 0):
+            raise InputError(f"must be a positive length in mm, got {args.resolution:g}", where="--resolution")
+        job.resolution = float(args.resolution)
+    if getattr(args, "design", None):
+        spec = args.design
+        job.design = parse_solid_spec(spec if ":" in spec and not spec.lower().endswith((".stl", ".obj"))
+                                      else f"stl:{spec}", "--design")
+    return job
+
+
 def stock_true_volume(spec: str | None = None, solid=None) -> float | None:
     """The stock's exact volume in mm^3 (a box's product of sides, a cylinder's pi r^2 h,
     a closed mesh's ``mesh.volume``), from a ``--stock`` spec or a job's ``Solid``; None when
@@ -304,7 +342,7 @@ def _run_job(args) -> int:
     tolerances, limits and resolution; the flags given replace the job's."""
     import dataclasses
 
-    from monitor.job import ToolDef, load_job, parse_solid_spec, require
+    from monitor.job import load_job, parse_solid_spec, require
     from monitor.predict import MIN_VOLUME, build_workpiece, limits_in_work, reference_wco, work_moves
     from monitor.start import job_start, start_at
     from sim.checks.motion import parse_limits
@@ -316,35 +354,7 @@ def _run_job(args) -> int:
         raise InputError("no such job file", where=str(path))
     if args.resume:
         raise InputError("--resume is not available with a job file; give a program", where="--resume")
-    job = load_job(path)
-    if args.stock:
-        spec = args.stock if ":" in args.stock else f"stl:{args.stock}"
-        job.stock = parse_solid_spec(spec, "--stock")
-    if args.tool:
-        job.default_tool = ToolDef(0, args.tool)
-        job.tools = {}
-    if args.tool_table:
-        job.tool_table = Path(args.tool_table)
-    if args.dialect:
-        job.dialect = args.dialect
-    # the job's [program] var / machine_units / subroutine_path, each replaced by its flag
-    if args.var:
-        if not Path(args.var).is_file():
-            raise InputError("no such parameter (.var) file", where=f"--var {args.var}")
-        job.var_file = Path(args.var)
-    if getattr(args, "machine_units", None) or getattr(args, "tool_table_units", None):
-        job.machine_units = machine_units(args)
-    sub_dirs = subroutine_dirs(args)
-    if sub_dirs:
-        job.subroutine_path = [Path(d) for d in sub_dirs]
-    if args.resolution is not None:
-        if not (math.isfinite(args.resolution) and args.resolution > 0):
-            raise InputError(f"must be a positive length in mm, got {args.resolution:g}", where="--resolution")
-        job.resolution = float(args.resolution)
-    if args.design:
-        spec = args.design
-        job.design = parse_solid_spec(spec if ":" in spec and not spec.lower().endswith((".stl", ".obj"))
-                                      else f"stl:{spec}", "--design")
+    job = apply_job_flags(load_job(path), args)
     if args.fixture:
         job.fixtures = [parse_solid_spec(f, "--fixture") for f in args.fixture]
     if args.limits:

@@ -291,3 +291,14 @@ def test_the_added_length_counts_every_move_the_correction_reshaped_or_restarted
     rc, doc, err, out = correct_program(tmp_path, capsys, text)
     assert rc == 0, err
     assert doc["added_length_mm"] == pytest.approx(8.0 - 2 * math.hypot(4.0, 0.8), abs=1e-3)
+
+
+def test_a_job_with_a_var_file_that_is_not_there_is_a_clear_error(tmp_path, capsys):
+    """correct reads a job's flags as simulate does (simulate.apply_job_flags): a --var
+    file that does not exist is named, not read as an empty parameter file."""
+    from monitor.commands.dry_run import EXAMPLE_JOB
+
+    missing = tmp_path / "nowhere.var"
+    rc, _, err = run(capsys, EXAMPLE_JOB, "-o", tmp_path / "fixed.nc", "--var", missing)
+    assert rc == 2 and f"--var {missing}" in err and "no such parameter (.var) file" in err, err
+    assert not (tmp_path / "fixed.nc").exists()
