@@ -284,6 +284,24 @@ def _rows_flat(Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrow
             fl_r[q] = ok & ((c > 1) | ((c == 1) & one))
 
 
+@nb.njit(cache=True, inline="always")
+def _keep_ahead(x, da, qa, nq, flag, o):
+    """The rays ``q_a .. q_b-1`` of a row along a chained move that lie past ``x`` (the cut
+    between rays behind the start and ahead of it, in rays from the row's box start, see
+    ``qa``), the rest unflagged: ``da > 0`` keeps those above ``x``, ``da < 0`` below."""
+    q_a = 0
+    q_b = nq
+    if da > 0.0:
+        q_a = min(max(int(math.floor(x)) + 1 - qa, 0), nq)
+    else:
+        q_b = max(min(int(math.ceil(x)) - qa, nq), 0)
+    for q in range(q_a):
+        flag[o + q] = False
+    for q in range(q_b, nq):
+        flag[o + q] = False
+    return q_a, q_b
+
+
 @nb.njit(cache=True, error_model="numpy", boundscheck=False)
 def _rows_cone(cot, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows, row_ia,
                row_ilo, row_off, cnt, near, far, lo, hi, flag, behind):
@@ -320,15 +338,7 @@ def _rows_cone(cot, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo,
             # (a <= rho_c when climbing steeper than the cone); a spare ray is harmless
             rho_row = math.sqrt(max(Rc2 - e0 * e0, 0.0))
             cut = min(rho_row, abs(e0) * gs) if not at_start else rho_row
-            x = (cut - 1e-9 - a0) / da
-            if da > 0.0:
-                q_a = min(max(int(math.floor(x)) + 1 - qa, 0), nq)
-            else:
-                q_b = max(min(int(math.ceil(x)) - qa, nq), 0)
-            for q in range(q_a):
-                flag[o + q] = False
-            for q in range(q_b, nq):
-                flag[o + q] = False
+            q_a, q_b = _keep_ahead((cut - 1e-9 - a0) / da, da, qa, nq, flag, o)
         k_a = qa + q_a  # the loop from 0 over unit-stride views, as in _rows_ball
         e_q = e0 + k_a * de
         lo_r = lo[o + q_a:o + q_b]
@@ -521,15 +531,7 @@ def _rows_bull(R, rc, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jl
             w_r[:] = w
             if behind and da != 0.0:
                 # leave out a <= cut: s* = a - sg w <= -1e-9 there (a spare ray is harmless)
-                x = (sg * w - 1e-9 - a_0) / da
-                if da > 0.0:
-                    q_a = min(max(int(math.floor(x)) + 1 - qa, 0), nq)
-                else:
-                    q_b = max(min(int(math.ceil(x)) - qa, nq), 0)
-                for q in range(q_a):
-                    flag[o + q] = False
-                for q in range(q_b, nq):
-                    flag[o + q] = False
+                q_a, q_b = _keep_ahead((sg * w - 1e-9 - a_0) / da, da, qa, nq, flag, o)
         elif by_column:
             w_r = w_col[i0 - i_min:i0 - i_min + nq]
         elif m != 0.0:
