@@ -1,0 +1,62 @@
+"""Tri-dexel models: one solid held by three dexel grids whose rays run along X, Y and Z.
+
+A single dexel direction holds only the faces it crosses: a wall parallel to the rays
+(the side of a slot cut by a tilted tool, a groove round a bar on the A axis) is seen
+only as the jump between two neighbouring rays. Three orthogonal grids of the same
+lattice hold every face to within the spacing, whatever way the tool stood (Huang &
+Oliver's view-independent dexels, made orthogonal).
+
+The lattice: nodes ``lo + spacing * (i, j, k)``, ``0 <= i < nx``, ``0 <= j < ny``,
+``0 <= k < nz``. Each grid's rays pass through the nodes (the frames are cyclic
+permutations of X Y Z, all right-handed):
+
+==== ========= ====== ====== ============ =============== ===============
+grid direction u      v      ray (iu, iv) per-ray arrays  s (ray param.)
+==== ========= ====== ====== ============ =============== ===============
+z    +Z        +X     +Y     (i, j)       (ny, nx)        world z
+x    +X        +Y     +Z     (j, k)       (nz, ny)        world x
+y    +Y        +Z     +X     (k, i)       (nx, nz)        world y
+==== ========= ====== ====== ============ =============== ===============
+
+So a node's occupancy can be read from any of the three rays through it, and the
+crossings of the solid's surface with the lattice's edges are the dexels' segment ends.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from sim.errors import InputError
+from sim.frame import Frame
+
+#: the grids of a tri-dexel model, in the order they are stored and cut
+AXES = ("x", "y", "z")
+
+
+def lattice_shape(lo, hi, spacing: float) -> tuple[int, int, int]:
+    """(nx, ny, nz): nodes each way covering ``[lo, hi]`` (mm 3-vectors), both ends included."""
+    lo = np.asarray(lo, np.float64).reshape(3)
+    hi = np.asarray(hi, np.float64).reshape(3)
+    if not (np.isfinite(spacing) and spacing > 0):
+        raise InputError(f"tri-dexel spacing must be a positive length in mm, got {spacing}")
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(hi >= lo)):
+        raise InputError(f"tri-dexel extent needs lo <= hi on every axis, got lo {lo.tolist()} hi {hi.tolist()}")
+    n = np.rint((hi - lo) / spacing).astype(np.int64) + 1
+    return int(n[0]), int(n[1]), int(n[2])
+
+
+def tridexel_frames(lo, spacing: float, shape: tuple[int, int, int]) -> dict[str, Frame]:
+    """The three frames of the lattice with first node ``lo`` (mm) and ``shape`` (nx, ny, nz).
+
+    Returns ``{"x": Frame, "y": Frame, "z": Frame}`` laid out as in the module's table:
+    each frame's origin is the first node with its own direction's coordinate set to 0, so
+    a ray parameter ``s`` is the world coordinate along that direction.
+    """
+    lo = np.asarray(lo, np.float64).reshape(3)
+    nx, ny, nz = (int(n) for n in shape)
+    ex, ey, ez = np.eye(3)
+    return {
+        "z": Frame(np.array([lo[0], lo[1], 0.0]), ez, ex, spacing, nx, ny),
+        "x": Frame(np.array([0.0, lo[1], lo[2]]), ex, ey, spacing, ny, nz),
+        "y": Frame(np.array([lo[0], 0.0, lo[2]]), ey, ez, spacing, nz, nx),
+    }
