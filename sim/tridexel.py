@@ -60,3 +60,48 @@ def tridexel_frames(lo, spacing: float, shape: tuple[int, int, int]) -> dict[str
         "x": Frame(np.array([0.0, lo[1], lo[2]]), ex, ey, spacing, ny, nz),
         "y": Frame(np.array([lo[0], 0.0, lo[2]]), ey, ez, spacing, nz, nx),
     }
+
+
+class TriDexel:
+    """One solid on the three grids of a lattice (see the module docstring).
+
+    grids: ``{"x": DexelGrid, "y": DexelGrid, "z": DexelGrid}`` on the frames of
+    :func:`tridexel_frames` (``lo``, ``spacing``, ``shape``). Cutting and probing act on
+    all three; each grid keeps its own face ids (the move that made the face).
+    """
+
+    def __init__(self, grids: dict, lo, spacing: float, shape: tuple[int, int, int]):
+        frames = tridexel_frames(lo, spacing, shape)
+        if set(grids) != set(AXES):
+            raise InputError(f"a tri-dexel model needs grids {AXES}, got {sorted(grids)}")
+        for a in AXES:
+            if not grids[a].frame.same_rays(frames[a]):
+                raise InputError(f"tri-dexel grid {a!r} is not on the lattice's {a} frame")
+        self.grids = {a: grids[a] for a in AXES}
+        self.lo = np.asarray(lo, np.float64).reshape(3)
+        self.spacing = float(spacing)
+        self.shape = tuple(int(n) for n in shape)
+
+    # --- construction ------------------------------------------------------------------
+    @classmethod
+    def build(cls, lo, hi, spacing: float, make_grid) -> "TriDexel":
+        """The lattice covering ``[lo, hi]`` with each grid from ``make_grid(frame)``
+        (e.g. ``lambda f: box_grid(f, lo, hi)``)."""
+        shape = lattice_shape(lo, hi, spacing)
+        frames = tridexel_frames(lo, spacing, shape)
+        return cls({a: make_grid(frames[a]) for a in AXES}, lo, spacing, shape)
+
+    @property
+    def hi(self) -> np.ndarray:
+        """The last node (mm)."""
+        return self.lo + self.spacing * (np.array(self.shape) - 1)
+
+    def copy(self) -> "TriDexel":
+        return TriDexel({a: g.copy() for a, g in self.grids.items()}, self.lo, self.spacing, self.shape)
+
+    def nbytes(self) -> int:
+        return sum(g.nbytes() for g in self.grids.values())
+
+    def volumes(self) -> dict[str, float]:
+        """Each grid's material volume, mm^3 (trapezoid rule): three estimates of one solid."""
+        return {a: g.volume("trapezoid") for a, g in self.grids.items()}
