@@ -105,3 +105,36 @@ class TriDexel:
     def volumes(self) -> dict[str, float]:
         """Each grid's material volume, mm^3 (trapezoid rule): three estimates of one solid."""
         return {a: g.volume("trapezoid") for a, g in self.grids.items()}
+
+
+class TriCutter:
+    """Cuts a :class:`TriDexel` with one :class:`sim.cut.Cutter` per grid.
+
+    The arguments are :class:`sim.cut.Cutter`'s. The Z grid takes the exact sweep
+    where the Cutter has one; the X and Y grids are swept by instances of motion.
+    """
+
+    def __init__(self, model: TriDexel, tool, tol=None, tools=None, threads: int | None = None,
+                 kinematics=None, origin=None):
+        from sim.cut import Cutter
+        from sim.tolerance import DEFAULT
+
+        self.model = model
+        self.cutters = {a: Cutter(g, tool, tol or DEFAULT, tools=tools, threads=threads,
+                                  kinematics=kinematics, origin=origin)
+                        for a, g in model.grids.items()}
+
+    def cut_moves(self, moves: np.ndarray, move_ids=None, record_changes: bool = False) -> dict:
+        """Cut every row of ``moves`` into all three grids; ``{axis: CutResult}``."""
+        return {a: c.cut_moves(moves, move_ids, record_changes=record_changes)
+                for a, c in self.cutters.items()}
+
+    def cut_poses(self, tips, axes, move_id: int, body=None) -> dict[str, float]:
+        """Cut the tool (or ``body``) standing at each pose (tips, axes (n, 3) world);
+        ``{axis: mm^3 removed}`` (three estimates of one volume)."""
+        return {a: c.cut_poses(tips, axes, move_id, body) for a, c in self.cutters.items()}
+
+    def probe_moves(self, moves: np.ndarray, body=None) -> np.ndarray:
+        """Material (mm^3) each move's swept body would meet, float64 (n, 3): one column
+        per grid in :data:`AXES` order; a body meets material where any column is > 0."""
+        return np.stack([self.cutters[a].probe_moves(moves, body) for a in AXES], axis=1)
