@@ -219,11 +219,33 @@ class _BandTraces(_Buffers):
         self.grow(("g_ray", "g_count"), int(ts[K.TS_NEED_G]))
         self.grow(("g_near", "g_far", "g_nid", "g_fid"), int(ts[K.TS_NEED_S]))
 
+    def dirty_chunks(self, chunk: int, n_chunks: int) -> np.ndarray:
+        """Which chunks of ``chunk`` rays the bands' far-event runs touch: bool (n_chunks,)."""
+        dirty = np.zeros(n_chunks, bool)
+        for t in range(self.n_bands):
+            nr = int(self.ts[t, K.TS_NR])
+            dirty |= ray_chunks_touched(self.a["rs"][t, :nr], self.a["rl"][t, :nr], chunk, n_chunks)
+        return dirty
+
     def totals(self) -> tuple[int, int, int, int]:
         """Far events, general events, their segments and runs over all bands."""
         ts = self.ts
         return (int(ts[:, K.TS_NF].sum()), int(ts[:, K.TS_NG].sum()), int(ts[:, K.TS_NS].sum()),
                 int(ts[:, K.TS_NR].sum()))
+
+
+def ray_chunks_touched(starts: np.ndarray, lengths: np.ndarray, chunk: int, n_chunks: int) -> np.ndarray:
+    """bool (n_chunks,): which chunks of ``chunk`` consecutive rays the runs of rays
+    (``starts``, ``lengths``: int arrays) touch."""
+    dirty = np.zeros(n_chunks, bool)
+    first = starts.astype(np.int64)
+    last = first + lengths - 1
+    c0, c1 = first // chunk, last // chunk
+    dirty[c0] = True
+    dirty[c1] = True
+    for k in np.flatnonzero(c1 - c0 > 1):   # runs longer than a chunk (very wide grids)
+        dirty[c0[k]:c1[k] + 1] = True
+    return dirty
 
 
 def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
@@ -257,6 +279,18 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
         reach = np.zeros(len(seg_move))
     bound = np.concatenate([[0.0], np.cumsum(reach)])
     ex = _executor(threads) if threads > 1 else None
+    # two sets of trace buffers: the bands cut a chunk into one while the calling thread
+    # merges the chunk before from the other (the merge is mostly the first touch of the
+    # trace's fresh pages: done while the bands cut, it costs little wall time)
+    trace_bufs = [traces, _BandTraces(n_bands, n_moves, sink)] if traces is not None else None
+    pending = None   # (buffers, m0, m1) of the chunk cut but not merged yet
+
+    def merge_pending():
+        nonlocal pending
+        if pending is not None:
+            _merge_traces(sink, *pending)
+            pending = None
+
     for ci, (a, b) in enumerate(chunks):
         m0, m1 = int(seg_move[a]), int(seg_move[b - 1]) + 1
         s0 = max(a - 1, 0)   # the slice starts one segment early: the kernel looks back one
@@ -264,20 +298,27 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
         states[:, 0] = a - s0
         states[:, 1] = states[:, 2] = -1
         changes = min(int(bound[b] - bound[a]), grid.frame.n_rays * (b - a)) + 4096
-        if traces is not None:
+        if trace_bufs is not None:
+            traces = trace_bufs[ci % 2]
             traces.start_chunk(m0, m1, changes)
         if logs is not None:
             logs.start_chunk(m0, m1, changes)
         bounds = plan(a, b)
         todo = list(range(len(bounds) - 1))
         while todo:
-            def run(t, S=grid.S):
+            def run(t, S=grid.S, traces=traces):
                 band_S = (*S[:11], pools[t])
                 return kernel(band_S, states[t], logs.buffers(t) if logs is not None else K.NO_LOG,
                               traces.buffers(t) if traces is not None else K.NO_TRACE,
                               traces.ts[t] if traces is not None else K.NO_TS, rem[t],
                               (int(bounds[t]), int(bounds[t + 1])), (s0, b))
-            status = list(ex.map(run, todo)) if ex is not None and len(todo) > 1 else [run(t) for t in todo]
+            if ex is not None and len(todo) > 1:
+                futures = [ex.submit(run, t) for t in todo]
+                merge_pending()
+                status = [f.result() for f in futures]
+            else:
+                merge_pending()
+                status = [run(t) for t in todo]
             again = []
             for t, st in zip(todo, status):
                 if st == K.DONE:
@@ -294,8 +335,12 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
             todo = again
         if logs is not None:
             _merge_logs(log, logs, states, m0, m1)
-        if traces is not None:
-            _merge_traces(sink, traces, m0, m1, ci == len(chunks) - 1)
+        if trace_bufs is not None:
+            merge_pending()
+            if ci < len(chunks) - 1:   # the sink's end takes the batch's last keyframe
+                sink.chunk_end(m1 - 1, *traces.totals()[:2], traces.dirty_chunks)
+            pending = (traces, m0, m1)
+    merge_pending()
     removed += rem.sum(axis=0)
     _end_pool_ranges(store, pools)
 
@@ -348,10 +393,9 @@ def _merge_log_kernel(m0, m1, counts, ray, depth, out_ray, out_depth, out_counts
     return n
 
 
-def _merge_traces(sink, traces: _BandTraces, m0: int, m1: int, last: bool) -> None:
-    """Append the bands' trace events of moves ``m0 .. m1-1`` to the sink's columns, close
-    their blocks, and take a keyframe now if one fell due (not after the batch's last
-    chunk: the sink's end does that).
+def _merge_traces(sink, traces: _BandTraces, m0: int, m1: int) -> None:
+    """Append the bands' trace events of moves ``m0 .. m1-1`` to the sink's columns and
+    close their blocks.
 
     Where each band's events of each move go is worked out first (move by move, band by
     band), then each band's are copied there. (Copied on the calling thread: most of the
@@ -397,8 +441,7 @@ def _merge_traces(sink, traces: _BandTraces, m0: int, m1: int, last: bool) -> No
     for c, blk in enumerate(sink.blk):
         blk[m0:m1][opened] = block_end[c][opened]
     ts[K.TS_NF], ts[K.TS_NG], ts[K.TS_NS], ts[K.TS_NR] = block_end[:, -1] if m else base
-    if not last:
-        sink.chunk_done(m1 - 1)
+    sink.merged()
 
 
 @nb.njit(cache=True)

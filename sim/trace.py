@@ -57,6 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim import dexel_store as ds
+from sim.bands import ray_chunks_touched
 from sim import sweep_kernels as K
 from sim import trace_kernels as tk
 from sim.checks.arrays import distinct
@@ -1239,6 +1240,7 @@ class _Sink:
         # events at the latest keyframe: what changed since decides what a new one copies
         self.g_at_key = int(z._g_ptr.a[z._keyframes[-1].block])
         self.r_at_key = int(z._r_ptr.a[z._keyframes[-1].block])
+        self._key_before_merge = False   # see chunk_end / merged
         # in the kernels' order (T); _f_id grows with _f_val (index for index), unwritten
         self.cols = (z._f_rs, z._f_val, z._f_rl, z._g_ray, z._g_count,
                      z._g_near, z._g_far, z._g_nid, z._g_fid)
@@ -1275,13 +1277,33 @@ class _Sink:
                             (n_runs, n_far, n_runs, n_general, n_general, *(n_segments,) * 4, n_far)):
             c.grow_to(c.n + int(extra) + 1)
 
-    def chunk_done(self, mv: int) -> None:
-        """Moves up to ``mv`` are in the columns (a chunk of ``sim.bands``): take a keyframe
-        of the model now if one fell due (bands run with keyframes off)."""
+    def chunk_end(self, mv: int, far_pending: int, general_pending: int, pending_dirty) -> None:
+        """Moves up to ``mv`` are cut (a chunk of ``sim.bands``, which runs with keyframes
+        off); the columns hold them but for the last chunk's events, merged later
+        (``far_pending`` far and ``general_pending`` general events;
+        ``pending_dirty(chunk, n_chunks)`` says which chunks of rays they touch). Take a
+        keyframe of the model now if one fell due."""
         self._sync_counts()
         ts = self.ts
-        if self.inline and int(ts[K.TS_NF] + ts[K.TS_NG]) >= ts[K.TS_NEXT_DUE]:
-            self._snapshot(mv)
+        ng = int(ts[K.TS_NG]) + general_pending
+        events = int(ts[K.TS_NF]) + far_pending + ng
+        if not (self.inline and events >= ts[K.TS_NEXT_DUE]):
+            return
+        general = ng > self.g_at_key
+        dirty = None
+        if not general:
+            dirty = self._dirty_chunks(self.r_at_key, int(ts[K.TS_NR]))
+            dirty |= pending_dirty(_Chunked.CHUNK, dirty.size)
+        self._snapshot(mv, general, dirty, events)
+        self._key_before_merge = True
+
+    def merged(self) -> None:
+        """``sim.bands`` merged a chunk into the columns: if the keyframe before was taken
+        at that chunk's end, what changes from now on is what the next keyframe copies."""
+        if self._key_before_merge:
+            self.g_at_key = int(self.ts[K.TS_NG])
+            self.r_at_key = int(self.ts[K.TS_NR])
+            self._key_before_merge = False
 
     def need_marks(self) -> None:
         """The moves to come may change a ray more than once (arc chords, instances of
@@ -1314,33 +1336,32 @@ class _Sink:
 
     def keyframe(self) -> None:
         """A keyframe fell due after move ``ts[TS_KEY_MOVE]``: snapshot the model now."""
-        self._snapshot(int(self.ts[K.TS_KEY_MOVE]))
+        self._keyframe_now(int(self.ts[K.TS_KEY_MOVE]))
 
-    def _snapshot(self, mv: int) -> None:
-        z, ts = self.z, self.ts
-        prev = z._keyframes[-1]
+    def _keyframe_now(self, mv: int) -> None:
+        """A keyframe after move ``mv``, every event so far in the columns."""
+        ts = self.ts
         ng, nr = int(ts[K.TS_NG]), int(ts[K.TS_NR])
         general = ng > self.g_at_key
         dirty = None if general else self._dirty_chunks(self.r_at_key, nr)
-        z._add_keyframe(_Keyframe(self.b0 + mv + 1, int(self.stages[mv]),
-                                  _snapshot_sharing(self.grid.store, prev.data, general, dirty)))
+        self._snapshot(mv, general, dirty, int(ts[K.TS_NF]) + ng)
         self.g_at_key = ng
         self.r_at_key = nr
-        z._next_due = int(ts[K.TS_NF] + ts[K.TS_NG]) + z.keyframe_every
-        ts[K.TS_NEXT_DUE] = z._next_due
+
+    def _snapshot(self, mv: int, general: bool, dirty, events: int) -> None:
+        """Keyframe after move ``mv``: the model's arrays (all when ``general``, else the
+        ``dirty`` chunks of rays, the rest shared with the keyframe before); ``events``:
+        far and general events up to ``mv``, from which the next one falls due."""
+        z = self.z
+        z._add_keyframe(_Keyframe(self.b0 + mv + 1, int(self.stages[mv]),
+                                  _snapshot_sharing(self.grid.store, z._keyframes[-1].data, general, dirty)))
+        z._next_due = events + z.keyframe_every
+        self.ts[K.TS_NEXT_DUE] = z._next_due
 
     def _dirty_chunks(self, r0: int, r1: int) -> np.ndarray:
         """Which :class:`_Chunked` chunks of rays the far-event runs ``r0:r1`` touch."""
         ch = _Chunked.CHUNK
-        dirty = np.zeros(-(-self.z.n_rays // ch), bool)
-        rs = self.z._f_rs.buf[r0:r1].astype(np.int64)
-        last = rs + self.z._f_rl.buf[r0:r1] - 1
-        c0, c1 = rs // ch, last // ch
-        dirty[c0] = True
-        dirty[c1] = True
-        for k in np.flatnonzero(c1 - c0 > 1):   # runs longer than a chunk (very wide grids)
-            dirty[c0[k]:c1[k] + 1] = True
-        return dirty
+        return ray_chunks_touched(self.z._f_rs.buf[r0:r1], self.z._f_rl.buf[r0:r1], ch, -(-self.z.n_rays // ch))
 
     def end(self) -> None:
         """Append the block rows, sync the mirror, trim the columns."""
@@ -1351,7 +1372,7 @@ class _Sink:
             ends.append(np.maximum.accumulate(e) if e.size else e)
         self._sync_counts()
         if self.n and self.inline and int(ts[K.TS_NF] + ts[K.TS_NG]) >= z._next_due:
-            self._snapshot(self.n - 1)
+            self._keyframe_now(self.n - 1)
         # the mirror is stale: rebuilt from the keyframes if a later record needs it
         z._mirror = None
         z._rec = z._recf = None
