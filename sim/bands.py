@@ -209,7 +209,7 @@ class _BandTraces(_Buffers):
                 self.row("gen", t), self.blk[3, t])
 
     def grow_for(self, t: int) -> None:
-        """Room for what band ``t`` stopped on (as ``sim.trace._Sink.grow`` does)."""
+        """Room for what band ``t`` stopped on (as ``sim.trace.sink._Sink.grow`` does)."""
         ts = self.ts[t]
         need_f = max(int(ts[K.TS_NF]) + 1, int(ts[K.TS_NEED_F]))
         need_r = int(ts[K.TS_NR]) + max(need_f - int(ts[K.TS_NF]), 1)
@@ -262,7 +262,7 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
     the rows and bands planned for the whole batch would leave all its work to one;
     removed: float64 (n_moves,)
     accumulates the length removed per move (mm). log: the cutter's change log (no
-    journal) or None; sink: the trace sink (``sim.trace._Sink``) or None; reach: the rays
+    journal) or None; sink: the trace sink (``sim.trace.sink._Sink``) or None; reach: the rays
     within reach of each segment (:func:`reach_rays`: they bound the changes a band logs).
     """
     threads = threads or default_threads()

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import sim.trace as trace_mod
 from sim.cut import Cutter
 from sim.errors import InputError
 from sim.tools import parse_tool_spec
 from sim.trace import Trace, TimeTrace, ZTrace, model_difference, same_model
+from sim.trace import keyframes as keyframes_mod
 from tests.sim.trace_helpers import box, feed_moves, journal_of, program
 
 
@@ -155,7 +155,7 @@ def test_state_at_into_reused_arrays_forwards_and_backwards(recorded):
 
 
 def test_keyframes_are_built_a_slice_per_record_and_match_the_model(monkeypatch):
-    monkeypatch.setattr(trace_mod, "KEYFRAME_BUDGET", 64)   # force many small steps
+    monkeypatch.setattr(keyframes_mod, "KEYFRAME_BUDGET", 64)   # force many small steps
     g = box()
     z = ZTrace(g, keyframe_every=120)
     t = TimeTrace(g, keyframe_every=120)

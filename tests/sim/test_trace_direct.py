@@ -6,12 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import sim.trace as trace_mod
 from sim import trace_kernels as tk
 from sim.cut import Cutter
 from sim.errors import InputError
 from sim.tools import Tool, parse_tool_spec
 from sim.trace import SharedTimeTrace, TimeTrace, Trace, same_model
+from sim.trace.keyframes import _Chunked
+from sim.trace.sink import _Sink
 from tests.sim.trace_helpers import box, feed_moves as _moves, slab_cut
 
 
@@ -113,7 +114,7 @@ def test_custom_tslot_poses_into_the_trace():
 
 
 def test_columns_grow_and_keyframes_fall_due_while_the_kernel_runs(monkeypatch):
-    monkeypatch.setattr(trace_mod._Sink, "reserve", lambda self, n: None)
+    monkeypatch.setattr(_Sink, "reserve", lambda self, n: None)
     tool = parse_tool_spec("ball:4")
     moves = _moves(BALL_ROWS, {3: (11, 12, 7.0)})
 
@@ -127,8 +128,8 @@ def test_columns_grow_and_keyframes_fall_due_while_the_kernel_runs(monkeypatch):
     for c in (tr.z._f_rs, tr.z._f_rl, tr.z._f_val, tr.z._f_id):   # start tiny: the kernel must stop
         c.buf = c.buf[:8].copy()
     grown = []
-    real_grow = trace_mod._Sink.grow
-    monkeypatch.setattr(trace_mod._Sink, "grow", lambda self: (grown.append(1), real_grow(self)))
+    real_grow = _Sink.grow
+    monkeypatch.setattr(_Sink, "grow", lambda self: (grown.append(1), real_grow(self)))
     Cutter(g, tool).cut_moves(moves, record_changes=False, trace=tr)
     assert grown and len(tr.z._keyframes) > 5
     _, snaps = _cut_both(tool, moves, stock)
@@ -273,7 +274,7 @@ def test_keyframes_copy_only_the_chunks_of_rays_the_moves_touched():
     assert len(keys) >= 3
     shared = 0
     for a, b in zip(keys[1:], keys[2:]):
-        ca, cb = trace_mod._Chunked.of(a.data["far"]).chunks, trace_mod._Chunked.of(b.data["far"]).chunks
+        ca, cb = _Chunked.of(a.data["far"]).chunks, _Chunked.of(b.data["far"]).chunks
         shared += sum(x is y for x, y in zip(ca, cb))
     assert shared > 0
     assert tr.z.keyframe_nbytes() < (len(keys) - 1) * 240 * 240 * 8

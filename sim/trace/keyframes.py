@@ -1,0 +1,184 @@
+"""Keyframes of a z-trace: snapshots of the model that share the arrays a far-only
+edit cannot touch, and the builder that makes them a slice at a time."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from sim import dexel_store as ds
+
+if TYPE_CHECKING:
+    from sim.trace.ztrace import ZTrace
+
+
+def _store_snapshot(store: dict) -> dict:
+    """A copy of a store with the pool trimmed to what is in use."""
+    top = int(store["pool_top"][0])
+    out = {}
+    for k, v in store.items():
+        if k.startswith("pool_") and k != "pool_top":
+            out[k] = v[:max(top, 16)].copy()
+        else:
+            out[k] = v.copy()
+    return out
+
+
+def _store_copy(snap: dict, spare: int) -> dict:
+    """A working copy of a snapshot with ``spare`` free pool slots."""
+    top = int(snap["pool_top"][0])
+    out = {}
+    for k, v in snap.items():
+        if k.startswith("pool_") and k != "pool_top":
+            w = np.zeros(max(top + spare, 1024), v.dtype)
+            w[:top] = v[:top]
+            out[k] = w
+        else:
+            out[k] = v.copy()
+    return out
+
+
+@dataclass
+class _Keyframe:
+    block: int  # number of blocks applied
+    stage: int
+    data: object
+
+
+#: fields a far-only (rule 5) edit writes; the others stay shared between keyframes
+_FAR_FIELDS = ("far", "far_id", "pool_far", "pool_far_id")
+_POOL_FIELDS = ("pool_near", "pool_far", "pool_near_id", "pool_far_id")
+#: keyframe work (array elements copied or events replayed) done per record call at least
+KEYFRAME_BUDGET = 1 << 18
+
+
+class _Chunked:
+    """A keyframe's per-ray array kept as fixed-size chunks, so that a keyframe copies only
+    the chunks its far-only edits touched and shares the others with the keyframe before
+    it (a finishing pass touches a band of the part between two keyframes, not all of it).
+    Restoring copies the chunks into the caller's array; code that needs one array gets
+    it from ``np.asarray``."""
+
+    CHUNK = 1 << 14
+    __slots__ = ("chunks", "size", "dtype")
+
+    def __init__(self, chunks: list, size: int, dtype):
+        self.chunks, self.size, self.dtype = chunks, int(size), np.dtype(dtype)
+
+    @classmethod
+    def of(cls, a: np.ndarray) -> "_Chunked":
+        """Views of ``a`` (no copy)."""
+        if isinstance(a, _Chunked):
+            return a
+        return cls([a[i:i + cls.CHUNK] for i in range(0, a.size, cls.CHUNK)], a.size, a.dtype)
+
+    def updated(self, src: np.ndarray, dirty: np.ndarray) -> "_Chunked":
+        """These chunks with the ``dirty`` ones (bool per chunk) copied anew from ``src``."""
+        ch = self.CHUNK
+        chunks = [src[i * ch:(i + 1) * ch].copy() if d else c
+                  for i, (c, d) in enumerate(zip(self.chunks, dirty))]
+        return _Chunked(chunks, self.size, self.dtype)
+
+    def copy_into(self, dst: np.ndarray) -> None:
+        for i, c in enumerate(self.chunks):
+            dst[i * self.CHUNK:i * self.CHUNK + c.size] = c
+
+    def copy(self) -> np.ndarray:
+        out = np.empty(self.size, self.dtype)
+        self.copy_into(out)
+        return out
+
+    def __array__(self, dtype=None, copy=None):
+        out = self.copy()
+        return out if dtype is None else out.astype(dtype)
+
+    @property
+    def nbytes(self) -> int:
+        return int(sum(c.nbytes for c in self.chunks))
+
+
+def _plain(a) -> np.ndarray:
+    return a.copy() if isinstance(a, _Chunked) else a
+
+
+def _snapshot_sharing(store: dict, prev: dict | None, general: bool, dirty=None) -> dict:
+    """A snapshot of ``store``; when only far-only edits happened since keyframe ``prev``
+    (``general`` False), the fields they cannot touch are ``prev``'s arrays, shared, and
+    with ``dirty`` (bool per :class:`_Chunked` chunk of rays: where those edits fell) the
+    FarZ values and ids share their untouched chunks too."""
+    if prev is None or general:
+        return _store_snapshot(store)
+    out = dict(prev)
+    top = int(store["pool_top"][0])
+    for k in _FAR_FIELDS:
+        v = store[k]
+        if k.startswith("pool_"):
+            out[k] = v[:max(top, 16)].copy()
+        elif dirty is not None:
+            out[k] = _Chunked.of(prev[k]).updated(v, dirty)
+        else:
+            out[k] = v.copy()
+    return out
+
+
+class _KeyBuilder:
+    """A keyframe built in small steps off the recording path.
+
+    Starts from the latest keyframe (sharing every array no event in between can touch),
+    copies the rest in slices, then replays the blocks up to ``block`` in slices, so no
+    single call costs more than about ``budget`` array elements / events.
+    """
+
+    def __init__(self, trace: "ZTrace", block: int):
+        self.trace = trace
+        self.block = int(block)
+        base = trace._keyframes[-1]
+        self.base = base
+        self.cur = base.block
+        tr = trace
+        self.general = bool(tr._g_ptr.a[self.block] > tr._g_ptr.a[base.block])
+        self.work = dict(base.data)
+        fields = ds.STORE_FIELDS if self.general else _FAR_FIELDS
+        # (field, destination, source) copies still to do, sliced as the budget allows
+        self.copies = []
+        top = int(base.data["pool_top"][0])
+        spare = 2 * int(tr._gs_ptr.a[self.block] - tr._gs_ptr.a[base.block]) + 64 if self.general else 0
+        for k in fields:
+            src = _plain(base.data[k])
+            size = max(top + spare, src.size) if k in _POOL_FIELDS else src.size
+            dst = np.zeros(size, src.dtype) if size != src.size else np.empty_like(src)
+            self.work[k] = dst
+            self.copies.append([dst, src, 0])
+
+    def step(self, budget: int) -> int:
+        """Do up to ``budget`` units of work; returns the units used (0 when finished)."""
+        used = 0
+        while self.copies and used < budget:
+            dst, src, lo = self.copies[0]
+            hi = min(src.size, lo + budget - used)
+            dst[lo:hi] = src[lo:hi]
+            used += hi - lo
+            self.copies[0][2] = hi
+            if hi >= src.size:
+                self.copies.pop(0)
+        tr = self.trace
+        while not self.copies and self.cur < self.block and used < budget:
+            ev = tr._f_ptr.a + tr._g_ptr.a  # events before each block boundary (view)
+            stop = int(np.searchsorted(ev, ev[self.cur] + (budget - used), side="left"))
+            stop = min(max(stop, self.cur + 1), self.block)
+            tr._replay_store(self.work, self.cur, stop)
+            used += int(ev[stop] - ev[self.cur])
+            self.cur = stop
+        return used
+
+    @property
+    def done(self) -> bool:
+        return not self.copies and self.cur >= self.block
+
+    def finish(self) -> _Keyframe:
+        data = self.work
+        if self.general:  # trim the pool's spare room
+            data = _store_snapshot(data)
+        return _Keyframe(self.block, int(self.trace._stage.a[self.block - 1]), data)
