@@ -339,48 +339,6 @@ _NAN_BITS = np.int32(0x7FC00000)
 
 
 @nb.njit(cache=True)
-def top_changes_journal_packed(ptr, rays, seg_ptr, jfb, jfi, cur, out_ray, out_topb, out_id,
-                               out_prevb, out_prev_id, blk):
-    """Rule 6 from a cut journal: for each entry of each move (CSR ``ptr``/``rays``, the
-    ray's segments after its move ending at ``seg_ptr[e + 1]``), whether the visible
-    surface changed, against the current surface packed in ``cur`` (n_rays, 2) int32 =
-    (top float bits, top face id), one 8-byte read per entry; ``jfb`` / ``out_topb`` /
-    ``out_prevb`` are int32 views of float32 columns. Tops compare as bits (any two NaNs
-    are the same empty ray). Changes go to the ``out_*`` columns (ray, new top, id, the top
-    and id they replace), ``blk[k]`` their end after move ``k``; returns their count."""
-    m = 0
-    for k in range(ptr.size - 1):
-        for e in range(ptr[k], ptr[k + 1]):
-            r = rays[e]
-            b = seg_ptr[e + 1]
-            if b == seg_ptr[e]:
-                t = _NAN_BITS
-                tid = np.int32(0)
-            else:
-                t = jfb[b - 1]
-                tid = jfi[b - 1]
-            old = cur[r, 0]
-            old_id = cur[r, 1]
-            if tid == old_id:
-                if t == old:
-                    continue
-                # NaN payloads differ in their bits, not in meaning
-                if (t & 0x7F800000) == 0x7F800000 and (t & 0x007FFFFF) != 0 \
-                        and (old & 0x7F800000) == 0x7F800000 and (old & 0x007FFFFF) != 0:
-                    continue
-            out_ray[m] = r
-            out_topb[m] = t
-            out_id[m] = tid
-            out_prevb[m] = old
-            out_prev_id[m] = old_id
-            cur[r, 0] = t
-            cur[r, 1] = tid
-            m += 1
-        blk[k] = m
-    return m
-
-
-@nb.njit(cache=True)
 def tops_of_store(count, far, far_id, xstart, pool_far, pool_far_id, top, top_id):
     """Every ray's top (last FarZ; NaN where empty) and its face id (0 where empty), from a
     store's fields (a keyframe's or a grid's)."""

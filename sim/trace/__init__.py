@@ -23,7 +23,7 @@
   for (or restore the nearest keyframe when that is cheaper): a viewer scrubbing a run
   pays a few milliseconds per stage.
 
-Recording, three ways, each giving the same log:
+Recording, two ways, each giving the same log:
 
 * ``Cutter.cut_moves(moves, trace=tr)``: the cut kernels write the events as the rays
   change (one block per move, as if each move were cut and recorded alone) and the
@@ -32,8 +32,6 @@ Recording, three ways, each giving the same log:
 * :meth:`Trace.record` diffs the given rays of a model against the trace's own copy (the
   *mirror*, made on first use) in one compiled pass: the live monitor's pattern, where
   the model is cut a poll at a time by other code.
-* :meth:`Trace.record_batch` does the same from a batch cut's journal
-  (``Cutter.cut_moves(..., journal=True)``).
 
 Stages are integers chosen by the caller (a move number, a sync step ...) that never
 decrease from one :meth:`record` to the next; stage ``n`` means "after every record with
@@ -61,7 +59,7 @@ import numpy as np
 from sim import trace_kernels as tk
 from sim.errors import InputError
 from sim.grid import DexelGrid
-from sim.trace.columns import (_batch_stages, changed_rays_of, frame_from_array, frame_to_array,
+from sim.trace.columns import (changed_rays_of, frame_from_array, frame_to_array,
                                model_difference, same_model)
 from sim.trace.timetrace import SharedTimeTrace, TimeTrace
 from sim.trace.ztrace import ZTrace
@@ -138,34 +136,6 @@ class Trace:
     def record_cut(self, grid: DexelGrid, cut_result, stage: int | None = None) -> None:
         """Record a ``sim.cut.CutResult`` (all its moves) as one stage."""
         self.record(grid, changed_rays_of(cut_result), stage)
-
-    def record_batch(self, cut_result, stages=None) -> None:
-        """Record every move of a batch cut as its own stage, from the cut's journal.
-
-        cut_result : ``sim.cut.CutResult`` of ``Cutter.cut_moves(..., journal=True)``
-            (``changed_ptr``, ``changed_rays``, ``journal_seg_ptr``, ``journal_near``,
-            ``journal_far``, ``journal_near_id``, ``journal_far_id``).
-        stages : int (n_moves,), optional
-            Stage of each move (non-decreasing); default ``last_stage + 1, + 2, ...``.
-
-        Equal, stage for stage, to cutting and recording the moves one at a time; costs
-        one compiled pass over the changed rays per trace (plus keyframe work spread over
-        later calls).
-        """
-        need = ("changed_ptr", "changed_rays", "journal_seg_ptr", "journal_near", "journal_far",
-                "journal_near_id", "journal_far_id")
-        if any(getattr(cut_result, k, None) is None for k in need) \
-                or not getattr(cut_result, "has_journal", True):
-            raise InputError("the cut result carries no journal: cut with journal=True")
-        n_moves = len(cut_result.changed_ptr) - 1
-        stages = _batch_stages(self.last_stage, stages, n_moves)
-        j = cut_result
-        if self.z is not None:
-            self.z.record_journal(j.changed_ptr, j.changed_rays, j.journal_seg_ptr, j.journal_near,
-                                  j.journal_far, j.journal_near_id, j.journal_far_id, stages)
-        if self._own_t:
-            self.t.record_journal(j.changed_ptr, j.changed_rays, j.journal_seg_ptr, j.journal_far,
-                                  j.journal_far_id, stages)
 
     def maintain(self, budget: int | None = None) -> bool:
         """Advance keyframes that fell due (None = finish them): for idle moments or the

@@ -8,11 +8,11 @@ from sim import trace_kernels as tk
 from sim.errors import InputError
 from sim.frame import Frame
 from sim.grid import DexelGrid
+from sim.trace import keyframes  # KEYFRAME_BUDGET read at call time (tests lower it)
 from sim.trace.columns import (
-    _BlockLog, _Column, _batch_stages, _check_stage, _get, _get_rle, _get_runs,
+    _BlockLog, _Column, _check_stage, _get, _get_rle, _get_runs,
     _pack_column, _rays_arg, _runs_of_consecutive, _runs_of_equal, _unpack_column,
     frame_from_array, frame_to_array)
-from sim.trace import keyframes  # KEYFRAME_BUDGET read at call time (tests lower it)
 from sim.trace.keyframes import _Chunked, _Keyframe
 from sim.trace.ztrace import ZTrace
 
@@ -84,36 +84,6 @@ class TimeTrace(_BlockLog):
                np.empty(m, np.float32), np.empty(m, np.int32))
         k = tk.top_changes(grid.S, rays, self._top, self._top_id, *out)
         self._append(stage, *(x[:k] for x in out))
-        return int(k)
-
-    def record_journal(self, changed_ptr, changed_rays, seg_ptr, far, far_id, stages=None) -> int:
-        """Record a batch cut's journal (see :meth:`ZTrace.record_journal`): one block per
-        move, equal to recording each move by itself. Returns the elements recorded."""
-        ptr = np.ascontiguousarray(changed_ptr, np.int64)
-        n_moves = ptr.size - 1
-        stages = _batch_stages(self.last_stage, stages, n_moves)
-        rays = np.ascontiguousarray(changed_rays, np.int64)
-        seg_ptr = np.ascontiguousarray(seg_ptr, np.int64)
-        far = np.ascontiguousarray(far, np.float32)
-        far_id = np.ascontiguousarray(far_id, np.int32)
-        if seg_ptr.size != rays.size + 1 or ptr[-1] != rays.size or far.size < seg_ptr[-1] \
-                or far_id.size < seg_ptr[-1]:
-            raise InputError("cut journal pointers are inconsistent with its entries")
-        if rays.size and (rays.min() < 0 or rays.max() >= self.n_rays):
-            raise InputError("cut journal ray index beyond the frame")
-        m = rays.size
-        n0 = self._ray.n
-        cols = (self._ray.reserve(m), self._val.reserve(m), self._id.reserve(m),
-                self._prev.reserve(m), self._prev_id.reserve(m))
-        blk = np.empty(n_moves, np.int64)
-        o = [c[n0:] for c in cols]
-        k = tk.top_changes_journal_packed(ptr, rays, seg_ptr, far.view(np.int32), far_id, self._cur,
-                                          o[0], o[1].view(np.int32), o[2], o[3].view(np.int32), o[4], blk)
-        for c in (self._ray, self._val, self._id, self._prev, self._prev_id):
-            c.n = n0 + int(k)
-        self._stage.append(stages)
-        self._ptr.append(n0 + blk)
-        self._schedule(int(k), budget=4 * int(k))
         return int(k)
 
     def record_heights(self, heights: np.ndarray, ids: np.ndarray, stage: int | None = None) -> int:
@@ -411,7 +381,7 @@ class SharedTimeTrace(TimeTrace):
     def record(self, grid, rays=None, stage=None) -> int:
         raise InputError("a shared time-trace is recorded through its z-trace")
 
-    record_journal = record_heights = record
+    record_heights = record
 
     def maintain(self, budget: int | None = None) -> bool:
         return True

@@ -9,11 +9,11 @@ from sim import trace_kernels as tk
 from sim.errors import InputError
 from sim.grid import DexelGrid
 from sim.tolerance import DEFAULT, Tolerance
+from sim.trace import keyframes  # KEYFRAME_BUDGET read at call time (tests lower it)
 from sim.trace.columns import (
-    _BlockLog, _Column, _Cursor, _batch_stages, _check_stage, _expand_consecutive, _get,
+    _BlockLog, _Column, _Cursor, _check_stage, _expand_consecutive, _get,
     _get_rle, _get_runs, _pack_column, _rays_arg, _runs_of_equal, _unpack_column,
     frame_from_array, frame_to_array)
-from sim.trace import keyframes  # KEYFRAME_BUDGET read at call time (tests lower it)
 from sim.trace.keyframes import (
     _Chunked, _FAR_FIELDS, _KeyBuilder, _Keyframe, _POOL_FIELDS,
     _snapshot_sharing, _store_copy, _store_snapshot)
@@ -133,40 +133,6 @@ class ZTrace(_BlockLog):
         np.cumsum(counts, out=seg_ptr[1:])
         return self._ingest(np.array([0, rays.size], np.int64), rays, seg_ptr, (n, f, ni, fi),
                             np.array([stage], np.int64), 0)
-
-    def record_journal(self, changed_ptr, changed_rays, seg_ptr, near, far, near_id, far_id,
-                       stages=None) -> int:
-        """Record a batch cut's journal: one block per move, equal to recording each move
-        by itself.
-
-        changed_ptr : int64 (n_moves + 1,), changed_rays : int (n_entries,)
-            The CSR of rays each move changed (``CutResult.changed_ptr`` / ``changed_rays``).
-        seg_ptr : int64 (n_entries + 1,); near, far : float32 (n_segs,) mm; near_id,
-            far_id : int32 (n_segs,)
-            Entry e's complete segment list after its move (``CutResult.journal_*``).
-        stages : int (n_moves,), optional
-            Stage of each move, non-decreasing and not below :attr:`last_stage`; default
-            ``last_stage + 1, + 2, ...``.
-
-        Returns the number of ray changes recorded. One compiled pass over the entries.
-        """
-        ptr = np.ascontiguousarray(changed_ptr, np.int64)
-        n_moves = ptr.size - 1
-        stages = _batch_stages(self.last_stage, stages, n_moves)
-        rays = np.ascontiguousarray(changed_rays, np.int64)
-        seg_ptr = np.ascontiguousarray(seg_ptr, np.int64)
-        cols = [np.ascontiguousarray(x, dt) for x, dt in
-                ((near, np.float32), (far, np.float32), (near_id, np.int32), (far_id, np.int32))]
-        n_entries = rays.size
-        if ptr[0] != 0 or ptr[-1] != n_entries or np.any(np.diff(ptr) < 0) \
-                or seg_ptr.size != n_entries + 1 or (n_entries and (seg_ptr[0] != 0 or np.any(np.diff(seg_ptr) < 0))):
-            raise InputError("cut journal pointers are inconsistent with its entries")
-        n_segs = int(seg_ptr[-1])
-        if any(c.size < n_segs for c in cols):
-            raise InputError(f"cut journal holds fewer than its {n_segs} segments")
-        if n_entries and (rays.min() < 0 or rays.max() >= self.n_rays):
-            raise InputError("cut journal ray index beyond the frame")
-        return self._ingest(ptr, rays, seg_ptr, cols, stages, budget=None)
 
     def _ensure_mirror(self) -> None:
         """Make the mirror (the model at the last stage, rebuilt from the nearest keyframe)

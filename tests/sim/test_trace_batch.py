@@ -1,4 +1,4 @@
-"""Recording a batch cut's journal, rebuilding into a caller's grid, amortised keyframes."""
+"""A batch cut recorded into a trace, rebuilding into a caller's grid, amortised keyframes."""
 
 from __future__ import annotations
 
@@ -10,60 +10,18 @@ from sim.errors import InputError
 from sim.tools import parse_tool_spec
 from sim.trace import Trace, TimeTrace, ZTrace, model_difference, same_model
 from sim.trace import keyframes as keyframes_mod
-from tests.sim.trace_helpers import box, feed_moves, journal_of, program
+from tests.sim.trace_helpers import box, feed_moves, program
 
 
-def _per_stage_and_batch(n_moves=30, seed=2, keyframe_every=300):
-    """The mixed program recorded ray set by ray set, and as one hand-built journal."""
+def _per_stage(n_moves=30, seed=2, keyframe_every=300):
+    """The mixed program recorded ray set by ray set, and the model after every stage."""
     g = box()
     one = Trace(g.copy(), keyframe_every=keyframe_every)
     snaps = {0: g.copy()}
-    steps = []
     for s, rays in program(g, n_moves=n_moves, seed=seed):
         one.record(g, rays, s)
         snaps[s] = g.copy()
-        steps.append((s, rays))
-    g2 = box()
-    journal, stages, _ = journal_of(program(g2, n_moves=n_moves, seed=seed), g2)
-    batch = Trace(box(), keyframe_every=keyframe_every)
-    batch.record_batch(journal, stages)
-    return one, batch, snaps
-
-
-def test_batch_journal_equals_recording_each_stage():
-    one, batch, snaps = _per_stage_and_batch()
-    assert batch.z.n_blocks == one.z.n_blocks == len(snaps) - 1
-    a, b = one.to_arrays(), batch.to_arrays()
-    assert a.keys() == b.keys()
-    for k in a:  # the same log, event for event
-        np.testing.assert_array_equal(a[k], b[k], err_msg=k)
-    assert batch.z._g_ray.n > 0 and batch.z._f_val.n > 0   # rules 2-4 and rule 5 both seen
-    batch.maintain(None)
-    # a batch spanning many keyframe spacings gets a keyframe at each (both traces)
-    assert len(batch.z._keyframes) >= batch.z.n_changes // 300 // 2
-    assert len(batch.t._keyframes) >= batch.t.n_changes // 300 // 2
-    for s, ref in snaps.items():
-        assert same_model(batch.grid_at(s), ref), s
-        assert np.array_equal(batch.heights_at(s), ref.top(), equal_nan=True), s
-
-
-def test_batch_journal_default_stages_and_errors():
-    g = box()
-    journal, stages, snaps = journal_of(program(g, n_moves=6, seed=5), g)
-    tr = Trace(box())
-    tr.record_batch(journal)               # stages 1..6
-    assert tr.last_stage == 6 and same_model(tr.grid_at(6), snaps[6])
-    with pytest.raises(InputError, match="decrease"):
-        tr.record_batch(journal, stages)    # 1..6 again after 6
-    with pytest.raises(InputError, match="stages given"):
-        tr.record_batch(journal, stages[:3] + 10)
-    bare = type("R", (), {"changed_ptr": journal.changed_ptr, "changed_rays": journal.changed_rays})()
-    with pytest.raises(InputError, match="journal=True"):
-        tr.record_batch(bare)
-    bad = type(journal)(**vars(journal))
-    bad.journal_seg_ptr = journal.journal_seg_ptr[:-1]
-    with pytest.raises(InputError, match="inconsistent"):
-        Trace(box()).record_batch(bad)
+    return one, snaps
 
 
 def _moves():
@@ -77,7 +35,7 @@ def _moves():
                       {3: (11, 12, 7.0)})
 
 
-def test_real_batch_cut_with_journal_equals_cutting_move_by_move():
+def test_real_batch_cut_into_the_trace_equals_cutting_move_by_move():
     moves = _moves()
     ids = np.arange(1, len(moves) + 1)
     tool = parse_tool_spec("ball:4")
@@ -91,8 +49,7 @@ def test_real_batch_cut_with_journal_equals_cutting_move_by_move():
         snaps[k + 1] = g1.copy()
     g2 = box(50, 34, 0.5, 0.0, 10.0)
     batch = Trace(g2, keyframe_every=400)
-    res = Cutter(g2, tool).cut_moves(moves, move_ids=ids, journal=True)
-    batch.record_batch(res)
+    Cutter(g2, tool).cut_moves(moves, move_ids=ids, trace=batch)
     assert same_model(g1, g2)
     assert batch.z.n_blocks == len(moves) and batch.t.n_blocks == len(moves)
     assert batch.z.n_changes == per_move.z.n_changes and batch.t.n_changes == per_move.t.n_changes
@@ -102,17 +59,13 @@ def test_real_batch_cut_with_journal_equals_cutting_move_by_move():
         out = batch.grid_at(s, out=out)
         assert same_model(out, snaps[s]), s
         assert np.array_equal(batch.heights_at(s), snaps[s].top(), equal_nan=True), s
-    # no journal: a clear error, not a wrong trace
-    res2 = Cutter(box(50, 34, 0.5, 0.0, 10.0), tool).cut_moves(moves, move_ids=ids)
-    with pytest.raises(InputError, match="journal"):
-        Trace(box(50, 34, 0.5, 0.0, 10.0)).record_batch(res2)
 
 
 @pytest.fixture(scope="module")
 def recorded():
-    one, batch, snaps = _per_stage_and_batch(n_moves=36, seed=11, keyframe_every=150)
-    batch.maintain(None)
-    return batch, snaps
+    one, snaps = _per_stage(n_moves=36, seed=11, keyframe_every=150)
+    one.maintain(None)
+    return one, snaps
 
 
 def test_grid_at_into_a_reused_grid_any_order(recorded):
