@@ -63,32 +63,6 @@ def program(grid: DexelGrid, n_moves: int = 24, seed: int = 1):
         yield s, rays
 
 
-def journal_of(steps, grid: DexelGrid):
-    """A cut journal built by hand: ``steps`` yields (stage, rays touched) after changing
-    ``grid``; each step becomes a move whose entries are the rays it touched (sorted,
-    unique) with their segments right after it. Returns (journal, stages, snapshots)."""
-    from types import SimpleNamespace
-    ptr, rays_all, counts, segs, stages, snaps = [0], [], [], [[], [], [], []], [], {}
-    for s, rays in steps:
-        rays = np.unique(np.asarray(rays, np.int64))
-        n, f, ni, fi, c = grid.segments_of(rays)
-        rays_all.append(rays)
-        counts.append(c)
-        for col, x in zip(segs, (n, f, ni, fi)):
-            col.append(x)
-        ptr.append(ptr[-1] + rays.size)
-        stages.append(s)
-        snaps[s] = grid.copy()
-    cat = (lambda xs, dt: np.concatenate(xs).astype(dt) if xs else np.zeros(0, dt))
-    c = cat(counts, np.int64)
-    journal = SimpleNamespace(
-        changed_ptr=np.array(ptr, np.int64), changed_rays=cat(rays_all, np.int64),
-        journal_seg_ptr=np.concatenate([[0], np.cumsum(c)]).astype(np.int64),
-        journal_near=cat(segs[0], np.float32), journal_far=cat(segs[1], np.float32),
-        journal_near_id=cat(segs[2], np.int32), journal_far_id=cat(segs[3], np.int32))
-    return journal, np.array(stages, np.int64), snaps
-
-
 def feed_moves(rows, arcs=()):
     """Feed moves through ``rows`` ((start, end) tip points); ``arcs``: {row: centre} CCW."""
     mv = empty_moves(len(rows))
