@@ -1,0 +1,260 @@
+"""The surface of a tri-dexel model: a closed triangle mesh with no view direction.
+
+Dual contouring over the lattice of :mod:`sim.tridexel` (surface nets with exact edge
+crossings):
+
+* **Node occupancy.** Each node lies on three rays (one per grid); each ray reads the
+  node as material when the node's ``s`` (rounded to float32, as the segment ends are
+  stored) lies in one of its segments, ends included (a node on a face is inside, as
+  :func:`sim.solids.box_grid` counts it). Near faces the three readings can disagree
+  (float rounding, segments under the tolerance, the Z grid's exact sweep beside the
+  X and Y grids' instances of motion); the node is material when **two of the three**
+  rays say so. Segments are clipped to the lattice, and the lattice is padded with one
+  empty layer all round, so material touching the lattice's boundary closes there.
+* **Ambiguous faces.** A lattice square whose diagonal nodes hold material and whose
+  other two do not (a checkerboard) would give a mesh edge of four faces; such squares
+  are read as joined material (their empty nodes are taken inside), repeated until
+  none is left. This only happens where material is thinner than the spacing.
+* **Edge crossings** are exact: a lattice edge whose two nodes differ lies on one ray
+  of the grid running along it, and its crossing is that ray's segment end in the
+  edge (the material of the inside node ending, or of the far node beginning); the
+  face id of that end is kept. Where the ray disagrees with the vote it has no such
+  end: the crossing is put on the node it misread (the surface passes through it to
+  within the rounding that made the readings differ).
+* **Vertices**: one per cell (cube of 8 nodes) with a sign change, at the mean of its
+  crossings (it stays in the cell). A box whose faces lie on lattice planes comes out
+  exact; a face between lattice planes is exact too, but its edges with other faces
+  are bevelled by up to a spacing.
+* **Faces**: a quad (two triangles) per sign-changing edge joining the vertices of the
+  four cells round it, wound so the normal points out of the material. Every edge of
+  the result joins exactly two faces: the mesh is watertight and consistently wound.
+
+Every triangle carries ``move_id``: the face id of its edge's crossing (the move that
+cut that face; 0 = stock), so pictures can colour by move as with :mod:`sim.surface`.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numba as nb
+import numpy as np
+
+from sim.errors import InputError
+from sim.surface import _live_segments
+from sim.tridexel import TriDexel
+
+#: lattice axis of each grid's rays (x grid runs along axis 0, ...)
+_AXIS = {"x": 0, "y": 1, "z": 2}
+
+
+@nb.njit(cache=True)
+def _ray_occupancy(offsets, near, far, s_nodes, occ):
+    """Mark ``occ[r, k] = 1`` where node ``s_nodes[k]`` (float32 mm, ascending) lies in
+    a segment of ray ``r`` (ends included)."""
+    n = s_nodes.size
+    for r in range(offsets.size - 1):
+        k = 0
+        for q in range(offsets[r], offsets[r + 1]):
+            while k < n and s_nodes[k] < near[q]:
+                k += 1
+            while k < n and s_nodes[k] <= far[q]:
+                occ[r, k] = 1
+                k += 1
+
+
+@nb.njit(cache=True)
+def _edge_crossings(offsets, near, far, nid, fid, s_pad, rays, along, leaving, out_s, out_id):
+    """The crossing on each sign-changing lattice edge, from the ray running along it.
+
+    Edge ``e`` joins padded nodes ``along[e]`` and ``along[e] + 1`` of ray ``rays[e]``
+    (``s_pad``: float32 node parameters with one pad node each end). ``leaving[e]``:
+    the vote reads the first node inside and the second outside. Segments are clipped
+    to the lattice ``[s_pad[1], s_pad[-2]]``. Writes ``out_s`` (mm along the ray) and
+    ``out_id`` (the face id of the segment end used).
+    """
+    lo_s = s_pad[1]
+    hi_s = s_pad[s_pad.size - 2]
+    for e in range(rays.size):
+        r = rays[e]
+        sa = s_pad[along[e]]
+        sb = s_pad[along[e] + 1]
+        leave = leaving[e]
+        found = False
+        best = np.float32(0.0)
+        bid = 0
+        ra = False  # the ray's own reading of the two nodes
+        rb = False
+        for q in range(offsets[r], offsets[r + 1]):
+            n0 = max(near[q], lo_s)
+            f0 = min(far[q], hi_s)
+            if n0 > f0:
+                continue
+            if n0 <= sa <= f0:
+                ra = True
+            if n0 <= sb <= f0:
+                rb = True
+            if leave:
+                if not found and sa <= f0 <= sb:  # the first end of material in the edge
+                    found = True
+                    best = f0
+                    bid = fid[q]
+            elif sa <= n0 <= sb:  # the last start of material in the edge
+                found = True
+                best = n0
+                bid = nid[q]
+        if found:
+            out_s[e] = best
+            out_id[e] = bid
+            continue
+        # the ray disagrees with the vote: the surface is at the node it misread
+        if ra != leave:
+            s = np.float64(sa)
+        elif rb == leave:
+            s = np.float64(sb)
+        else:
+            s = 0.5 * (np.float64(sa) + np.float64(sb))
+        out_s[e] = s
+        gap = np.inf  # the face id of the ray's end nearest the crossing
+        bid = 0
+        for q in range(offsets[r], offsets[r + 1]):
+            if abs(near[q] - s) < gap:
+                gap = abs(near[q] - s)
+                bid = nid[q]
+            if abs(far[q] - s) < gap:
+                gap = abs(far[q] - s)
+                bid = fid[q]
+        out_id[e] = bid
+
+
+def _node_coords(model: TriDexel, axis: int) -> np.ndarray:
+    """Node coordinates along ``axis`` (float64 mm), with one pad node at each end."""
+    n = model.shape[axis]
+    return model.lo[axis] + model.spacing * (np.arange(n + 2) - 1.0)
+
+
+def _occupancy(model: TriDexel, segments: dict) -> np.ndarray:
+    """Padded node occupancy, bool (nx+2, ny+2, nz+2): the two-of-three vote (module doc)."""
+    nx, ny, nz = model.shape
+    votes = np.zeros((nx, ny, nz), np.uint8)
+    # per-ray arrays are (nv, nu) and each ray runs along its axis: the transposes that
+    # bring (nv, nu, along) to (i, j, k) for the frames of sim.tridexel
+    layout = {"z": ((ny, nx, nz), (1, 0, 2)), "x": ((nz, ny, nx), (2, 1, 0)),
+              "y": ((nx, nz, ny), (0, 2, 1))}
+    for a, (shape, order) in layout.items():
+        offsets, near, far, _, _ = segments[a]
+        s_nodes = _node_coords(model, _AXIS[a])[1:-1].astype(np.float32)
+        occ = np.zeros((shape[0] * shape[1], shape[2]), np.uint8)
+        _ray_occupancy(offsets, near, far, s_nodes, occ)
+        votes += occ.reshape(shape).transpose(order)
+    inside = np.zeros((nx + 2, ny + 2, nz + 2), bool)
+    inside[1:-1, 1:-1, 1:-1] = votes >= 2
+    _join_checkerboards(inside)
+    return inside
+
+
+def _join_checkerboards(inside: np.ndarray) -> None:
+    """Take inside the empty nodes of every lattice square whose diagonal nodes alone
+    hold material (in place, repeated until none is left; only ever adds material)."""
+    while True:
+        changed = False
+        for axis in range(3):
+            p = np.moveaxis(inside, axis, 0)  # a view: squares in the other two axes
+            a, b, c, d = p[:, :-1, :-1], p[:, 1:, :-1], p[:, :-1, 1:], p[:, 1:, 1:]
+            board = (a == d) & (b == c) & (a != b)
+            if not board.any():
+                continue
+            changed = True
+            fill_ad = board & ~a  # a and d are the empty pair
+            fill_bc = board & a
+            a |= fill_ad
+            d |= fill_ad
+            b |= fill_bc
+            c |= fill_bc
+        if not changed:
+            return
+
+
+# the four cells round an edge along each axis, counter-clockwise seen from +axis, as
+# offsets of the cell's first node from the edge's first node (padded indices)
+_RING = {
+    0: ((0, -1, -1), (0, 0, -1), (0, 0, 0), (0, -1, 0)),   # (y, z) plane
+    1: ((-1, 0, -1), (-1, 0, 0), (0, 0, 0), (0, 0, -1)),   # (z, x) plane
+    2: ((-1, -1, 0), (0, -1, 0), (0, 0, 0), (-1, 0, 0)),   # (x, y) plane
+}
+
+
+def _axis_edges(model: TriDexel, inside: np.ndarray, a: str, segments: dict):
+    """The sign-changing edges along grid ``a``'s axis: (crossing points (m, 3) world mm,
+    face ids (m,), cells (m, 4) flat padded-cell indices wound outward)."""
+    ax = _AXIS[a]
+    nx, ny, nz = model.shape
+    lower = np.take(inside, np.arange(inside.shape[ax] - 1), axis=ax)
+    upper = np.take(inside, np.arange(1, inside.shape[ax]), axis=ax)
+    pi, pj, pk = np.nonzero(lower != upper)
+    leaving = lower[pi, pj, pk]
+    # the ray along the edge, flat index r = iv * nu + iu on its grid (sim.tridexel table)
+    if a == "x":
+        rays, along = (pk - 1) * ny + (pj - 1), pi
+    elif a == "y":
+        rays, along = (pi - 1) * nz + (pk - 1), pj
+    else:
+        rays, along = (pj - 1) * nx + (pi - 1), pk
+    offsets, near, far, nid, fid = segments[a]
+    s_pad = _node_coords(model, ax).astype(np.float32)
+    cross = np.empty(pi.size)
+    ids = np.empty(pi.size, np.int32)
+    _edge_crossings(offsets, near, far, nid, fid, s_pad, rays.astype(np.int64), along.astype(np.int64),
+                    leaving, cross, ids)
+    idx = (pi, pj, pk)
+    points = np.stack([_node_coords(model, d)[idx[d]] for d in range(3)], axis=1)
+    points[:, ax] = cross
+    cj, ck = ny + 1, nz + 1  # cells per padded axis: nx+1, ny+1, nz+1
+    cells = np.stack([((pi + o[0]) * cj + (pj + o[1])) * ck + (pk + o[2]) for o in _RING[ax]], axis=1)
+    cells[~leaving] = cells[~leaving, ::-1]  # material above the edge: the normal points down
+    return points, ids, cells
+
+
+def tridexel_arrays(model: TriDexel):
+    """The closed surface of ``model`` as arrays (see the module docstring).
+
+    Returns ``(vertices, faces, move_id)``: float64 (n_v, 3) world mm, int64 (n_f, 3)
+    vertex indices wound outward, int32 (n_f,) face ids.
+    """
+    if not isinstance(model, TriDexel):
+        raise InputError(f"tridexel_mesh needs a TriDexel, got {type(model).__name__}")
+    segments = {a: _live_segments(g) for a, g in model.grids.items()}
+    inside = _occupancy(model, segments)
+    parts = [_axis_edges(model, inside, a, segments) for a in ("x", "y", "z")]
+    points = np.concatenate([p[0] for p in parts])
+    ids = np.concatenate([p[1] for p in parts])
+    cells = np.concatenate([p[2] for p in parts])
+    used, vert_of = np.unique(cells, return_inverse=True)
+    vert_of = vert_of.reshape(cells.shape)
+    count = np.bincount(vert_of.ravel(), minlength=used.size).astype(np.float64)
+    verts = np.stack([np.bincount(vert_of.ravel(), np.repeat(points[:, d], 4), used.size)
+                      for d in range(3)], axis=1) / count[:, None]
+    faces = np.concatenate([vert_of[:, [0, 1, 2]], vert_of[:, [0, 2, 3]]]).astype(np.int64)
+    return verts, faces, np.concatenate([ids, ids])
+
+
+def tridexel_mesh(model: TriDexel):
+    """The closed, outward-wound surface of ``model`` as a ``trimesh.Trimesh`` (world mm),
+    with ``face_attributes["move_id"]`` (int32) per triangle."""
+    import trimesh
+
+    verts, faces, ids = tridexel_arrays(model)
+    return trimesh.Trimesh(vertices=verts, faces=faces, face_attributes={"move_id": ids},
+                           process=False, validate=False)
+
+
+def export_stl(model: TriDexel, path) -> Path:
+    """Write the closed surface of ``model`` as a binary STL (mm); returns the path."""
+    path = Path(path)
+    if not path.parent.is_dir():
+        raise InputError("directory does not exist", where=str(path.parent))
+    mesh = tridexel_mesh(model)
+    if len(mesh.faces) == 0:
+        raise InputError("the model holds no material; nothing to export", where=str(path))
+    mesh.export(str(path), file_type="stl")
+    return path
