@@ -49,18 +49,82 @@ _AXIS = {"x": 0, "y": 1, "z": 2}
 
 
 @nb.njit(cache=True)
-def _ray_occupancy(offsets, near, far, s_nodes, occ):
-    """Mark ``occ[r, k] = 1`` where node ``s_nodes[k]`` (float32 mm, ascending) lies in
-    a segment of ray ``r`` (ends included)."""
+def _add_votes(offsets, near, far, s_nodes, nu, axis, votes):
+    """Add 1 to ``votes`` (padded (nx+2, ny+2, nz+2) uint8) at every node that one grid's
+    ray reads as material: node ``s_nodes[k]`` (float32 mm, ascending) in a segment, ends
+    included. ``axis`` (0 x, 1 y, 2 z) is the grid's; its ray ``r = iv*nu + iu`` holds
+    the nodes as in the :mod:`sim.tridexel` table."""
     n = s_nodes.size
     for r in range(offsets.size - 1):
+        iu = r % nu + 1
+        iv = r // nu + 1
         k = 0
         for q in range(offsets[r], offsets[r + 1]):
             while k < n and s_nodes[k] < near[q]:
                 k += 1
             while k < n and s_nodes[k] <= far[q]:
-                occ[r, k] = 1
+                if axis == 0:
+                    votes[k + 1, iu, iv] += 1
+                elif axis == 1:
+                    votes[iv, k + 1, iu] += 1
+                else:
+                    votes[iu, iv, k + 1] += 1
                 k += 1
+
+
+@nb.njit(cache=True)
+def _join_pass(inside):
+    """One pass of :func:`_join_checkerboards`; returns how many nodes it filled."""
+    nx, ny, nz = inside.shape
+    filled = 0
+    for i in range(nx - 1):
+        for j in range(ny - 1):
+            for k in range(nz - 1):
+                for plane in range(3):  # the square in (x, y), (y, z), (z, x) from node (i, j, k)
+                    if plane == 0:
+                        i1, j1, k1, i2, j2, k2 = i + 1, j, k, i, j + 1, k
+                    elif plane == 1:
+                        i1, j1, k1, i2, j2, k2 = i, j + 1, k, i, j, k + 1
+                    else:
+                        i1, j1, k1, i2, j2, k2 = i, j, k + 1, i + 1, j, k
+                    a = inside[i, j, k]
+                    d = inside[i1 + i2 - i, j1 + j2 - j, k1 + k2 - k]
+                    b = inside[i1, j1, k1]
+                    c = inside[i2, j2, k2]
+                    if a == d and b == c and a != b:
+                        if a:
+                            inside[i1, j1, k1] = True
+                            inside[i2, j2, k2] = True
+                        else:
+                            inside[i, j, k] = True
+                            inside[i1 + i2 - i, j1 + j2 - j, k1 + k2 - k] = True
+                        filled += 2
+    return filled
+
+
+@nb.njit(cache=True)
+def _sign_changes(inside, axis, out, leaving):
+    """The edges along ``axis`` whose two nodes differ: their first node's padded index
+    into ``out`` (m, 3) and whether that node is the inside one into ``leaving``; with
+    empty outputs only counts. Returns the count."""
+    nx, ny, nz = inside.shape
+    di = 1 if axis == 0 else 0
+    dj = 1 if axis == 1 else 0
+    dk = 1 if axis == 2 else 0
+    fill = out.shape[0] > 0
+    m = 0
+    for i in range(nx - di):
+        for j in range(ny - dj):
+            for k in range(nz - dk):
+                a = inside[i, j, k]
+                if a != inside[i + di, j + dj, k + dk]:
+                    if fill:
+                        out[m, 0] = i
+                        out[m, 1] = j
+                        out[m, 2] = k
+                        leaving[m] = a
+                    m += 1
+    return m
 
 
 @nb.njit(cache=True)
@@ -136,43 +200,22 @@ def _node_coords(model: TriDexel, axis: int) -> np.ndarray:
 def _occupancy(model: TriDexel, segments: dict) -> np.ndarray:
     """Padded node occupancy, bool (nx+2, ny+2, nz+2): the two-of-three vote (module doc)."""
     nx, ny, nz = model.shape
-    votes = np.zeros((nx, ny, nz), np.uint8)
-    # per-ray arrays are (nv, nu) and each ray runs along its axis: the transposes that
-    # bring (nv, nu, along) to (i, j, k) for the frames of sim.tridexel
-    layout = {"z": ((ny, nx, nz), (1, 0, 2)), "x": ((nz, ny, nx), (2, 1, 0)),
-              "y": ((nx, nz, ny), (0, 2, 1))}
-    for a, (shape, order) in layout.items():
+    votes = np.zeros((nx + 2, ny + 2, nz + 2), np.uint8)
+    for a, g in model.grids.items():
         offsets, near, far, _, _ = segments[a]
         s_nodes = _node_coords(model, _AXIS[a])[1:-1].astype(np.float32)
-        occ = np.zeros((shape[0] * shape[1], shape[2]), np.uint8)
-        _ray_occupancy(offsets, near, far, s_nodes, occ)
-        votes += occ.reshape(shape).transpose(order)
-    inside = np.zeros((nx + 2, ny + 2, nz + 2), bool)
-    inside[1:-1, 1:-1, 1:-1] = votes >= 2
+        _add_votes(offsets, near, far, s_nodes, g.frame.nu, _AXIS[a], votes)
+    inside = votes >= 2
     _join_checkerboards(inside)
     return inside
 
 
 def _join_checkerboards(inside: np.ndarray) -> None:
     """Take inside the empty nodes of every lattice square whose diagonal nodes alone
-    hold material (in place, repeated until none is left; only ever adds material)."""
-    while True:
-        changed = False
-        for axis in range(3):
-            p = np.moveaxis(inside, axis, 0)  # a view: squares in the other two axes
-            a, b, c, d = p[:, :-1, :-1], p[:, 1:, :-1], p[:, :-1, 1:], p[:, 1:, 1:]
-            board = (a == d) & (b == c) & (a != b)
-            if not board.any():
-                continue
-            changed = True
-            fill_ad = board & ~a  # a and d are the empty pair
-            fill_bc = board & a
-            a |= fill_ad
-            d |= fill_ad
-            b |= fill_bc
-            c |= fill_bc
-        if not changed:
-            return
+    hold material (in place, repeated until none is left; only ever adds material, so
+    it ends)."""
+    while _join_pass(inside):
+        pass
 
 
 # the four cells round an edge along each axis, counter-clockwise seen from +axis, as
@@ -189,10 +232,11 @@ def _axis_edges(model: TriDexel, inside: np.ndarray, a: str, segments: dict):
     face ids (m,), cells (m, 4) flat padded-cell indices wound outward)."""
     ax = _AXIS[a]
     nx, ny, nz = model.shape
-    lower = np.take(inside, np.arange(inside.shape[ax] - 1), axis=ax)
-    upper = np.take(inside, np.arange(1, inside.shape[ax]), axis=ax)
-    pi, pj, pk = np.nonzero(lower != upper)
-    leaving = lower[pi, pj, pk]
+    m = _sign_changes(inside, ax, np.empty((0, 3), np.int64), np.empty(0, np.bool_))
+    first = np.empty((m, 3), np.int64)
+    leaving = np.empty(m, np.bool_)
+    _sign_changes(inside, ax, first, leaving)
+    pi, pj, pk = first.T
     # the ray along the edge, flat index r = iv * nu + iu on its grid (sim.tridexel table)
     if a == "x":
         rays, along = (pk - 1) * ny + (pj - 1), pi
@@ -204,8 +248,7 @@ def _axis_edges(model: TriDexel, inside: np.ndarray, a: str, segments: dict):
     s_pad = _node_coords(model, ax).astype(np.float32)
     cross = np.empty(pi.size)
     ids = np.empty(pi.size, np.int32)
-    _edge_crossings(offsets, near, far, nid, fid, s_pad, rays.astype(np.int64), along.astype(np.int64),
-                    leaving, cross, ids)
+    _edge_crossings(offsets, near, far, nid, fid, s_pad, rays, along, leaving, cross, ids)
     idx = (pi, pj, pk)
     points = np.stack([_node_coords(model, d)[idx[d]] for d in range(3)], axis=1)
     points[:, ax] = cross
@@ -229,10 +272,15 @@ def tridexel_arrays(model: TriDexel):
     points = np.concatenate([p[0] for p in parts])
     ids = np.concatenate([p[1] for p in parts])
     cells = np.concatenate([p[2] for p in parts])
-    used, vert_of = np.unique(cells, return_inverse=True)
-    vert_of = vert_of.reshape(cells.shape)
-    count = np.bincount(vert_of.ravel(), minlength=used.size).astype(np.float64)
-    verts = np.stack([np.bincount(vert_of.ravel(), np.repeat(points[:, d], 4), used.size)
+    # one vertex per cell that has a crossing, numbered in cell order (a dense map: the
+    # cells are a byte each, cheaper than sorting the surface's cell list)
+    used = np.zeros(int(np.prod(np.array(model.shape) + 1)), np.bool_)
+    used[cells.ravel()] = True
+    number = np.cumsum(used, dtype=np.int64) - 1
+    vert_of = number[cells]
+    n_v = int(number[-1]) + 1 if used.size else 0
+    count = np.bincount(vert_of.ravel(), minlength=n_v).astype(np.float64)
+    verts = np.stack([np.bincount(vert_of.ravel(), np.repeat(points[:, d], 4), n_v)
                       for d in range(3)], axis=1) / count[:, None]
     faces = np.concatenate([vert_of[:, [0, 1, 2]], vert_of[:, [0, 2, 3]]]).astype(np.int64)
     return verts, faces, np.concatenate([ids, ids])
