@@ -21,10 +21,13 @@ crossings):
   face id of that end is kept. Where the ray disagrees with the vote it has no such
   end: the crossing is put on the node it misread (the surface passes through it to
   within the rounding that made the readings differ).
-* **Vertices**: one per cell (cube of 8 nodes) with a sign change, at the mean of its
-  crossings (it stays in the cell). A box whose faces lie on lattice planes comes out
-  exact; a face between lattice planes is exact too, but its edges with other faces
-  are bevelled by up to a spacing.
+* **Vertices**: one per cell (cube of 8 nodes) with a sign change. By default (``"qef"``)
+  at the point nearest, in least squares, to the tangent planes of the cell's crossings
+  (each crossing's normal from the slopes of the same crossing on the four neighbouring
+  rays), moved from the crossings' mean only in directions those normals pin down and
+  clamped to the cell: faces, edges and corners of a box come out exact wherever they
+  lie, curved faces keep the mean. ``"mean"`` (the mean of the crossings, surface nets)
+  is exact for faces on lattice planes but bevels edges by up to a spacing.
 * **Faces**: a quad (two triangles) per sign-changing edge joining the vertices of the
   four cells round it, wound so the normal points out of the material. Every edge of
   the result joins exactly two faces: the mesh is watertight and consistently wound.
@@ -46,6 +49,12 @@ from sim.tridexel import TriDexel
 
 #: lattice axis of each grid's rays (x grid runs along axis 0, ...)
 _AXIS = {"x": 0, "y": 1, "z": 2}
+#: lattice axes of each grid's (direction, u, v) (the sim.tridexel table)
+_DUV = {"x": (0, 1, 2), "y": (1, 2, 0), "z": (2, 0, 1)}
+#: the QEF's eigenvalue threshold, per crossing: directions in which the crossings'
+#: normals spread less than about 8 degrees keep the mean (a curved or flat surface),
+#: sharper ones (an edge, a corner) are solved for
+_QEF_THRESHOLD = 0.02
 
 
 @nb.njit(cache=True)
@@ -191,6 +200,63 @@ def _edge_crossings(offsets, near, far, nid, fid, s_pad, rays, along, leaving, o
         out_id[e] = bid
 
 
+@nb.njit(cache=True)
+def _nearest_end(offsets, near, far, r, leave, s, lo_s, hi_s):
+    """The end of ray ``r``'s material of the same kind as a crossing at ``s`` (a far end
+    where material is left, a near end where it begins; clipped to the lattice) nearest
+    to ``s``: (found, its s)."""
+    best = np.inf
+    got = np.nan
+    for q in range(offsets[r], offsets[r + 1]):
+        n0 = max(near[q], lo_s)
+        f0 = min(far[q], hi_s)
+        if n0 > f0:
+            continue
+        v = np.float64(f0 if leave else n0)
+        if abs(v - s) < best:
+            best = abs(v - s)
+            got = v
+    return best < np.inf, got
+
+
+@nb.njit(cache=True)
+def _crossing_normals(offsets, near, far, nu, nv, lo_s, hi_s, spacing, rays, leaving, cross, out):
+    """Outward unit normal at each crossing in the grid's (direction, u, v) components.
+
+    The surface near a crossing is ``s = f(u, v)`` along the ray; its slopes come from
+    the same kind of crossing on the four neighbouring rays (central differences, one
+    side where a neighbour has none within two spacings, flat where neither has):
+    normal = +-(1, -df/du, -df/dv), + where material ends along +s.
+    """
+    reach = 2.0 * spacing
+    for e in range(rays.size):
+        r = rays[e]
+        iu = r % nu
+        iv = r // nu
+        s = cross[e]
+        leave = leaving[e]
+        slope = np.zeros(2)
+        for d in range(2):
+            step = 1 if d == 0 else nu
+            pos = iu if d == 0 else iv
+            size = nu if d == 0 else nv
+            total = 0.0
+            span = 0.0
+            for side in (-1, 1):
+                if 0 <= pos + side < size:
+                    ok, v = _nearest_end(offsets, near, far, r + side * step, leave, s, lo_s, hi_s)
+                    if ok and abs(v - s) <= reach:
+                        total += v - s if side > 0 else s - v
+                        span += spacing
+            if span > 0:
+                slope[d] = total / span
+        sign = 1.0 if leave else -1.0
+        norm = np.sqrt(1.0 + slope[0] ** 2 + slope[1] ** 2)
+        out[e, 0] = sign / norm
+        out[e, 1] = -sign * slope[0] / norm
+        out[e, 2] = -sign * slope[1] / norm
+
+
 def _node_coords(model: TriDexel, axis: int) -> np.ndarray:
     """Node coordinates along ``axis`` (float64 mm), with one pad node at each end."""
     n = model.shape[axis]
@@ -229,7 +295,8 @@ _RING = {
 
 def _axis_edges(model: TriDexel, inside: np.ndarray, a: str, segments: dict):
     """The sign-changing edges along grid ``a``'s axis: (crossing points (m, 3) world mm,
-    face ids (m,), cells (m, 4) flat padded-cell indices wound outward)."""
+    face ids (m,), cells (m, 4) flat padded-cell indices wound outward, outward unit
+    normals (m, 3))."""
     ax = _AXIS[a]
     nx, ny, nz = model.shape
     m = _sign_changes(inside, ax, np.empty((0, 3), np.int64), np.empty(0, np.bool_))
@@ -249,17 +316,66 @@ def _axis_edges(model: TriDexel, inside: np.ndarray, a: str, segments: dict):
     cross = np.empty(pi.size)
     ids = np.empty(pi.size, np.int32)
     _edge_crossings(offsets, near, far, nid, fid, s_pad, rays, along, leaving, cross, ids)
+    g = model.grids[a].frame
+    local = np.empty((pi.size, 3))
+    _crossing_normals(offsets, near, far, g.nu, g.nv, s_pad[1], s_pad[-2], model.spacing, rays, leaving,
+                      cross, local)
+    normals = np.empty_like(local)
+    normals[:, list(_DUV[a])] = local
     idx = (pi, pj, pk)
     points = np.stack([_node_coords(model, d)[idx[d]] for d in range(3)], axis=1)
     points[:, ax] = cross
     cj, ck = ny + 1, nz + 1  # cells per padded axis: nx+1, ny+1, nz+1
     cells = np.stack([((pi + o[0]) * cj + (pj + o[1])) * ck + (pk + o[2]) for o in _RING[ax]], axis=1)
     cells[~leaving] = cells[~leaving, ::-1]  # material above the edge: the normal points down
-    return points, ids, cells
+    return points, ids, cells, normals
 
 
-def tridexel_arrays(model: TriDexel):
-    """The closed surface of ``model`` as arrays (see the module docstring).
+def _place_vertices(model: TriDexel, cell_of_vertex, vert_of, points, normals, placement: str) -> np.ndarray:
+    """One vertex per cell, float64 (n_v, 3) world mm. ``cell_of_vertex`` (n_v,): each
+    vertex's flat padded cell; ``vert_of`` (m, 4): the vertices round each crossing.
+
+    ``"mean"``: the mean of the cell's crossings. ``"qef"``: the point nearest, in least
+    squares, to the tangent planes of its crossings (normals from
+    :func:`_crossing_normals`), moved from the mean only in the directions the normals
+    pin down (:data:`_QEF_THRESHOLD`), then clamped to the cell (so the mesh cannot
+    fold across cells).
+    """
+    n_v = cell_of_vertex.size
+    flat = vert_of.ravel()
+    count = np.bincount(flat, minlength=n_v).astype(np.float64)
+
+    def per_cell(values):  # sum over each cell's crossings
+        return np.bincount(flat, np.repeat(values, 4), n_v)
+
+    mean = np.stack([per_cell(points[:, d]) for d in range(3)], axis=1) / count[:, None]
+    if placement == "mean":
+        return mean
+    if placement != "qef":
+        raise ValueError(f"placement must be 'mean' or 'qef', got {placement!r}")
+    # A = sum n n^T, b = sum n (n . c); the planes' residuals at the mean are b - A mean:
+    # move the mean by A's pseudo-inverse of them, keeping only A's eigenvectors whose
+    # eigenvalue is over the threshold (the directions the normals pin down)
+    A = np.empty((n_v, 3, 3))
+    nc = np.einsum("ij,ij->i", normals, points)
+    rhs = np.stack([per_cell(normals[:, d] * nc) for d in range(3)], axis=1)
+    for i in range(3):
+        for j in range(i, 3):
+            A[:, i, j] = A[:, j, i] = per_cell(normals[:, i] * normals[:, j])
+    rhs -= np.einsum("vij,vj->vi", A, mean)
+    lam, vec = np.linalg.eigh(A)
+    keep = lam > (_QEF_THRESHOLD * count)[:, None]
+    coef = np.where(keep, np.einsum("vik,vi->vk", vec, rhs) / np.where(keep, lam, 1.0), 0.0)
+    x = np.einsum("vik,vk->vi", vec, coef)
+    nx, ny, nz = model.shape
+    first = np.stack(np.unravel_index(cell_of_vertex, (nx + 1, ny + 1, nz + 1)), axis=1)
+    low = model.lo + model.spacing * (first - 1.0)  # padded index 0 is one spacing before lo
+    return np.clip(mean + x, low, low + model.spacing)
+
+
+def tridexel_arrays(model: TriDexel, placement: str = "qef"):
+    """The closed surface of ``model`` as arrays (see the module docstring);
+    ``placement`` of the vertices: ``"qef"`` or ``"mean"`` (:func:`_place_vertices`).
 
     Returns ``(vertices, faces, move_id)``: float64 (n_v, 3) world mm, int64 (n_f, 3)
     vertex indices wound outward, int32 (n_f,) face ids.
@@ -269,29 +385,30 @@ def tridexel_arrays(model: TriDexel):
     segments = {a: _live_segments(g) for a, g in model.grids.items()}
     inside = _occupancy(model, segments)
     parts = [_axis_edges(model, inside, a, segments) for a in ("x", "y", "z")]
+    normals = np.concatenate([p[3] for p in parts])
     points = np.concatenate([p[0] for p in parts])
     ids = np.concatenate([p[1] for p in parts])
     cells = np.concatenate([p[2] for p in parts])
+    if cells.size == 0:  # no material
+        return np.empty((0, 3)), np.empty((0, 3), np.int64), np.empty(0, np.int32)
     # one vertex per cell that has a crossing, numbered in cell order (a dense map: the
     # cells are a byte each, cheaper than sorting the surface's cell list)
     used = np.zeros(int(np.prod(np.array(model.shape) + 1)), np.bool_)
     used[cells.ravel()] = True
     number = np.cumsum(used, dtype=np.int64) - 1
     vert_of = number[cells]
-    n_v = int(number[-1]) + 1 if used.size else 0
-    count = np.bincount(vert_of.ravel(), minlength=n_v).astype(np.float64)
-    verts = np.stack([np.bincount(vert_of.ravel(), np.repeat(points[:, d], 4), n_v)
-                      for d in range(3)], axis=1) / count[:, None]
+    verts = _place_vertices(model, np.flatnonzero(used), vert_of, points, normals, placement)
     faces = np.concatenate([vert_of[:, [0, 1, 2]], vert_of[:, [0, 2, 3]]]).astype(np.int64)
     return verts, faces, np.concatenate([ids, ids])
 
 
-def tridexel_mesh(model: TriDexel):
+def tridexel_mesh(model: TriDexel, placement: str = "qef"):
     """The closed, outward-wound surface of ``model`` as a ``trimesh.Trimesh`` (world mm),
-    with ``face_attributes["move_id"]`` (int32) per triangle."""
+    with ``face_attributes["move_id"]`` (int32) per triangle (``placement``: see
+    :func:`tridexel_arrays`)."""
     import trimesh
 
-    verts, faces, ids = tridexel_arrays(model)
+    verts, faces, ids = tridexel_arrays(model, placement)
     return trimesh.Trimesh(vertices=verts, faces=faces, face_attributes={"move_id": ids},
                            process=False, validate=False)
 
