@@ -143,10 +143,28 @@ def test_side_hole_along_x_is_held(holed):
     assert set(m.face_attributes["move_id"][~wall].tolist()) == {0, 3}  # the hole's mouths
 
 
+def _sdf_box(p, lo, hi):
+    """Signed distance (mm, < 0 inside) of points (n, 3) to the box [lo, hi]."""
+    q = np.abs(p - (lo + hi) / 2) - (hi - lo) / 2
+    return np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0)
+
+
+def _sdf_cylinder(p, tip, axis, radius, length):
+    """Signed distance (mm, < 0 inside) of points (n, 3) to a flat end mill's cutting
+    cylinder standing on ``tip`` along unit ``axis``."""
+    w = p - tip
+    h = w @ axis
+    qx = np.linalg.norm(w - h[:, None] * axis, axis=1) - radius
+    qy = np.abs(h - length / 2) - length / 2
+    return np.minimum(np.maximum(qx, qy), 0) + np.hypot(np.maximum(qx, 0), np.maximum(qy, 0))
+
+
 def test_tilted_tool_slot():
     """A flat end mill tilted 30 degrees in XZ cuts a slot (TriCutter.cut_poses): the
-    surface is closed, its volume within 1.5% of each grid's (the lattice is the stock,
-    so the grids' trapezoid volumes are exact for it), the cut faces carry the move."""
+    surface is closed, every vertex within half a spacing of the analytic part (the box
+    less the tool at each pose), its volume within 1.5% of each grid's (the lattice is
+    the stock, so the grids' trapezoid volumes are exact for it), the cut faces carry
+    the move and include the slot's floor and its side walls (+-Y)."""
     lo, hi = np.zeros(3), np.array([12.0, 10.0, 8.0])
     model = TriDexel.build(lo, hi, H, lambda f: box_grid(f, lo, hi))
     tilt = np.radians(30)
@@ -157,12 +175,15 @@ def test_tilted_tool_slot():
     m = tridexel_mesh(model)
     _closed(m)
     assert m.euler_number == 2
+    tool = np.min([_sdf_cylinder(m.vertices, t, axis, 2.0, 15.0) for t in tips], axis=0)
+    part = np.maximum(_sdf_box(m.vertices, lo, hi), -tool)
+    assert np.abs(part).max() <= H / 2
     for a, v in model.volumes().items():
         assert m.volume == pytest.approx(v, rel=0.015), a
     ids = m.face_attributes["move_id"]
     assert set(ids.tolist()) == {0, 7}
-    floor_walls = m.face_normals[ids == 7]
-    assert (floor_walls[:, 2] > 0.5).any() and (np.abs(floor_walls[:, 1]) > 0.9).any()
+    cut_normals = m.face_normals[ids == 7]
+    assert (cut_normals[:, 2] > 0.5).any() and (cut_normals[:, 1] > 0.9).any() and (cut_normals[:, 1] < -0.9).any()
 
 
 def test_export_stl_round_trip(holed, tmp_path):
