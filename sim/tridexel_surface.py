@@ -31,6 +31,9 @@ crossings):
 * **Faces**: a quad (two triangles) per sign-changing edge joining the vertices of the
   four cells round it, wound so the normal points out of the material. Every edge of
   the result joins exactly two faces: the mesh is watertight and consistently wound.
+  Known limit: a cell holding two separate pieces of surface (material at two opposite
+  corners of the cube only) has one vertex, where the two pieces touch (still
+  watertight; that vertex is not a manifold vertex).
 
 Every triangle carries ``move_id``: the face id of its edge's crossing (the move that
 cut that face; 0 = stock), so pictures can colour by move as with :mod:`sim.surface`.
@@ -52,8 +55,8 @@ _AXIS = {"x": 0, "y": 1, "z": 2}
 #: lattice axes of each grid's (direction, u, v) (the sim.tridexel table)
 _DUV = {"x": (0, 1, 2), "y": (1, 2, 0), "z": (2, 0, 1)}
 #: the QEF's eigenvalue threshold, per crossing: directions in which the crossings'
-#: normals spread less than about 8 degrees keep the mean (a curved or flat surface),
-#: sharper ones (an edge, a corner) are solved for
+#: normals spread less than about 16 degrees (two even groups at +-8) keep the mean (a
+#: curved or flat surface), sharper ones (an edge, a corner) are solved for
 _QEF_THRESHOLD = 0.02
 
 
