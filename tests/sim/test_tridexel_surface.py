@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from sim.boolean import difference, union
 from sim.errors import InputError
@@ -88,6 +90,27 @@ def test_solids_touching_along_an_edge_are_joined():
     assert m.euler_number == 2
     # the joining adds a bridge about a spacing wide along the touching edge
     assert 2 * 2 * 2 * 4 < m.volume < 2 * 2 * 2 * 4 + 2 * H * (4 + 2 * H) * 2
+
+
+@settings(max_examples=15, deadline=None)
+@given(st.integers(0, 2**31 - 1))
+def test_any_solid_is_closed(seed):
+    """Boxes less or plus cylinders of any axis, radius and place (holes, bosses, thin
+    walls, material outside the lattice): always watertight and wound outward."""
+    rs = np.random.default_rng(seed)
+    parts = [(rs.uniform(-1, 9, 3), rs.normal(size=3) + 1e-3, rs.uniform(0.2, 2.5), rs.random() < 0.7)
+             for _ in range(4)]
+
+    def solid(f):
+        g = box_grid(f, (0, 0, 0), (8, 8, 6))
+        for k, (c, a, r, cut) in enumerate(parts):
+            cyl = cylinder_grid(f, c - 6 * a / np.linalg.norm(a), a, r, 12, face_id=k + 1)
+            g = difference(g, cyl) if cut else union(g, cyl)
+        return g
+
+    m = tridexel_mesh(TriDexel.build((-1, -1, -1), (9, 9, 7), H, solid))
+    if len(m.faces):
+        _closed(m)
 
 
 def _distance_to_cylinder(p, x0, x1, r):
