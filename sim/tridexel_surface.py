@@ -334,6 +334,87 @@ def _axis_edges(model: TriDexel, inside: np.ndarray, a: str, segments: dict):
     return points, ids, cells, normals
 
 
+@nb.njit(cache=True, inline="always")
+def _rotate(a, v, p, q):
+    """One Jacobi rotation zeroing ``a[p, q]`` of the symmetric 3x3 ``a`` (in place),
+    accumulated into the eigenvectors ``v`` (columns)."""
+    if a[p, q] == 0.0:
+        return
+    theta = (a[q, q] - a[p, p]) / (2.0 * a[p, q])
+    t = (1.0 if theta >= 0 else -1.0) / (abs(theta) + np.sqrt(theta * theta + 1.0))
+    c = 1.0 / np.sqrt(t * t + 1.0)
+    s = t * c
+    for k in range(3):
+        akp, akq = a[k, p], a[k, q]
+        a[k, p], a[k, q] = c * akp - s * akq, s * akp + c * akq
+    for k in range(3):
+        apk, aqk = a[p, k], a[q, k]
+        a[p, k], a[q, k] = c * apk - s * aqk, s * apk + c * aqk
+    for k in range(3):
+        vkp, vkq = v[k, p], v[k, q]
+        v[k, p], v[k, q] = c * vkp - s * vkq, s * vkp + c * vkq
+
+
+@nb.njit(cache=True)
+def _place(vert_of, points, normals, n_v, threshold, qef, out):
+    """Vertices into ``out`` (n_v, 3): the mean of each cell's crossings, moved (``qef``)
+    by the pseudo-inverse of ``A = sum n n^T`` (eigenvalues over ``threshold`` x the
+    crossing count; Jacobi's method) applied to the planes' residuals at the mean."""
+    count = np.zeros(n_v)
+    acc = np.zeros((n_v, 12))  # sum c (3), sum n n^T (xx xy xz yy yz zz), sum n (n . c) (3)
+    for e in range(vert_of.shape[0]):
+        c0, c1, c2 = points[e, 0], points[e, 1], points[e, 2]
+        n0, n1, n2 = normals[e, 0], normals[e, 1], normals[e, 2]
+        nc = n0 * c0 + n1 * c1 + n2 * c2
+        for k in range(4):
+            w = vert_of[e, k]
+            count[w] += 1.0
+            row = acc[w]
+            row[0] += c0
+            row[1] += c1
+            row[2] += c2
+            row[3] += n0 * n0
+            row[4] += n0 * n1
+            row[5] += n0 * n2
+            row[6] += n1 * n1
+            row[7] += n1 * n2
+            row[8] += n2 * n2
+            row[9] += n0 * nc
+            row[10] += n1 * nc
+            row[11] += n2 * nc
+    a = np.empty((3, 3))
+    v = np.empty((3, 3))
+    m = np.empty(3)
+    r = np.empty(3)
+    for w in range(n_v):
+        row = acc[w]
+        for d in range(3):
+            m[d] = row[d] / count[w]
+            out[w, d] = m[d]
+        if not qef:
+            continue
+        a[0, 0], a[0, 1], a[0, 2] = row[3], row[4], row[5]
+        a[1, 0], a[1, 1], a[1, 2] = row[4], row[6], row[7]
+        a[2, 0], a[2, 1], a[2, 2] = row[5], row[7], row[8]
+        for d in range(3):
+            r[d] = row[9 + d] - (a[d, 0] * m[0] + a[d, 1] * m[1] + a[d, 2] * m[2])
+        for i in range(3):
+            for j in range(3):
+                v[i, j] = 1.0 if i == j else 0.0
+        for sweep in range(12):  # 3x3: a handful of sweeps reach float precision
+            if a[0, 1] ** 2 + a[0, 2] ** 2 + a[1, 2] ** 2 <= 1e-24 * count[w] ** 2:
+                break
+            _rotate(a, v, 0, 1)
+            _rotate(a, v, 0, 2)
+            _rotate(a, v, 1, 2)
+        for k in range(3):
+            lam = a[k, k]
+            if lam > threshold * count[w]:
+                coef = (v[0, k] * r[0] + v[1, k] * r[1] + v[2, k] * r[2]) / lam
+                for d in range(3):
+                    out[w, d] += coef * v[d, k]
+
+
 def _place_vertices(model: TriDexel, cell_of_vertex, vert_of, points, normals, placement: str) -> np.ndarray:
     """One vertex per cell, float64 (n_v, 3) world mm. ``cell_of_vertex`` (n_v,): each
     vertex's flat padded cell; ``vert_of`` (m, 4): the vertices round each crossing.
@@ -344,36 +425,16 @@ def _place_vertices(model: TriDexel, cell_of_vertex, vert_of, points, normals, p
     pin down (:data:`_QEF_THRESHOLD`), then clamped to the cell (so the mesh cannot
     fold across cells).
     """
-    n_v = cell_of_vertex.size
-    flat = vert_of.ravel()
-    count = np.bincount(flat, minlength=n_v).astype(np.float64)
-
-    def per_cell(values):  # sum over each cell's crossings
-        return np.bincount(flat, np.repeat(values, 4), n_v)
-
-    mean = np.stack([per_cell(points[:, d]) for d in range(3)], axis=1) / count[:, None]
-    if placement == "mean":
-        return mean
-    if placement != "qef":
+    if placement not in ("qef", "mean"):
         raise ValueError(f"placement must be 'mean' or 'qef', got {placement!r}")
-    # A = sum n n^T, b = sum n (n . c); the planes' residuals at the mean are b - A mean:
-    # move the mean by A's pseudo-inverse of them, keeping only A's eigenvectors whose
-    # eigenvalue is over the threshold (the directions the normals pin down)
-    A = np.empty((n_v, 3, 3))
-    nc = np.einsum("ij,ij->i", normals, points)
-    rhs = np.stack([per_cell(normals[:, d] * nc) for d in range(3)], axis=1)
-    for i in range(3):
-        for j in range(i, 3):
-            A[:, i, j] = A[:, j, i] = per_cell(normals[:, i] * normals[:, j])
-    rhs -= np.einsum("vij,vj->vi", A, mean)
-    lam, vec = np.linalg.eigh(A)
-    keep = lam > (_QEF_THRESHOLD * count)[:, None]
-    coef = np.where(keep, np.einsum("vik,vi->vk", vec, rhs) / np.where(keep, lam, 1.0), 0.0)
-    x = np.einsum("vik,vk->vi", vec, coef)
+    verts = np.empty((cell_of_vertex.size, 3))
+    _place(vert_of, points, normals, cell_of_vertex.size, _QEF_THRESHOLD, placement == "qef", verts)
+    if placement == "mean":
+        return verts
     nx, ny, nz = model.shape
     first = np.stack(np.unravel_index(cell_of_vertex, (nx + 1, ny + 1, nz + 1)), axis=1)
     low = model.lo + model.spacing * (first - 1.0)  # padded index 0 is one spacing before lo
-    return np.clip(mean + x, low, low + model.spacing)
+    return np.clip(verts, low, low + model.spacing, out=verts)
 
 
 def tridexel_arrays(model: TriDexel, placement: str = "qef"):
@@ -398,7 +459,7 @@ def tridexel_arrays(model: TriDexel, placement: str = "qef"):
     # cells are a byte each, cheaper than sorting the surface's cell list)
     used = np.zeros(int(np.prod(np.array(model.shape) + 1)), np.bool_)
     used[cells.ravel()] = True
-    number = np.cumsum(used, dtype=np.int64) - 1
+    number = np.cumsum(used, dtype=np.int32 if used.size < 2**31 else np.int64) - 1
     vert_of = number[cells]
     verts = _place_vertices(model, np.flatnonzero(used), vert_of, points, normals, placement)
     faces = np.concatenate([vert_of[:, [0, 1, 2]], vert_of[:, [0, 2, 3]]]).astype(np.int64)
