@@ -299,7 +299,7 @@ _RING = {
 def _axis_edges(model: TriDexel, inside: np.ndarray, a: str, segments: dict):
     """The sign-changing edges along grid ``a``'s axis: (crossing points (m, 3) world mm,
     face ids (m,), cells (m, 4) flat padded-cell indices wound outward, outward unit
-    normals (m, 3))."""
+    normals (m, 3), +1 where the material is left along +axis else -1 (m,))."""
     ax = _AXIS[a]
     nx, ny, nz = model.shape
     m = _sign_changes(inside, ax, np.empty((0, 3), np.int64), np.empty(0, np.bool_))
@@ -331,7 +331,7 @@ def _axis_edges(model: TriDexel, inside: np.ndarray, a: str, segments: dict):
     cj, ck = ny + 1, nz + 1  # cells per padded axis: nx+1, ny+1, nz+1
     cells = np.stack([((pi + o[0]) * cj + (pj + o[1])) * ck + (pk + o[2]) for o in _RING[ax]], axis=1)
     cells[~leaving] = cells[~leaving, ::-1]  # material above the edge: the normal points down
-    return points, ids, cells, normals
+    return points, ids, cells, normals, np.where(leaving, 1.0, -1.0)
 
 
 @nb.njit(cache=True, inline="always")
@@ -356,10 +356,11 @@ def _rotate(a, v, p, q):
 
 
 @nb.njit(cache=True)
-def _place(vert_of, points, normals, n_v, threshold, qef, out):
-    """Vertices into ``out`` (n_v, 3): the mean of each cell's crossings, moved (``qef``)
-    by the pseudo-inverse of ``A = sum n n^T`` (eigenvalues over ``threshold`` x the
-    crossing count; Jacobi's method) applied to the planes' residuals at the mean."""
+def _place(vert_of, points, normals, n_v, threshold, qef, out, out_mean):
+    """Vertices into ``out`` (n_v, 3): the mean of each cell's crossings (also into
+    ``out_mean``), moved (``qef``) by the pseudo-inverse of ``A = sum n n^T``
+    (eigenvalues over ``threshold`` x the crossing count; Jacobi's method) applied to
+    the planes' residuals at the mean."""
     count = np.zeros(n_v)
     acc = np.zeros((n_v, 12))  # sum c (3), sum n n^T (xx xy xz yy yz zz), sum n (n . c) (3)
     for e in range(vert_of.shape[0]):
@@ -391,6 +392,7 @@ def _place(vert_of, points, normals, n_v, threshold, qef, out):
         for d in range(3):
             m[d] = row[d] / count[w]
             out[w, d] = m[d]
+            out_mean[w, d] = m[d]
         if not qef:
             continue
         a[0, 0], a[0, 1], a[0, 2] = row[3], row[4], row[5]
@@ -415,9 +417,10 @@ def _place(vert_of, points, normals, n_v, threshold, qef, out):
                     out[w, d] += coef * v[d, k]
 
 
-def _place_vertices(model: TriDexel, cell_of_vertex, vert_of, points, normals, placement: str) -> np.ndarray:
-    """One vertex per cell, float64 (n_v, 3) world mm. ``cell_of_vertex`` (n_v,): each
-    vertex's flat padded cell; ``vert_of`` (m, 4): the vertices round each crossing.
+def _place_vertices(model: TriDexel, cell_of_vertex, vert_of, points, normals, placement: str):
+    """One vertex per cell: (vertices, means), float64 (n_v, 3) world mm each.
+    ``cell_of_vertex`` (n_v,): each vertex's flat padded cell; ``vert_of`` (m, 4): the
+    vertices round each crossing.
 
     ``"mean"``: the mean of the cell's crossings. ``"qef"``: the point nearest, in least
     squares, to the tangent planes of its crossings (normals from
@@ -428,13 +431,84 @@ def _place_vertices(model: TriDexel, cell_of_vertex, vert_of, points, normals, p
     if placement not in ("qef", "mean"):
         raise ValueError(f"placement must be 'mean' or 'qef', got {placement!r}")
     verts = np.empty((cell_of_vertex.size, 3))
-    _place(vert_of, points, normals, cell_of_vertex.size, _QEF_THRESHOLD, placement == "qef", verts)
+    mean = np.empty_like(verts)
+    _place(vert_of, points, normals, cell_of_vertex.size, _QEF_THRESHOLD, placement == "qef", verts, mean)
     if placement == "mean":
-        return verts
+        return verts, mean
     nx, ny, nz = model.shape
     first = np.stack(np.unravel_index(cell_of_vertex, (nx + 1, ny + 1, nz + 1)), axis=1)
     low = model.lo + model.spacing * (first - 1.0)  # padded index 0 is one spacing before lo
-    return np.clip(verts, low, low + model.spacing, out=verts)
+    return np.clip(verts, low, low + model.spacing, out=verts), mean
+
+
+@nb.njit(cache=True, inline="always")
+def _facing(verts, a, b, c, ax):
+    """Component ``ax`` of the area vector ``(b - a) x (c - a)`` of triangle a b c."""
+    i1 = (ax + 1) % 3
+    i2 = (ax + 2) % 3
+    return ((verts[b, i1] - verts[a, i1]) * (verts[c, i2] - verts[a, i2])
+            - (verts[b, i2] - verts[a, i2]) * (verts[c, i1] - verts[a, i1]))
+
+
+@nb.njit(cache=True)
+def _split_quads(verts, quads, axis, sign, faces):
+    """Two triangles per quad into ``faces`` (2m, 3): quad ``q``'s first triangle at row
+    ``q``, its second at ``m + q``.
+
+    Each quad's vertices lie one in each quadrant round its edge (``axis``), in turn, so
+    seen along the edge the quad is a simple polygon round it and one of its diagonals
+    at least is inside it: the quad is split along a diagonal whose two triangles both
+    face out of the material (``sign`` x ``axis``). Splitting along the other one could
+    fold a triangle back where a vertex sits deep in a corner of its cell.
+    """
+    m = quads.shape[0]
+    for q in range(m):
+        v0, v1, v2, v3 = quads[q, 0], quads[q, 1], quads[q, 2], quads[q, 3]
+        ax = axis[q]
+        sg = sign[q]
+        first_ok = min(sg * _facing(verts, v0, v1, v2, ax), sg * _facing(verts, v0, v2, v3, ax)) > 0
+        other_ok = min(sg * _facing(verts, v0, v1, v3, ax), sg * _facing(verts, v1, v2, v3, ax)) > 0
+        if other_ok and not first_ok:
+            faces[q, 0], faces[q, 1], faces[q, 2] = v0, v1, v3
+            faces[m + q, 0], faces[m + q, 1], faces[m + q, 2] = v1, v2, v3
+        else:
+            faces[q, 0], faces[q, 1], faces[q, 2] = v0, v1, v2
+            faces[m + q, 0], faces[m + q, 1], faces[m + q, 2] = v0, v2, v3
+
+
+@nb.njit(cache=True)
+def _unfold_pass(verts, mean, faces, normals):
+    """Move back to their cell's mean the vertices of every triangle facing against its
+    crossing's normal (``normals`` (m, 3); triangle ``t`` is crossing ``t % m``'s) and
+    not already there; returns how many moved."""
+    m = normals.shape[0]
+    moved = 0
+    for t in range(faces.shape[0]):
+        a, b, c = faces[t, 0], faces[t, 1], faces[t, 2]
+        e = t % m
+        dot = 0.0
+        for ax in range(3):
+            dot += _facing(verts, a, b, c, ax) * normals[e, ax]
+        if dot < 0:
+            for w in (a, b, c):
+                if verts[w, 0] != mean[w, 0] or verts[w, 1] != mean[w, 1] or verts[w, 2] != mean[w, 2]:
+                    verts[w, 0], verts[w, 1], verts[w, 2] = mean[w, 0], mean[w, 1], mean[w, 2]
+                    moved += 1
+    return moved
+
+
+def _unfold(verts, mean, vert_of, normals, axis, sign, rounds: int = 3):
+    """The triangles (:func:`_split_quads`), with the vertices of every triangle that
+    faces against its crossing's normal moved back to their cell's mean (a QEF vertex
+    pulled towards a sharp feature its neighbours do not share can fold a face over;
+    the means do not), a few rounds. Changes ``verts`` in place; returns the faces."""
+    faces = np.empty((2 * len(vert_of), 3), np.int64)
+    _split_quads(verts, vert_of, axis, sign, faces)
+    for _ in range(rounds):
+        if not _unfold_pass(verts, mean, faces, normals):
+            break
+        _split_quads(verts, vert_of, axis, sign, faces)
+    return faces
 
 
 def tridexel_arrays(model: TriDexel, placement: str = "qef"):
@@ -461,9 +535,10 @@ def tridexel_arrays(model: TriDexel, placement: str = "qef"):
     used[cells.ravel()] = True
     number = np.cumsum(used, dtype=np.int32 if used.size < 2**31 else np.int64) - 1
     vert_of = number[cells]
-    verts = _place_vertices(model, np.flatnonzero(used), vert_of, points, normals, placement)
-    faces = np.concatenate([vert_of[:, [0, 1, 2]], vert_of[:, [0, 2, 3]]]).astype(np.int64)
-    return verts, faces, np.concatenate([ids, ids])
+    verts, mean = _place_vertices(model, np.flatnonzero(used), vert_of, points, normals, placement)
+    axis = np.concatenate([np.full(len(p[0]), _AXIS[a], np.int64) for a, p in zip("xyz", parts)])
+    sign = np.concatenate([p[4] for p in parts])
+    return verts, _unfold(verts, mean, vert_of, normals, axis, sign), np.concatenate([ids, ids])
 
 
 def tridexel_mesh(model: TriDexel, placement: str = "qef"):

@@ -125,7 +125,8 @@ def _distance_to_cylinder(p, x0, x1, r):
 
 def test_cylinder_on_the_x_axis():
     """Stock of revolution (a bar on the A axis): closed, volume within 0.3% of pi r^2 L,
-    every vertex within a tenth of a spacing of the true surface."""
+    every vertex within a tenth of a spacing of the true surface, no face of the mantle
+    folded inwards."""
     r, length, h = 5.0, 30.0, 0.4
     model = TriDexel.build((-1, -6, -6), (31, 6, 6), h,
                            lambda f: cylinder_grid(f, (0, 0, 0), (1, 0, 0), r, length))
@@ -134,6 +135,9 @@ def test_cylinder_on_the_x_axis():
     assert m.euler_number == 2
     assert m.volume == pytest.approx(np.pi * r**2 * length, rel=0.003)
     assert _distance_to_cylinder(m.vertices, 0.0, length, r).max() <= h / 10
+    c, n = m.triangles_center, m.face_normals
+    mantle = (c[:, 0] > h) & (c[:, 0] < length - h)
+    assert np.all(n[mantle, 1] * c[mantle, 1] + n[mantle, 2] * c[mantle, 2] > 0)
 
 
 def _holed_box(f):
