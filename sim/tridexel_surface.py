@@ -29,8 +29,11 @@ crossings):
   lie, curved faces keep the mean. ``"mean"`` (the mean of the crossings, surface nets)
   is exact for faces on lattice planes but bevels edges by up to a spacing.
 * **Faces**: a quad (two triangles) per sign-changing edge joining the vertices of the
-  four cells round it, wound so the normal points out of the material. Every edge of
-  the result joins exactly two faces: the mesh is watertight and consistently wound.
+  four cells round it, wound so the normal points out of the material, split along the
+  diagonal whose two triangles both face out along the edge. A QEF vertex that still
+  folds a triangle against its crossing's normal goes back to its cell's mean. Every
+  edge of the result joins exactly two faces: the mesh is watertight and consistently
+  wound.
   Known limit: a cell holding two separate pieces of surface (material at two opposite
   corners of the cube only) has one vertex, where the two pieces touch (still
   watertight; that vertex is not a manifold vertex).
@@ -435,10 +438,39 @@ def _place_vertices(model: TriDexel, cell_of_vertex, vert_of, points, normals, p
     _place(vert_of, points, normals, cell_of_vertex.size, _QEF_THRESHOLD, placement == "qef", verts, mean)
     if placement == "mean":
         return verts, mean
-    nx, ny, nz = model.shape
-    first = np.stack(np.unravel_index(cell_of_vertex, (nx + 1, ny + 1, nz + 1)), axis=1)
-    low = model.lo + model.spacing * (first - 1.0)  # padded index 0 is one spacing before lo
+    low = _cell_low(model, cell_of_vertex)
     return np.clip(verts, low, low + model.spacing, out=verts), mean
+
+
+def _cell_low(model: TriDexel, cells: np.ndarray) -> np.ndarray:
+    """The first corner (world mm, (n, 3)) of each flat padded cell."""
+    nx, ny, nz = model.shape
+    first = np.stack(np.unravel_index(cells, (nx + 1, ny + 1, nz + 1)), axis=1)
+    return model.lo + model.spacing * (first - 1.0)  # padded index 0 is one spacing before lo
+
+
+def _separate(model: TriDexel, verts: np.ndarray, cell_of_vertex: np.ndarray) -> None:
+    """Round the vertices to float32 (what an STL holds) and move those of different
+    cells that then sit at the same point (the surface through a node, a QEF clamped
+    onto the line two cells share, float32 dexel ends beside float64 nodes) a
+    thousandth of a spacing towards their cells' centres (in place). The mesh is closed
+    either way, but an STL keeps no vertex indices: readers merge vertices by position,
+    and merged they would join four faces on an edge."""
+    verts[:] = verts.astype(np.float32)
+    # "the same point": within a hundred-thousandth of a spacing (readers merge at their
+    # own tolerance, trimesh's 1e-8 mm absolute: float32 keeps 1e-16 apart from -1e-16)
+    key = np.rint(verts / (1e-5 * model.spacing))
+    order = np.lexsort(key.T[::-1])
+    ordered = key[order]
+    same = np.all(ordered[1:] == ordered[:-1], axis=1)
+    if not same.any():
+        return
+    group = np.zeros(len(verts), bool)
+    group[1:] |= same
+    group[:-1] |= same
+    w = order[group]
+    centre = _cell_low(model, cell_of_vertex[w]) + model.spacing / 2
+    verts[w] = (verts[w] + 1e-3 * (centre - verts[w])).astype(np.float32)
 
 
 @nb.njit(cache=True, inline="always")
@@ -535,10 +567,13 @@ def tridexel_arrays(model: TriDexel, placement: str = "qef"):
     used[cells.ravel()] = True
     number = np.cumsum(used, dtype=np.int32 if used.size < 2**31 else np.int64) - 1
     vert_of = number[cells]
-    verts, mean = _place_vertices(model, np.flatnonzero(used), vert_of, points, normals, placement)
+    cell_of_vertex = np.flatnonzero(used)
+    verts, mean = _place_vertices(model, cell_of_vertex, vert_of, points, normals, placement)
     axis = np.concatenate([np.full(len(p[0]), _AXIS[a], np.int64) for a, p in zip("xyz", parts)])
     sign = np.concatenate([p[4] for p in parts])
-    return verts, _unfold(verts, mean, vert_of, normals, axis, sign), np.concatenate([ids, ids])
+    faces = _unfold(verts, mean, vert_of, normals, axis, sign)
+    _separate(model, verts, cell_of_vertex)
+    return verts, faces, np.concatenate([ids, ids])
 
 
 def tridexel_mesh(model: TriDexel, placement: str = "qef"):

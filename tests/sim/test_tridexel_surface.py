@@ -3,6 +3,9 @@ volumes against the analytic solids, faces the Z grid alone cannot hold, move id
 
 from __future__ import annotations
 
+import tempfile
+from pathlib import Path
+
 import numpy as np
 import pytest
 import trimesh
@@ -96,7 +99,8 @@ def test_solids_touching_along_an_edge_are_joined():
 @given(st.integers(0, 2**31 - 1))
 def test_any_solid_is_closed(seed):
     """Boxes less or plus cylinders of any axis, radius and place (holes, bosses, thin
-    walls, material outside the lattice): always watertight and wound outward."""
+    walls, material outside the lattice): always watertight and wound outward, and
+    still watertight read back from an STL (which merges vertices by position)."""
     rs = np.random.default_rng(seed)
     parts = [(rs.uniform(-1, 9, 3), rs.normal(size=3) + 1e-3, rs.uniform(0.2, 2.5), rs.random() < 0.7)
              for _ in range(4)]
@@ -108,9 +112,14 @@ def test_any_solid_is_closed(seed):
             g = difference(g, cyl) if cut else union(g, cyl)
         return g
 
-    m = tridexel_mesh(TriDexel.build((-1, -1, -1), (9, 9, 7), H, solid))
+    model = TriDexel.build((-1, -1, -1), (9, 9, 7), H, solid)
+    m = tridexel_mesh(model)
     if len(m.faces):
         _closed(m)
+        with tempfile.TemporaryDirectory() as tmp:
+            back = trimesh.load(export_stl(model, Path(tmp) / "part.stl"))
+        assert back.is_watertight
+        assert back.volume == pytest.approx(m.volume, rel=1e-5)
 
 
 def _distance_to_cylinder(p, x0, x1, r):
