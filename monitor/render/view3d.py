@@ -1,7 +1,8 @@
 """pyvista 3-D views of a recorded run: the part coloured by the deviation map (else depth
 of cut) with its colour bar in mm, the tool and holder as solids of revolution, the path
 near the stage, findings labelled with their lines, an axis triad and mm axes; offscreen
-PNG and an interactive window with a stage slider.
+PNG and an interactive window with a stage slider. And the closed surface of a part (a
+tri-dexel model's, :mod:`sim.tridexel_surface`) coloured by the move that made each face.
 """
 
 from __future__ import annotations
@@ -259,6 +260,65 @@ def add_stage(pl, pics, stage: int, show_tool: bool = True) -> None:
 def stage_png(pics, stage: int, window_size=(800, 800), path_out=None, **kw) -> np.ndarray:
     """Render :func:`stage_plotter` offscreen; the RGB uint8 image (written to ``path_out``)."""
     pl = stage_plotter(pics, stage, window_size=window_size, off_screen=True, **kw)
+    try:
+        img = pl.screenshot(path_out if path_out else None, return_img=True)
+    finally:
+        pl.close()
+    return np.asarray(img)[..., :3].astype(np.uint8)
+
+
+def part_polydata(mesh):
+    """A ``pv.PolyData`` of a closed part surface (a ``trimesh.Trimesh`` in world mm, as
+    :func:`sim.tridexel_surface.tridexel_mesh` gives), its ``move_id`` face attribute
+    kept as cell data and as ``rgb`` colours: the stock grey, each move its colour of
+    :func:`monitor.render.shaded.id_palette` (``id % size``, as the top view colours)."""
+    from monitor.render.shaded import id_palette
+
+    pv = _pv()
+    faces = np.asarray(mesh.faces, np.int64)
+    cells = np.column_stack([np.full(len(faces), 3, np.int64), faces]).ravel()
+    poly = pv.PolyData(np.asarray(mesh.vertices, np.float64), cells)
+    ids = np.asarray(mesh.face_attributes.get("move_id", np.zeros(len(faces))), np.int64)
+    pal = id_palette()
+    poly.cell_data["move_id"] = ids
+    poly.cell_data["rgb"] = pal[ids % len(pal)]
+    return poly
+
+
+def part_plotter(mesh_or_model, window_size=(800, 800), off_screen: bool = True, title: str = ""):
+    """A pyvista plotter of a part's closed surface seen from the front left and above,
+    faces coloured by the move that made them (:func:`part_polydata`), with an axis
+    triad and X Y Z rulers in mm. ``mesh_or_model``: a ``trimesh.Trimesh`` or a
+    :class:`sim.tridexel.TriDexel` (its surface is extracted here). Nothing depends on
+    a view direction: every face the model holds is drawn, side walls and undercuts too."""
+    mesh = mesh_or_model
+    if hasattr(mesh_or_model, "grids"):
+        from sim.tridexel_surface import tridexel_mesh
+
+        mesh = tridexel_mesh(mesh_or_model)
+    if len(mesh.faces) == 0:
+        raise InputError("the model holds no material; nothing to draw")
+    pv = _pv()
+    if off_screen:
+        quiet_vtk()
+    pl = pv.Plotter(off_screen=off_screen, window_size=list(window_size))
+    pl.set_background("#1c1e24")
+    poly = part_polydata(mesh)
+    pl.add_mesh(poly, scalars="rgb", rgb=True, smooth_shading=False)
+    pl.add_axes(line_width=3, labels_off=False)
+    pl.show_bounds(bounds=poly.bounds, xtitle="X mm", ytitle="Y mm", ztitle="Z mm", n_xlabels=4, n_ylabels=4,
+                   n_zlabels=3, fmt="%.0f", color="white", font_size=10, location="outer")
+    if title:
+        pl.add_text(title, position="upper_left", font_size=11, color="white", name="title")
+    pl.camera_position = [(-0.45, -1.0, 0.95), (0.0, 0.0, 0.0), (0.0, 0.0, 1.0)]
+    pl.reset_camera(bounds=poly.bounds)
+    pl.camera.zoom(0.9)
+    return pl
+
+
+def part_png(mesh_or_model, window_size=(800, 800), path_out=None, title: str = "") -> np.ndarray:
+    """Render :func:`part_plotter` offscreen; the RGB uint8 image (written to ``path_out``)."""
+    pl = part_plotter(mesh_or_model, window_size=window_size, off_screen=True, title=title)
     try:
         img = pl.screenshot(path_out if path_out else None, return_img=True)
     finally:
