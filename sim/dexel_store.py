@@ -193,7 +193,16 @@ def subtract_interval(S, r, a, b, move_id, eps):
             return b - n
         S[0][r] = 0
         return f - n
-    # several segments: rebuild the list
+    # several segments: rebuild the list, if [a, b] meets one (the scan is cheaper than
+    # the rebuild's buffers, and a tool instance misses most rays it is tried on)
+    for k in range(c):
+        n, f, _, _ = get_seg(S, r, k)
+        if b <= np.float64(n):
+            return 0.0  # sorted: the rest lie beyond b
+        if a < np.float64(f):
+            break
+    else:
+        return 0.0
     nn = np.empty(c + 1, np.float32)
     ff = np.empty(c + 1, np.float32)
     ni = np.empty(c + 1, np.int32)
