@@ -198,35 +198,35 @@ class TriCutter:
 
     The arguments are :class:`sim.cut.Cutter`'s. The Z grid takes the exact sweep
     where the Cutter has one; the X and Y grids are swept by instances of motion in
-    their frames' coordinates. threads: how many threads a call may use (default
-    :func:`sim.bands.default_threads`): with more than one the three grids are cut at
-    the same time, one thread each (the kernels release the GIL), each grid on one
-    thread as a lone Cutter with ``threads=1`` would cut it; with one, one after the
-    other on the calling thread. Either way every grid ends bit for bit as a Cutter of
-    its own leaves it.
+    their frames' coordinates. threads (default :func:`sim.bands.default_threads`):
+    each grid's Cutter cuts a large batch on bands of rows on that many threads, the
+    grids one after the other. grids_at_once: instead cut the three grids at the same
+    time, one thread each (the kernels release the GIL). On 2 cores the bands are the
+    faster (``bench/tridexel_bench.py``: the X and Y grids' instances take most of the
+    time, unevenly, and bands split each grid evenly). Either way every grid ends bit
+    for bit as a Cutter of its own leaves it.
     """
 
     def __init__(self, model: TriDexel, tool, tol=None, tools=None, threads: int | None = None,
-                 kinematics=None, origin=None):
+                 kinematics=None, origin=None, grids_at_once: bool = False):
         from sim.cut import Cutter
 
         self.model = model
         self.threads = bands.default_threads() if threads is None else max(1, int(threads))
-        self.cutters = {a: Cutter(g, tool, tol or DEFAULT, tools=tools, threads=1,
+        self.grids_at_once = bool(grids_at_once) and self.threads > 1
+        per_grid = 1 if self.grids_at_once else self.threads
+        self.cutters = {a: Cutter(g, tool, tol or DEFAULT, tools=tools, threads=per_grid,
                                   kinematics=kinematics, origin=origin)
                         for a, g in model.grids.items()}
 
     def _each(self, call) -> dict:
-        """``{axis: call(cutter)}`` over the three grids, at the same time when threads > 1.
-
-        The instance-swept X and Y grids go first: they take the longest."""
+        """``{axis: call(cutter)}`` over the three grids (at the same time with
+        ``grids_at_once``: the instance-swept X and Y grids first, they take longest)."""
+        if not self.grids_at_once:
+            return {a: call(self.cutters[a]) for a in AXES}
         order = sorted(AXES, key=lambda a: self.cutters[a]._top)
-        if self.threads == 1:
-            out = {a: call(self.cutters[a]) for a in order}
-        else:
-            futures = {a: _executor().submit(call, self.cutters[a]) for a in order}
-            out = {a: f.result() for a, f in futures.items()}
-        return {a: out[a] for a in AXES}
+        futures = {a: _executor().submit(call, self.cutters[a]) for a in order}
+        return {a: futures[a].result() for a in AXES}
 
     def cut_moves(self, moves: np.ndarray, move_ids=None, record_changes: bool = False) -> dict:
         """Cut every row of ``moves`` into all three grids; ``{axis: CutResult}``."""

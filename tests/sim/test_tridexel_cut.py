@@ -336,7 +336,8 @@ def test_ball_swarf_pass_against_the_union_of_its_instances():
 
 def test_tri_cut_is_each_grid_cut_alone_and_repeating_it_changes_nothing():
     """3-axis moves (the Z grid's exact sweep, the X and Y grids' instances): each grid
-    cut by the TriCutter on its threads is bit for bit the grid a lone Cutter cuts; the
+    cut by the TriCutter (on bands, or the grids at once) is bit for bit the grid a lone
+    one-thread Cutter cuts; the
     same moves again remove nothing and change no ray; the volumes agree within the
     stated tolerance (a dexel volume is off by about the surface area x spacing / 4 at
     most, each way)."""
@@ -348,14 +349,15 @@ def test_tri_cut_is_each_grid_cut_alone_and_repeating_it_changes_nothing():
         pts += [[xs[0], y, 4.5 - 0.2 * j], [xs[1], y, 4.5 - 0.2 * j]]
     pts = np.array(pts, float)
     moves = rows(*np.hstack([pts, np.zeros((len(pts), 3))]))
-    model = stock.copy()
-    got = TriCutter(model, tool, threads=2).cut_moves(moves, record_changes=True)
-    for a in AXES:
-        alone = stock.grids[a].copy()
-        want = Cutter(alone, tool, threads=1).cut_moves(moves, record_changes=True)
-        assert_same_grid(model.grids[a], alone)
-        assert np.array_equal(got[a].removed, want.removed)
-        assert np.array_equal(got[a].changed_rays, want.changed_rays)
+    for at_once in (False, True):
+        model = stock.copy()
+        got = TriCutter(model, tool, threads=2, grids_at_once=at_once).cut_moves(moves, record_changes=True)
+        for a in AXES:
+            alone = stock.grids[a].copy()
+            want = Cutter(alone, tool, threads=1).cut_moves(moves, record_changes=True)
+            assert_same_grid(model.grids[a], alone)
+            assert np.array_equal(got[a].removed, want.removed)
+            assert np.array_equal(got[a].changed_rays, want.changed_rays)
     assert_grids_agree(model)
     assert_only_removed(stock, model)
     again = model.copy()
@@ -387,3 +389,88 @@ def test_tri_cut_poses_and_probe_moves_touch_every_grid():
     got = TriCutter(model, tool).cut_poses([[5.0, 5.0, 1.0]], [[0.0, 0.0, 1.0]], 7)
     disc = math.pi * 4 * 4  # the tool standing 4 mm deep
     assert all(abs(v - disc) < 0.1 * disc for v in got.values()), got
+
+
+# --- the side grids' shortcuts ----------------------------------------------------------
+
+def test_ray_square_to_the_axis_crosses_the_disc_every_piece_gives():
+    """sweep_kernels.pose_intervals for a ray square to the tool's axis (a vertical tool on
+    the X and Y grids) takes the one disc at the ray's height: the same interval as the
+    union of every profile piece's, for every tool shape, also at vertex heights."""
+    from sim import sweep, sweep_kernels as K
+
+    rng = np.random.default_rng(3)
+    for spec in ("ball:6:L=20", "flat:6:L=20", "bull:6:1:L=20", "vbit:6:90:L=20", "drill:6:118:L=20"):
+        prof = sweep.body_profile(parse_tool_spec(spec))
+        out, buf = np.empty((prof.shape[0], 2)), np.empty(2)
+        for n in range(2000):
+            tip = rng.uniform(-5, 5, 3)
+            ax = np.array([0.0, 1.0, 0.0]) if n % 2 else np.array([1.0, 0.0, 0.0])
+            if n % 5 == 0:  # a ray at a vertex's height
+                h, off = prof[rng.integers(len(prof)), 0], rng.uniform(-4, 4)
+                px, py = tip[0] + h * ax[0] + off * ax[1], tip[1] + h * ax[1] + off * ax[0]
+            else:
+                px, py = rng.uniform(-10, 10, 2)
+            got = out[:K.pose_intervals(prof, tip, ax, px, py, out, buf)].copy()
+            wx, wy = px - tip[0], py - tip[1]
+            h0 = wx * ax[0] + wy * ax[1]
+            pieces = [(buf[0] + tip[2], buf[1] + tip[2]) for k in range(len(prof) - 1)
+                      if K._piece_interval(prof, k, h0, 0.0, wx * wx + wy * wy, buf)]
+            want = [[min(p[0] for p in pieces), max(p[1] for p in pieces)]] if pieces else np.zeros((0, 2))
+            assert np.array_equal(got, np.asarray(want).reshape(-1, 2)), (spec, got, want)
+
+
+def test_line_instances_are_each_rows_instances():
+    """sweep.line_instances (every straight row at once) gives bit for bit the tips
+    sweep.instances gives each row."""
+    from sim import sweep
+
+    rng = np.random.default_rng(1)
+    p0 = rng.normal(size=(300, 3)) * 10
+    p1 = p0 + rng.normal(size=(300, 3)) * rng.choice([0.0, 0.01, 1.0, 10.0], size=(300, 1))
+    tips, steps = sweep.line_instances(p0, p1, 0.125)
+    at = 0
+    for k in range(300):
+        want, _ = sweep.instances(p0[k], p1[k], [0, 0, 1], [0, 0, 1], 20.0, 0.125)
+        assert np.array_equal(tips[at:at + steps[k] + 1], want)
+        at += steps[k] + 1
+    assert at == len(tips)
+
+
+def test_subtract_on_rays_of_several_segments_is_the_boolean_difference():
+    """dexel_store.subtract_interval on rays of several segments (its shortcuts: a ray
+    the interval misses, one segment shortened in place) against Van Hook's difference
+    written out: the same segments, face ids and removed length."""
+    from sim import dexel_store as ds
+    from sim.frame import Frame
+    from sim.grid import DexelGrid
+
+    eps = 1e-6
+    f32 = np.float32
+    rng = np.random.default_rng(5)
+    frame = Frame.top(0, 0, 1, 0, 1.0)
+    for _ in range(100):
+        grid = DexelGrid.from_intervals(frame, np.zeros(frame.shape), np.full(frame.shape, 10.0))
+        ref = [[(f32(0), f32(10), 0, 0)] for _ in range(2)]
+        for step in range(40):
+            a = float(rng.uniform(-1, 11))
+            b = a + float(rng.choice([1e-7, 0.01, 0.3, 2.0])) * float(rng.random())
+            r, mid = int(rng.integers(2)), step + 1
+            got = ds.subtract_interval(grid.S, r, a, b, mid, eps)
+            if got == ds.POOL_FULL:
+                ds.grow_pool(grid.store, 1024)
+                got = ds.subtract_interval(grid.S, r, a, b, mid, eps)
+            keep, removed = [], 0.0
+            for n, f, ni, fi in ref[r]:
+                if b <= n or a >= f:
+                    keep.append((n, f, ni, fi))
+                    continue
+                removed += min(b, float(f)) - max(a, float(n))
+                if a - n > eps:
+                    keep.append((n, f32(a), ni, mid))
+                if f - b > eps:
+                    keep.append((f32(b), f, mid, fi))
+            ref[r] = keep
+            assert got == removed
+            assert grid.segments(r, 0).tolist() == [[float(n), float(f)] for n, f, _, _ in keep]
+            assert grid.face_ids(r, 0).tolist() == [[ni, fi] for _, _, ni, fi in keep]
