@@ -474,3 +474,21 @@ def test_subtract_on_rays_of_several_segments_is_the_boolean_difference():
             assert got == removed
             assert grid.segments(r, 0).tolist() == [[float(n), float(f)] for n, f, _, _ in keep]
             assert grid.face_ids(r, 0).tolist() == [[ni, fi] for _, _, ni, fi in keep]
+
+
+def test_rotary_body_trim_cuts_the_same_on_the_side_grids():
+    """RotaryPlan.reaching_profile reads the grid's own frame: on the X and Y grids too the
+    tool cut off where no instance reaches the material cuts bit for bit what the whole
+    tool cuts (a ball turning round the bar)."""
+    tool = parse_tool_spec("ball:3:L=10")
+    stock = TriDexel.cylinder(0.0, 20.0, 6.0, 0.5)
+    moves = rows(*[[4 + 0.5 * k, 0, 5.0, 15.0 * k, 0, 0] for k in range(24)])
+    trimmed, whole = stock.copy(), stock.copy()
+    a = TriCutter(trimmed, tool, kinematics=FourthAxis("A"), threads=1)
+    b = TriCutter(whole, tool, kinematics=FourthAxis("A"), threads=1)
+    for c in b.cutters.values():
+        c.trim_body = False
+    ra, rb = a.cut_moves(moves), b.cut_moves(moves)
+    for ax in AXES:
+        assert np.array_equal(ra[ax].removed, rb[ax].removed) and ra[ax].removed.sum() > 0
+        assert_same_grid(trimmed.grids[ax], whole.grids[ax])
