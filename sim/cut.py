@@ -483,10 +483,16 @@ class Cutter:
             axes = np.broadcast_to(_Z_AXIS, tips.shape).copy()
             for k, ax in tilted.items():
                 axes[off[k]:off[k + 1]] = ax
-            work.pose_tip.append(tips)
-            work.pose_axis.append(axes)
-            work.pose_move.append(rows[owner].astype(np.int64))
-            work.pose_id.append(ids[owner].astype(np.int32))
+            # a row starts where the one before it ended: that pose again would cut nothing
+            # (a pose leaves no material inside itself), so it is cut once; every row keeps
+            # its last pose (each row still opens its own stage of a trace)
+            keep = np.ones(total, bool)
+            keep[1:-1] = ~((tips[1:-1] == tips[:-2]).all(axis=1) & (axes[1:-1] == axes[:-2]).all(axis=1)
+                           & (owner[2:] == owner[1:-1]))
+            work.pose_tip.append(tips[keep])
+            work.pose_axis.append(axes[keep])
+            work.pose_move.append(rows[owner[keep]].astype(np.int64))
+            work.pose_id.append(ids[owner[keep]].astype(np.int32))
         return work
 
     def _child(self, grid: DexelGrid) -> "Cutter":

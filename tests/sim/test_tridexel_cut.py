@@ -492,3 +492,32 @@ def test_rotary_body_trim_cuts_the_same_on_the_side_grids():
     for ax in AXES:
         assert np.array_equal(ra[ax].removed, rb[ax].removed) and ra[ax].removed.sum() > 0
         assert_same_grid(trimmed.grids[ax], whole.grids[ax])
+
+
+@pytest.mark.parametrize("turning", [False, True])
+def test_chained_rows_cut_their_shared_pose_once_and_the_same(turning):
+    """Instances of motion of chained rows: a row's first pose is the last one's end, cut
+    once in a batch (sim.cut.Cutter._plan); the grid, the removed volumes and the changed
+    rays are those of cutting the rows one call each (where nothing is shared)."""
+    tool = parse_tool_spec("ball:3:L=10")
+    stock = TriDexel.cylinder(0.0, 20.0, 6.0, 0.5)
+    kin = FourthAxis("A") if turning else None
+    pts = [[4 + 0.7 * k, 0.3 * (k % 3), 5.0, 20.0 * k if turning else 0.0, 0, 0] for k in range(12)]
+    pts.insert(5, pts[4])  # a row that does not move
+    moves = rows(*pts)
+    for a in ("x", "y"):
+        batch, single = stock.grids[a].copy(), stock.grids[a].copy()
+        cutter = Cutter(batch, tool, kinematics=kin, threads=1)
+        work = cutter._plan(moves, np.arange(len(moves)), np.arange(1, len(moves) + 1, dtype=np.int32),
+                            tool, np.zeros(len(moves), bool))
+        poses = len(work.pose_arrays()[0])
+        got = cutter.cut_moves(moves)
+        one = Cutter(single, tool, kinematics=kin, threads=1)
+        apart = [one.cut_moves(moves[k:k + 1], move_ids=[k + 1]) for k in range(len(moves))]
+        assert np.array_equal(got.removed, [r.removed[0] for r in apart])
+        for k in range(len(moves)):
+            assert np.array_equal(got.changed(k), apart[k].changed(0))
+        assert_same_grid(batch, single)
+        planned_apart = sum(len(one._plan(moves[k:k + 1], np.arange(1), np.ones(1, np.int32), tool,
+                                          np.zeros(1, bool)).pose_arrays()[0]) for k in range(len(moves)))
+        assert poses == planned_apart - (len(moves) - 1)  # every row after the first shares one
