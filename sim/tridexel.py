@@ -201,10 +201,11 @@ class TriCutter:
     their frames' coordinates. threads (default :func:`sim.bands.default_threads`):
     each grid's Cutter cuts a large batch on bands of rows on that many threads, the
     grids one after the other. grids_at_once: instead cut the three grids at the same
-    time, one thread each (the kernels release the GIL). On 2 cores the bands are the
-    faster (``bench/tridexel_bench.py``: the X and Y grids' instances take most of the
-    time, unevenly, and bands split each grid evenly). Either way every grid ends bit
-    for bit as a Cutter of its own leaves it.
+    time, one thread each (the kernels release the GIL). Bands are the default because
+    one grid (the one whose rays cross the feed) takes most of the time and bands split
+    it evenly; on the shared 2-core machine the two measured alike or bands ahead
+    (``bench/tridexel_bench.py``: ``threads_gain``, ``grids_at_once_gain``). Either
+    way every grid ends bit for bit as a Cutter of its own leaves it.
     """
 
     def __init__(self, model: TriDexel, tool, tol=None, tools=None, threads: int | None = None,
