@@ -421,7 +421,6 @@ class Cutter:
         if exact and not arc.any():  # the live monitor's few rows per poll: no per-row work
             work.segments(start[lin], end[lin], rows[lin], ids[lin])
             return work
-        length = body.flute_length if isinstance(body, Tool) else body.top
         # the pieces of every row: (first point, last point) arrays per row
         pieces: dict[int, np.ndarray] = {}
         tilted: dict[int, np.ndarray] = {}  # row -> its instances' axes (rows with rotation)
@@ -443,13 +442,15 @@ class Cutter:
                 pieces[k] = sweep.arc_points(start[k], end[k], center, plane, turns, cw,
                                              max_step_length=self._step())
             multi[rows[k]] = True
+        straight = np.zeros(len(moves), bool)  # linear rows the axis does not turn on
         if not exact:
-            for k in np.nonzero(lin)[0]:
-                if turning is not None and turning[k]:
-                    pieces[k], tilted[k] = self._rotary.poses(moves[k], start[k], end[k], body)
-                else:
-                    pieces[k], _ = sweep.instances(start[k], end[k], _Z_AXIS, _Z_AXIS, length, self._step())
-                multi[rows[k]] = True
+            straight = lin if turning is None else lin & ~turning
+            for k in np.nonzero(lin & ~straight)[0]:
+                pieces[k], tilted[k] = self._rotary.poses(moves[k], start[k], end[k], body)
+            multi[rows[lin]] = True
+            # the vertical tool's instances of every straight row at once (sweep.instances'
+            # tips, bit for bit)
+            line_tips, line_steps = sweep.line_instances(start[straight], end[straight], self._step())
         # sizes per row -> offsets, then fill linear rows vectorised and the rest per row
         if exact:
             size = lin.astype(np.int64)
@@ -457,6 +458,7 @@ class Cutter:
                 size[k] = len(pts) - 1
         else:
             size = np.zeros(len(moves), np.int64)
+            size[straight] = line_steps + 1
             for k, pts in pieces.items():
                 size[k] = len(pts)
         off = np.concatenate([[0], np.cumsum(size)])
@@ -473,15 +475,24 @@ class Cutter:
             work.segments(p0, p1, rows[owner], ids[owner])
         else:
             tips = np.empty((total, 3))
+            sizes = size[straight]
+            tips[np.repeat(off[:-1][straight] - np.cumsum(sizes) + sizes, sizes)
+                 + np.arange(int(sizes.sum()))] = line_tips
             for k, pts in pieces.items():
                 tips[off[k]:off[k + 1]] = pts
             axes = np.broadcast_to(_Z_AXIS, tips.shape).copy()
             for k, ax in tilted.items():
                 axes[off[k]:off[k + 1]] = ax
-            work.pose_tip.append(tips)
-            work.pose_axis.append(axes)
-            work.pose_move.append(rows[owner].astype(np.int64))
-            work.pose_id.append(ids[owner].astype(np.int32))
+            # a row starts where the one before it ended: that pose again would cut nothing
+            # (a pose leaves no material inside itself), so it is cut once; every row keeps
+            # its last pose (each row still opens its own stage of a trace)
+            keep = np.ones(total, bool)
+            keep[1:-1] = ~((tips[1:-1] == tips[:-2]).all(axis=1) & (axes[1:-1] == axes[:-2]).all(axis=1)
+                           & (owner[2:] == owner[1:-1]))
+            work.pose_tip.append(tips[keep])
+            work.pose_axis.append(axes[keep])
+            work.pose_move.append(rows[owner[keep]].astype(np.int64))
+            work.pose_id.append(ids[owner[keep]].astype(np.int32))
         return work
 
     def _child(self, grid: DexelGrid) -> "Cutter":

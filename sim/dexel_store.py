@@ -193,7 +193,33 @@ def subtract_interval(S, r, a, b, move_id, eps):
             return b - n
         S[0][r] = 0
         return f - n
-    # several segments: rebuild the list
+    # several segments: rebuild the list, if [a, b] meets one (the scan is cheaper than
+    # the rebuild's buffers, and a tool instance misses most rays it is tried on)
+    first = c
+    for k in range(c):
+        n, f, _, _ = get_seg(S, r, k)
+        if b <= np.float64(n):
+            return 0.0  # sorted: the rest lie beyond b
+        if a < np.float64(f):
+            first = k
+            break
+    if first == c:
+        return 0.0
+    # one segment met and shortened at one end (a tool eating into it): in place, the
+    # segment and the length the rebuild below would give
+    if first + 1 == c or b <= np.float64(get_seg(S, r, first + 1)[0]):
+        n, f, nid, fid = get_seg(S, r, first)
+        n64 = np.float64(n)
+        f64 = np.float64(f)
+        keep_low = a - n64 > eps
+        keep_high = f64 - b > eps
+        if keep_low != keep_high:
+            removed = min(b, f64) - max(a, n64)
+            if keep_low:
+                _put_seg(S, r, first, n, np.float32(a), nid, move_id)
+            else:
+                _put_seg(S, r, first, np.float32(b), f, move_id, fid)
+            return removed
     nn = np.empty(c + 1, np.float32)
     ff = np.empty(c + 1, np.float32)
     ni = np.empty(c + 1, np.int32)

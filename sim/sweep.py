@@ -196,6 +196,32 @@ def chord_step_angle(radius: float, chord: float) -> float:
     return 2.0 * math.acos(1.0 - chord / radius)
 
 
+def line_instances(p0: np.ndarray, p1: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """Instances of motion of many straight moves of a tool whose axis does not turn:
+    what :func:`instances` gives each row with ``axis0 == axis1``, all rows at once.
+
+    p0, p1: (n, 3) tip positions (mm); ``step`` (mm) the largest distance between two
+    instances along any coordinate. Returns ``tips`` ((sum(counts + 1), 3): each row's
+    ``counts[k] + 1`` instances, both ends included, row after row) and ``counts`` (int64
+    (n,), the steps of each row). Bit for bit the tips :func:`instances` makes (the
+    same ``linspace`` fractions).
+    """
+    p0 = np.asarray(p0, np.float64).reshape(-1, 3)
+    p1 = np.asarray(p1, np.float64).reshape(-1, 3)
+    s = p1 - p0
+    counts = np.maximum(1, np.ceil(np.abs(s).max(axis=1, initial=0.0) / step)).astype(np.int64)
+    sizes = counts + 1
+    row = np.repeat(np.arange(len(p0)), sizes)
+    first = np.cumsum(sizes) - sizes
+    idx = np.arange(int(sizes.sum())) - np.repeat(first, sizes)
+    # np.linspace(0, 1, n + 1) is arange(n + 1) * (1 / n), its last value set to 1
+    f = idx * (1.0 / counts[row])
+    tips = p0[row] + f[:, None] * s[row]
+    tips[first] = p0
+    tips[first + counts] = p1
+    return tips, counts
+
+
 def instances(p0, p1, axis0, axis1, length: float, step: float):
     """Instances of motion between two poses (Huang & Oliver eq. 3-5).
 

@@ -1444,6 +1444,48 @@ def _piece_interval(prof, k, h0, az, wx2wy2, out):
     return True
 
 
+@nb.njit(cache=True, inline="always")
+def _level_interval(prof, tip, h0, wx2wy2, out):
+    """:func:`pose_intervals` of a ray square to the tool's axis (a vertical tool on the
+    X and Y grids of a tri-dexel model): the ray stays at axial height ``h0``, so it
+    crosses the one disc of the body at that height, of the largest radius the profile
+    pieces through ``h0`` give there (each piece's interval is centred on the axis: their
+    union is the widest). Binary search instead of every piece."""
+    k1 = prof.shape[0] - 1
+    if h0 < prof[0, 0] or h0 > prof[k1, 0]:
+        return 0
+    lo = 0
+    hi = k1
+    while hi - lo > 1:  # prof[lo, 0] <= h0 <= prof[hi, 0]
+        mid = (lo + hi) // 2
+        if prof[mid, 0] <= h0:
+            lo = mid
+        else:
+            hi = mid
+    # the pieces through h0: lo's, and those meeting at h0 when it is a vertex height
+    while lo > 0 and prof[lo, 0] == h0:
+        lo -= 1
+    r2max = -1.0
+    for k in range(lo, k1):
+        hk = prof[k, 0]
+        hk1 = prof[k + 1, 0]
+        if hk > h0:
+            break
+        if hk1 - hk <= 0.0 or h0 > hk1:
+            continue
+        beta = (prof[k + 1, 1] - prof[k, 1]) / (hk1 - hk)
+        c0 = (prof[k, 1] - beta * hk) + beta * h0
+        r2 = c0 * c0 - (wx2wy2 - h0 * h0)
+        if r2 > r2max:
+            r2max = r2
+    if r2max <= 0.0:  # a touch: no length inside, as the general pieces give
+        return 0
+    half = math.sqrt(r2max)
+    out[0, 0] = tip[2] - half
+    out[0, 1] = tip[2] + half
+    return 1
+
+
 @nb.njit(cache=True)
 def pose_intervals(prof, tip, axis, px, py, out, buf):
     """Intervals of a ray inside one tool pose, in frame-local coordinates.
@@ -1458,6 +1500,8 @@ def pose_intervals(prof, tip, axis, px, py, out, buf):
     h0 = wx * axis[0] + wy * axis[1]
     wx2wy2 = wx * wx + wy * wy
     az = axis[2]
+    if az == 0.0:
+        return _level_interval(prof, tip, h0, wx2wy2, out)
     m = 0
     for k in range(prof.shape[0] - 1):
         if _piece_interval(prof, k, h0, az, wx2wy2, buf):
