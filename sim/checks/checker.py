@@ -87,8 +87,7 @@ class Checker:
         self.max_depth_of_cut = max_depth_of_cut
         self.max_ramp_deg = max_ramp_deg
         if is_tri(stock):
-            # a turning part can lift material above the model's top: no bound then
-            self._top_bound = top_bound(stock) if self.cutter.kinematics is None else np.inf
+            self._top_bound = top_bound(stock)
         else:
             self._top_bound = collisions.max_top(stock) if self.frame.is_top else np.inf
         # the depth of cut comes from the cut's own log (CutResult.changed_depth); the
@@ -284,7 +283,7 @@ class Checker:
         cand: dict[int, list] = {}
         for tool, rows in self._tool_of_rows(moves):
             for kind, body in self._contact_bodies(tool):
-                sel = rows[collisions.reachable(moves[rows], body.bottom, top_bound)]
+                sel = rows[collisions.reachable(moves[rows], body.bottom, top_bound, self.kinematics, self.origin)]
                 if sel.size == 0:
                     continue
                 vol = cutter.probe_moves(moves[sel], body=body)

@@ -140,12 +140,32 @@ def max_top(grid: DexelGrid) -> float:
     return float(np.nanmax(t)) if np.isfinite(t).any() else -np.inf
 
 
-def reachable(moves: np.ndarray, body_bottom: float, top: float) -> np.ndarray:
+def reachable(moves: np.ndarray, body_bottom: float, top: float, kinematics=None, origin=None) -> np.ndarray:
     """bool (n,): rows where a body starting ``body_bottom`` mm above the tip can get
     down to material whose highest point is ``top`` (top-view grids): a cheap filter that
-    spares probing bodies that pass above everything."""
+    spares probing bodies that pass above everything. Rows a rotary of ``kinematics``
+    turns (:func:`turned_rows`) are always kept: a tilted body's rim reaches below its
+    bottom on the axis, and a turned part lifts material above its top."""
     zs = np.minimum(moves["start"][:, 2], moves["end"][:, 2]) - moves["tool_length"]
-    return (zs + body_bottom < top) & is_motion(moves)
+    near = zs + body_bottom < top
+    if kinematics is not None:
+        near |= turned_rows(moves, kinematics, origin)
+    return near & is_motion(moves)
+
+
+def turned_rows(moves: np.ndarray, kinematics, origin=None) -> np.ndarray:
+    """bool (n,): rows a rotary axis of ``kinematics`` turns: its machine angle (the row's
+    plus ``origin``'s, (6,) X Y Z A B C) is not 0 at the row's start or end."""
+    from sim.kinematics import ROTARY_COLUMN
+
+    out = np.zeros(len(moves), bool)
+    if kinematics is None or not kinematics.rotaries:
+        return out
+    cols = np.array([ROTARY_COLUMN[r] for r in kinematics.rotaries])
+    o = np.zeros(6) if origin is None else np.asarray(origin, np.float64).reshape(6)
+    a0 = moves["start"][:, cols] + o[cols]
+    a1 = moves["end"][:, cols] + o[cols]
+    return (a0 != 0.0).any(axis=1) | (a1 != 0.0).any(axis=1)
 
 
 class Fixture:
