@@ -58,7 +58,7 @@ class Checker:
     kinematics, origin : optional
         The machine's :class:`sim.kinematics.Kinematics` and the grid origin's machine
         pose (6,), passed to every :class:`Cutter` (rows with rotation are cut on the
-        turned part). Fixtures stay 3-axis.
+        turned part) and to the fixture checks (fixtures are in the part's frame).
     """
 
     def __init__(self, stock: DexelGrid, tool: Tool, design=None, fixtures=(), limits=None,
@@ -232,7 +232,8 @@ class Checker:
             out += motion.travel_limits(moves, self.limits, ids)
         for k, fx in enumerate(self.fixtures):
             for tool, rows in self._tool_of_rows(moves):
-                out += fx.check(moves[rows], tool, ids[rows], self.min_volume, left=fixture_left.setdefault(k, {}))
+                out += fx.check(moves[rows], tool, ids[rows], self.min_volume, left=fixture_left.setdefault(k, {}),
+                                kinematics=self.kinematics, origin=self.origin)
         # non-cutting bodies: probe before the cut; only candidates are verified in order
         pre = self._body_candidates(grid, cutter, moves, top_bound)
         snapshot = grid.copy() if pre else None
@@ -359,7 +360,8 @@ class Checker:
             if i1 <= i0 or j1 <= j0:  # entirely off the stock: only the machine checks apply
                 out = motion.travel_limits(moves, self.limits, ids) if self.limits else []
                 for fx in self.fixtures:
-                    out += fx.check(moves, self.tool, ids, self.min_volume)
+                    out += fx.check(moves, self.tool, ids, self.min_volume, kinematics=self.kinematics,
+                                    origin=self.origin)
                 return merge_findings(out)
             scratch = self.grid.window(i0, i1, j0, j1)
         sf = z_part(scratch).frame

@@ -192,7 +192,7 @@ class Fixture:
         return cls(name or f"box {lo.tolist()}..{hi.tolist()}", box_grid(frame, lo, hi))
 
     def check(self, moves: np.ndarray, tool: Tool, move_ids=None, min_volume: float = 1e-6,
-              left: dict | None = None) -> list[Finding]:
+              left: dict | None = None, kinematics=None, origin=None) -> list[Finding]:
         """Moves whose tool (cutting part, shank, holder, body above the flutes) meets the
         fixture; one finding per move and part.
 
@@ -200,7 +200,11 @@ class Fixture:
         away}, kept by the caller across batches (filled here on first use). With it each
         move's volume is what it touches first, so the volumes of a finding's moves add up
         to the union of what they touched (a holder rubbing a clamp over many moves never
-        weighs more than the clamp); without it, what each move's part would sweep."""
+        weighs more than the clamp); without it, what each move's part would sweep.
+
+        ``kinematics``, ``origin``: the machine's (as :class:`sim.cut.Cutter` takes them):
+        rows a rotary turns place the tool on the part, and the fixture, in the part's
+        frame, turns with it (a clamp on the table; a head's tilt leaves it where it is)."""
         from sim.cut import Cutter
 
         moves = np.asarray(moves)
@@ -209,17 +213,20 @@ class Fixture:
         ids = move_ids_of(moves, move_ids)
         out: list[Finding] = []
         parts = [("tool", tool, 0.0)] + [(b.name, b, b.bottom) for _, b in contact_bodies(tool)]
+        turned = turned_rows(moves, kinematics, origin)
         for name, body, bottom in parts:
-            rows = np.nonzero(reachable(moves, bottom, self._top))[0]
-            rows = rows[_near_xy(moves[rows], self.grid, _radius(body))]
+            rows = np.nonzero(reachable(moves, bottom, self._top, kinematics, origin))[0]
+            rows = rows[_near_xy(moves[rows], self.grid, _radius(body)) | turned[rows]]
             if rows.size == 0:
                 continue
-            vol = present = Cutter(self.grid, tool).probe_moves(moves[rows], body=body)
+            vol = present = Cutter(self.grid, tool, kinematics=kinematics, origin=origin).probe_moves(
+                moves[rows], body=body)
             if left is not None and (present > min_volume).any():
                 grid = left.get(name)
                 if grid is None:
                     grid = left[name] = self.grid.copy()
-                vol = Cutter(grid, tool).cut_moves(moves[rows], record_changes=False, body=body).removed
+                vol = Cutter(grid, tool, kinematics=kinematics, origin=origin).cut_moves(
+                    moves[rows], record_changes=False, body=body).removed
             for f in body_findings(moves[rows], "fixture_collision", vol, ids[rows], min_volume,
                                    what=f"{name} in fixture {self.name}", present=present):
                 out.append(f)

@@ -177,3 +177,18 @@ def test_tilted_holder_over_a_wall_the_z_grid_holds():
         res, found = ch.cut_and_check(moves)
         assert res.removed.sum() == 0.0
         assert [(f.kind, f.line) for f in found] == [("holder_contact", 20)], type(model).__name__
+
+
+def test_tilted_holder_into_a_fixture():
+    """A clamp where the thick wall stood: the tilted holder's rim dips into it (the
+    fixture check follows the kinematics too), on either model."""
+    kin = HeadHead("B")
+    moves, _ = tilted_pass(kin)
+    clamp = Fixture.box((12.0, 0.0, 5.0), (20.0, 20.0, 14.0), 0.5, name="clamp")
+    z_model, tri_model = rib_models(spacing=0.5, rib=(25.0, 26.0), rib_top=6.0)
+    tool = parse_tool_spec(TILTED_TOOL)
+    for model in (z_model, tri_model):
+        ch = Checker(model, tool, kinematics=kin, fixtures=[clamp])
+        _, found = ch.cut_and_check(moves)
+        assert [(f.kind, f.line, f.detail["group"]) for f in found] == [
+            ("fixture_collision", 20, "holder in fixture clamp")], type(model).__name__
