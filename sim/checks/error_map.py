@@ -98,6 +98,7 @@ class DesignModel:
         self.name = name or (str(mesh_or_path) if not hasattr(mesh_or_path, "faces") else "design")
         self.frame = frame
         self.mesh = mesh
+        self.offset = np.asarray(offset, np.float64).reshape(3).copy()  # the mesh's placement, mm
         self.closed = bool(mesh.is_watertight)
         tri_world = np.asarray(mesh.triangles, np.float64) + np.asarray(offset, np.float64)
         self.normals = np.asarray(mesh.face_normals, np.float64)

@@ -120,7 +120,7 @@ def tri_designs(model: TriDexel, design) -> dict:
     out = {"z": design}
     if design.closed:
         for a in ("x", "y"):
-            out[a] = DesignModel(model.grids[a].frame, design.mesh, name=design.name)
+            out[a] = DesignModel(model.grids[a].frame, design.mesh, offset=design.offset, name=design.name)
     return out
 
 

@@ -39,14 +39,25 @@ def found_on(model, moves, spec="flat:6:L=20:S=6:H=30", **kw):
 
 
 def summary(found):
-    return [(f.kind, f.line, f.lines, f.stage, round(f.volume, 6)) for f in found]
+    """What a finding says, NaN sizes as None (so two summaries compare equal)."""
+    def size(v):
+        return None if np.isnan(v) else round(v, 6)
+
+    return [(f.kind, f.line, f.lines, f.stage, size(f.volume), size(f.depth)) for f in found]
 
 
-@pytest.mark.parametrize("case", ["clean", "rapid", "holder", "shank", "above_flutes", "fixture"])
+@pytest.mark.parametrize("case", ["clean", "rapid", "holder", "shank", "above_flutes", "fixture", "plunge",
+                                  "depth_of_cut", "spindle"])
 def test_same_findings_as_the_z_grid_where_it_sees_them(case):
     """3-axis faults test_collisions plants, on a box: the tri-dexel model finds the same
     kinds at the same lines, with the Z grid's volumes (it sees all of them)."""
+    stopped = pocket()
+    stopped["spindle_dir"][3:] = 0  # M5 before line 40
+    kw = {"depth_of_cut": {"max_depth_of_cut": 4.0}}.get(case, {})
     moves, spec = {
+        "plunge": (pocket(), "flat:6:L=20:nocenter"),
+        "depth_of_cut": (pocket(z=15.0), "flat:6:L=20:S=6:H=30"),
+        "spindle": (stopped, "flat:6:L=20:S=6:H=30"),
         "clean": (pocket(), "flat:6:L=20:S=6:H=30"),
         "rapid": (pocket(extra=[(R, (10, 10, 30), (30, 20, 15))]), "flat:6:L=20:S=6:H=30"),
         "holder": (table([(R, (30, 20, 40), (30, 20, 25)), (F, (30, 20, 25), (30, 20, 3)),
@@ -58,10 +69,23 @@ def test_same_findings_as_the_z_grid_where_it_sees_them(case):
         "fixture": (pocket(extra=[(R, (10, 10, 30), (65, 20, 30)), (R, (65, 20, 30), (10, 10, 30))]),
                     "flat:6:L=20:S=6:H=30"),
     }[case]
-    on_z = found_on(stock(), moves, spec)
-    on_tri = found_on(tri_stock(), moves, spec)
+    on_z = found_on(stock(), moves, spec, **kw)
+    on_tri = found_on(tri_stock(), moves, spec, **kw)
     assert summary(on_tri) == summary(on_z)
     assert bool(on_z) == (case != "clean")
+
+
+def test_predict_on_a_tri_dexel_model_leaves_it_as_it_was():
+    kin = HeadHead("B")
+    moves, _ = tilted_pass(kin)
+    _, tri_model = rib_models()
+    ch = Checker(tri_model, parse_tool_spec(TILTED_TOOL), kinematics=kin)
+    before = tri_model.volumes()
+    predicted = ch.predict(moves)
+    assert tri_model.volumes() == before
+    assert [(f.kind, f.line) for f in predicted] == [("holder_contact", 20)]
+    _, found = ch.cut_and_check(moves)
+    assert summary(found) == summary(predicted)
 
 
 # --- a gouge into a wall parallel to Z, between two Z rays ---------------------------------------
@@ -192,3 +216,19 @@ def test_tilted_holder_into_a_fixture():
         _, found = ch.cut_and_check(moves)
         assert [(f.kind, f.line, f.detail["group"]) for f in found] == [
             ("fixture_collision", 20, "holder in fixture clamp")], type(model).__name__
+
+
+def test_a_design_placed_by_an_offset_is_placed_on_every_grid():
+    """The job's design STL moved by its [design] offset: the X and Y grids' casts carry
+    the offset too (the wall gouge is found where it is, not 5 mm off)."""
+    from sim.checks.error_map import DesignModel
+
+    _, tri_model, mesh, moves = wall_case()
+    shifted = mesh.copy()
+    shifted.apply_translation((-5.0, 0.0, 0.0))
+    placed = DesignModel(tri_model.grids["z"].frame, shifted, offset=(5.0, 0.0, 0.0))
+    ch = Checker(tri_model, parse_tool_spec("flat:4:L=20"), design=placed)
+    ch.cut_and_check(moves)
+    whole = ch.assess_model(undercut=False)
+    assert [(f.kind, f.line) for f in whole] == [("gouge", 20)]
+    assert whole[0].depth == pytest.approx(WALL_X - CUT_X, abs=1e-3)
