@@ -284,7 +284,8 @@ class Checker:
         cand: dict[int, list] = {}
         for tool, rows in self._tool_of_rows(moves):
             for kind, body in self._contact_bodies(tool):
-                sel = rows[collisions.reachable(moves[rows], body.bottom, top_bound, self.kinematics, self.origin)]
+                sel = rows[collisions.reachable(moves[rows], body.bottom, top_bound, self.kinematics, self.origin,
+                                                body=body, step=self.frame.spacing)]
                 if sel.size == 0:
                     continue
                 vol = cutter.probe_moves(moves[sel], body=body)

@@ -140,17 +140,53 @@ def max_top(grid: DexelGrid) -> float:
     return float(np.nanmax(t)) if np.isfinite(t).any() else -np.inf
 
 
-def reachable(moves: np.ndarray, body_bottom: float, top: float, kinematics=None, origin=None) -> np.ndarray:
+def reachable(moves: np.ndarray, body_bottom: float, top: float, kinematics=None, origin=None,
+              body=None, step: float = 1.0) -> np.ndarray:
     """bool (n,): rows where a body starting ``body_bottom`` mm above the tip can get
     down to material whose highest point is ``top`` (top-view grids): a cheap filter that
     spares probing bodies that pass above everything. Rows a rotary of ``kinematics``
-    turns (:func:`turned_rows`) are always kept: a tilted body's rim reaches below its
-    bottom on the axis, and a turned part lifts material above its top."""
+    turns (:func:`turned_rows`; ``origin`` as the Cutter takes it) are judged by where
+    the tilted ``body`` (a Tool or Body) really goes (:func:`tilted_reach`; all kept
+    without one): its rim reaches below its bottom on the axis."""
     zs = np.minimum(moves["start"][:, 2], moves["end"][:, 2]) - moves["tool_length"]
     near = zs + body_bottom < top
     if kinematics is not None:
-        near |= turned_rows(moves, kinematics, origin)
+        turned = turned_rows(moves, kinematics, origin)
+        if turned.any():
+            k = np.nonzero(turned)[0]
+            near[k] = True if body is None else tilted_reach(moves[k], body, top, kinematics, origin, step)
     return near & is_motion(moves)
+
+
+def tilted_reach(moves: np.ndarray, body, top: float, kinematics, origin=None, step: float = 1.0) -> np.ndarray:
+    """bool (n,): rows whose ``body`` (a Tool or Body), carried by ``kinematics`` from the
+    row's start pose to its end (machine axes linear, as the Cutter cuts them), gets
+    below ``top`` (mm, the part frame's z) at some point. The body is placed at instances
+    of motion no point of it moves more than ``step`` mm between
+    (:meth:`Kinematics.instance_counts`), and its lowest point at each (a body of
+    revolution: the lower rim of its bottom or top disc) less ``step`` is compared with
+    ``top``. Arc rows are always kept (their path leaves the chord)."""
+    from sim import sweep
+    from sim.kinematics import instance_poses
+
+    n = len(moves)
+    if n == 0 or not np.isfinite(top):
+        return np.full(n, n > 0 and top > -np.inf)
+    prof = sweep.body_profile(body)
+    h_lo, h_hi, radius = float(prof[0, 0]), float(prof[-1, 0]), float(prof[:, 1].max())
+    o = np.zeros(6) if origin is None else np.asarray(origin, np.float64).reshape(6)
+    start = np.asarray(moves["start"], np.float64) + o
+    end = np.asarray(moves["end"], np.float64) + o
+    lengths = np.asarray(moves["tool_length"], np.float64)
+    counts = kinematics.instance_counts(start, end, lengths, h_hi, radius, step)
+    out = np.empty(n, bool)
+    for k in range(n):  # rows one by one: their instance counts differ
+        tips, axes = kinematics.forward(instance_poses(start[k], end[k], int(counts[k])), lengths[k])
+        az = axes[:, 2]
+        side = radius * np.sqrt(np.maximum(1.0 - az * az, 0.0))
+        low = tips[:, 2] - o[2] + np.minimum(h_lo * az, h_hi * az) - side
+        out[k] = float(low.min()) - step < top
+    return out | is_arc(moves)
 
 
 def turned_rows(moves: np.ndarray, kinematics, origin=None) -> np.ndarray:
@@ -215,7 +251,8 @@ class Fixture:
         parts = [("tool", tool, 0.0)] + [(b.name, b, b.bottom) for _, b in contact_bodies(tool)]
         turned = turned_rows(moves, kinematics, origin)
         for name, body, bottom in parts:
-            rows = np.nonzero(reachable(moves, bottom, self._top, kinematics, origin))[0]
+            rows = np.nonzero(reachable(moves, bottom, self._top, kinematics, origin, body=body,
+                                        step=self.grid.frame.spacing))[0]
             rows = rows[_near_xy(moves[rows], self.grid, _radius(body)) | turned[rows]]
             if rows.size == 0:
                 continue
