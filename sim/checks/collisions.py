@@ -167,7 +167,6 @@ def tilted_reach(moves: np.ndarray, body, top: float, kinematics, origin=None, s
     revolution: the lower rim of its bottom or top disc) less ``step`` is compared with
     ``top``. Arc rows are always kept (their path leaves the chord)."""
     from sim import sweep
-    from sim.kinematics import instance_poses
 
     n = len(moves)
     if n == 0 or not np.isfinite(top):
@@ -178,15 +177,18 @@ def tilted_reach(moves: np.ndarray, body, top: float, kinematics, origin=None, s
     start = np.asarray(moves["start"], np.float64) + o
     end = np.asarray(moves["end"], np.float64) + o
     lengths = np.asarray(moves["tool_length"], np.float64)
-    counts = kinematics.instance_counts(start, end, lengths, h_hi, radius, step)
-    out = np.empty(n, bool)
-    for k in range(n):  # rows one by one: their instance counts differ
-        tips, axes = kinematics.forward(instance_poses(start[k], end[k], int(counts[k])), lengths[k])
-        az = axes[:, 2]
-        side = radius * np.sqrt(np.maximum(1.0 - az * az, 0.0))
-        low = tips[:, 2] - o[2] + np.minimum(h_lo * az, h_hi * az) - side
-        out[k] = float(low.min()) - step < top
-    return out | is_arc(moves)
+    counts = np.asarray(kinematics.instance_counts(start, end, lengths, h_hi, radius, step), np.int64)
+    # every row's poses in one table: count + 1 equal steps of each row, both ends exact
+    per_row = counts + 1
+    first = np.concatenate([[0], np.cumsum(per_row)[:-1]])
+    row = np.repeat(np.arange(n), per_row)
+    t = (np.arange(int(per_row.sum())) - first[row]) / counts[row]
+    poses = start[row] + t[:, None] * (end - start)[row]
+    tips, axes = kinematics.forward(poses, lengths[row])
+    az = axes[:, 2]
+    side = radius * np.sqrt(np.maximum(1.0 - az * az, 0.0))
+    low = tips[:, 2] - o[2] + np.minimum(h_lo * az, h_hi * az) - side
+    return (np.minimum.reduceat(low, first) - step < top) | is_arc(moves)
 
 
 def turned_rows(moves: np.ndarray, kinematics, origin=None) -> np.ndarray:
