@@ -197,8 +197,9 @@ def subroutine_dirs(args) -> list[str]:
 
 
 def apply_job_flags(job, args):
-    """``job`` with what the command-line flags replace: ``--stock``, ``--tool`` (the job's
-    tools dropped), ``--tool-table``, ``--dialect``, ``--var``, ``--machine-units``,
+    """``job`` with what the command-line flags replace: ``--stock``, ``--tri-dexel``
+    (``[stock] model``), ``--tool`` (the job's tools dropped), ``--tool-table``, ``--dialect``,
+    ``--var``, ``--machine-units``,
     ``--subroutine-path``, ``--resolution``, ``--design`` (``simulate`` and ``correct``
     read a job the same way). InputError naming the flag for a bad value."""
     from monitor.job import ToolDef, parse_solid_spec

@@ -120,3 +120,18 @@ def test_a_program_with_stock_on_the_command_line(tmp_path, capsys):
         == [("rapid_into_stock", 4)]
     assert on_t["removed_mm3"] == pytest.approx(on_z["removed_mm3"])
     assert on_t["lattice"][2] > 1
+
+
+def test_stl_of_a_tri_dexel_model_is_its_closed_surface(tmp_path, capsys):
+    """``--stl`` writes the tri-dexel model's own surface (sim.tridexel_surface, built on
+    another branch of issue 16: this runs once both are merged)."""
+    pytest.importorskip("sim.tridexel_surface")
+    job = write_job(tmp_path, 'model = "tri-dexel"')
+    out = tmp_path / "cut.stl"
+    code, doc = simulate_json(capsys, job, "--stl", out)
+    assert code == 1 and doc["stl"] == str(out)
+    mesh = trimesh.load(str(out), force="mesh")
+    assert mesh.is_watertight
+    # the base plate (the 0.6 mm rib is thinner than the 1 mm lattice: no node holds it)
+    assert mesh.bounds[0] == pytest.approx([0.0, 0.0, 0.0], abs=1.0)
+    assert mesh.bounds[1][:2] == pytest.approx([30.0, 20.0], abs=1.0)
