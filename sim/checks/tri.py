@@ -194,8 +194,15 @@ class TriErrorMap:
         lengths = {kind: {a: np.zeros(f.n_rays) for a in self.maps} for kind in ("gouge", "excess")}
         limit_u = (np.full(f.n_rays, tol.undercut) if undercut_limit is None
                    else np.asarray(undercut_limit, np.float64))
-        for kind, sign in (("gouge", -1.0), ("excess", 1.0)):
+        # material left further than the range of interest is not assessed (ErrorMap.findings):
+        # such a point (an X ray's far end in the stock margin) must not hide an undercut
+        # another ray put in the same column, so it ranks below every assessed one
+        for kind, sign, ceiling in (("gouge", -1.0, math.inf), ("excess", 1.0, tol.interest)):
             dst_val = getattr(out, kind)
+
+            def rank(mag, _ceiling=ceiling):
+                return np.where(mag <= _ceiling, mag, -1e300)
+
             for ai, (a, m) in enumerate(self.maps.items()):
                 val = getattr(m, kind)
                 rays = np.nonzero(~np.isnan(val))[0]
@@ -209,11 +216,12 @@ class TriErrorMap:
                 past = mag > limit
                 np.add.at(lengths[kind][a], cols[past], np.where(np.isfinite(ln[past]), ln[past], np.inf))
                 # the worst point of each column: the largest magnitude first, one per column
-                order = np.lexsort((-mag, cols))
+                order = np.lexsort((-mag, -rank(mag), cols))
                 first = order[np.r_[True, cols[order][1:] != cols[order][:-1]]]
                 c = cols[first]
                 cur = sign * dst_val[c]
-                better = np.isnan(cur) | (mag[first] > cur)
+                better = np.isnan(cur) | (rank(mag[first]) > rank(cur)) | (
+                    (rank(mag[first]) == rank(cur)) & (mag[first] > cur))
                 c, pick = c[better], rays[first[better]]
                 sel = first[better]
                 dst_val[c] = val[pick]
