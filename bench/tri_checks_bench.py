@@ -6,7 +6,8 @@ can reach the stock) and a design box for the gouge map:
 
 * ``3axis``: a 6 mm flat end mill clearing a 40 x 30 mm pocket 6 mm deep in 2 mm steps
   (a raster of 1 mm moves, 4 mm stepover) in a 60 x 40 x 20 block; the design is the
-  block below Z15, so the last step gouges it 1 mm; then the whole-model assessment.
+  block below Z15, so the last step gouges it 1 mm, and the first row is a rapid down
+  into the stock; then the whole-model assessment.
 * ``5axis``: the same raster on a head-head (xyzbc-head) with the tool tilting
   B = 15 sin(x / 6) degrees along each move.
 
