@@ -28,6 +28,9 @@ needs; paths are relative to the job file's folder)::
     [stock]                     # in work coordinates, mm
     box = [0, 0, 0, 60, 40, 20] # or: cylinder = [cx, cy, radius, z0, z1]; or: stl = "stock.stl"
     offset = [0, 0, 0]          # moves an STL into place
+    model = "z"                 # how simulate holds it: "z" (one grid of vertical rays) or
+                                # "tri-dexel" (three grids, rays along X, Y and Z: walls
+                                # and undercuts a tilted or turning tool makes; slower)
     # a bar on a 4th axis: cylinder = [cy, cz, radius, x0, x1] with axis = "x" (on the A
     # axis: cy, cz = rot_point's y, z less the work offset); axis = "y": [cx, cz, r, y0, y1]
 
@@ -104,6 +107,8 @@ MACHINE_UNITS = ("mm", "inch")
 #: the work systems, in the order of the interpreter's offset table (G54 = 0 ... G59.3 = 8)
 WORK_SYSTEMS = ("G54", "G55", "G56", "G57", "G58", "G59", "G59.1", "G59.2", "G59.3")
 AXES = ("x", "y", "z")
+#: how a stock is modelled (``[stock] model``): one Z grid, or three grids (sim.tridexel)
+STOCK_MODELS = ("z", "tri-dexel")
 
 
 class JobError(InputError):
@@ -181,6 +186,8 @@ class Job:
     work_system: str = "G54"            # the model frame: stock, fixtures, design are in it
     work_offset: tuple[float, float, float] | None = None  # None: read from the controller (WCO)
     stock: Solid | None = None
+    #: how ``simulate`` models the stock, one of :data:`STOCK_MODELS` ([stock] model)
+    stock_model: str = "z"
     fixtures: list[Solid] = field(default_factory=list)
     tools: dict[int, ToolDef] = field(default_factory=dict)
     default_tool: ToolDef | None = None  # used for any tool number not in ``tools``
@@ -287,9 +294,11 @@ def _split_numbers(text: str):
         return text
 
 
-def _solid(ctx: _Ctx, t: dict, where: str, allow=("box", "cylinder", "stl")) -> Solid:
+def _solid(ctx: _Ctx, t: dict, where: str, allow=("box", "cylinder", "stl"), extra=()) -> Solid:
+    """A solid from its table; ``extra``: further keys the caller reads (ignored here)."""
     t = ctx.table(t, where)
-    ctx.no_unknown(t, set(allow) | {"offset", "name"} | ({"axis"} if "cylinder" in t else set()), where)
+    ctx.no_unknown(t, set(allow) | {"offset", "name"} | set(extra) | ({"axis"} if "cylinder" in t else set()),
+                   where)
     given = [k for k in allow if k in t]
     if len(given) != 1:
         raise JobError(f"{where or 'solid'}: expected exactly one of {', '.join(allow)}, got "
@@ -336,6 +345,12 @@ MAX_LOOP_HELP = "passes of one o-word loop (and the largest repeat count) before
 #: help text of ``--block-delete`` (job, moves and simulate commands)
 BLOCK_DELETE_HELP = "skip the lines that start with '/', as a controller with its block delete switch on " \
                     "(default: they run, as LinuxCNC starts with the switch off)"
+
+
+def _stock_model(ctx: _Ctx, value, where: str) -> str:
+    if value not in STOCK_MODELS:
+        raise ctx.err(where, '"z" (one grid of vertical rays) or "tri-dexel" (grids along X, Y and Z)', value)
+    return value
 
 
 def _count(ctx: _Ctx, value, where: str) -> int:
@@ -494,7 +509,9 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
                                                                       'mm, or "controller"')
 
     if "stock" in doc:
-        job.stock = _solid(ctx, doc["stock"], "[stock]")
+        job.stock = _solid(ctx, doc["stock"], "[stock]", extra=("model",))
+        if "model" in doc["stock"]:
+            job.stock_model = _stock_model(ctx, doc["stock"]["model"], "[stock] model")
     if "fixtures" in doc:
         fx = doc["fixtures"]
         if not isinstance(fx, list):

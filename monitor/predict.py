@@ -207,7 +207,7 @@ class Workpiece:
     """Live stock model, fixtures and design on one top frame, in work coordinates (mm)."""
 
     frame: Frame
-    stock: DexelGrid
+    stock: DexelGrid  # or a sim.tridexel.TriDexel (build_workpiece's model="tri-dexel"); frame is its Z grid's
     fixtures: list  # [sim.checks.collisions.Fixture], each on its own frame
     design: object | None  # sim.checks.error_map.DesignModel
     tools: dict
@@ -223,8 +223,12 @@ class Workpiece:
         return self.tools.get(int(number), self.default_tool)
 
 
-def build_workpiece(job: Job, moves: np.ndarray) -> Workpiece:
-    """Stock, fixtures and design of ``job`` as dexel models on a frame covering them all."""
+def build_workpiece(job: Job, moves: np.ndarray, model: str = "z") -> Workpiece:
+    """Stock, fixtures and design of ``job`` as dexel models on a frame covering them all.
+
+    ``model``: the stock as one Z grid (``"z"``, what the live session follows) or as a
+    tri-dexel model (``"tri-dexel"``, :class:`sim.tridexel.TriDexel`, ``simulate`` with
+    ``[stock] model``): its lattice has the Z frame's rays and covers the stock's height."""
     from sim.checks.collisions import Fixture
     from sim.checks.error_map import DesignModel
 
@@ -244,7 +248,10 @@ def build_workpiece(job: Job, moves: np.ndarray) -> Workpiece:
         fixture_meshes.append(fm)
     margin = reach + 2 * job.resolution
     frame = Frame.top(lo[0] - margin, lo[1] - margin, hi[0] + margin, hi[1] + margin, job.resolution)
-    stock = _solid_grid(frame, job.stock, stock_mesh, job.tolerance)
+    if model == "tri-dexel":
+        stock = _tri_stock(frame, job, stock_mesh)
+    else:
+        stock = _solid_grid(frame, job.stock, stock_mesh, job.tolerance)
     names = [f.name or f"fixture {k + 1}" for k, f in enumerate(job.fixtures)]
     fixtures = [Fixture(name, _fixture_grid(f, fm, job.resolution, reach, job.tolerance))
                 for f, fm, name in zip(job.fixtures, fixture_meshes, names)]
@@ -261,6 +268,27 @@ def build_workpiece(job: Job, moves: np.ndarray) -> Workpiece:
     rotary = job.kinematics if job.kinematics.rotaries else None
     return Workpiece(frame, stock, fixtures, design, tools, default, job.tolerance, names,
                      kinematics=rotary, origin=work_origin(job) if rotary is not None else None)
+
+
+def tri_lattice(frame: Frame, job: Job, stock_mesh=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(lo, hi)`` (3,) mm of the tri-dexel lattice of ``job``'s stock: the Z frame's XY
+    extent, and the stock's height grown by two spacings (nodes on the stock's bottom)."""
+    slo, shi, _ = _bounds(job.stock, "[stock]") if stock_mesh is None else (
+        stock_mesh.bounds[0], stock_mesh.bounds[1], None)
+    sp = frame.spacing
+    z0 = float(slo[2]) - 2 * sp
+    nz = int(np.ceil((float(shi[2]) + 2 * sp - z0) / sp - 1e-9))
+    lo = np.array([frame.origin[0], frame.origin[1], z0])
+    hi = np.array([frame.origin[0] + (frame.nu - 1) * sp, frame.origin[1] + (frame.nv - 1) * sp, z0 + nz * sp])
+    return lo, hi
+
+
+def _tri_stock(frame: Frame, job: Job, stock_mesh):
+    """The job's stock as a tri-dexel model whose Z grid is on ``frame``."""
+    from sim.tridexel import TriDexel
+
+    lo, hi = tri_lattice(frame, job, stock_mesh)
+    return TriDexel.build(lo, hi, frame.spacing, lambda f: _solid_grid(f, job.stock, stock_mesh, job.tolerance))
 
 
 def work_origin(job: Job) -> np.ndarray:

@@ -2,7 +2,7 @@
 
     dexmon simulate PROGRAM --stock box:X0,Y0,Z0,X1,Y1,Z1 --tool ball:6 --resolution 0.1
                     [--design part.stl --tolerance 0.002] [--fixture box:...] [--limits ...]
-                    [--heights out.npy] [--stl out.stl] [--json]
+                    [--heights out.npy] [--stl out.stl] [--json] [--tri-dexel]
     dexmon simulate JOB.toml [same flags, which replace the job's]
 
 The whole program is cut with no controller and checked on the way (gouge and undercut
@@ -20,6 +20,14 @@ interpreter starts): the job's ``[machine] start``, by default the top of the Z 
 stock and the program (:mod:`monitor.start`). The first move, from there to the first
 point, is cut and checked like any other (``dry-run`` starts its machine there too);
 ``start`` in the JSON says where it was (the tool tip, work coordinates).
+
+``--tri-dexel`` (a job's ``[stock] model = "tri-dexel"``) holds the stock in three dexel
+grids whose rays run along X, Y and Z (:mod:`sim.tridexel`) instead of one along Z: the
+walls a tilted or turning tool leaves, and the thin walls the Z rays step over, are then
+in the model, and the checks (gouge, shank and holder contact, rapids into stock) look at
+all three grids (:mod:`sim.checks.tri`); findings are reported as usual. It costs about
+three times the memory and the time. ``--heights`` is the Z grid's then, and ``--stl``
+the model's closed surface (:mod:`sim.tridexel_surface`).
 
 ``--heights`` writes the top-surface heights, float32 (ny, nx): element ``[j, i]`` is the
 ray at ``X0 + i*resolution, Y0 + j*resolution`` (both ends of the stock included), NaN
@@ -82,6 +90,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--stl", default=None, metavar="OUT.stl", help="write the cut stock as an STL mesh")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     parser.add_argument("--no-checks", action="store_true", help="only cut (no findings, exit 0)")
+    parser.add_argument("--tri-dexel", action="store_true", default=None,
+                        help="model the stock with three dexel grids (rays along X, Y and Z): the walls a tilted "
+                             "or turning tool makes, and holder contact on them, are seen; slower (a job's "
+                             '[stock] model = "tri-dexel")')
     from sim.checks.report import add_check_arguments
 
     add_check_arguments(parser)
@@ -102,18 +114,36 @@ def parse_stock_box(spec: str) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
-def _check_memory(nu: int, nv: int, limit_mb: float) -> None:
+def _check_memory(nu: int, nv: int, limit_mb: float, nz: int | None = None) -> None:
+    """Refuse a grid of ``nu`` x ``nv`` rays (with ``nz``: the three grids of a tri-dexel
+    lattice of nu x nv x nz nodes) needing more than ``limit_mb``."""
     from sim.grid import DexelGrid
 
-    need = DexelGrid.estimate_bytes(nu * nv)
+    rays = nu * nv if nz is None else nu * nv + nv * nz + nz * nu
+    need = DexelGrid.estimate_bytes(rays)
+    what = f"a {nu} x {nv} dexel grid" if nz is None else f"a {nu} x {nv} x {nz} tri-dexel model"
     if need > limit_mb * 2**20:
-        raise InputError(f"a {nu} x {nv} dexel grid needs about {need / 2**20:.0f} MB, over the "
+        raise InputError(f"{what} needs about {need / 2**20:.0f} MB, over the "
                          f"{limit_mb:.0f} MB limit; use a coarser --resolution or raise --memory-limit",
                          where="--resolution")
 
 
-def build_stock(spec: str, resolution: float, memory_limit_mb: float = 4096.0):
-    """The stock grid for ``--stock`` on a top frame at ``resolution`` mm."""
+def _tri_from(frame, z0: float, z1: float, make_grid, memory_limit_mb: float):
+    """A tri-dexel model whose Z grid is on ``frame``, its lattice from ``z0`` to ``z1``
+    (mm, grown by two spacings), each grid from ``make_grid(frame)``."""
+    from sim.tridexel import TriDexel
+
+    sp = frame.spacing
+    lo = np.array([frame.origin[0], frame.origin[1], z0 - 2 * sp])
+    nz = int(np.ceil((z1 + 2 * sp - lo[2]) / sp - 1e-9))
+    _check_memory(frame.nu, frame.nv, memory_limit_mb, nz + 1)
+    hi = np.array([lo[0] + (frame.nu - 1) * sp, lo[1] + (frame.nv - 1) * sp, lo[2] + nz * sp])
+    return TriDexel.build(lo, hi, sp, make_grid)
+
+
+def build_stock(spec: str, resolution: float, memory_limit_mb: float = 4096.0, tri_dexel: bool = False):
+    """The stock grid for ``--stock`` on a top frame at ``resolution`` mm (``tri_dexel``:
+    a :class:`sim.tridexel.TriDexel` whose Z grid is that one)."""
     from sim.frame import Frame
     from sim.grid import DexelGrid
 
@@ -125,6 +155,10 @@ def build_stock(spec: str, resolution: float, memory_limit_mb: float = 4096.0):
         nv = int(round((hi[1] - lo[1]) / resolution)) + 1
         _check_memory(nu, nv, memory_limit_mb)
         frame = Frame.top(lo[0], lo[1], hi[0], hi[1], resolution)
+        if tri_dexel:
+            from sim.solids import box_grid
+
+            return _tri_from(frame, lo[2], hi[2], lambda f: box_grid(f, lo, hi), memory_limit_mb)
         return DexelGrid.from_intervals(frame, np.full(frame.shape, lo[2]), np.full(frame.shape, hi[2]))
     path = Path(spec)
     if not path.is_file():
@@ -132,11 +166,14 @@ def build_stock(spec: str, resolution: float, memory_limit_mb: float = 4096.0):
     from sim.solids import load_mesh, mesh_grid
 
     mesh, _ = load_mesh(path)
-    (x0, y0, _), (x1, y1, _) = mesh.bounds
+    (x0, y0, z0), (x1, y1, z1) = mesh.bounds
     nu = int(round((x1 - x0) / resolution)) + 1
     nv = int(round((y1 - y0) / resolution)) + 1
     _check_memory(nu, nv, memory_limit_mb)
-    return mesh_grid(Frame.top(x0, y0, x1, y1, resolution), path)
+    frame = Frame.top(x0, y0, x1, y1, resolution)
+    if tri_dexel:
+        return _tri_from(frame, z0, z1, lambda f: mesh_grid(f, mesh), memory_limit_mb)
+    return mesh_grid(frame, path)
 
 
 def machine_units(args) -> str:
@@ -160,8 +197,9 @@ def subroutine_dirs(args) -> list[str]:
 
 
 def apply_job_flags(job, args):
-    """``job`` with what the command-line flags replace: ``--stock``, ``--tool`` (the job's
-    tools dropped), ``--tool-table``, ``--dialect``, ``--var``, ``--machine-units``,
+    """``job`` with what the command-line flags replace: ``--stock``, ``--tri-dexel``
+    (``[stock] model``), ``--tool`` (the job's tools dropped), ``--tool-table``, ``--dialect``,
+    ``--var``, ``--machine-units``,
     ``--subroutine-path``, ``--resolution``, ``--design`` (``simulate`` and ``correct``
     read a job the same way). InputError naming the flag for a bad value."""
     from monitor.job import ToolDef, parse_solid_spec
@@ -169,6 +207,8 @@ def apply_job_flags(job, args):
     if getattr(args, "stock", None):
         spec = args.stock if ":" in args.stock else f"stl:{args.stock}"
         job.stock = parse_solid_spec(spec, "--stock")
+    if getattr(args, "tri_dexel", None):
+        job.stock_model = "tri-dexel"
     if getattr(args, "tool", None):
         job.default_tool = ToolDef(0, args.tool)
         job.tools = {}
@@ -278,8 +318,10 @@ def _from_start(moves: np.ndarray, grid, limits_text: str | None) -> np.ndarray:
     from sim.checks.motion import parse_limits
     from sim.checks.setup import material_box
 
+    from sim.checks.tri import z_part
+
     z = parse_limits(limits_text).get("Z") if limits_text else None
-    box = material_box(grid)
+    box = material_box(z_part(grid))
     start = start_point(moves, z_top=None if z is None else z[1],
                         material_top=None if box is None else float(box[1][2]))
     return moves if start is None else start_at(moves, start)
@@ -313,9 +355,11 @@ def run(args) -> int:
     if args.resume:
         from monitor.resume import resume_grid
 
+        if args.tri_dexel:
+            raise InputError("a recorded run holds one Z grid; --tri-dexel cannot start from it", where="--resume")
         grid, _ = resume_grid(args.resume)
     elif args.stock:
-        grid = build_stock(args.stock, resolution, args.memory_limit)
+        grid = build_stock(args.stock, resolution, args.memory_limit, tri_dexel=bool(args.tri_dexel))
     else:
         raise InputError("give the stock as --stock box:X0,Y0,Z0,X1,Y1,Z1 (or a mesh), or --resume RUN:STAGE")
     program = load_program(args.program, args.dialect or "linuxcnc", table, args.var, units, sub_dirs,
@@ -374,11 +418,11 @@ def _run_job(args) -> int:
                            bool(args.block_delete) or job.block_delete)
     # from where the machine starts, as a dry run does (monitor.start)
     moves = work_moves(start_at(program.moves, job_start(job, program.moves)), reference_wco(job))
-    est = DexelGrid_estimate(job)
+    est = DexelGrid_estimate(job, job.stock_model)
     if est > args.memory_limit * 2**20:
         raise InputError(f"the job's dexel grid needs about {est / 2**20:.0f} MB, over the "
                          f"{args.memory_limit:.0f} MB limit; use a coarser --resolution", where="--resolution")
-    wp = build_workpiece(job, moves)
+    wp = build_workpiece(job, moves, model=job.stock_model)
     checker = None
     if not args.no_checks:
         from sim.checks.checker import Checker
@@ -411,22 +455,25 @@ def _setup_findings(moves, grid, tool, tools, checker, inch: bool) -> list:
     """:func:`sim.checks.setup.setup_findings` of a simulation: the stock's material box,
     the largest tool radius, the design's box from the checker."""
     from sim.checks.setup import design_box, material_box, setup_findings
+    from sim.checks.tri import z_part
 
+    grid = z_part(grid)  # a tri-dexel model's top view
     reach = max([t.radius for t in (tools or {}).values()] + [tool.radius])
     design = getattr(checker, "design", None)
     return setup_findings(moves, material_box(grid), reach, design_box(design) if design is not None else None,
                           inch=inch)
 
 
-def DexelGrid_estimate(job) -> int:
-    """Bytes of the job's stock grid (its stock box at its resolution), 0 when unknown."""
+def DexelGrid_estimate(job, model: str = "z") -> int:
+    """Bytes of the job's stock grid (its stock box at its resolution; ``model``
+    "tri-dexel": its three grids), 0 when unknown."""
     from sim.grid import DexelGrid
 
     b = job.stock.bounds() if job.stock is not None else None
     if b is None:
         return 0
-    (x0, y0, _), (x1, y1, _) = b
-    n = (int((x1 - x0) / job.resolution) + 1) * (int((y1 - y0) / job.resolution) + 1)
+    nx, ny, nz = (int((h - lo) / job.resolution) + 1 for lo, h in zip(*b))
+    n = nx * ny if model != "tri-dexel" else nx * ny + ny * nz + nz * nx
     return DexelGrid.estimate_bytes(n)
 
 
@@ -453,15 +500,19 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
     trapezoid-rule volume) and what the cut removed by the trapezoid rule (edge rays count
     half a cell, corners a quarter), so a box does not gain its edge half-cells."""
     from sim.checks.report import final_findings
+    from sim.checks.tri import TriModelCutter, is_tri, z_part
     from sim.cut import Cutter
     from sim.gcode.moves import MoveKind
+    from sim.tolerance import DEFAULT
 
     kinds = moves["kind"]
     cutting = _cutting_rows(moves)
     if not cutting.any():
         raise InputError("the program has no motion to simulate (empty program?)", where=program)
     setup = _setup_findings(moves, grid, tool, tools, checker, inch) if checker is not None else []
-    grid_before = grid.volume(weights="trapezoid")
+    tri = is_tri(grid)
+    zgrid = z_part(grid)  # volumes and heights: a tri-dexel model's Z grid
+    grid_before = zgrid.volume(weights="trapezoid")
     stock_volume = grid_before if true_volume is None else float(true_volume)
     t0 = time.perf_counter()
     if checker is not None:
@@ -473,12 +524,15 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
             from sim.checks.scallop import note
 
             notes = [*notes, note(*checker.undercut_basis, checker.tol.undercut)]
+    elif tri:
+        per_move = TriModelCutter(grid, tool, DEFAULT, tools=tools or None, kinematics=kinematics,
+                                  origin=origin).cut_moves(moves, record_changes=False).removed
     else:
         per_move = Cutter(grid, tool, tools=tools or None, kinematics=kinematics, origin=origin).cut_moves(
             moves, record_changes=False).removed
         findings = []
     seconds = time.perf_counter() - t0
-    grid_after = grid.volume(weights="trapezoid")
+    grid_after = zgrid.volume(weights="trapezoid")
     removed = max(grid_before - grid_after, 0.0)
     rapid_removed = float(per_move[kinds == MoveKind.RAPID].sum())
 
@@ -496,8 +550,9 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
         "seconds": round(seconds, 4),
         "moves_per_s": round(len(moves) / seconds, 1) if seconds > 0 else None,
         "tool": tool.describe(),
-        "resolution": grid.frame.spacing,
-        "grid": [grid.frame.nu, grid.frame.nv],
+        "resolution": zgrid.frame.spacing,
+        "grid": [zgrid.frame.nu, zgrid.frame.nv],
+        "model": "tri-dexel" if tri else "z",
         "checked": checker is not None,
         "findings": [f.to_json() for f in findings],
         "notes": list(notes),
@@ -506,12 +561,12 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
         hp = Path(args.heights)
         if not hp.parent.is_dir():
             raise InputError("directory does not exist", where=f"--heights {args.heights}")
-        np.save(hp, grid.top().astype(np.float32))
+        np.save(hp, zgrid.top().astype(np.float32))
         out["heights"] = str(hp)
+    if tri:
+        out["lattice"] = list(grid.shape)
     if args.stl:
-        from sim.surface import export_stl
-
-        export_stl(grid, args.stl)
+        _export_stl(grid, args.stl)
         out["stl"] = str(args.stl)
 
     if args.json:
@@ -520,8 +575,10 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
         for n in notes:
             print(f"note: {n}", file=sys.stderr)
         w = sys.stdout.write
+        model = (f"tri-dexel model {' x '.join(str(n) for n in grid.shape)} nodes" if tri
+                 else f"grid {grid.frame.nu} x {grid.frame.nv} rays")
         w(f"{out['program']}: {out['moves']} moves ({out['cutting_moves']} removed material), "
-          f"tool {out['tool']}, grid {grid.frame.nu} x {grid.frame.nv} rays at {grid.frame.spacing:g} mm\n")
+          f"tool {out['tool']}, {model} at {zgrid.frame.spacing:g} mm\n")
         pct = 100.0 * removed / stock_volume if stock_volume > 0 else 0.0
         w(f"removed {removed:.3f} mm^3 of {stock_volume:.3f} mm^3 stock ({pct:.1f}%) in {seconds:.3f} s"
           + (f" ({out['moves_per_s']:.0f} moves/s)\n" if out["moves_per_s"] else "\n"))
@@ -533,6 +590,24 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
             if key in out:
                 w(f"wrote {out[key]}\n")
     return 1 if findings else 0
+
+
+def _export_stl(grid, path) -> None:
+    """Write the cut stock's surface as an STL: a Z grid's column surface
+    (:mod:`sim.surface`), a tri-dexel model's closed surface (:mod:`sim.tridexel_surface`)."""
+    from sim.checks.tri import is_tri
+
+    if not is_tri(grid):
+        from sim.surface import export_stl
+
+        export_stl(grid, path)
+        return
+    try:
+        from sim.tridexel_surface import export_stl as export_tri
+    except ImportError:  # the tri-dexel surface is built on another branch of issue 16
+        raise InputError("this build cannot write a tri-dexel model's surface yet (sim.tridexel_surface); "
+                         "leave out --stl or --tri-dexel", where="--stl") from None
+    export_tri(grid, path)
 
 
 def _start_tip(moves: np.ndarray) -> list[float] | None:

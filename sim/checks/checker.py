@@ -10,12 +10,14 @@ from sim.checks import collisions, motion
 from sim.checks.arrays import distinct
 from sim.checks.error_map import DesignModel, ErrorMap
 from sim.checks.findings import Finding, merge_findings
+from sim.checks.tri import TriErrorMap, TriModelCutter, is_tri, top_bound, tri_designs, z_part
 from sim.cut import CutResult, Cutter
 from sim.errors import InputError
 from sim.gcode.moves import MoveKind
 from sim.grid import DexelGrid
 from sim.tolerance import DEFAULT, Tolerance
 from sim.tools import Tool
+from sim.tridexel import TriDexel
 
 
 class Checker:
@@ -23,8 +25,10 @@ class Checker:
 
     Parameters
     ----------
-    stock : DexelGrid
-        The live model (cut in place by :meth:`cut_and_check`).
+    stock : DexelGrid or TriDexel
+        The live model (cut in place by :meth:`cut_and_check`): one grid, or a
+        tri-dexel model (:mod:`sim.tridexel`; cut, probed and assessed on its three
+        grids, see :mod:`.tri`; the findings are the same kinds with the same fields).
     tool : Tool
         The tool in the spindle (``tools`` maps tool numbers to tools for programs
         with tool changes; rows use ``tools[row["tool"]]`` when present).
@@ -54,37 +58,42 @@ class Checker:
     kinematics, origin : optional
         The machine's :class:`sim.kinematics.Kinematics` and the grid origin's machine
         pose (6,), passed to every :class:`Cutter` (rows with rotation are cut on the
-        turned part). Fixtures stay 3-axis.
+        turned part) and to the fixture checks (fixtures are in the part's frame).
     """
 
     def __init__(self, stock: DexelGrid, tool: Tool, design=None, fixtures=(), limits=None,
                  tol: Tolerance = DEFAULT, tools: dict | None = None, max_depth_of_cut: float | None = None,
                  max_ramp_deg: float = 10.0, min_volume: float | None = None, undercut_from_path: bool = True,
                  exact_excess_while_cutting: bool = False, kinematics=None, origin=None):
-        if not isinstance(stock, DexelGrid):
-            raise InputError(f"Checker needs a DexelGrid stock, got {type(stock).__name__}")
+        if not isinstance(stock, (DexelGrid, TriDexel)):
+            raise InputError(f"Checker needs a DexelGrid or TriDexel stock, got {type(stock).__name__}")
         self.grid = stock
-        self.frame = stock.frame
+        self.frame = z_part(stock).frame  # a tri-dexel model's findings are told on its Z grid
         self.tool = tool
         self.tools = dict(tools or {})
         self.tol = tol
         self.kinematics = kinematics
         self.origin = origin
+        self.min_volume = (0.1 * self.frame.spacing**3) if min_volume is None else float(min_volume)
         self.cutter = self._cutter(stock)
         if design is not None and not isinstance(design, DesignModel):
             design = DesignModel(self.frame, design)
         self.design = design
-        self.error_map = ErrorMap(self.frame) if design is not None else None
+        #: {axis: DesignModel} of a tri-dexel model (the design cast on each grid)
+        self._designs = tri_designs(stock, design) if is_tri(stock) and design is not None else None
+        self.error_map = self._new_error_map(self.frame) if design is not None else None
         self.fixtures = list(fixtures)
         self.limits = dict(limits) if limits else None
         self.max_depth_of_cut = max_depth_of_cut
         self.max_ramp_deg = max_ramp_deg
-        self.min_volume = (0.1 * self.frame.spacing**3) if min_volume is None else float(min_volume)
-        self._top_bound = collisions.max_top(stock) if self.frame.is_top else np.inf
+        if is_tri(stock):
+            self._top_bound = top_bound(stock)
+        else:
+            self._top_bound = collisions.max_top(stock) if self.frame.is_top else np.inf
         # the depth of cut comes from the cut's own log (CutResult.changed_depth); the
         # engagement's height map is kept only for plunges of non-centre-cutting tools
         needs_engagement = any(not t.center_cutting for t in [tool, *self.tools.values()])
-        self.engagement = (motion.Engagement(self.frame, stock.top(), tool, chord=tol.chord)
+        self.engagement = (motion.Engagement(self.frame, z_part(stock).top(), tool, chord=tol.chord)
                            if needs_engagement and self.frame.is_top else None)
         self.undercut_from_path = bool(undercut_from_path)
         self.exact_excess_while_cutting = bool(exact_excess_while_cutting)
@@ -101,10 +110,20 @@ class Checker:
         self._bodies: dict = {}
         self.findings: list[Finding] = []
 
-    def _cutter(self, grid: DexelGrid) -> Cutter:
-        """A Cutter on ``grid`` with this checker's tools, tolerance and kinematics."""
+    def _cutter(self, grid):
+        """A Cutter on ``grid`` (a :class:`TriModelCutter` on a tri-dexel model) with
+        this checker's tools, tolerance and kinematics."""
+        if is_tri(grid):
+            return TriModelCutter(grid, self.tool, self.tol, tools=self.tools or None, kinematics=self.kinematics,
+                                  origin=self.origin, floor=self.min_volume)
         return Cutter(grid, self.tool, self.tol, tools=self.tools or None, kinematics=self.kinematics,
                       origin=self.origin)
+
+    def _new_error_map(self, frame):
+        """An empty error map on ``frame`` (all three grids' on a tri-dexel model)."""
+        if self._designs is not None:
+            return TriErrorMap(self._designs, self.grid.lo, self.grid.spacing)
+        return ErrorMap(frame)
 
     # --- bookkeeping --------------------------------------------------------------------
     def _remember_lines(self, moves, ids):
@@ -213,27 +232,35 @@ class Checker:
             out += motion.travel_limits(moves, self.limits, ids)
         for k, fx in enumerate(self.fixtures):
             for tool, rows in self._tool_of_rows(moves):
-                out += fx.check(moves[rows], tool, ids[rows], self.min_volume, left=fixture_left.setdefault(k, {}))
+                out += fx.check(moves[rows], tool, ids[rows], self.min_volume, left=fixture_left.setdefault(k, {}),
+                                kinematics=self.kinematics, origin=self.origin)
         # non-cutting bodies: probe before the cut; only candidates are verified in order
         pre = self._body_candidates(grid, cutter, moves, top_bound)
         snapshot = grid.copy() if pre else None
         res = cutter.cut_moves(moves, move_ids=ids.astype(np.int32))
+        # a tri-dexel model's top view (depth of cut, plunges, where a rapid entered): its Z grid
+        zres, zgrid = z_part(res), z_part(grid)
         if self.max_depth_of_cut is not None:
-            doc = motion.depth_of_cut_of(res)
+            doc = motion.depth_of_cut_of(zres)
             out += motion.depth_of_cut(moves, doc, self.max_depth_of_cut, ids)
         if engagement is not None:
             # after the cut: only the rays each move changed can have lost material
-            _, core = engagement.run(moves, cut=res, grid=grid)
+            _, core = engagement.run(moves, cut=zres, grid=zgrid)
             for tool, rows in self._tool_of_rows(moves):
                 out += motion.plunges(moves[rows], core[rows], tool, self.max_ramp_deg, move_ids=ids[rows])
-        out += collisions.rapid_into_stock(moves, res.removed, ids, self.min_volume, cut=res, grid=grid)
+        out += collisions.rapid_into_stock(moves, res.removed, ids, self.min_volume, cut=zres, grid=zgrid)
         out += motion.spindle_stopped_cutting(moves, res.removed, ids, self.min_volume, carry=spindle_off)
         if pre:
             out += self._replay_contacts(snapshot, moves, ids, pre, touched)
         else:
             for mine in touched.values():  # they follow the flutes too
                 mine.cut_moves(moves, move_ids=ids.astype(np.int32), record_changes=False)
-        if error_map is not None and res.changed_rays.size:
+        if isinstance(error_map, TriErrorMap):
+            rays = error_map.update(grid, {a: r.changed_rays for a, r in res.by_axis.items()}, self.tol,
+                                    exact_excess=self.exact_excess_while_cutting)
+            if rays.size and error_map.last_worst < -self.tol.gouge:
+                out += error_map.findings(self.tol, self._lines, rays=rays, undercut=False, join=self.reach())
+        elif error_map is not None and res.changed_rays.size:
             rays = error_map.update(grid, self.design, res.changed_rays, self.tol, design_rays=design_rays,
                                     exact_excess=self.exact_excess_while_cutting)
             if rays.size and np.nanmin(error_map.gouge[rays]) < -self.tol.gouge:
@@ -257,7 +284,8 @@ class Checker:
         cand: dict[int, list] = {}
         for tool, rows in self._tool_of_rows(moves):
             for kind, body in self._contact_bodies(tool):
-                sel = rows[collisions.reachable(moves[rows], body.bottom, top_bound)]
+                sel = rows[collisions.reachable(moves[rows], body.bottom, top_bound, self.kinematics, self.origin,
+                                                body=body, step=self.frame.spacing)]
                 if sel.size == 0:
                     continue
                 vol = cutter.probe_moves(moves[sel], body=body)
@@ -310,8 +338,9 @@ class Checker:
         if len(moves) == 0:
             return []
         f = self.frame
-        if not f.is_top or self.cutter.kinematics is not None:
-            # whole-grid scratch copy for frames we cannot window by XY (or a turning part)
+        if not f.is_top or self.cutter.kinematics is not None or is_tri(self.grid):
+            # whole-model scratch copy for frames we cannot window by XY (or a turning
+            # part, or a tri-dexel model)
             scratch = self.grid.copy()
             i0 = j0 = 0
         else:
@@ -332,22 +361,23 @@ class Checker:
             if i1 <= i0 or j1 <= j0:  # entirely off the stock: only the machine checks apply
                 out = motion.travel_limits(moves, self.limits, ids) if self.limits else []
                 for fx in self.fixtures:
-                    out += fx.check(moves, self.tool, ids, self.min_volume)
+                    out += fx.check(moves, self.tool, ids, self.min_volume, kinematics=self.kinematics,
+                                    origin=self.origin)
                 return merge_findings(out)
             scratch = self.grid.window(i0, i1, j0, j1)
-        sf = scratch.frame
+        sf = z_part(scratch).frame
         nu_full = f.nu
 
         def to_full(r, _i0=i0, _j0=j0, _nu=sf.nu):
             return (r // _nu + _j0) * nu_full + (r % _nu + _i0)
 
         cutter = self._cutter(scratch)
-        emap = ErrorMap(sf) if self.design is not None else None
+        emap = self._new_error_map(sf) if self.design is not None else None
         eng = None
         if self.engagement is not None and sf.is_top:
-            eng = motion.Engagement(sf, scratch.top(), self.tool, chord=self.tol.chord)
+            eng = motion.Engagement(sf, z_part(scratch).top(), self.tool, chord=self.tol.chord)
         _, found = self._check_batch(scratch, cutter, moves, ids, emap, eng,
-                                     design_rays=to_full if emap is not None else None,
+                                     design_rays=to_full if isinstance(emap, ErrorMap) else None,
                                      top_bound=self._top_bound)
         return found
 
@@ -360,8 +390,11 @@ class Checker:
         """
         if self.design is None:
             return []
-        self.error_map = ErrorMap(self.frame)
-        self.error_map.update(self.grid, self.design, np.arange(self.frame.n_rays), self.tol, faces=faces)
+        self.error_map = self._new_error_map(self.frame)
+        if isinstance(self.error_map, TriErrorMap):
+            self.error_map.update_all(self.grid, self.tol, faces=faces)
+        else:
+            self.error_map.update(self.grid, self.design, np.arange(self.frame.n_rays), self.tol, faces=faces)
         allowance = self.undercut_allowance() if undercut else None
         return self.annotate(self.error_map.findings(self.tol, self._lines, undercut=undercut, min_rays=min_rays,
                                                      join=self.reach(), undercut_limit=allowance))

@@ -140,12 +140,70 @@ def max_top(grid: DexelGrid) -> float:
     return float(np.nanmax(t)) if np.isfinite(t).any() else -np.inf
 
 
-def reachable(moves: np.ndarray, body_bottom: float, top: float) -> np.ndarray:
+def reachable(moves: np.ndarray, body_bottom: float, top: float, kinematics=None, origin=None,
+              body=None, step: float = 1.0) -> np.ndarray:
     """bool (n,): rows where a body starting ``body_bottom`` mm above the tip can get
     down to material whose highest point is ``top`` (top-view grids): a cheap filter that
-    spares probing bodies that pass above everything."""
+    spares probing bodies that pass above everything. Rows a rotary of ``kinematics``
+    turns (:func:`turned_rows`; ``origin`` as the Cutter takes it) are judged by where
+    the tilted ``body`` (a Tool or Body) really goes (:func:`tilted_reach`; all kept
+    without one): its rim reaches below its bottom on the axis."""
     zs = np.minimum(moves["start"][:, 2], moves["end"][:, 2]) - moves["tool_length"]
-    return (zs + body_bottom < top) & is_motion(moves)
+    near = zs + body_bottom < top
+    if kinematics is not None:
+        turned = turned_rows(moves, kinematics, origin)
+        if turned.any():
+            k = np.nonzero(turned)[0]
+            near[k] = True if body is None else tilted_reach(moves[k], body, top, kinematics, origin, step)
+    return near & is_motion(moves)
+
+
+def tilted_reach(moves: np.ndarray, body, top: float, kinematics, origin=None, step: float = 1.0) -> np.ndarray:
+    """bool (n,): rows whose ``body`` (a Tool or Body), carried by ``kinematics`` from the
+    row's start pose to its end (machine axes linear, as the Cutter cuts them), gets
+    below ``top`` (mm, the part frame's z) at some point. The body is placed at instances
+    of motion no point of it moves more than ``step`` mm between
+    (:meth:`Kinematics.instance_counts`), and its lowest point at each (a body of
+    revolution: the lower rim of its bottom or top disc) less ``step`` is compared with
+    ``top``. Arc rows are always kept (their path leaves the chord)."""
+    from sim import sweep
+
+    n = len(moves)
+    if n == 0 or not np.isfinite(top):
+        return np.full(n, n > 0 and top > -np.inf)
+    prof = sweep.body_profile(body)
+    h_lo, h_hi, radius = float(prof[0, 0]), float(prof[-1, 0]), float(prof[:, 1].max())
+    o = np.zeros(6) if origin is None else np.asarray(origin, np.float64).reshape(6)
+    start = np.asarray(moves["start"], np.float64) + o
+    end = np.asarray(moves["end"], np.float64) + o
+    lengths = np.asarray(moves["tool_length"], np.float64)
+    counts = np.asarray(kinematics.instance_counts(start, end, lengths, h_hi, radius, step), np.int64)
+    # every row's poses in one table: count + 1 equal steps of each row, both ends exact
+    per_row = counts + 1
+    first = np.concatenate([[0], np.cumsum(per_row)[:-1]])
+    row = np.repeat(np.arange(n), per_row)
+    t = (np.arange(int(per_row.sum())) - first[row]) / counts[row]
+    poses = start[row] + t[:, None] * (end - start)[row]
+    tips, axes = kinematics.forward(poses, lengths[row])
+    az = axes[:, 2]
+    side = radius * np.sqrt(np.maximum(1.0 - az * az, 0.0))
+    low = tips[:, 2] - o[2] + np.minimum(h_lo * az, h_hi * az) - side
+    return (np.minimum.reduceat(low, first) - step < top) | is_arc(moves)
+
+
+def turned_rows(moves: np.ndarray, kinematics, origin=None) -> np.ndarray:
+    """bool (n,): rows a rotary axis of ``kinematics`` turns: its machine angle (the row's
+    plus ``origin``'s, (6,) X Y Z A B C) is not 0 at the row's start or end."""
+    from sim.kinematics import ROTARY_COLUMN
+
+    out = np.zeros(len(moves), bool)
+    if kinematics is None or not kinematics.rotaries:
+        return out
+    cols = np.array([ROTARY_COLUMN[r] for r in kinematics.rotaries])
+    o = np.zeros(6) if origin is None else np.asarray(origin, np.float64).reshape(6)
+    a0 = moves["start"][:, cols] + o[cols]
+    a1 = moves["end"][:, cols] + o[cols]
+    return (a0 != 0.0).any(axis=1) | (a1 != 0.0).any(axis=1)
 
 
 class Fixture:
@@ -172,7 +230,7 @@ class Fixture:
         return cls(name or f"box {lo.tolist()}..{hi.tolist()}", box_grid(frame, lo, hi))
 
     def check(self, moves: np.ndarray, tool: Tool, move_ids=None, min_volume: float = 1e-6,
-              left: dict | None = None) -> list[Finding]:
+              left: dict | None = None, kinematics=None, origin=None) -> list[Finding]:
         """Moves whose tool (cutting part, shank, holder, body above the flutes) meets the
         fixture; one finding per move and part.
 
@@ -180,7 +238,11 @@ class Fixture:
         away}, kept by the caller across batches (filled here on first use). With it each
         move's volume is what it touches first, so the volumes of a finding's moves add up
         to the union of what they touched (a holder rubbing a clamp over many moves never
-        weighs more than the clamp); without it, what each move's part would sweep."""
+        weighs more than the clamp); without it, what each move's part would sweep.
+
+        ``kinematics``, ``origin``: the machine's (as :class:`sim.cut.Cutter` takes them):
+        rows a rotary turns place the tool on the part, and the fixture, in the part's
+        frame, turns with it (a clamp on the table; a head's tilt leaves it where it is)."""
         from sim.cut import Cutter
 
         moves = np.asarray(moves)
@@ -189,17 +251,21 @@ class Fixture:
         ids = move_ids_of(moves, move_ids)
         out: list[Finding] = []
         parts = [("tool", tool, 0.0)] + [(b.name, b, b.bottom) for _, b in contact_bodies(tool)]
+        turned = turned_rows(moves, kinematics, origin)
         for name, body, bottom in parts:
-            rows = np.nonzero(reachable(moves, bottom, self._top))[0]
-            rows = rows[_near_xy(moves[rows], self.grid, _radius(body))]
+            rows = np.nonzero(reachable(moves, bottom, self._top, kinematics, origin, body=body,
+                                        step=self.grid.frame.spacing))[0]
+            rows = rows[_near_xy(moves[rows], self.grid, _radius(body)) | turned[rows]]
             if rows.size == 0:
                 continue
-            vol = present = Cutter(self.grid, tool).probe_moves(moves[rows], body=body)
+            vol = present = Cutter(self.grid, tool, kinematics=kinematics, origin=origin).probe_moves(
+                moves[rows], body=body)
             if left is not None and (present > min_volume).any():
                 grid = left.get(name)
                 if grid is None:
                     grid = left[name] = self.grid.copy()
-                vol = Cutter(grid, tool).cut_moves(moves[rows], record_changes=False, body=body).removed
+                vol = Cutter(grid, tool, kinematics=kinematics, origin=origin).cut_moves(
+                    moves[rows], record_changes=False, body=body).removed
             for f in body_findings(moves[rows], "fixture_collision", vol, ids[rows], min_volume,
                                    what=f"{name} in fixture {self.name}", present=present):
                 out.append(f)

@@ -98,6 +98,7 @@ class DesignModel:
         self.name = name or (str(mesh_or_path) if not hasattr(mesh_or_path, "faces") else "design")
         self.frame = frame
         self.mesh = mesh
+        self.offset = np.asarray(offset, np.float64).reshape(3).copy()  # the mesh's placement, mm
         self.closed = bool(mesh.is_watertight)
         tri_world = np.asarray(mesh.triangles, np.float64) + np.asarray(offset, np.float64)
         self.normals = np.asarray(mesh.face_normals, np.float64)
@@ -333,7 +334,7 @@ class ErrorMap:
         return rays[~np.isnan(self.gouge[rays])]
 
     def findings(self, tol: Tolerance, move_lines=None, rays=None, undercut: bool = True,
-                 min_rays: int = 1, join: float = 0.0, undercut_limit=None) -> list[Finding]:
+                 min_rays: int = 1, join: float = 0.0, undercut_limit=None, volume_of=None) -> list[Finding]:
         """Gouge and undercut findings: one per region of rays whose worst point is past
         the tolerance (restricted to ``rays`` when given); rays closer than ``join`` mm
         (the tool radius: one cause, like the strips one too-deep raster leaves under its
@@ -350,6 +351,8 @@ class ErrorMap:
         (projected along the rays, mm^2). Volume: sum over the region's rays of the length
         along the ray beyond the design surface x spacing^2 (mm^3). Position: the worst
         point (world). Regions of fewer than ``min_rays`` rays are dropped.
+        ``volume_of(kind, members)``: the volume of a region of flat rays ``members``
+        (mm^3), instead of the sum above (a tri-dexel model's map, :mod:`.tri`).
         """
         f = self.frame
         out: list[Finding] = []
@@ -423,11 +426,14 @@ class ErrorMap:
                                                                    max(lo[0], hi[0]), max(lo[1], hi[1])))}
                 if not fin.all():
                     detail["rays_outside_design"] = int((~fin).sum())
+                volume = float(ml_len[fin].sum()) * f.spacing**2 if fin.any() else math.nan
+                if volume_of is not None:
+                    volume = volume_of(kind, members)
                 out.append(Finding(
                     kind=kind, line=line, worst_line=worst_line, lines=lines, stage=int(ids[w]), position=tuple(pos),
                     depth=depth,
                     area=members.size * f.spacing**2,
-                    volume=float(ml_len[fin].sum()) * f.spacing**2 if fin.any() else math.nan,
+                    volume=volume,
                     stages=tuple(int(x) for x in mids if x > 0),
                     detail=detail,
                 ))

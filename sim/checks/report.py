@@ -41,6 +41,7 @@ def checker_from_args(args, grid, tool, tools=None):
     from sim.checks.checker import Checker
     from sim.checks.collisions import Fixture
     from sim.checks.motion import parse_limits
+    from sim.checks.tri import z_part
 
     t_l = _positive(getattr(args, "tolerance", None), "--tolerance")
     t_h = _positive(getattr(args, "undercut_tolerance", None), "--undercut-tolerance")
@@ -55,7 +56,7 @@ def checker_from_args(args, grid, tool, tools=None):
         except (AssertionError, ValueError):
             raise InputError(f"bad fixture {spec!r}: expected box:X0,Y0,Z0,X1,Y1,Z1 (mm)",
                              where="--fixture") from None
-        fixtures.append(Fixture.box(vals[:3], vals[3:], grid.frame.spacing, name=f"#{k + 1}"))
+        fixtures.append(Fixture.box(vals[:3], vals[3:], z_part(grid).frame.spacing, name=f"#{k + 1}"))
     limits = parse_limits(args.limits) if getattr(args, "limits", None) else None
     return Checker(grid, tool, design=getattr(args, "design", None), fixtures=fixtures, limits=limits,
                    tol=tol, tools=tools or None, undercut_from_path=t_h is None,

@@ -1,0 +1,137 @@
+"""Turning a tri-dexel model on: ``[stock] model = "tri-dexel"`` in a job or ``dexmon
+simulate --tri-dexel``. On a 5-axis job (a head tilting the tool toward a thin rib) the
+holder contact the Z grid cannot see is found and printed as usual; the rotary example's
+planted gouge is found on it as on the Z grid; the default stays the Z grid."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+
+from monitor.cli import main
+from monitor.job import JobError, load_job, parse_job_text
+
+ROTARY_JOB = Path(__file__).resolve().parents[2] / "monitor" / "examples" / "rotary_job" / "job.toml"
+
+#: the T profile in the XZ plane: a 30 x 5 base plate and a 0.6 mm rib on it, up to Z25
+T_PROFILE = [(0, 0), (30, 0), (30, 5), (10.8, 5), (10.8, 25), (10.2, 25), (10.2, 5), (0, 5)]
+
+PROGRAM = """G21 G90 G94 G17
+T1 M6
+M3 S12000
+G0 X1.5 Y-25 Z40 B-30
+G0 Z4.5
+G1 Y45 F600
+G0 Z40
+M5
+M30
+"""
+HOLDER_LINE = 6  # the feed past the rib, the tool leaning 30 degrees toward it: its rim
+# skims the base plate (to Z3.5), its shank stays 1 mm off the rib, its holder goes through it
+
+
+def t_prism(path: Path) -> None:
+    """The T profile extruded along Y from 0 to 20 mm, a closed STL."""
+    n = len(T_PROFILE)
+    verts = [(x, y, z) for y in (0.0, 20.0) for x, z in T_PROFILE]
+    # caps: the rib's quad and a fan over the base's six corners (convex, two collinear);
+    # the profile runs counterclockwise in X Z, so these face -Y at Y0 and, reversed, +Y at Y20
+    cap = [(3, 4, 5), (3, 5, 6), (0, 1, 2), (0, 2, 3), (0, 3, 6), (0, 6, 7)]
+    faces = list(cap) + [(c + n, b + n, a + n) for a, b, c in cap]
+    for k in range(n):  # the walls, facing out of the profile
+        a, b = k, (k + 1) % n
+        faces += [(a, b + n, b), (a, a + n, b + n)]
+    mesh = trimesh.Trimesh(np.array(verts, float), np.array(faces), process=True)
+    assert mesh.is_watertight and mesh.is_winding_consistent
+    assert mesh.volume == pytest.approx(30 * 5 * 20 + 0.6 * 20 * 20)
+    mesh.export(str(path))
+
+
+def write_job(tmp_path: Path, model_line: str = "") -> Path:
+    t_prism(tmp_path / "t.stl")
+    (tmp_path / "tilt.nc").write_text(PROGRAM)
+    job = tmp_path / "job.toml"
+    job.write_text(f"""resolution = 1.0
+[program]
+path = "tilt.nc"
+[machine]
+kinematics = "xyzbc-head"
+[stock]
+stl = "t.stl"
+{model_line}
+[tools.1]
+spec = "flat:4:L=8"
+shank = [4, 4]
+holder = [30, 20]
+""")
+    return job
+
+
+def simulate_json(capsys, *argv):
+    code = main(["simulate", *map(str, argv), "--json"])
+    return code, json.loads(capsys.readouterr().out)
+
+
+def test_the_job_key_and_its_errors(tmp_path):
+    job = load_job(write_job(tmp_path, 'model = "tri-dexel"'))
+    assert job.stock_model == "tri-dexel"
+    assert load_job(write_job(tmp_path)).stock_model == "z"
+    with pytest.raises(JobError, match=r'\[stock\] model: expected "z" .* or "tri-dexel" .*, got "tri"'):
+        parse_job_text('[stock]\nbox = [0, 0, 0, 1, 1, 1]\nmodel = "tri"\n')
+
+
+def test_tilted_holder_through_the_rib_on_a_tri_dexel_job(tmp_path, capsys):
+    job = write_job(tmp_path, 'model = "tri-dexel"')
+    code, doc = simulate_json(capsys, job)
+    assert code == 1 and doc["model"] == "tri-dexel"
+    assert [(f["kind"], f["line"]) for f in doc["findings"]] == [("holder_contact", HOLDER_LINE)]
+    assert doc["removed_mm3"] > 0
+    # the same job on one Z grid (the default): its rays step over the rib, nothing is found
+    plain = write_job(tmp_path)
+    code, doc = simulate_json(capsys, plain)
+    assert code == 0 and doc["model"] == "z" and doc["findings"] == []
+    # --tri-dexel turns it on from the command line; the text report names the finding
+    code = main(["simulate", str(plain), "--tri-dexel"])
+    out = capsys.readouterr().out
+    assert code == 1 and "tri-dexel model" in out
+    assert "holder_contact" in out and "the tool holder touches material" in out
+
+
+def test_the_rotary_example_on_a_tri_dexel_model(capsys):
+    code, doc = simulate_json(capsys, ROTARY_JOB, "--resolution", "0.5", "--tri-dexel")
+    assert code == 1 and doc["model"] == "tri-dexel"
+    assert [(f["kind"], f["line"]) for f in doc["findings"]] == [("gouge", 35)]
+    assert doc["findings"][0]["depth"] == pytest.approx(1.0, abs=0.02)
+
+
+def test_a_program_with_stock_on_the_command_line(tmp_path, capsys):
+    """No job: ``--stock box:...`` and ``--tri-dexel`` (3-axis): the same findings as the Z grid."""
+    prog = tmp_path / "p.nc"
+    prog.write_text("G21 G90\nM3 S10000\nG0 X10 Y10 Z30\nG0 Z15\nG1 X30 F500\nG0 Z30\nM30\n")
+    args = [prog, "--stock", "box:0,0,0,40,20,20", "--tool", "flat:6:L=20", "--resolution", "0.5"]
+    code_z, on_z = simulate_json(capsys, *args)
+    code_t, on_t = simulate_json(capsys, *args, "--tri-dexel")
+    assert code_z == code_t == 1
+    assert [(f["kind"], f["line"]) for f in on_t["findings"]] == [(f["kind"], f["line"]) for f in on_z["findings"]] \
+        == [("rapid_into_stock", 4)]
+    assert on_t["removed_mm3"] == pytest.approx(on_z["removed_mm3"])
+    assert on_t["lattice"][2] > 1
+
+
+def test_stl_of_a_tri_dexel_model_is_its_closed_surface(tmp_path, capsys):
+    """``--stl`` writes the tri-dexel model's own surface (sim.tridexel_surface, built on
+    another branch of issue 16: this runs once both are merged)."""
+    pytest.importorskip("sim.tridexel_surface")
+    job = write_job(tmp_path, 'model = "tri-dexel"')
+    out = tmp_path / "cut.stl"
+    code, doc = simulate_json(capsys, job, "--stl", out)
+    assert code == 1 and doc["stl"] == str(out)
+    mesh = trimesh.load(str(out), force="mesh")
+    assert mesh.is_watertight
+    # the base plate (the 0.6 mm rib is thinner than the 1 mm lattice: no node holds it)
+    assert mesh.bounds[0] == pytest.approx([0.0, 0.0, 0.0], abs=1.0)
+    assert mesh.bounds[1][:2] == pytest.approx([30.0, 20.0], abs=1.0)
