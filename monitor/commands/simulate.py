@@ -2,7 +2,7 @@
 
     dexmon simulate PROGRAM --stock box:X0,Y0,Z0,X1,Y1,Z1 --tool ball:6 --resolution 0.1
                     [--design part.stl --tolerance 0.002] [--fixture box:...] [--limits ...]
-                    [--heights out.npy] [--stl out.stl] [--json] [--tri-dexel]
+                    [--heights out.npy] [--stl out.stl] [--png out.png] [--json] [--tri-dexel]
     dexmon simulate JOB.toml [same flags, which replace the job's]
 
 The whole program is cut with no controller and checked on the way (gouge and undercut
@@ -27,7 +27,8 @@ walls a tilted or turning tool leaves, and the thin walls the Z rays step over, 
 in the model, and the checks (gouge, shank and holder contact, rapids into stock) look at
 all three grids (:mod:`sim.checks.tri`); findings are reported as usual. It costs about
 three times the memory and the time. ``--heights`` is the Z grid's then, and ``--stl``
-the model's closed surface (:mod:`sim.tridexel_surface`).
+and ``--png`` the model's closed surface (:mod:`sim.tridexel_surface`), with no view
+direction: side walls and undercuts are drawn as they are.
 
 ``--heights`` writes the top-surface heights, float32 (ny, nx): element ``[j, i]`` is the
 ray at ``X0 + i*resolution, Y0 + j*resolution`` (both ends of the stock included), NaN
@@ -88,6 +89,8 @@ def add_arguments(parser) -> None:
                         help="refuse grids needing more than this (default 4096 MB)")
     parser.add_argument("--heights", default=None, metavar="OUT.npy", help="write top-surface heights (float32 ny x nx)")
     parser.add_argument("--stl", default=None, metavar="OUT.stl", help="write the cut stock as an STL mesh")
+    parser.add_argument("--png", default=None, metavar="OUT.png",
+                        help="write a picture of the cut stock (3-D, offscreen), faces coloured by the move that made them")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     parser.add_argument("--no-checks", action="store_true", help="only cut (no findings, exit 0)")
     parser.add_argument("--tri-dexel", action="store_true", default=None,
@@ -418,7 +421,7 @@ def _run_job(args) -> int:
                            bool(args.block_delete) or job.block_delete)
     # from where the machine starts, as a dry run does (monitor.start)
     moves = work_moves(start_at(program.moves, job_start(job, program.moves)), reference_wco(job))
-    est = DexelGrid_estimate(job, job.stock_model)
+    est = stock_bytes_estimate(job, job.stock_model)
     if est > args.memory_limit * 2**20:
         raise InputError(f"the job's dexel grid needs about {est / 2**20:.0f} MB, over the "
                          f"{args.memory_limit:.0f} MB limit; use a coarser --resolution", where="--resolution")
@@ -464,7 +467,7 @@ def _setup_findings(moves, grid, tool, tools, checker, inch: bool) -> list:
                           inch=inch)
 
 
-def DexelGrid_estimate(job, model: str = "z") -> int:
+def stock_bytes_estimate(job, model: str = "z") -> int:
     """Bytes of the job's stock grid (its stock box at its resolution; ``model``
     "tri-dexel": its three grids), 0 when unknown."""
     from sim.grid import DexelGrid
@@ -568,6 +571,9 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
     if args.stl:
         _export_stl(grid, args.stl)
         out["stl"] = str(args.stl)
+    if args.png:
+        _export_png(grid, args.png, f"{Path(program).name}: {'tri-dexel' if tri else 'Z grid'}")
+        out["png"] = str(args.png)
 
     if args.json:
         print(json.dumps(out))
@@ -586,7 +592,7 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
             w(f"warning: rapid moves removed {rapid_removed:.3f} mm^3\n")
         if checker is not None:
             w(findings_table(findings))
-        for key in ("heights", "stl"):
+        for key in ("heights", "stl", "png"):
             if key in out:
                 w(f"wrote {out[key]}\n")
     return 1 if findings else 0
@@ -602,12 +608,30 @@ def _export_stl(grid, path) -> None:
 
         export_stl(grid, path)
         return
-    try:
-        from sim.tridexel_surface import export_stl as export_tri
-    except ImportError:  # the tri-dexel surface is built on another branch of issue 16
-        raise InputError("this build cannot write a tri-dexel model's surface yet (sim.tridexel_surface); "
-                         "leave out --stl or --tri-dexel", where="--stl") from None
+    from sim.tridexel_surface import export_stl as export_tri
+
     export_tri(grid, path)
+
+
+def _export_png(grid, path, title: str) -> None:
+    """Picture the cut stock's closed surface from the front left and above, faces coloured
+    by move (:func:`monitor.render.view3d.part_png`): a tri-dexel model's own surface, a
+    Z grid's column surface."""
+    from sim.checks.tri import is_tri
+
+    out = Path(path)
+    if not out.parent.is_dir():
+        raise InputError("directory does not exist", where=f"--png {path}")
+    try:
+        from monitor.render.view3d import part_png
+    except ImportError as e:   # pyvista is a dependency; a broken VTK install says so here
+        raise InputError(f"cannot render ({e})", where="--png") from None
+    if is_tri(grid):
+        part_png(grid, path_out=str(out), title=title)
+    else:
+        from sim.surface import surface_mesh
+
+        part_png(surface_mesh(grid), path_out=str(out), title=title)
 
 
 def _start_tip(moves: np.ndarray) -> list[float] | None:

@@ -135,3 +135,28 @@ def test_stl_of_a_tri_dexel_model_is_its_closed_surface(tmp_path, capsys):
     # the base plate (the 0.6 mm rib is thinner than the 1 mm lattice: no node holds it)
     assert mesh.bounds[0] == pytest.approx([0.0, 0.0, 0.0], abs=1.0)
     assert mesh.bounds[1][:2] == pytest.approx([30.0, 20.0], abs=1.0)
+
+
+@pytest.mark.parametrize("model", ["z", "tri-dexel"])
+def test_png_pictures_the_cut_stock_coloured_by_move(tmp_path, capsys, model):
+    """``--png`` draws the cut stock offscreen, faces coloured by move: the slot's move
+    colour is in the picture (a Z grid's column surface, a tri-dexel model's own)."""
+    pytest.importorskip("pyvista")
+    from monitor.render.shaded import id_palette
+    from tests.monitor.render.imagecheck import hue_shares
+    from tests.monitor.render.test_view3d import _hue_bin
+
+    prog = tmp_path / "p.nc"
+    prog.write_text("G21 G90\nM3 S10000\nG0 X-5 Y10 Z30\nG0 Z15\nG1 X45 F500\nG0 Z30\nM30\n")
+    out = tmp_path / "cut.png"
+    args = [prog, "--stock", "box:0,0,0,40,20,20", "--tool", "flat:6:L=20", "--resolution", "0.5",
+            "--png", out] + (["--tri-dexel"] if model == "tri-dexel" else [])
+    code, doc = simulate_json(capsys, *args)
+    assert code == 0 and doc["png"] == str(out)
+    import imageio.v3 as iio
+
+    img = iio.imread(out)[..., :3]
+    assert img.std() > 10
+    shares = hue_shares(img)
+    b = _hue_bin(id_palette()[3])     # the slot: move 3 (to the first point, down, the feed)
+    assert shares[[(b - 1) % 36, b, (b + 1) % 36]].sum() > 0.05
