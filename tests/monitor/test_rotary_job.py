@@ -126,3 +126,40 @@ def test_program_path_with_angles_makes_a_turn_a_segment():
     got = [sync.update([10, 0, 5, 0.2 * a, 0, 0], t=k * 0.1) for k, a in enumerate((0, 30, 60, 90))]
     assert [g.row for g in got[1:]] == [turn] * 3
     assert got[1].progress < got[2].progress < got[3].progress
+
+
+class ScriptedController:
+    """A controller that reports the given states, one per poll, then closes."""
+
+    def __init__(self, states):
+        self._states = list(states)
+
+    def states(self, period):
+        yield from self._states
+
+
+def test_a_program_ending_in_an_a_only_move_runs_to_its_end(tmp_path):
+    """The program's last motion turns only A (unwinding to A0). The machine standing
+    idle at the end of the last X Y Z motion, A still at 90, is not the program's end
+    (a sender between lines does that): the loop goes on until A is back at 0."""
+    from monitor.loop import run_controller
+
+    prog = tmp_path / "unwind.nc"
+    prog.write_text("G21 G90 G94\nT1 M6\nM3 S12000\nG0 Z16\nG0 X10 Y0 A0\nG1 Z12 F200\nG1 A90 F1800\n"
+                    "G0 Z16\nG0 A0\nM5\nM2\n")
+    job = load_job(JOB)
+    job.program, job.design, job.resolution = prog, None, 0.5
+    moves, program = load_moves(job)
+    session = Session(job, moves, program=program)
+
+    def state(t, x, z, a, run=RunState.RUN):
+        return MachineState(t=t, mpos=(x, 0.0, z, a, 0.0, 0.0), state=run, spindle=12000)
+
+    script = [state(0.0, 10.0, 16.0, 0.0), state(0.2, 10.0, 12.0, 0.0)]
+    script += [state(0.3 + 0.05 * k, 10.0, 12.0, a) for k, a in enumerate(np.arange(10.0, 91.0, 10.0))]
+    script += [state(1.0, 10.0, 16.0, 90.0, RunState.IDLE)]  # between lines: A is still to unwind
+    script += [state(1.2 + 0.05 * k, 10.0, 16.0, a) for k, a in enumerate(np.arange(80.0, -1.0, -10.0))]
+    script += [state(2.0, 10.0, 16.0, 0.0, RunState.IDLE), state(2.1, 10.0, 16.0, 0.0, RunState.IDLE)]
+    n = run_controller(session, ScriptedController(script), period=0.02, give_up_s=None)
+    assert session.end_reason == "program end"
+    assert n == len(script) - 1  # ended on the first idle state at A0, not at A90
