@@ -503,6 +503,8 @@ class Session:
         last = pieces[-1:]
         if int(last["kind"][0]) in (MoveKind.FEED, MoveKind.RAPID):
             last["end"][0, :3] = self.path.point_at(s.progress)
+            if self.rotary_scale is not None:  # and the rotaries only as far as they turned
+                last["end"][0, 3:] = self.sync_path.point_at(s.progress)[3:] / self.rotary_scale
         elif r1 > r0:  # an arc: its part up to here is left to the live cut from here on
             pieces, ids = pieces[:-1], ids[:-1]
         else:

@@ -163,3 +163,41 @@ def test_a_program_ending_in_an_a_only_move_runs_to_its_end(tmp_path):
     n = run_controller(session, ScriptedController(script), period=0.02, give_up_s=None)
     assert session.end_reason == "program end"
     assert n == len(script) - 1  # ended on the first idle state at A0, not at A90
+
+
+def test_a_gap_in_the_middle_of_a_turn_cuts_the_turn_up_to_where_the_machine_is():
+    """The link drops while A turns the ring (line 10, A0 -> 360) and comes back at A120:
+    the rows between are cut as programmed up to A120, not to the row's end (A360), so
+    the next polls go on cutting the ring."""
+    from monitor.gaps import GAP_POLLS
+
+    job = load_job(JOB)
+    job.resolution = 0.5
+    moves, program = load_moves(job)
+    s = Session(job, moves, program=program)
+    ring = int(np.nonzero(moves["line"] == RING_LINE)[0][0])
+
+    def at(t, z, a, state=RunState.RUN):
+        return MachineState(t=t, mpos=(10.0, 0.0, z, a, 0.0, 0.0), state=state, spindle=12000)
+
+    t = 0.0
+    s.step(at(t, 16.0, 0.0))
+    for z in np.linspace(16.0, 12.0, 5):
+        t += 0.2
+        s.step(at(t, z, 0.0))
+    for a in (10.0, 20.0, 30.0):
+        t += 0.05
+        s.step(at(t, 12.0, a))
+    for _ in range(GAP_POLLS):
+        s.step(MachineState(t=t, mpos=s.last.mpos, state=RunState.MISSED, raw="late"))
+    t += 0.3
+    s.step(at(t, 12.0, 120.0))
+    assert len(s.gaps) == 1 and s.gaps[0]["rows_cut_unchecked"] == [RING_LINE]
+    assert s.last_sync.row == ring
+    removed = []
+    for a in (130.0, 140.0, 150.0):
+        t += 0.05
+        removed.append(s.step(at(t, 12.0, a)).removed)
+    # each 10 degrees of the ring is about 1.5 mm^3 (as before the gap); a gap that cut
+    # the whole turn left nothing but float dust for them
+    assert all(r > 0.5 for r in removed), removed
