@@ -373,12 +373,13 @@ def _run_job(args) -> int:
                            [str(d) for d in job.subroutine_path], args.max_loop or job.max_loop,
                            bool(args.block_delete) or job.block_delete)
     # from where the machine starts, as a dry run does (monitor.start)
-    moves = work_moves(start_at(program.moves, job_start(job, program.moves)), reference_wco(job))
+    machine_moves = start_at(program.moves, job_start(job, program.moves))
+    moves = work_moves(machine_moves, reference_wco(job))
     est = DexelGrid_estimate(job)
     if est > args.memory_limit * 2**20:
         raise InputError(f"the job's dexel grid needs about {est / 2**20:.0f} MB, over the "
                          f"{args.memory_limit:.0f} MB limit; use a coarser --resolution", where="--resolution")
-    wp = build_workpiece(job, moves)
+    wp = build_workpiece(job, machine_moves)
     checker = None
     if not args.no_checks:
         from sim.checks.checker import Checker
@@ -390,7 +391,7 @@ def _run_job(args) -> int:
                           limits=limits_in_work(job.limits, wco), tol=job.tolerance, tools=wp.tools,
                           max_depth_of_cut=_positive(args.max_depth_of_cut, "--max-depth-of-cut"),
                           min_volume=MIN_VOLUME, undercut_from_path=not (job.undercut_given or t_h),
-                          kinematics=wp.kinematics, origin=wp.origin)
+                          kinematics=wp.kinematics, origin=wp.origin, tool_lengths=wp.tool_lengths)
     out = {"job": str(path)}
     notes = []
     used = set(int(t) for t in moves["tool"])
@@ -404,7 +405,7 @@ def _run_job(args) -> int:
     return _simulate(args, str(job.program), moves, wp.stock, wp.default_tool, wp.tools, checker, out,
                      true_volume=stock_true_volume(solid=job.stock), notes=[n for n in notes if n], inch=program.inch,
                      machine={**DEFAULT_MACHINE, **(job.machine or {})}, kinematics=wp.kinematics,
-                     origin=wp.origin)
+                     origin=wp.origin, tool_lengths=wp.tool_lengths)
 
 
 def _setup_findings(moves, grid, tool, tools, checker, inch: bool) -> list:
@@ -414,8 +415,47 @@ def _setup_findings(moves, grid, tool, tools, checker, inch: bool) -> list:
 
     reach = max([t.radius for t in (tools or {}).values()] + [tool.radius])
     design = getattr(checker, "design", None)
+    if getattr(checker, "kinematics", None) is not None:
+        moves = _placed_on_part(moves, checker.kinematics, checker.origin, checker.tool_lengths)
     return setup_findings(moves, material_box(grid), reach, design_box(design) if design is not None else None,
                           inch=inch)
+
+
+#: tips per turning row the setup check's boxes follow (:func:`_placed_on_part`)
+SETUP_SAMPLES = 8
+
+
+def _placed_on_part(moves, kinematics, origin, tool_lengths):
+    """``moves`` (a table of tips) with every row a rotary turns replaced by the tips the
+    kinematics puts on the part: :data:`SETUP_SAMPLES` straight feeds through tips at
+    equal steps of its machine axes (arcs by their ends): the setup check's boxes, lenient
+    as they are, then hold what the turned part or tilted tool really meets."""
+    from sim.gcode.moves import MoveKind
+    from sim.kinematics import ROTARY_COLUMN
+
+    origin = np.zeros(6) if origin is None else np.asarray(origin, np.float64)
+    cols = [ROTARY_COLUMN[r] for r in kinematics.rotaries]
+    turning = _cutting_rows(moves) & (((moves["start"][:, cols] + origin[cols]) != 0.0).any(axis=1)
+                                      | ((moves["end"][:, cols] + origin[cols]) != 0.0).any(axis=1))
+    if not turning.any():
+        return moves
+    rows = moves[turning]
+    lengths = np.array([(tool_lengths or {}).get(int(t), float(L)) for t, L in zip(rows["tool"], rows["tool_length"])])
+    f = np.linspace(0.0, 1.0, SETUP_SAMPLES + 1)
+    poses = rows["start"][:, None, :] + f[None, :, None] * (rows["end"] - rows["start"])[:, None, :] + origin
+    poses[:, :, 2] += lengths[:, None]  # the gauge point over the tip (the row's own length is 0)
+    poses[:, :, 2] -= rows["tool_length"][:, None]
+    tips, _ = kinematics.forward(poses.reshape(-1, 6), np.repeat(lengths, SETUP_SAMPLES + 1))
+    tips = tips.reshape(len(rows), SETUP_SAMPLES + 1, 3) - origin[:3]
+    # in program order: each turning row becomes its pieces where it stood
+    count = np.where(turning, SETUP_SAMPLES, 1)
+    out = np.repeat(moves, count)
+    placed = np.repeat(turning, count)
+    out["kind"][placed] = int(MoveKind.FEED)
+    out["start"][placed, :3] = tips[:, :-1].reshape(-1, 3)
+    out["end"][placed, :3] = tips[:, 1:].reshape(-1, 3)
+    out["tool_length"][placed] = 0.0
+    return out
 
 
 def DexelGrid_estimate(job) -> int:
@@ -441,10 +481,11 @@ def move_start_times(moves: np.ndarray, machine=None) -> np.ndarray:
 
 
 def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, true_volume=None,
-              notes=(), inch: bool = False, machine=None, kinematics=None, origin=None) -> int:
+              notes=(), inch: bool = False, machine=None, kinematics=None, origin=None,
+              tool_lengths=None) -> int:
     """Cut (and check) ``moves`` into ``grid``; print the report; return the exit status.
-    ``kinematics``/``origin``: the job's rotaries for the unchecked cut (the checker has
-    its own).
+    ``kinematics``/``origin``/``tool_lengths``: the job's rotaries for the unchecked cut
+    (the checker has its own).
 
     With checks, a setup that cannot be meant (:mod:`sim.checks.setup`: the path never
     reaches the stock, the design is not in the stock) is reported first, as findings.
@@ -474,7 +515,8 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
 
             notes = [*notes, note(*checker.undercut_basis, checker.tol.undercut)]
     else:
-        per_move = Cutter(grid, tool, tools=tools or None, kinematics=kinematics, origin=origin).cut_moves(
+        per_move = Cutter(grid, tool, tools=tools or None, kinematics=kinematics, origin=origin,
+                          tool_lengths=tool_lengths).cut_moves(
             moves, record_changes=False).removed
         findings = []
     seconds = time.perf_counter() - t0

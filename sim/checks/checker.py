@@ -55,12 +55,15 @@ class Checker:
         The machine's :class:`sim.kinematics.Kinematics` and the grid origin's machine
         pose (6,), passed to every :class:`Cutter` (rows with rotation are cut on the
         turned part). Fixtures stay 3-axis.
+    tool_lengths : optional
+        {tool number: mm} the G43 length a turning head places each tool by, for move
+        tables of tips (see :class:`Cutter`).
     """
 
     def __init__(self, stock: DexelGrid, tool: Tool, design=None, fixtures=(), limits=None,
                  tol: Tolerance = DEFAULT, tools: dict | None = None, max_depth_of_cut: float | None = None,
                  max_ramp_deg: float = 10.0, min_volume: float | None = None, undercut_from_path: bool = True,
-                 exact_excess_while_cutting: bool = False, kinematics=None, origin=None):
+                 exact_excess_while_cutting: bool = False, kinematics=None, origin=None, tool_lengths=None):
         if not isinstance(stock, DexelGrid):
             raise InputError(f"Checker needs a DexelGrid stock, got {type(stock).__name__}")
         self.grid = stock
@@ -70,6 +73,7 @@ class Checker:
         self.tol = tol
         self.kinematics = kinematics
         self.origin = origin
+        self.tool_lengths = tool_lengths
         self.cutter = self._cutter(stock)
         if design is not None and not isinstance(design, DesignModel):
             design = DesignModel(self.frame, design)
@@ -104,7 +108,7 @@ class Checker:
     def _cutter(self, grid: DexelGrid) -> Cutter:
         """A Cutter on ``grid`` with this checker's tools, tolerance and kinematics."""
         return Cutter(grid, self.tool, self.tol, tools=self.tools or None, kinematics=self.kinematics,
-                      origin=self.origin)
+                      origin=self.origin, tool_lengths=self.tool_lengths)
 
     # --- bookkeeping --------------------------------------------------------------------
     def _remember_lines(self, moves, ids):

@@ -5,6 +5,7 @@ of the spindle, by ``dry-run``; the live session follows moves that turn only A.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -201,3 +202,38 @@ def test_a_gap_in_the_middle_of_a_turn_cuts_the_turn_up_to_where_the_machine_is(
     # each 10 degrees of the ring is about 1.5 mm^3 (as before the gap); a gap that cut
     # the whole turn left nothing but float dust for them
     assert all(r > 0.5 for r in removed), removed
+
+
+def test_a_tilted_head_places_the_tip_one_tool_length_from_the_gauge_point(tmp_path, capsys):
+    """A head-head machine (xyzbc-head, pivot 100 mm above the gauge point), the tool's
+    G43 length 50 mm, B tilted 30 degrees, a plunge: the tip is ``pivot + P Z - (P + L) k``
+    (k the tilted axis), 75 mm in +X from the gauge point and 20.096 mm above the
+    program's Z (the tip with G43). Placed there the flat end mill's lowest rim point
+    goes 3.5 mm into the design box; the tool length left out, the tip lands 25 mm short,
+    beside the design, and no gouge is found."""
+    P, L, tilt, r = 100.0, 50.0, 30.0, 3.0
+    k = np.array([-math.sin(math.radians(tilt)), 0.0, math.cos(math.radians(tilt))])
+    # the rim's lowest point, r along (-cos, 0, -sin) of the tilt from the tip, on the ray at X30
+    tip_x, tip_z = 30.0 + r * math.cos(math.radians(tilt)), 16.0
+    # machine X, program Z (tip with G43) of the plunge's end
+    x = tip_x - (P + L) * -k[0]
+    z = tip_z - (P + L - (P + L) * k[2])
+    (tmp_path / "tilt.nc").write_text(
+        "G21 G90 G94\nT1 M6\nG43.1 Z50\nM3 S10000\nG0 Z60\nG0 B30\n"
+        f"G0 X{x:.4f} Y10\nG1 Z{z + 10:.4f} F300\nG1 Z{z:.4f} F200\nG0 Z60\nM5\nM2\n")
+    (tmp_path / "job.toml").write_text(
+        'work_offset = [0, 0, 0]\nresolution = 0.5\n'
+        '[program]\npath = "tilt.nc"\ndialect = "linuxcnc"\n'
+        f'[machine]\nkinematics = "xyzbc-head"\npivot_length = {P}\n'
+        '[stock]\nbox = [0, 0, 0, 60, 20, 20]\n'
+        '[tools]\n1 = "flat:6:L=20"\n'
+        '[design]\nbox = [20, 0, 0, 40, 20, 18]\n'
+        '[tolerance]\ngouge = 0.05\nundercut = 5\ninterest = 6\n')
+    code = main(["simulate", str(tmp_path / "job.toml"), "--json"])
+    doc = json.loads(capsys.readouterr().out)
+    gouges = [f for f in doc["findings"] if f["kind"] == "gouge"]
+    assert code == 1 and [f["line"] for f in gouges] == [9], doc["findings"]
+    # the setup check sees the tips the head puts on the part, not the program's X Y Z
+    assert not [f for f in doc["findings"] if f["kind"] == "setup"], doc["findings"]
+    # the rim's lowest point: r sin(tilt) below the tip, under the design's top (18)
+    assert gouges[0]["depth"] == pytest.approx(18.0 - (tip_z - r * math.sin(math.radians(tilt))), abs=0.01)
