@@ -234,6 +234,7 @@ def build_workpiece(job: Job, moves: np.ndarray) -> Workpiece:
     length (:func:`head_tool_lengths`)."""
     from sim.checks.collisions import Fixture
     from sim.checks.error_map import DesignModel
+    from sim.kinematics import head_only
 
     if job.stock is None:
         raise JobError("no stock: give [stock] in the job file or --stock", str(job.source or "command line"))
@@ -253,7 +254,14 @@ def build_workpiece(job: Job, moves: np.ndarray) -> Workpiece:
     frame = Frame.top(lo[0] - margin, lo[1] - margin, hi[0] + margin, hi[1] + margin, job.resolution)
     stock = _solid_grid(frame, job.stock, stock_mesh, job.tolerance)
     names = [f.name or f"fixture {k + 1}" for k, f in enumerate(job.fixtures)]
-    fixtures = [Fixture(name, _fixture_grid(f, fm, job.resolution, reach, job.tolerance))
+    rotary = job.kinematics if job.kinematics.rotaries else None
+    origin = work_origin(job) if rotary is not None else None
+    lengths = head_tool_lengths(rotary, moves, str(job.source or "command line")) \
+        if rotary is not None and rotary.head else None
+    fixed = head_only(rotary) if rotary is not None else None  # what a fixture bolted to the machine sees
+    fixtures = [Fixture(name, _fixture_grid(f, fm, job.resolution, reach, job.tolerance),
+                        kinematics=rotary if job.fixture_on_table(f) else fixed, origin=origin,
+                        tool_lengths=lengths)
                 for f, fm, name in zip(job.fixtures, fixture_meshes, names)]
     design = None
     if job.design is not None:
@@ -265,10 +273,6 @@ def build_workpiece(job: Job, moves: np.ndarray) -> Workpiece:
             blo, bhi = job.design.bounds()
             mesh = trimesh.creation.box(bounds=[blo, bhi])
             design = DesignModel(frame, mesh, name="design box")
-    rotary = job.kinematics if job.kinematics.rotaries else None
-    origin = work_origin(job) if rotary is not None else None
-    lengths = head_tool_lengths(rotary, moves, str(job.source or "command line")) \
-        if rotary is not None and rotary.head else None
     return Workpiece(frame, stock, fixtures, design, tools, default, job.tolerance, names,
                      kinematics=rotary, origin=origin, tool_lengths=lengths)
 

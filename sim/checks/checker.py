@@ -54,7 +54,7 @@ class Checker:
     kinematics, origin : optional
         The machine's :class:`sim.kinematics.Kinematics` and the grid origin's machine
         pose (6,), passed to every :class:`Cutter` (rows with rotation are cut on the
-        turned part). Fixtures stay 3-axis.
+        turned part). Fixtures carry their own (:class:`collisions.Fixture`).
     tool_lengths : optional
         {tool number: mm} the G43 length a turning head places each tool by, for move
         tables of tips (see :class:`Cutter`).

@@ -151,11 +151,19 @@ def reachable(moves: np.ndarray, body_bottom: float, top: float) -> np.ndarray:
 class Fixture:
     """A clamp, vise jaw or table: a dexel grid the tool must never enter.
 
-    ``grid`` may have its own frame (a box grid over just the fixture)."""
+    ``grid`` may have its own frame (a box grid over just the fixture).
+    ``kinematics``, ``origin``, ``tool_lengths``: how the tool meets the fixture on a
+    machine with rotaries, as :class:`~sim.cut.Cutter` takes them: the machine's whole
+    kinematics for a fixture on the rotary table (it turns with the part), only its head
+    for one fixed to the machine (:func:`sim.kinematics.head_only`); None (the default):
+    3-axis, A B C turn nothing."""
 
-    def __init__(self, name: str, grid: DexelGrid):
+    def __init__(self, name: str, grid: DexelGrid, kinematics=None, origin=None, tool_lengths=None):
         self.name = name
         self.grid = grid
+        self.kinematics = kinematics if kinematics is not None and kinematics.rotaries else None
+        self.origin = origin
+        self.tool_lengths = tool_lengths
         self._top = max_top(grid) if grid.frame.is_top else np.inf
 
     @classmethod
@@ -181,29 +189,49 @@ class Fixture:
         move's volume is what it touches first, so the volumes of a finding's moves add up
         to the union of what they touched (a holder rubbing a clamp over many moves never
         weighs more than the clamp); without it, what each move's part would sweep."""
-        from sim.cut import Cutter
-
         moves = np.asarray(moves)
         if len(moves) == 0:
             return []
         ids = move_ids_of(moves, move_ids)
         out: list[Finding] = []
         parts = [("tool", tool, 0.0)] + [(b.name, b, b.bottom) for _, b in contact_bodies(tool)]
+        turning = self._turning(moves)
         for name, body, bottom in parts:
-            rows = np.nonzero(reachable(moves, bottom, self._top))[0]
-            rows = rows[_near_xy(moves[rows], self.grid, _radius(body))]
+            near = reachable(moves, bottom, self._top)
+            near[near] = _near_xy(moves[near], self.grid, _radius(body))
+            if turning is not None:  # a turned part or tool: the programmed X Y Z say nothing
+                near |= turning
+            rows = np.nonzero(near)[0]
             if rows.size == 0:
                 continue
-            vol = present = Cutter(self.grid, tool).probe_moves(moves[rows], body=body)
+            vol = present = self._cutter(self.grid, tool).probe_moves(moves[rows], body=body)
             if left is not None and (present > min_volume).any():
                 grid = left.get(name)
                 if grid is None:
                     grid = left[name] = self.grid.copy()
-                vol = Cutter(grid, tool).cut_moves(moves[rows], record_changes=False, body=body).removed
+                vol = self._cutter(grid, tool).cut_moves(moves[rows], record_changes=False, body=body).removed
             for f in body_findings(moves[rows], "fixture_collision", vol, ids[rows], min_volume,
                                    what=f"{name} in fixture {self.name}", present=present):
                 out.append(f)
         return out
+
+
+    def _cutter(self, grid: DexelGrid, tool: Tool):
+        from sim.cut import Cutter
+
+        return Cutter(grid, tool, kinematics=self.kinematics, origin=self.origin, tool_lengths=self.tool_lengths)
+
+    def _turning(self, moves: np.ndarray) -> np.ndarray | None:
+        """bool (n,): motion rows a rotary of the fixture's kinematics turns (machine
+        angle, the row's plus ``origin``'s, not 0 at an end); None without one."""
+        if self.kinematics is None:
+            return None
+        from sim.kinematics import ROTARY_COLUMN
+
+        cols = [ROTARY_COLUMN[r] for r in self.kinematics.rotaries]
+        o = np.zeros(len(cols)) if self.origin is None else np.asarray(self.origin, np.float64)[cols]
+        return is_motion(moves) & (((moves["start"][:, cols] + o) != 0.0).any(axis=1)
+                                   | ((moves["end"][:, cols] + o) != 0.0).any(axis=1))
 
 
 def _radius(body) -> float:
