@@ -13,7 +13,7 @@ import pytest
 
 from drivers.state import MachineState, RunState
 from monitor.cli import main
-from monitor.job import load_job
+from monitor.job import JobError, load_job
 from monitor.session import Session, load_moves
 
 JOB = Path(__file__).resolve().parents[2] / "monitor" / "examples" / "rotary_job" / "job.toml"
@@ -237,3 +237,20 @@ def test_a_tilted_head_places_the_tip_one_tool_length_from_the_gauge_point(tmp_p
     assert not [f for f in doc["findings"] if f["kind"] == "setup"], doc["findings"]
     # the rim's lowest point: r sin(tilt) below the tip, under the design's top (18)
     assert gouges[0]["depth"] == pytest.approx(18.0 - (tip_z - r * math.sin(math.radians(tilt))), abs=0.01)
+
+
+def test_head_tool_lengths_one_per_tilted_tool_or_a_clear_error():
+    """The G43 length each tool is tilted with (the work tables hold tips); a tool
+    tilted with two lengths is refused, naming both lines."""
+    from monitor.predict import head_tool_lengths
+    from sim.gcode.program import interpret
+    from sim.kinematics import HeadHead
+
+    kin = HeadHead("B", pivot_length=100.0)
+    moves = interpret("G21 G90\nT1 M6\nG0 Z50\nG43.1 Z40\nG0 B20\nG1 X5 F500\nG0 B0\n"
+                      "T2 M6\nG43.1 Z60\nG1 X9 F500\n").moves
+    assert head_tool_lengths(kin, moves, "job.toml") == {1: 40.0}  # T2 is never tilted
+    moves = interpret("G21 G90\nT1 M6\nG43.1 Z40\nG0 B20\nG1 X5 F500\nG43.1 Z45\nG1 X9 F500\n").moves
+    with pytest.raises(JobError, match=r"job.toml: T1 is tilted by the head with two tool lengths, 40 mm \(line 4\) "
+                                       r"and 45 mm \(line 7\)"):
+        head_tool_lengths(kin, moves, "job.toml")
