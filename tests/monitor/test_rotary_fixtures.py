@@ -81,3 +81,36 @@ def test_on_table_errors():
     # a plain 3-axis machine: the fixture is fixed
     job = parse_job_text("[[fixtures]]\nbox = [0, 0, 0, 1, 1, 1]\n")
     assert not job.fixture_on_table(job.fixtures[0])
+
+
+def test_a_fixture_fixed_on_a_head_machine_meets_the_tilted_tool():
+    """On a head-head machine nothing turns the part: a fixture sees the head's tilt. A
+    tool tilted B = 90 (5axiskins: the tip swung toward +X, 50 + 20 mm from the pivot,
+    50 mm above the gauge point) reaches a block 70 mm in +X that the vertical tool's X Y Z
+    never come near; B = 0 at the same X Y Z misses it."""
+    import numpy as np
+
+    from sim.checks.collisions import Fixture
+    from sim.gcode.moves import MoveKind, empty_moves
+    from sim.kinematics import HeadHead, head_only
+    from sim.tools import parse_tool_spec
+
+    kin = HeadHead("B", pivot_length=50.0)
+    assert head_only(kin).rotaries == ("C", "B") and head_only(kin).pivot_length == 50.0
+    # the rows' tips at Z20, the tool 20 long: the gauge point at Z40, the pivot at Z90;
+    # at B90 the tip is pivot - 70 k, k = (-1, 0, 0): X70 Z90
+    clamp = Fixture.box((66, -5, 85), (76, 5, 95), 0.5, name="block")
+    clamp = Fixture(clamp.name, clamp.grid, kinematics=kin)
+    tool = parse_tool_spec("flat:4:L=10")
+    moves = empty_moves(2)
+    moves["kind"] = MoveKind.FEED
+    moves["start"] = [[0, -10, 20, 0, 90, 0], [0, -10, 20, 0, 0, 0]]  # tips (tool_length 0 ...
+    moves["end"] = [[0, 10, 20, 0, 90, 0], [0, 10, 20, 0, 0, 0]]
+    moves["tool"] = 1
+    moves["line"] = [5, 6]
+    # ... with its 20 mm given per tool: the gauge point is 20 mm above the rows' Z
+    clamp.tool_lengths = {1: 20.0}
+    found = clamp.check(moves, tool)
+    assert [(f.kind, f.line) for f in found] == [("fixture_collision", 5)]
+    # without the head's tilt (the fixture as it was: 3-axis) the tool misses it
+    assert Fixture(clamp.name, clamp.grid).check(moves, tool) == []
