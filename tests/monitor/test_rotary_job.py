@@ -232,6 +232,12 @@ def test_a_tilted_head_places_the_tip_one_tool_length_from_the_gauge_point(tmp_p
     code = main(["simulate", str(tmp_path / "job.toml"), "--json"])
     doc = json.loads(capsys.readouterr().out)
     gouges = [f for f in doc["findings"] if f["kind"] == "gouge"]
+    # ahead of the spindle too, with lead time
+    main(["dry-run", str(tmp_path / "job.toml"), "--speed", "50", "--clock", "sim", "--json",
+          "--run", str(tmp_path / "run.sqlite")])
+    ahead = [x for x in lines_of(capsys) if x["event"] == "finding" and x["kind"] in ("gouge", "setup")]
+    assert [(x["kind"], x["line"]) for x in ahead] == [("gouge", 9)]
+    assert ahead[0]["predicted"] and ahead[0]["lead_time_s"] > 0
     assert code == 1 and [f["line"] for f in gouges] == [9], doc["findings"]
     # the setup check sees the tips the head puts on the part, not the program's X Y Z
     assert not [f for f in doc["findings"] if f["kind"] == "setup"], doc["findings"]
