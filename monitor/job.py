@@ -37,6 +37,12 @@ needs; paths are relative to the job file's folder)::
     [[fixtures]]
     name = "clamp"
     box = [-5, 15, 20, 15, 25, 28]   # or stl = "vise.stl" (+ offset)
+    on_table = true             # with a rotary table (xyza, xyzb, trunnions, head-table):
+                                # the fixture sits on it and turns with the part (the
+                                # default: what holds the part turns with it, a chuck's
+                                # jaws, a clamp on the platter); false: it is fixed to the
+                                # machine (a tailstock, a vise beside the 4th axis), given
+                                # at A B C = 0
 
     [tools]
     table = "tools.tbl"         # LinuxCNC tool table; and/or inline tools:
@@ -122,6 +128,8 @@ class Solid:
     ``box`` is (x0, y0, z0, x1, y1, z1); ``cylinder`` is (c1, c2, radius, lo, hi) along
     ``axis`` ("z": cx, cy, radius, z0, z1; "x": cy, cz, radius, x0, x1, a bar on a 4th
     axis; "y": cx, cz, radius, y0, y1); ``stl`` a path, moved by ``offset`` (3,) mm.
+    ``on_table`` (fixtures): it sits on the rotary table and turns with the part (True),
+    is fixed to the machine (False), or None: the default (:meth:`Job.fixture_on_table`).
     """
 
     kind: str
@@ -131,6 +139,7 @@ class Solid:
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     name: str = ""
     axis: str = "z"
+    on_table: bool | None = None
 
     def cylinder_placement(self):
         """A cylinder's (base centre (3,), axis direction (3,), radius, height), mm."""
@@ -212,6 +221,11 @@ class Job:
     #: the machine's kinematics ([machine] kinematics and its parameters): how A B C turn
     #: the part or the tool (sim.kinematics); plain 3-axis by default
     kinematics: Kinematics = field(default_factory=Trivial)
+
+    def fixture_on_table(self, fixture: Solid) -> bool:
+        """Whether ``fixture`` turns with the part: its ``on_table`` when given, else
+        whether the kinematics has a rotary table (what holds the part sits on it)."""
+        return bool(self.kinematics.table) if fixture.on_table is None else fixture.on_table
 
     @property
     def program_dialect(self) -> str:
@@ -323,6 +337,17 @@ def _solid(ctx: _Ctx, t: dict, where: str, allow=("box", "cylinder", "stl"), ext
             raise ctx.err(f"{where} cylinder".strip(), f"radius > 0 and {axis}0 < {axis}1", list(c))
         return Solid("cylinder", cylinder=c, offset=offset, name=name, axis=axis)
     return Solid("stl", stl=ctx.path(t["stl"], f"{where} stl".strip()), offset=offset, name=name)
+
+
+def _fixture(ctx: _Ctx, t, where: str) -> Solid:
+    """A [[fixtures]] entry: a box or STL solid, and ``on_table`` (true or false) when given."""
+    t = dict(ctx.table(t, where))
+    ctx.no_unknown(t, {"box", "stl", "offset", "name", "on_table"}, where)
+    on_table = t.pop("on_table", None)
+    if on_table is not None and not isinstance(on_table, bool):
+        raise ctx.err(f"{where} on_table", "true (it sits on the rotary table and turns with the part) or "
+                                           "false (fixed to the machine)", on_table)
+    return dataclasses.replace(_solid(ctx, t, where, allow=("box", "stl")), on_table=on_table)
 
 
 def parse_solid_spec(spec: str, where: str, base: Path = Path(".")) -> Solid:
@@ -516,8 +541,7 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
         fx = doc["fixtures"]
         if not isinstance(fx, list):
             raise ctx.err("[[fixtures]]", "an array of tables ([[fixtures]])", fx)
-        job.fixtures = [_solid(ctx, f, f"[[fixtures]] #{k + 1}", allow=("box", "stl"))
-                        for k, f in enumerate(fx)]
+        job.fixtures = [_fixture(ctx, f, f"[[fixtures]] #{k + 1}") for k, f in enumerate(fx)]
     if "design" in doc:
         job.design = _solid(ctx, doc["design"], "[design]", allow=("stl", "box"))
 
@@ -604,6 +628,11 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
         if "junction_deviation" in t:
             m["junction_deviation"] = ctx.positive(t["junction_deviation"], "[machine] junction_deviation")
         job.machine = m
+    for k, f in enumerate(job.fixtures):
+        if f.on_table and not job.kinematics.table:
+            raise JobError(f"[[fixtures]] #{k + 1} on_table: kinematics {job.kinematics.name!r} has no rotary "
+                           "table to turn it (on_table = true needs xyza, xyzb, a trunnion or a head-table "
+                           "machine in [machine] kinematics)", name)
     return job
 
 

@@ -144,11 +144,16 @@ def _hold_note(alerter) -> str:
 
 
 def _program_end(session: Session) -> tuple[int, float] | None:
-    """``(row, progress s)`` where the program's last motion ends, or None (no motion)."""
+    """``(row, progress s)`` where the program's last motion ends, or None (no motion).
+
+    On a job whose kinematics turns A B C a row turning only a rotary (unwinding A at the
+    end) is motion too: the sync follows the angles there (``session.rotary_scale``).
+    Elsewhere the rotaries turn nothing the sync sees, so only X Y Z count."""
     mv = session.moves
     if not len(mv):
         return None
-    moving = np.nonzero(np.any(mv["start"][:, :3] != mv["end"][:, :3], axis=1))[0]
+    axes = 6 if session.rotary_scale is not None else 3
+    moving = np.nonzero(np.any(mv["start"][:, :axes] != mv["end"][:, :axes], axis=1))[0]
     if not moving.size:
         return None
     row = int(moving[-1])

@@ -218,6 +218,9 @@ class Workpiece:
     #: origin (the job's reference work offset): rows with rotation are cut on the turned part
     kinematics: object | None = None
     origin: np.ndarray | None = None
+    #: {tool number: mm} the G43 length a turning head places each tool by (None: no
+    #: head turns a tool): the work tables hold tips, their tool_length column is 0
+    tool_lengths: dict | None = None
 
     def tool(self, number: int):
         return self.tools.get(int(number), self.default_tool)
@@ -226,11 +229,15 @@ class Workpiece:
 def build_workpiece(job: Job, moves: np.ndarray, model: str = "z") -> Workpiece:
     """Stock, fixtures and design of ``job`` as dexel models on a frame covering them all.
 
-    ``model``: the stock as one Z grid (``"z"``, what the live session follows) or as a
-    tri-dexel model (``"tri-dexel"``, :class:`sim.tridexel.TriDexel`, ``simulate`` with
-    ``[stock] model``): its lattice has the Z frame's rays and covers the stock's height."""
+    ``moves``: the program's move table in machine coordinates (the interpreter's): on a
+    machine whose head turns the tool its ``tool_length`` column gives each tool's G43
+    length (:func:`head_tool_lengths`). ``model``: the stock as one Z grid (``"z"``, what
+    the live session follows) or as a tri-dexel model (``"tri-dexel"``,
+    :class:`sim.tridexel.TriDexel`, ``simulate`` with ``[stock] model``): its lattice has
+    the Z frame's rays and covers the stock's height."""
     from sim.checks.collisions import Fixture
     from sim.checks.error_map import DesignModel
+    from sim.kinematics import head_only
 
     if job.stock is None:
         raise JobError("no stock: give [stock] in the job file or --stock", str(job.source or "command line"))
@@ -253,7 +260,14 @@ def build_workpiece(job: Job, moves: np.ndarray, model: str = "z") -> Workpiece:
     else:
         stock = _solid_grid(frame, job.stock, stock_mesh, job.tolerance)
     names = [f.name or f"fixture {k + 1}" for k, f in enumerate(job.fixtures)]
-    fixtures = [Fixture(name, _fixture_grid(f, fm, job.resolution, reach, job.tolerance))
+    rotary = job.kinematics if job.kinematics.rotaries else None
+    origin = work_origin(job) if rotary is not None else None
+    lengths = head_tool_lengths(rotary, moves, str(job.source or "command line")) \
+        if rotary is not None and rotary.head else None
+    fixed = head_only(rotary) if rotary is not None else None  # what a fixture bolted to the machine sees
+    fixtures = [Fixture(name, _fixture_grid(f, fm, job.resolution, reach, job.tolerance),
+                        kinematics=rotary if job.fixture_on_table(f) else fixed, origin=origin,
+                        tool_lengths=lengths)
                 for f, fm, name in zip(job.fixtures, fixture_meshes, names)]
     design = None
     if job.design is not None:
@@ -265,9 +279,32 @@ def build_workpiece(job: Job, moves: np.ndarray, model: str = "z") -> Workpiece:
             blo, bhi = job.design.bounds()
             mesh = trimesh.creation.box(bounds=[blo, bhi])
             design = DesignModel(frame, mesh, name="design box")
-    rotary = job.kinematics if job.kinematics.rotaries else None
     return Workpiece(frame, stock, fixtures, design, tools, default, job.tolerance, names,
-                     kinematics=rotary, origin=work_origin(job) if rotary is not None else None)
+                     kinematics=rotary, origin=origin, tool_lengths=lengths)
+
+
+def head_tool_lengths(kinematics, moves: np.ndarray, where: str) -> dict[int, float]:
+    """{tool number: mm} the G43 length in force on each tool's motion rows that a head
+    axis tilts (its machine angle not 0 at an end): the
+    pivot-to-tip distance of a turning head holds it, and the work tables that are cut
+    hold tips (tool_length 0). ``moves``: the machine table. One tool tilted with two
+    lengths (a G43 changed while tilted) raises JobError naming its lines."""
+    from sim.kinematics import ROTARY_COLUMN
+
+    cols = [ROTARY_COLUMN[ax.letter] for ax in kinematics.head]
+    moving = np.isin(moves["kind"], (MoveKind.RAPID, MoveKind.FEED, MoveKind.ARC_CW, MoveKind.ARC_CCW))
+    tilted = moving & ((moves["start"][:, cols] != 0.0).any(axis=1) | (moves["end"][:, cols] != 0.0).any(axis=1))
+    out: dict[int, float] = {}
+    for tool in np.unique(moves["tool"][tilted]):
+        rows = np.nonzero(tilted & (moves["tool"] == tool))[0]
+        lengths = np.unique(moves["tool_length"][rows])
+        if lengths.size > 1:
+            lines = [int(moves["line"][rows[np.nonzero(moves["tool_length"][rows] == v)[0][0]]]) for v in lengths[:2]]
+            raise JobError(f"T{int(tool)} is tilted by the head with two tool lengths, {lengths[0]:g} mm "
+                           f"(line {lines[0]}) and {lengths[1]:g} mm (line {lines[1]}); dexmon places a tilted "
+                           "tool by one G43 length per tool", where)
+        out[int(tool)] = float(lengths[0])
+    return out
 
 
 def tri_lattice(frame: Frame, job: Job, stock_mesh=None) -> tuple[np.ndarray, np.ndarray]:
@@ -361,7 +398,7 @@ def make_checker(wp: Workpiece, stock: DexelGrid, limits: dict | None, wco):
 
     return Checker(stock, wp.default_tool, design=wp.design, fixtures=wp.fixtures,
                    limits=limits_in_work(limits, wco), tol=wp.tol, tools=wp.tools, min_volume=MIN_VOLUME,
-                   kinematics=wp.kinematics, origin=wp.origin)
+                   kinematics=wp.kinematics, origin=wp.origin, tool_lengths=wp.tool_lengths)
 
 
 def _checked(checker, rows: np.ndarray, ids: np.ndarray, wco):
@@ -403,8 +440,11 @@ def rotary_row_costs(wp: Workpiece, moves: np.ndarray, reach: float) -> np.ndarr
     height = max(float(t.profile[-1, 0]) for t in [*wp.tools.values(), wp.default_tool])
     origin = np.zeros(6) if wp.origin is None else np.asarray(wp.origin, np.float64)
     step = wp.tol.instance_fraction * wp.frame.spacing
+    lengths = np.zeros(len(moves))
+    for tool, length in (wp.tool_lengths or {}).items():
+        lengths[moves["tool"] == tool] = length
     count = wp.kinematics.instance_counts(moves["start"][turning] + origin, moves["end"][turning] + origin,
-                                          0.0, height, reach, step)
+                                          lengths[turning], height, reach, step)
     out[turning] = (count + 1) * (2.0 * reach / wp.frame.spacing + 2.0) ** 2
     return out
 

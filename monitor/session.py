@@ -503,12 +503,14 @@ class Session:
         last = pieces[-1:]
         if int(last["kind"][0]) in (MoveKind.FEED, MoveKind.RAPID):
             last["end"][0, :3] = self.path.point_at(s.progress)
+            if self.rotary_scale is not None:  # and the rotaries only as far as they turned
+                last["end"][0, 3:] = self.sync_path.point_at(s.progress)[3:] / self.rotary_scale
         elif r1 > r0:  # an arc: its part up to here is left to the live cut from here on
             pieces, ids = pieces[:-1], ids[:-1]
         else:
             return []
         res = Cutter(self.live, self.wp.default_tool, self.wp.tol, tools=self.wp.tools, kinematics=self.wp.kinematics,
-                   origin=self.wp.origin).cut_moves(
+                   origin=self.wp.origin, tool_lengths=self.wp.tool_lengths).cut_moves(
             pieces, move_ids=ids, record_changes=True)
         rays = (distinct(res.changed_rays).astype(np.int64) if res.changed_rays is not None
                 else np.zeros(0, np.int64))
@@ -530,7 +532,7 @@ class Session:
 
             done = self.moves[:s.row]
             Cutter(self.live, self.wp.default_tool, self.wp.tol, tools=self.wp.tools, kinematics=self.wp.kinematics,
-                   origin=self.wp.origin).cut_moves(
+                   origin=self.wp.origin, tool_lengths=self.wp.tool_lengths).cut_moves(
                 done, move_ids=np.arange(1, s.row + 1), record_changes=False)
             if self.view is not None:  # the whole model may have changed
                 self._changed = np.arange(self.live.frame.n_rays, dtype=np.int64)

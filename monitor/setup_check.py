@@ -25,6 +25,44 @@ from sim.checks.findings import Finding
 WORK_OFFSET_TOLERANCE_MM = 0.01
 
 
+#: tips per turning row the setup check's boxes follow (:func:`_placed_on_part`)
+SETUP_SAMPLES = 8
+
+
+def placed_on_part(moves, kinematics, origin, tool_lengths):
+    """``moves`` (a table of tips) with every row a rotary turns replaced by the tips the
+    kinematics puts on the part: :data:`SETUP_SAMPLES` straight feeds through tips at
+    equal steps of its machine axes (arcs by their ends): the setup check's boxes, lenient
+    as they are, then hold what the turned part or tilted tool really meets."""
+    from sim.gcode.moves import MoveKind
+    from sim.kinematics import ROTARY_COLUMN
+
+    origin = np.zeros(6) if origin is None else np.asarray(origin, np.float64)
+    cols = [ROTARY_COLUMN[r] for r in kinematics.rotaries]
+    moving = np.isin(moves["kind"], (MoveKind.RAPID, MoveKind.FEED, MoveKind.ARC_CW, MoveKind.ARC_CCW))
+    turning = moving & (((moves["start"][:, cols] + origin[cols]) != 0.0).any(axis=1)
+                        | ((moves["end"][:, cols] + origin[cols]) != 0.0).any(axis=1))
+    if not turning.any():
+        return moves
+    rows = moves[turning]
+    lengths = np.array([(tool_lengths or {}).get(int(t), float(L)) for t, L in zip(rows["tool"], rows["tool_length"])])
+    f = np.linspace(0.0, 1.0, SETUP_SAMPLES + 1)
+    poses = rows["start"][:, None, :] + f[None, :, None] * (rows["end"] - rows["start"])[:, None, :] + origin
+    poses[:, :, 2] += lengths[:, None]  # the gauge point over the tip (the row's own length is 0)
+    poses[:, :, 2] -= rows["tool_length"][:, None]
+    tips, _ = kinematics.forward(poses.reshape(-1, 6), np.repeat(lengths, SETUP_SAMPLES + 1))
+    tips = tips.reshape(len(rows), SETUP_SAMPLES + 1, 3) - origin[:3]
+    # in program order: each turning row becomes its pieces where it stood
+    count = np.where(turning, SETUP_SAMPLES, 1)
+    out = np.repeat(moves, count)
+    placed = np.repeat(turning, count)
+    out["kind"][placed] = int(MoveKind.FEED)
+    out["start"][placed, :3] = tips[:, :-1].reshape(-1, 3)
+    out["end"][placed, :3] = tips[:, 1:].reshape(-1, 3)
+    out["tool_length"][placed] = 0.0
+    return out
+
+
 def setup_records(wp, moves: np.ndarray, inch: bool, t: float | None = None) -> list[dict]:
     """The ``setup`` finding records of a session's workpiece ``wp``
     (:class:`monitor.predict.Workpiece`) and program ``moves`` (the model frame, tips, mm):
@@ -34,6 +72,8 @@ def setup_records(wp, moves: np.ndarray, inch: bool, t: float | None = None) -> 
 
     reach = max([t_.radius for t_ in wp.tools.values()] + [wp.default_tool.radius])
     design = design_box(wp.design) if wp.design is not None else None
+    if wp.kinematics is not None:
+        moves = placed_on_part(moves, wp.kinematics, wp.origin, wp.tool_lengths)
     found = setup_findings(moves, material_box(wp.stock), reach, design, inch=inch)
     return [setup_record(f, t) for f in found]
 

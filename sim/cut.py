@@ -237,12 +237,16 @@ class Cutter:
     origin, the job's reference work offset (default 0): a row's machine pose is its
     ``start``/``end`` plus ``origin`` (X Y Z as the gauge point, the row's tool length
     added back), and the tips the kinematics puts on the part are shifted back by
-    ``origin[:3]`` into the grid's frame.
+    ``origin[:3]`` into the grid's frame. tool_lengths: {tool number: mm} the G43 length
+    of each tool, for a move table of tips (whose ``tool_length`` column is 0, as
+    ``monitor.predict.work_moves`` makes them): a head that turns the tool swings its tip
+    on the pivot-to-tip distance, which holds the tool length (default None: each row's
+    ``tool_length``). Tools it does not name use their rows' column.
     """
 
     def __init__(self, grid: DexelGrid, tool: Tool, tol: Tolerance = DEFAULT,
                  tools: dict[int, Tool] | None = None, threads: int | None = None,
-                 kinematics: Kinematics | None = None, origin=None):
+                 kinematics: Kinematics | None = None, origin=None, tool_lengths: dict[int, float] | None = None):
         if not isinstance(grid, DexelGrid):
             raise InputError(f"Cutter needs a DexelGrid, got {type(grid).__name__}")
         if not isinstance(tool, Tool):
@@ -253,6 +257,7 @@ class Cutter:
         # a kinematics that turns nothing is the 3-axis cutter, with no per-batch test
         self.kinematics = kinematics if kinematics is not None and kinematics.rotaries else None
         self.origin = np.zeros(6) if origin is None else np.asarray(origin, np.float64).reshape(6).copy()
+        self.tool_lengths = None if tool_lengths is None else {int(t): float(v) for t, v in tool_lengths.items()}
         #: rotary batches: cut the body above the height that can reach material off
         #: (:meth:`_reaching_profile`); False cuts with the whole body (the tests' reference)
         self.trim_body = True
@@ -263,7 +268,7 @@ class Cutter:
         self.threads = bands.default_threads() if threads is None else max(1, int(threads))
         self._top = grid.frame.is_top  # frames are immutable; asked on every batch
         self._params: dict[int, tuple] = {}  # id(body) -> (body, kernel parameters)
-        self._rotary = (RotaryPlan(grid, self.kinematics, self.origin, self._step(), tol.length)
+        self._rotary = (RotaryPlan(grid, self.kinematics, self.origin, self._step(), tol.length, self.tool_lengths)
                         if self.kinematics is not None else None)
 
     # --- public API ---------------------------------------------------------------------
@@ -497,8 +502,9 @@ class Cutter:
 
     def _child(self, grid: DexelGrid) -> "Cutter":
         """A Cutter on another grid (a scratch copy, a window) with this one's tool,
-        tolerance, kinematics and origin."""
-        return Cutter(grid, self.tool, self.tol, kinematics=self.kinematics, origin=self.origin)
+        tolerance, kinematics, origin and tool lengths."""
+        return Cutter(grid, self.tool, self.tol, kinematics=self.kinematics, origin=self.origin,
+                      tool_lengths=self.tool_lengths)
 
     def _segment_work(self, p0, p1, move_id, axis, axis1, body) -> _Work:
         p0 = np.asarray(p0, np.float64).reshape(1, 3)

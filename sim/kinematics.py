@@ -425,6 +425,17 @@ class Kinematics:
         return _tilt_and_turn(k, ROTARY_ABOUT[t_letter], prev, c_letter, c_sign, t_letter, t_sign)
 
 
+def head_only(kin: Kinematics) -> Kinematics | None:
+    """The part of ``kin`` that turns the tool: its head axes and pivot, no table (what
+    stays put while the table turns the part, a fixture bolted to the machine, sees only
+    these); None when the head turns nothing."""
+    if not kin.head:
+        return None
+    out = Kinematics(head=kin.head, pivot_length=kin.pivot_length)
+    out.name = f"{kin.name} (head)"
+    return out
+
+
 def move_instances(kin: Kinematics, start, end, tool_length, height: float, radius: float,
                    step: float) -> tuple[np.ndarray, np.ndarray]:
     """Tips and axes ((k, 3) each, workpiece frame) of the instances of motion of one

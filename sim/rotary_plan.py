@@ -49,14 +49,18 @@ class RotaryPlan:
     """The rotary part of a cutter: ``grid`` (the model, in the part's frame),
     ``kinematics`` (with at least one rotary), ``origin`` (6,) the machine pose of the
     grid's frame origin, ``step`` (mm) the most any point of the tool may move between
-    instances, ``eps`` (mm) the model's length tolerance."""
+    instances, ``eps`` (mm) the model's length tolerance. ``tool_lengths`` ({tool number:
+    mm} or None): the G43 length a turning head places each tool by, in place of the
+    rows' ``tool_length`` column (see :class:`~sim.cut.Cutter`)."""
 
-    def __init__(self, grid: DexelGrid, kinematics: Kinematics, origin: np.ndarray, step: float, eps: float):
+    def __init__(self, grid: DexelGrid, kinematics: Kinematics, origin: np.ndarray, step: float, eps: float,
+                 tool_lengths: dict[int, float] | None = None):
         self.grid = grid
         self.kinematics = kinematics
         self.origin = origin
         self.step = step
         self.eps = eps
+        self.tool_lengths = tool_lengths
         self._rot_cols = np.array([ROTARY_COLUMN[r] for r in kinematics.rotaries])
 
     def turning_rows(self, moves, moving) -> np.ndarray | None:
@@ -79,7 +83,7 @@ class RotaryPlan:
         X Y Z of an arc), as GRBL and LinuxCNC's joint moves do; the count bounds how far
         any point of ``body`` (its profile's radius x height) moves between two."""
         kin = self.kinematics
-        L = float(row["tool_length"])
+        L = self.placing_length(row)
         lift = np.array([0.0, 0.0, L])
         a = np.concatenate([tip0 + lift, row["start"][3:]]) + self.origin
         b = np.concatenate([tip1 + lift, row["end"][3:]]) + self.origin
@@ -102,6 +106,16 @@ class RotaryPlan:
             poses[:, 3:] = a[3:] + f * (b[3:] - a[3:])
         tips, axes = kin.forward(poses, L)
         return tips - self.origin[:3], axes
+
+    def placing_length(self, row) -> float:
+        """The tool length (mm) the kinematics places ``row``'s tool by: from the gauge
+        point to the tip along the tool axis. The row's ``tool_length`` unless
+        ``tool_lengths`` names its tool (a table of tips, whose column is 0)."""
+        if self.tool_lengths is not None:
+            length = self.tool_lengths.get(int(row["tool"]))
+            if length is not None:
+                return float(length)
+        return float(row["tool_length"])
 
     def _material_box(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(lo, hi) (3,) frame-local mm of the material now in the grid (ray feet of the

@@ -1486,6 +1486,14 @@ def _level_interval(prof, tip, h0, wx2wy2, out):
     return 1
 
 
+#: mm: a profile piece is skipped for a ray only this far outside its radius, so that
+#: the rounding of the piece's own solution can never have made a sliver of it
+PIECE_SKIP_MARGIN = 1e-6
+#: below this sine of the angle between the tool axis and the rays no piece is skipped
+#: (the distance between two nearly parallel lines is ill-conditioned)
+PIECE_SKIP_SIN = 1e-6
+
+
 @nb.njit(cache=True)
 def pose_intervals(prof, tip, axis, px, py, out, buf):
     """Intervals of a ray inside one tool pose, in frame-local coordinates.
@@ -1494,6 +1502,10 @@ def pose_intervals(prof, tip, axis, px, py, out, buf):
     unit axis in local coordinates; the ray is ``(px, py, s)``. Writes merged, sorted
     intervals of ``s`` into ``out`` (float64 (k, 2)) and returns how many. ``buf`` is
     float64 (2,) scratch.
+
+    A piece whose radius stays under the ray's distance from the tool's axis line (less
+    :data:`PIECE_SKIP_MARGIN`) cannot hold the ray and is not solved: on a ball's many
+    pieces most rays pass beside all but a few.
     """
     wx = px - tip[0]
     wy = py - tip[1]
@@ -1502,8 +1514,16 @@ def pose_intervals(prof, tip, axis, px, py, out, buf):
     az = axis[2]
     if az == 0.0:
         return _level_interval(prof, tip, h0, wx2wy2, out)
+    # the ray (along s) and the axis line are skew: their distance is |w . (s x axis)| /
+    # |s x axis|; near parallel (the ray along the axis) nothing is skipped
+    sxy = math.sqrt(axis[0] * axis[0] + axis[1] * axis[1])
+    reach = -1.0
+    if sxy > PIECE_SKIP_SIN:
+        reach = abs(wy * axis[0] - wx * axis[1]) / sxy - PIECE_SKIP_MARGIN
     m = 0
     for k in range(prof.shape[0] - 1):
+        if prof[k, 1] < reach and prof[k + 1, 1] < reach:
+            continue
         if _piece_interval(prof, k, h0, az, wx2wy2, buf):
             lo = buf[0] + tip[2]
             hi = buf[1] + tip[2]

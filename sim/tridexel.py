@@ -209,7 +209,7 @@ class TriCutter:
     """
 
     def __init__(self, model: TriDexel, tool, tol=None, tools=None, threads: int | None = None,
-                 kinematics=None, origin=None, grids_at_once: bool = False):
+                 kinematics=None, origin=None, grids_at_once: bool = False, tool_lengths=None):
         from sim.cut import Cutter
 
         self.model = model
@@ -217,7 +217,7 @@ class TriCutter:
         self.grids_at_once = bool(grids_at_once) and self.threads > 1
         per_grid = 1 if self.grids_at_once else self.threads
         self.cutters = {a: Cutter(g, tool, tol or DEFAULT, tools=tools, threads=per_grid,
-                                  kinematics=kinematics, origin=origin)
+                                  kinematics=kinematics, origin=origin, tool_lengths=tool_lengths)
                         for a, g in model.grids.items()}
 
     def _each(self, call) -> dict:

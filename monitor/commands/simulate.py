@@ -420,12 +420,13 @@ def _run_job(args) -> int:
                            [str(d) for d in job.subroutine_path], args.max_loop or job.max_loop,
                            bool(args.block_delete) or job.block_delete)
     # from where the machine starts, as a dry run does (monitor.start)
-    moves = work_moves(start_at(program.moves, job_start(job, program.moves)), reference_wco(job))
+    machine_moves = start_at(program.moves, job_start(job, program.moves))
+    moves = work_moves(machine_moves, reference_wco(job))
     est = stock_bytes_estimate(job, job.stock_model)
     if est > args.memory_limit * 2**20:
         raise InputError(f"the job's dexel grid needs about {est / 2**20:.0f} MB, over the "
                          f"{args.memory_limit:.0f} MB limit; use a coarser --resolution", where="--resolution")
-    wp = build_workpiece(job, moves, model=job.stock_model)
+    wp = build_workpiece(job, machine_moves, model=job.stock_model)
     checker = None
     if not args.no_checks:
         from sim.checks.checker import Checker
@@ -437,7 +438,7 @@ def _run_job(args) -> int:
                           limits=limits_in_work(job.limits, wco), tol=job.tolerance, tools=wp.tools,
                           max_depth_of_cut=_positive(args.max_depth_of_cut, "--max-depth-of-cut"),
                           min_volume=MIN_VOLUME, undercut_from_path=not (job.undercut_given or t_h),
-                          kinematics=wp.kinematics, origin=wp.origin)
+                          kinematics=wp.kinematics, origin=wp.origin, tool_lengths=wp.tool_lengths)
     out = {"job": str(path)}
     notes = []
     used = set(int(t) for t in moves["tool"])
@@ -451,7 +452,7 @@ def _run_job(args) -> int:
     return _simulate(args, str(job.program), moves, wp.stock, wp.default_tool, wp.tools, checker, out,
                      true_volume=stock_true_volume(solid=job.stock), notes=[n for n in notes if n], inch=program.inch,
                      machine={**DEFAULT_MACHINE, **(job.machine or {})}, kinematics=wp.kinematics,
-                     origin=wp.origin)
+                     origin=wp.origin, tool_lengths=wp.tool_lengths)
 
 
 def _setup_findings(moves, grid, tool, tools, checker, inch: bool) -> list:
@@ -463,6 +464,10 @@ def _setup_findings(moves, grid, tool, tools, checker, inch: bool) -> list:
     grid = z_part(grid)  # a tri-dexel model's top view
     reach = max([t.radius for t in (tools or {}).values()] + [tool.radius])
     design = getattr(checker, "design", None)
+    if getattr(checker, "kinematics", None) is not None:
+        from monitor.setup_check import placed_on_part
+
+        moves = placed_on_part(moves, checker.kinematics, checker.origin, checker.tool_lengths)
     return setup_findings(moves, material_box(grid), reach, design_box(design) if design is not None else None,
                           inch=inch)
 
@@ -491,10 +496,11 @@ def move_start_times(moves: np.ndarray, machine=None) -> np.ndarray:
 
 
 def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, true_volume=None,
-              notes=(), inch: bool = False, machine=None, kinematics=None, origin=None) -> int:
+              notes=(), inch: bool = False, machine=None, kinematics=None, origin=None,
+              tool_lengths=None) -> int:
     """Cut (and check) ``moves`` into ``grid``; print the report; return the exit status.
-    ``kinematics``/``origin``: the job's rotaries for the unchecked cut (the checker has
-    its own).
+    ``kinematics``/``origin``/``tool_lengths``: the job's rotaries for the unchecked cut
+    (the checker has its own).
 
     With checks, a setup that cannot be meant (:mod:`sim.checks.setup`: the path never
     reaches the stock, the design is not in the stock) is reported first, as findings.
@@ -531,7 +537,8 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
         per_move = TriModelCutter(grid, tool, DEFAULT, tools=tools or None, kinematics=kinematics,
                                   origin=origin).cut_moves(moves, record_changes=False).removed
     else:
-        per_move = Cutter(grid, tool, tools=tools or None, kinematics=kinematics, origin=origin).cut_moves(
+        per_move = Cutter(grid, tool, tools=tools or None, kinematics=kinematics, origin=origin,
+                          tool_lengths=tool_lengths).cut_moves(
             moves, record_changes=False).removed
         findings = []
     seconds = time.perf_counter() - t0

@@ -58,13 +58,17 @@ class Checker:
     kinematics, origin : optional
         The machine's :class:`sim.kinematics.Kinematics` and the grid origin's machine
         pose (6,), passed to every :class:`Cutter` (rows with rotation are cut on the
-        turned part) and to the fixture checks (fixtures are in the part's frame).
+        turned part). Fixtures carry their own (:class:`collisions.Fixture`: on the rotary
+        table they turn with the part).
+    tool_lengths : optional
+        {tool number: mm} the G43 length a turning head places each tool by, for move
+        tables of tips (see :class:`Cutter`).
     """
 
     def __init__(self, stock: DexelGrid, tool: Tool, design=None, fixtures=(), limits=None,
                  tol: Tolerance = DEFAULT, tools: dict | None = None, max_depth_of_cut: float | None = None,
                  max_ramp_deg: float = 10.0, min_volume: float | None = None, undercut_from_path: bool = True,
-                 exact_excess_while_cutting: bool = False, kinematics=None, origin=None):
+                 exact_excess_while_cutting: bool = False, kinematics=None, origin=None, tool_lengths=None):
         if not isinstance(stock, (DexelGrid, TriDexel)):
             raise InputError(f"Checker needs a DexelGrid or TriDexel stock, got {type(stock).__name__}")
         self.grid = stock
@@ -74,6 +78,7 @@ class Checker:
         self.tol = tol
         self.kinematics = kinematics
         self.origin = origin
+        self.tool_lengths = tool_lengths
         self.min_volume = (0.1 * self.frame.spacing**3) if min_volume is None else float(min_volume)
         self.cutter = self._cutter(stock)
         if design is not None and not isinstance(design, DesignModel):
@@ -115,9 +120,9 @@ class Checker:
         this checker's tools, tolerance and kinematics."""
         if is_tri(grid):
             return TriModelCutter(grid, self.tool, self.tol, tools=self.tools or None, kinematics=self.kinematics,
-                                  origin=self.origin, floor=self.min_volume)
+                                  origin=self.origin, tool_lengths=self.tool_lengths, floor=self.min_volume)
         return Cutter(grid, self.tool, self.tol, tools=self.tools or None, kinematics=self.kinematics,
-                      origin=self.origin)
+                      origin=self.origin, tool_lengths=self.tool_lengths)
 
     def _new_error_map(self, frame):
         """An empty error map on ``frame`` (all three grids' on a tri-dexel model)."""
@@ -232,8 +237,7 @@ class Checker:
             out += motion.travel_limits(moves, self.limits, ids)
         for k, fx in enumerate(self.fixtures):
             for tool, rows in self._tool_of_rows(moves):
-                out += fx.check(moves[rows], tool, ids[rows], self.min_volume, left=fixture_left.setdefault(k, {}),
-                                kinematics=self.kinematics, origin=self.origin)
+                out += fx.check(moves[rows], tool, ids[rows], self.min_volume, left=fixture_left.setdefault(k, {}))
         # non-cutting bodies: probe before the cut; only candidates are verified in order
         pre = self._body_candidates(grid, cutter, moves, top_bound)
         snapshot = grid.copy() if pre else None
@@ -285,7 +289,8 @@ class Checker:
         for tool, rows in self._tool_of_rows(moves):
             for kind, body in self._contact_bodies(tool):
                 sel = rows[collisions.reachable(moves[rows], body.bottom, top_bound, self.kinematics, self.origin,
-                                                body=body, step=self.frame.spacing)]
+                                                body=body, step=self.frame.spacing,
+                                                tool_lengths=self.tool_lengths)]
                 if sel.size == 0:
                     continue
                 vol = cutter.probe_moves(moves[sel], body=body)
@@ -361,8 +366,7 @@ class Checker:
             if i1 <= i0 or j1 <= j0:  # entirely off the stock: only the machine checks apply
                 out = motion.travel_limits(moves, self.limits, ids) if self.limits else []
                 for fx in self.fixtures:
-                    out += fx.check(moves, self.tool, ids, self.min_volume, kinematics=self.kinematics,
-                                    origin=self.origin)
+                    out += fx.check(moves, self.tool, ids, self.min_volume)
                 return merge_findings(out)
             scratch = self.grid.window(i0, i1, j0, j1)
         sf = z_part(scratch).frame

@@ -141,31 +141,36 @@ def max_top(grid: DexelGrid) -> float:
 
 
 def reachable(moves: np.ndarray, body_bottom: float, top: float, kinematics=None, origin=None,
-              body=None, step: float = 1.0) -> np.ndarray:
+              body=None, step: float = 1.0, tool_lengths=None) -> np.ndarray:
     """bool (n,): rows where a body starting ``body_bottom`` mm above the tip can get
     down to material whose highest point is ``top`` (top-view grids): a cheap filter that
     spares probing bodies that pass above everything. Rows a rotary of ``kinematics``
     turns (:func:`turned_rows`; ``origin`` as the Cutter takes it) are judged by where
     the tilted ``body`` (a Tool or Body) really goes (:func:`tilted_reach`; all kept
-    without one): its rim reaches below its bottom on the axis."""
+    without one): its rim reaches below its bottom on the axis. ``tool_lengths``: as
+    :class:`sim.cut.Cutter` takes them."""
     zs = np.minimum(moves["start"][:, 2], moves["end"][:, 2]) - moves["tool_length"]
     near = zs + body_bottom < top
     if kinematics is not None:
         turned = turned_rows(moves, kinematics, origin)
         if turned.any():
             k = np.nonzero(turned)[0]
-            near[k] = True if body is None else tilted_reach(moves[k], body, top, kinematics, origin, step)
+            near[k] = True if body is None else tilted_reach(moves[k], body, top, kinematics, origin, step,
+                                                             tool_lengths)
     return near & is_motion(moves)
 
 
-def tilted_reach(moves: np.ndarray, body, top: float, kinematics, origin=None, step: float = 1.0) -> np.ndarray:
+def tilted_reach(moves: np.ndarray, body, top: float, kinematics, origin=None, step: float = 1.0,
+                 tool_lengths=None) -> np.ndarray:
     """bool (n,): rows whose ``body`` (a Tool or Body), carried by ``kinematics`` from the
     row's start pose to its end (machine axes linear, as the Cutter cuts them), gets
     below ``top`` (mm, the part frame's z) at some point. The body is placed at instances
     of motion no point of it moves more than ``step`` mm between
     (:meth:`Kinematics.instance_counts`), and its lowest point at each (a body of
     revolution: the lower rim of its bottom or top disc) less ``step`` is compared with
-    ``top``. Arc rows are always kept (their path leaves the chord)."""
+    ``top``. Arc rows are always kept (their path leaves the chord). ``tool_lengths``
+    ({tool: mm}): the G43 lengths a head places the tools by, for a table of tips (see
+    :class:`sim.cut.Cutter`); default each row's ``tool_length``."""
     from sim import sweep
 
     n = len(moves)
@@ -176,7 +181,9 @@ def tilted_reach(moves: np.ndarray, body, top: float, kinematics, origin=None, s
     o = np.zeros(6) if origin is None else np.asarray(origin, np.float64).reshape(6)
     start = np.asarray(moves["start"], np.float64) + o
     end = np.asarray(moves["end"], np.float64) + o
-    lengths = np.asarray(moves["tool_length"], np.float64)
+    lengths = np.asarray(moves["tool_length"], np.float64).copy()
+    for tool_no, length in (tool_lengths or {}).items():
+        lengths[moves["tool"] == tool_no] = length
     counts = np.asarray(kinematics.instance_counts(start, end, lengths, h_hi, radius, step), np.int64)
     # every row's poses in one table: count + 1 equal steps of each row, both ends exact
     per_row = counts + 1
@@ -209,11 +216,19 @@ def turned_rows(moves: np.ndarray, kinematics, origin=None) -> np.ndarray:
 class Fixture:
     """A clamp, vise jaw or table: a dexel grid the tool must never enter.
 
-    ``grid`` may have its own frame (a box grid over just the fixture)."""
+    ``grid`` may have its own frame (a box grid over just the fixture).
+    ``kinematics``, ``origin``, ``tool_lengths``: how the tool meets the fixture on a
+    machine with rotaries, as :class:`~sim.cut.Cutter` takes them: the machine's whole
+    kinematics for a fixture on the rotary table (it turns with the part), only its head
+    for one fixed to the machine (:func:`sim.kinematics.head_only`); None (the default):
+    3-axis, A B C turn nothing."""
 
-    def __init__(self, name: str, grid: DexelGrid):
+    def __init__(self, name: str, grid: DexelGrid, kinematics=None, origin=None, tool_lengths=None):
         self.name = name
         self.grid = grid
+        self.kinematics = kinematics if kinematics is not None and kinematics.rotaries else None
+        self.origin = origin
+        self.tool_lengths = tool_lengths
         self._top = max_top(grid) if grid.frame.is_top else np.inf
 
     @classmethod
@@ -230,7 +245,7 @@ class Fixture:
         return cls(name or f"box {lo.tolist()}..{hi.tolist()}", box_grid(frame, lo, hi))
 
     def check(self, moves: np.ndarray, tool: Tool, move_ids=None, min_volume: float = 1e-6,
-              left: dict | None = None, kinematics=None, origin=None) -> list[Finding]:
+              left: dict | None = None) -> list[Finding]:
         """Moves whose tool (cutting part, shank, holder, body above the flutes) meets the
         fixture; one finding per move and part.
 
@@ -238,38 +253,37 @@ class Fixture:
         away}, kept by the caller across batches (filled here on first use). With it each
         move's volume is what it touches first, so the volumes of a finding's moves add up
         to the union of what they touched (a holder rubbing a clamp over many moves never
-        weighs more than the clamp); without it, what each move's part would sweep.
-
-        ``kinematics``, ``origin``: the machine's (as :class:`sim.cut.Cutter` takes them):
-        rows a rotary turns place the tool on the part, and the fixture, in the part's
-        frame, turns with it (a clamp on the table; a head's tilt leaves it where it is)."""
-        from sim.cut import Cutter
-
+        weighs more than the clamp); without it, what each move's part would sweep."""
         moves = np.asarray(moves)
         if len(moves) == 0:
             return []
         ids = move_ids_of(moves, move_ids)
         out: list[Finding] = []
         parts = [("tool", tool, 0.0)] + [(b.name, b, b.bottom) for _, b in contact_bodies(tool)]
-        turned = turned_rows(moves, kinematics, origin)
+        # a turned part or tool: the programmed X Y Z say nothing of where it meets the fixture
+        turned = turned_rows(moves, self.kinematics, self.origin)
         for name, body, bottom in parts:
-            rows = np.nonzero(reachable(moves, bottom, self._top, kinematics, origin, body=body,
-                                        step=self.grid.frame.spacing))[0]
+            near = reachable(moves, bottom, self._top, self.kinematics, self.origin, body=body,
+                             step=self.grid.frame.spacing, tool_lengths=self.tool_lengths)
+            rows = np.nonzero(near)[0]
             rows = rows[_near_xy(moves[rows], self.grid, _radius(body)) | turned[rows]]
             if rows.size == 0:
                 continue
-            vol = present = Cutter(self.grid, tool, kinematics=kinematics, origin=origin).probe_moves(
-                moves[rows], body=body)
+            vol = present = self._cutter(self.grid, tool).probe_moves(moves[rows], body=body)
             if left is not None and (present > min_volume).any():
                 grid = left.get(name)
                 if grid is None:
                     grid = left[name] = self.grid.copy()
-                vol = Cutter(grid, tool, kinematics=kinematics, origin=origin).cut_moves(
-                    moves[rows], record_changes=False, body=body).removed
+                vol = self._cutter(grid, tool).cut_moves(moves[rows], record_changes=False, body=body).removed
             for f in body_findings(moves[rows], "fixture_collision", vol, ids[rows], min_volume,
                                    what=f"{name} in fixture {self.name}", present=present):
                 out.append(f)
         return out
+
+    def _cutter(self, grid: DexelGrid, tool: Tool):
+        from sim.cut import Cutter
+
+        return Cutter(grid, tool, kinematics=self.kinematics, origin=self.origin, tool_lengths=self.tool_lengths)
 
 
 def _radius(body) -> float:

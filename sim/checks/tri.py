@@ -95,10 +95,11 @@ class TriModelCutter:
     """
 
     def __init__(self, model: TriDexel, tool, tol, tools=None, kinematics=None, origin=None,
-                 floor: float = 0.0):
+                 tool_lengths=None, floor: float = 0.0):
         self.grid = model
         self.floor = float(floor)
-        self.tri = TriCutter(model, tool, tol=tol, tools=tools, kinematics=kinematics, origin=origin)
+        self.tri = TriCutter(model, tool, tol=tol, tools=tools, kinematics=kinematics, origin=origin,
+                             tool_lengths=tool_lengths)
         self.kinematics = self.tri.cutters["z"].kinematics
 
     def cut_moves(self, moves, move_ids=None, record_changes: bool = True, body=None) -> TriCutResult:

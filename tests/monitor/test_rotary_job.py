@@ -5,6 +5,7 @@ of the spindle, by ``dry-run``; the live session follows moves that turn only A.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ import pytest
 
 from drivers.state import MachineState, RunState
 from monitor.cli import main
-from monitor.job import load_job
+from monitor.job import JobError, load_job
 from monitor.session import Session, load_moves
 
 JOB = Path(__file__).resolve().parents[2] / "monitor" / "examples" / "rotary_job" / "job.toml"
@@ -126,3 +127,136 @@ def test_program_path_with_angles_makes_a_turn_a_segment():
     got = [sync.update([10, 0, 5, 0.2 * a, 0, 0], t=k * 0.1) for k, a in enumerate((0, 30, 60, 90))]
     assert [g.row for g in got[1:]] == [turn] * 3
     assert got[1].progress < got[2].progress < got[3].progress
+
+
+class ScriptedController:
+    """A controller that reports the given states, one per poll, then closes."""
+
+    def __init__(self, states):
+        self._states = list(states)
+
+    def states(self, period):
+        yield from self._states
+
+
+def test_a_program_ending_in_an_a_only_move_runs_to_its_end(tmp_path):
+    """The program's last motion turns only A (unwinding to A0). The machine standing
+    idle at the end of the last X Y Z motion, A still at 90, is not the program's end
+    (a sender between lines does that): the loop goes on until A is back at 0."""
+    from monitor.loop import run_controller
+
+    prog = tmp_path / "unwind.nc"
+    prog.write_text("G21 G90 G94\nT1 M6\nM3 S12000\nG0 Z16\nG0 X10 Y0 A0\nG1 Z12 F200\nG1 A90 F1800\n"
+                    "G0 Z16\nG0 A0\nM5\nM2\n")
+    job = load_job(JOB)
+    job.program, job.design, job.resolution = prog, None, 0.5
+    moves, program = load_moves(job)
+    session = Session(job, moves, program=program)
+
+    def state(t, x, z, a, run=RunState.RUN):
+        return MachineState(t=t, mpos=(x, 0.0, z, a, 0.0, 0.0), state=run, spindle=12000)
+
+    script = [state(0.0, 10.0, 16.0, 0.0), state(0.2, 10.0, 12.0, 0.0)]
+    script += [state(0.3 + 0.05 * k, 10.0, 12.0, a) for k, a in enumerate(np.arange(10.0, 91.0, 10.0))]
+    script += [state(1.0, 10.0, 16.0, 90.0, RunState.IDLE)]  # between lines: A is still to unwind
+    script += [state(1.2 + 0.05 * k, 10.0, 16.0, a) for k, a in enumerate(np.arange(80.0, -1.0, -10.0))]
+    script += [state(2.0, 10.0, 16.0, 0.0, RunState.IDLE), state(2.1, 10.0, 16.0, 0.0, RunState.IDLE)]
+    n = run_controller(session, ScriptedController(script), period=0.02, give_up_s=None)
+    assert session.end_reason == "program end"
+    assert n == len(script) - 1  # ended on the first idle state at A0, not at A90
+
+
+def test_a_gap_in_the_middle_of_a_turn_cuts_the_turn_up_to_where_the_machine_is():
+    """The link drops while A turns the ring (line 10, A0 -> 360) and comes back at A120:
+    the rows between are cut as programmed up to A120, not to the row's end (A360), so
+    the next polls go on cutting the ring."""
+    from monitor.gaps import GAP_POLLS
+
+    job = load_job(JOB)
+    job.resolution = 0.5
+    moves, program = load_moves(job)
+    s = Session(job, moves, program=program)
+    ring = int(np.nonzero(moves["line"] == RING_LINE)[0][0])
+
+    def at(t, z, a, state=RunState.RUN):
+        return MachineState(t=t, mpos=(10.0, 0.0, z, a, 0.0, 0.0), state=state, spindle=12000)
+
+    t = 0.0
+    s.step(at(t, 16.0, 0.0))
+    for z in np.linspace(16.0, 12.0, 5):
+        t += 0.2
+        s.step(at(t, z, 0.0))
+    for a in (10.0, 20.0, 30.0):
+        t += 0.05
+        s.step(at(t, 12.0, a))
+    for _ in range(GAP_POLLS):
+        s.step(MachineState(t=t, mpos=s.last.mpos, state=RunState.MISSED, raw="late"))
+    t += 0.3
+    s.step(at(t, 12.0, 120.0))
+    assert len(s.gaps) == 1 and s.gaps[0]["rows_cut_unchecked"] == [RING_LINE]
+    assert s.last_sync.row == ring
+    removed = []
+    for a in (130.0, 140.0, 150.0):
+        t += 0.05
+        removed.append(s.step(at(t, 12.0, a)).removed)
+    # each 10 degrees of the ring is about 1.5 mm^3 (as before the gap); a gap that cut
+    # the whole turn left nothing but float dust for them
+    assert all(r > 0.5 for r in removed), removed
+
+
+def test_a_tilted_head_places_the_tip_one_tool_length_from_the_gauge_point(tmp_path, capsys):
+    """A head-head machine (xyzbc-head, pivot 100 mm above the gauge point), the tool's
+    G43 length 50 mm, B tilted 30 degrees, a plunge: the tip is ``pivot + P Z - (P + L) k``
+    (k the tilted axis), 75 mm in +X from the gauge point and 20.096 mm above the
+    program's Z (the tip with G43). Placed there the flat end mill's lowest rim point
+    goes 3.5 mm into the design box; the tool length left out, the tip lands 25 mm short,
+    beside the design, and no gouge is found."""
+    P, L, tilt, r = 100.0, 50.0, 30.0, 3.0
+    k = np.array([-math.sin(math.radians(tilt)), 0.0, math.cos(math.radians(tilt))])
+    # the rim's lowest point, r along (-cos, 0, -sin) of the tilt from the tip, on the ray at X30
+    tip_x, tip_z = 30.0 + r * math.cos(math.radians(tilt)), 16.0
+    # machine X, program Z (tip with G43) of the plunge's end
+    x = tip_x - (P + L) * -k[0]
+    z = tip_z - (P + L - (P + L) * k[2])
+    (tmp_path / "tilt.nc").write_text(
+        "G21 G90 G94\nT1 M6\nG43.1 Z50\nM3 S10000\nG0 Z60\nG0 B30\n"
+        f"G0 X{x:.4f} Y10\nG1 Z{z + 10:.4f} F300\nG1 Z{z:.4f} F200\nG0 Z60\nM5\nM2\n")
+    (tmp_path / "job.toml").write_text(
+        'work_offset = [0, 0, 0]\nresolution = 0.5\n'
+        '[program]\npath = "tilt.nc"\ndialect = "linuxcnc"\n'
+        f'[machine]\nkinematics = "xyzbc-head"\npivot_length = {P}\n'
+        '[stock]\nbox = [0, 0, 0, 60, 20, 20]\n'
+        '[tools]\n1 = "flat:6:L=20"\n'
+        '[design]\nbox = [20, 0, 0, 40, 20, 18]\n'
+        '[tolerance]\ngouge = 0.05\nundercut = 5\ninterest = 6\n')
+    code = main(["simulate", str(tmp_path / "job.toml"), "--json"])
+    doc = json.loads(capsys.readouterr().out)
+    gouges = [f for f in doc["findings"] if f["kind"] == "gouge"]
+    # ahead of the spindle too, with lead time
+    main(["dry-run", str(tmp_path / "job.toml"), "--speed", "50", "--clock", "sim", "--json",
+          "--run", str(tmp_path / "run.sqlite")])
+    ahead = [x for x in lines_of(capsys) if x["event"] == "finding" and x["kind"] in ("gouge", "setup")]
+    assert [(x["kind"], x["line"]) for x in ahead] == [("gouge", 9)]
+    assert ahead[0]["predicted"] and ahead[0]["lead_time_s"] > 0
+    assert code == 1 and [f["line"] for f in gouges] == [9], doc["findings"]
+    # the setup check sees the tips the head puts on the part, not the program's X Y Z
+    assert not [f for f in doc["findings"] if f["kind"] == "setup"], doc["findings"]
+    # the rim's lowest point: r sin(tilt) below the tip, under the design's top (18)
+    assert gouges[0]["depth"] == pytest.approx(18.0 - (tip_z - r * math.sin(math.radians(tilt))), abs=0.01)
+
+
+def test_head_tool_lengths_one_per_tilted_tool_or_a_clear_error():
+    """The G43 length each tool is tilted with (the work tables hold tips); a tool
+    tilted with two lengths is refused, naming both lines."""
+    from monitor.predict import head_tool_lengths
+    from sim.gcode.program import interpret
+    from sim.kinematics import HeadHead
+
+    kin = HeadHead("B", pivot_length=100.0)
+    moves = interpret("G21 G90\nT1 M6\nG0 Z50\nG43.1 Z40\nG0 B20\nG1 X5 F500\nG0 B0\n"
+                      "T2 M6\nG43.1 Z60\nG1 X9 F500\n").moves
+    assert head_tool_lengths(kin, moves, "job.toml") == {1: 40.0}  # T2 is never tilted
+    moves = interpret("G21 G90\nT1 M6\nG43.1 Z40\nG0 B20\nG1 X5 F500\nG43.1 Z45\nG1 X9 F500\n").moves
+    with pytest.raises(JobError, match=r"job.toml: T1 is tilted by the head with two tool lengths, 40 mm \(line 4\) "
+                                       r"and 45 mm \(line 7\)"):
+        head_tool_lengths(kin, moves, "job.toml")

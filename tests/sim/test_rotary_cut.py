@@ -274,3 +274,31 @@ def test_fewest_instances_keep_every_tool_point_within_the_step():
     rim = np.stack([3 * np.cos(ang), 3 * np.sin(ang), np.zeros(360)], axis=1)
     pts = kin.tool_points(instance_poses(a, b, count), 0.0, np.concatenate([rim, rim + [0, 0, 20]]))
     assert np.linalg.norm(np.diff(pts, axis=0), axis=2).max() <= cutter._step()
+
+
+def test_a_table_of_tips_cuts_on_a_head_by_the_tool_lengths_given():
+    """A tilting head swings the tip on pivot + tool length. The same moves as the
+    interpreter gives them (machine X Y Z, tool_length 40) and as a table of tips (Z less
+    the length, tool_length 0, as the monitor cuts them) with ``tool_lengths`` {tool: 40}
+    cut bit for bit the same; the table of tips without it puts the tip elsewhere."""
+    tool = parse_tool_spec("ball:6:L=20")
+    frame = Frame.top(-8, -8, 28, 18, SPACING)
+    stock = box_grid(frame, (-5, -5, -10), (25, 15, 0))
+    kin = HeadHead("B", pivot_length=50.0)
+    L = 40.0
+    rot = np.array([[0.0, 25 * math.sin(x / 4), 0.0] for x in range(12)])
+    tips = np.array([[x, 5.0, -0.7] for x in range(12)])
+    machine = rows(*np.hstack([kin.machine_xyz(tips, rot, L), rot]), tool_length=L)
+    machine["tool"] = 3
+    as_tips = machine.copy()
+    as_tips["start"][:, 2] -= L
+    as_tips["end"][:, 2] -= L
+    as_tips["tool_length"] = 0.0
+    ref, got, bare = stock.copy(), stock.copy(), stock.copy()
+    Cutter(ref, tool, kinematics=kin).cut_moves(machine)
+    Cutter(got, tool, kinematics=kin, tool_lengths={3: L}).cut_moves(as_tips)
+    Cutter(bare, tool, kinematics=kin).cut_moves(as_tips)
+    for name in ("pool_near", "pool_far", "count"):
+        assert np.array_equal(ref.store[name], got.store[name])
+    # without it each tip lands L (k - Z) from where it is: elsewhere, a different cut
+    assert abs(ref.volume() - bare.volume()) > 1.0

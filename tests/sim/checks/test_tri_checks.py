@@ -208,7 +208,8 @@ def test_tilted_holder_into_a_fixture():
     fixture check follows the kinematics too), on either model."""
     kin = HeadHead("B")
     moves, _ = tilted_pass(kin)
-    clamp = Fixture.box((12.0, 0.0, 5.0), (20.0, 20.0, 14.0), 0.5, name="clamp")
+    box = Fixture.box((12.0, 0.0, 5.0), (20.0, 20.0, 14.0), 0.5, name="clamp")
+    clamp = Fixture(box.name, box.grid, kinematics=kin)   # on a head machine: the head's tilt
     z_model, tri_model = rib_models(spacing=0.5, rib=(25.0, 26.0), rib_top=6.0)
     tool = parse_tool_spec(TILTED_TOOL)
     for model in (z_model, tri_model):
