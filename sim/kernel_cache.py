@@ -38,6 +38,7 @@ KERNEL_SOURCES = (
     "sim/surface.py",
     "sim/sweep_kernels.py",
     "sim/trace_kernels.py",
+    "sim/tridexel_surface.py",
 )
 #: cache folders kept (one per version of the sources seen lately)
 KEEP = 3
