@@ -252,8 +252,13 @@ class Checker:
             _, core = engagement.run(moves, cut=zres, grid=zgrid)
             for tool, rows in self._tool_of_rows(moves):
                 out += motion.plunges(moves[rows], core[rows], tool, self.max_ramp_deg, move_ids=ids[rows])
-        out += collisions.rapid_into_stock(moves, res.removed, ids, self.min_volume, cut=zres, grid=zgrid)
-        out += motion.spindle_stopped_cutting(moves, res.removed, ids, self.min_volume, carry=spindle_off)
+        removed = res.removed
+        turned = collisions.turned_rows(moves, self.kinematics, self.origin)
+        if turned.any():  # cusps of earlier instances shaved by a later pass are no contact
+            step = self.tol.instance_fraction * zgrid.frame.spacing
+            removed = np.where(collisions.instance_slivers(zres, turned, step), 0.0, removed)
+        out += collisions.rapid_into_stock(moves, removed, ids, self.min_volume, cut=zres, grid=zgrid)
+        out += motion.spindle_stopped_cutting(moves, removed, ids, self.min_volume, carry=spindle_off)
         if pre:
             out += self._replay_contacts(snapshot, moves, ids, pre, touched)
         else:

@@ -54,6 +54,23 @@ def rapid_into_stock(moves: np.ndarray, removed, move_ids=None, min_volume: floa
     return out
 
 
+def instance_slivers(cut, rows: np.ndarray, floor: float) -> np.ndarray:
+    """bool (n,): which of ``rows`` (bool (n,), rows cut by instances of motion) took at
+    most ``floor`` mm off every ray they changed (``cut``: their CutResult, depths kept).
+
+    Instances of motion leave cusps between two poses no thicker than the step between
+    them; a later move through the same place (a retract up a tilted plunge) shaves them.
+    Such slivers are the model's sampling, not material the machine meets."""
+    out = np.zeros(rows.size, bool)
+    ptr = cut.changed_ptr
+    if not cut.changed_depth.size:
+        return out
+    for k in np.nonzero(rows)[0]:
+        lo, hi = ptr[k], ptr[k + 1]
+        out[k] = hi > lo and float(cut.changed_depth[lo:hi].max()) <= floor
+    return out
+
+
 def _entry_point(moves, k, cut, grid):
     """World point (3,) where move ``k`` first met material, or None (see rapid_into_stock)."""
     lo, hi = cut.changed_ptr[k], cut.changed_ptr[k + 1]

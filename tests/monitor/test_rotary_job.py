@@ -260,3 +260,39 @@ def test_head_tool_lengths_one_per_tilted_tool_or_a_clear_error():
     with pytest.raises(JobError, match=r"job.toml: T1 is tilted by the head with two tool lengths, 40 mm \(line 4\) "
                                        r"and 45 mm \(line 7\)"):
         head_tool_lengths(kin, moves, "job.toml")
+
+
+def _tilted_plunge_job(tmp_path, after: str) -> Path:
+    """The tilted-head plunge above (B30, the tool's G43 length 50 mm, pivot 100 mm), then
+    ``after`` (G-code lines in machine X, program Z) and the program's end."""
+    P, L, tilt, r = 100.0, 50.0, 30.0, 3.0
+    k = np.array([-math.sin(math.radians(tilt)), 0.0, math.cos(math.radians(tilt))])
+    tip_x, tip_z = 30.0 + r * math.cos(math.radians(tilt)), 16.0
+    x = tip_x - (P + L) * -k[0]
+    z = tip_z - (P + L - (P + L) * k[2])
+    (tmp_path / "tilt.nc").write_text(
+        "G21 G90 G94\nT1 M6\nG43.1 Z50\nM3 S10000\nG0 Z60\nG0 B30\n"
+        f"G0 X{x:.4f} Y10\nG1 Z{z + 10:.4f} F300\nG1 Z{z:.4f} F200\n"
+        + after.format(x=x, z=z) + "M5\nM2\n")
+    (tmp_path / "job.toml").write_text(
+        'work_offset = [0, 0, 0]\nresolution = 0.5\n'
+        '[program]\npath = "tilt.nc"\ndialect = "linuxcnc"\n'
+        f'[machine]\nkinematics = "xyzbc-head"\npivot_length = {P}\n'
+        '[stock]\nbox = [0, 0, 0, 60, 20, 20]\n'
+        '[tools]\n1 = "flat:6:L=20"\n')
+    return tmp_path / "job.toml"
+
+
+def test_a_tilted_retract_up_its_own_plunge_is_no_rapid_into_stock(tmp_path, capsys):
+    """Retracting (G0) straight up the way a tilted tool plunged: the instances of motion
+    of the plunge and of the retract fall at different places, so the retract shaves the
+    plunge's cusps (slivers 0.05 mm thick, 0.06 mm^3): not a rapid into material. A
+    rapid across the stock at the plunge's depth still is."""
+    job = _tilted_plunge_job(tmp_path, "G0 Z60\n")
+    code = main(["simulate", str(job), "--json"])
+    doc = json.loads(capsys.readouterr().out)
+    assert code == 0 and doc["findings"] == [], doc["findings"]
+    job = _tilted_plunge_job(tmp_path, "G0 X{x:.4f} Y16\nG0 Z60\n")
+    main(["simulate", str(job), "--json"])
+    doc = json.loads(capsys.readouterr().out)
+    assert [(f["kind"], f["line"]) for f in doc["findings"]] == [("rapid_into_stock", 10)], doc["findings"]
