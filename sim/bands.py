@@ -40,9 +40,6 @@ CHUNK_SEGMENTS = 4096
 #: below this many rays within reach of a batch, one core is faster than handing off
 MIN_PARALLEL_RAYS = 200_000
 
-_pool: ThreadPoolExecutor | None = None
-
-
 def default_threads() -> int:
     """Threads a cut may use: ``DEXMON_THREADS`` if set, else the cores this process may run on."""
     env = os.environ.get("DEXMON_THREADS", "").strip()
@@ -57,21 +54,27 @@ def default_threads() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-def _executor(threads: int) -> ThreadPoolExecutor:
-    global _pool
-    if _pool is None or _pool._max_workers < threads:
-        _pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="dexmon-band")
-    return _pool
+class ThreadPool:
+    """A thread pool started on first use with at least the workers asked for, and
+    started again in a forked child (the parent's threads do not survive a fork)."""
+
+    def __init__(self, prefix: str):
+        self.prefix = prefix
+        self._ex: ThreadPoolExecutor | None = None
+        if hasattr(os, "register_at_fork"):
+            os.register_at_fork(after_in_child=self._forget)
+
+    def get(self, workers: int) -> ThreadPoolExecutor:
+        if self._ex is None or self._ex._max_workers < workers:
+            self._ex = ThreadPoolExecutor(max_workers=workers, thread_name_prefix=self.prefix)
+        return self._ex
+
+    def _forget(self) -> None:
+        self._ex = None
 
 
-def _forget_pool() -> None:
-    """In a forked child the pool's threads are gone: start a new pool when one is needed."""
-    global _pool
-    _pool = None
-
-
-if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_forget_pool)
+#: the threads bands are cut on
+BAND_POOL = ThreadPool("dexmon-band")
 
 
 def reach_rays(p0: np.ndarray, p1: np.ndarray, reach: float, spacing: float) -> np.ndarray:
@@ -278,7 +281,7 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
     if reach is None:
         reach = np.zeros(len(seg_move))
     bound = np.concatenate([[0.0], np.cumsum(reach)])
-    ex = _executor(threads) if threads > 1 else None
+    ex = BAND_POOL.get(threads) if threads > 1 else None
     # two sets of trace buffers: the bands cut a chunk into one while the calling thread
     # merges the chunk before from the other (the merge is mostly the first touch of the
     # trace's fresh pages: done while the bands cut, it costs little wall time)

@@ -499,10 +499,17 @@ def heightfield_mesh(grid: DexelGrid):
 
 def export_stl(grid: DexelGrid, path) -> Path:
     """Write the closed surface of ``grid`` as a binary STL (mm); returns the path."""
+    return write_stl(lambda: surface_mesh(grid), path)
+
+
+def write_stl(make_mesh, path) -> Path:
+    """Write the mesh ``make_mesh()`` gives (a ``trimesh.Trimesh``, mm) as a binary STL at
+    ``path``; a missing folder or an empty mesh is an error naming the path (the folder is
+    checked before the mesh is made)."""
     path = Path(path)
     if not path.parent.is_dir():
         raise InputError("directory does not exist", where=str(path.parent))
-    mesh = surface_mesh(grid)
+    mesh = make_mesh()
     if len(mesh.faces) == 0:
         raise InputError("the model holds no material; nothing to export", where=str(path))
     mesh.export(str(path), file_type="stl")

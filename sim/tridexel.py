@@ -24,9 +24,6 @@ crossings of the solid's surface with the lattice's edges are the dexels' segmen
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 
 from sim import bands
@@ -170,27 +167,10 @@ def _lattice_around(lo: np.ndarray, hi: np.ndarray, anchor: np.ndarray, spacing:
     return anchor - below * spacing, anchor + above * spacing
 
 
-_pool: ThreadPoolExecutor | None = None
-
-
-def _executor() -> ThreadPoolExecutor:
-    """The threads the three grids are cut on (its own pool: a grid's Cutter may hand
-    bands to :mod:`sim.bands`' pool, and waiting on a pool from its own threads can
-    deadlock)."""
-    global _pool
-    if _pool is None:
-        _pool = ThreadPoolExecutor(max_workers=len(AXES), thread_name_prefix="dexmon-tri")
-    return _pool
-
-
-def _forget_pool() -> None:
-    """In a forked child the pool's threads are gone: start a new pool when one is needed."""
-    global _pool
-    _pool = None
-
-
-if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_forget_pool)
+#: the threads the three grids are cut on at once (a pool of its own: a grid's Cutter may
+#: hand bands to :data:`sim.bands.BAND_POOL`, and waiting on a pool from its own threads
+#: can deadlock)
+_GRID_POOL = bands.ThreadPool("dexmon-tri")
 
 
 class TriCutter:
@@ -226,7 +206,7 @@ class TriCutter:
         if not self.grids_at_once:
             return {a: call(self.cutters[a]) for a in AXES}
         order = sorted(AXES, key=lambda a: self.cutters[a]._top)
-        futures = {a: _executor().submit(call, self.cutters[a]) for a in order}
+        futures = {a: _GRID_POOL.get(len(AXES)).submit(call, self.cutters[a]) for a in order}
         return {a: futures[a].result() for a in AXES}
 
     def cut_moves(self, moves: np.ndarray, move_ids=None, record_changes: bool = False) -> dict:

@@ -52,7 +52,7 @@ import numba as nb
 import numpy as np
 
 from sim.errors import InputError
-from sim.surface import _live_segments
+from sim.surface import _live_segments, write_stl
 from sim.tridexel import TriDexel
 
 #: lattice axis of each grid's rays (x grid runs along axis 0, ...)
@@ -593,11 +593,4 @@ def tridexel_mesh(model: TriDexel, placement: str = "qef"):
 
 def export_stl(model: TriDexel, path) -> Path:
     """Write the closed surface of ``model`` as a binary STL (mm); returns the path."""
-    path = Path(path)
-    if not path.parent.is_dir():
-        raise InputError("directory does not exist", where=str(path.parent))
-    mesh = tridexel_mesh(model)
-    if len(mesh.faces) == 0:
-        raise InputError("the model holds no material; nothing to export", where=str(path))
-    mesh.export(str(path), file_type="stl")
-    return path
+    return write_stl(lambda: tridexel_mesh(model), path)

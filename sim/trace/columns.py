@@ -257,6 +257,13 @@ class _BlockLog:
     def last_stage(self) -> int:
         return int(self._stage.a[-1]) if self._stage.n else self.first_stage
 
+    def _pop_due_block(self) -> int | None:
+        """The block of the next keyframe that fell due (those a later keyframe already
+        covers dropped), taken off the list; None when none is due."""
+        while self._due and self._due[0] <= self._keyframes[-1].block:
+            self._due.pop(0)
+        return self._due.pop(0) if self._due else None
+
     def _blocks_upto(self, stage: int) -> int:
         return int(np.searchsorted(self._stage.a, int(stage), side="right"))
 

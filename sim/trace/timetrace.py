@@ -129,12 +129,11 @@ class TimeTrace(_BlockLog):
         left = np.inf if budget is None else int(budget)
         while left > 0:
             if self._builder is None:
-                while self._due and self._due[0] <= self._keyframes[-1].block:
-                    self._due.pop(0)
-                if not self._due:
+                due = self._pop_due_block()
+                if due is None:
                     return True
                 base = self._keyframes[-1]
-                self._builder = [self._due.pop(0), base.data[0].copy(), base.data[1].copy(), base.block]
+                self._builder = [due, base.data[0].copy(), base.data[1].copy(), base.block]
             b1, top, tid, cur = self._builder
             p = self._ptr.a
             stop = int(np.searchsorted(p, p[cur] + left, side="left")) if np.isfinite(left) else b1

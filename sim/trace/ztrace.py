@@ -246,11 +246,10 @@ class ZTrace(_BlockLog):
         left = np.inf if budget is None else int(budget)
         while left > 0:
             if self._builder is None:
-                while self._due and self._due[0] <= self._keyframes[-1].block:
-                    self._due.pop(0)
-                if not self._due:
+                due = self._pop_due_block()
+                if due is None:
                     return True
-                self._builder = _KeyBuilder(self, self._due.pop(0))
+                self._builder = _KeyBuilder(self, due)
             used = self._builder.step(int(min(left, 1 << 62)))
             left -= max(used, 1)
             if self._builder.done:

@@ -211,24 +211,11 @@ def test_a_tilted_head_places_the_tip_one_tool_length_from_the_gauge_point(tmp_p
     program's Z (the tip with G43). Placed there the flat end mill's lowest rim point
     goes 3.5 mm into the design box; the tool length left out, the tip lands 25 mm short,
     beside the design, and no gouge is found."""
-    P, L, tilt, r = 100.0, 50.0, 30.0, 3.0
-    k = np.array([-math.sin(math.radians(tilt)), 0.0, math.cos(math.radians(tilt))])
-    # the rim's lowest point, r along (-cos, 0, -sin) of the tilt from the tip, on the ray at X30
-    tip_x, tip_z = 30.0 + r * math.cos(math.radians(tilt)), 16.0
-    # machine X, program Z (tip with G43) of the plunge's end
-    x = tip_x - (P + L) * -k[0]
-    z = tip_z - (P + L - (P + L) * k[2])
-    (tmp_path / "tilt.nc").write_text(
-        "G21 G90 G94\nT1 M6\nG43.1 Z50\nM3 S10000\nG0 Z60\nG0 B30\n"
-        f"G0 X{x:.4f} Y10\nG1 Z{z + 10:.4f} F300\nG1 Z{z:.4f} F200\nG0 Z60\nM5\nM2\n")
-    (tmp_path / "job.toml").write_text(
-        'work_offset = [0, 0, 0]\nresolution = 0.5\n'
-        '[program]\npath = "tilt.nc"\ndialect = "linuxcnc"\n'
-        f'[machine]\nkinematics = "xyzbc-head"\npivot_length = {P}\n'
-        '[stock]\nbox = [0, 0, 0, 60, 20, 20]\n'
-        '[tools]\n1 = "flat:6:L=20"\n'
-        '[design]\nbox = [20, 0, 0, 40, 20, 18]\n'
-        '[tolerance]\ngouge = 0.05\nundercut = 5\ninterest = 6\n')
+    tilt, r = 30.0, 3.0
+    tip_z = 16.0   # the plunge's end (see _tilted_plunge_job)
+    job = _tilted_plunge_job(tmp_path, "G0 Z60\n")
+    job.write_text(job.read_text() + '[design]\nbox = [20, 0, 0, 40, 20, 18]\n'
+                   '[tolerance]\ngouge = 0.05\nundercut = 5\ninterest = 6\n')
     code = main(["simulate", str(tmp_path / "job.toml"), "--json"])
     doc = json.loads(capsys.readouterr().out)
     gouges = [f for f in doc["findings"] if f["kind"] == "gouge"]
@@ -239,6 +226,7 @@ def test_a_tilted_head_places_the_tip_one_tool_length_from_the_gauge_point(tmp_p
     assert [(x["kind"], x["line"]) for x in ahead] == [("gouge", 9)]
     assert ahead[0]["predicted"] and ahead[0]["lead_time_s"] > 0
     assert code == 1 and [f["line"] for f in gouges] == [9], doc["findings"]
+    assert [(f["kind"], f["line"]) for f in doc["findings"]] == [("gouge", 9)]   # nothing else
     # the setup check sees the tips the head puts on the part, not the program's X Y Z
     assert not [f for f in doc["findings"] if f["kind"] == "setup"], doc["findings"]
     # the rim's lowest point: r sin(tilt) below the tip, under the design's top (18)
@@ -263,8 +251,10 @@ def test_head_tool_lengths_one_per_tilted_tool_or_a_clear_error():
 
 
 def _tilted_plunge_job(tmp_path, after: str) -> Path:
-    """The tilted-head plunge above (B30, the tool's G43 length 50 mm, pivot 100 mm), then
-    ``after`` (G-code lines in machine X, program Z) and the program's end."""
+    """A plunge on a head-head machine (pivot 100 mm), B30, the tool's G43 length 50 mm:
+    the flat end mill's lowest rim point ends on the ray at X30 at Z16 - 3 sin 30;
+    then ``after`` (G-code lines, ``{x}``/``{z}`` the plunge's end in machine X and
+    program Z) and the program's end."""
     P, L, tilt, r = 100.0, 50.0, 30.0, 3.0
     k = np.array([-math.sin(math.radians(tilt)), 0.0, math.cos(math.radians(tilt))])
     tip_x, tip_z = 30.0 + r * math.cos(math.radians(tilt)), 16.0
