@@ -1,7 +1,7 @@
 """Material-removal benchmark: one JSON line per case.
 
     python bench/sim_bench.py [--shared ../shared] [--case wavy_finish] [--no-check]
-                              [--mode plain|record|journal ...] [--pairs 5] [--shapes]
+                              [--mode plain|record ...] [--pairs 5] [--shapes]
 
 Cases (stock box 0,0,0,100,100,20 at 0.1 mm, 1001 x 1001 rays):
 
@@ -9,8 +9,7 @@ Cases (stock box 0,0,0,100,100,20 at 0.1 mm, 1001 x 1001 rays):
 * ``pocket_rough`` - pocket roughing with arcs, 6 mm flat end mill.
 
 Modes (one line each, field ``mode``): ``plain`` cuts with ``record_changes=False``;
-``record`` keeps the changed rays and depths of cut; ``journal`` also the segment
-journal (``journal_segments``: how many segments it holds).
+``record`` keeps the changed rays and depths of cut.
 
 Figures (best of ``--repeat`` runs, each on fresh stock): moves, seconds (wall),
 cpu_seconds, moves_per_s (wall), moves_per_s_cpu,
@@ -100,7 +99,7 @@ def warm_up(tool, moves) -> None:
     grid = DexelGrid.from_intervals(frame, np.zeros(frame.shape), np.full(frame.shape, 20.0))
     Cutter(grid, tool).cut_moves(moves[:50], record_changes=False)
     Cutter(grid, tool).cut_moves(moves[:50], record_changes=True)
-    Cutter(grid, tool).cut_moves(moves[:50], journal=True)
+    Cutter(grid, tool).cut_moves(moves[:50], record_changes=True)
 
 
 # --- the independent reference ------------------------------------------------------
@@ -412,7 +411,7 @@ def run_case(name: str, shared: Path, check: bool, repeat: int = 3, mode: str = 
         cutter = Cutter(grid, tool)
         c0 = time.process_time()
         w0 = time.perf_counter()
-        res = cutter.cut_moves(moves, record_changes=mode != "plain", journal=mode == "journal")
+        res = cutter.cut_moves(moves, record_changes=mode != "plain")
         wall = min(wall, time.perf_counter() - w0)
         cpu = min(cpu, time.process_time() - c0)
     out = {
@@ -435,8 +434,6 @@ def run_case(name: str, shared: Path, check: bool, repeat: int = 3, mode: str = 
     }
     if mode != "plain":
         out["changed_entries"] = int(res.changed_rays.size)
-    if mode == "journal":
-        out["journal_segments"] = int(res.journal_near.size)
     out["peak_rss_mb"] = round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, 1)
     if check:
         # a ray within 1e-6 mm of the swept boundary may fall either side: accept both
@@ -712,8 +709,8 @@ def main(argv=None) -> int:
     ap.add_argument("--case", choices=sorted(CASES), action="append")
     ap.add_argument("--no-check", action="store_true", help="skip the reference height check")
     ap.add_argument("--repeat", type=int, default=3, help="runs per case; the best is reported (default 3)")
-    ap.add_argument("--mode", choices=["plain", "record", "journal"], action="append",
-                    help="what the cut records (default: plain and journal)")
+    ap.add_argument("--mode", choices=["plain", "record"], action="append",
+                    help="what the cut records (default: plain and record)")
     ap.add_argument("--pairs", type=int, default=5,
                     help="interleaved pairs per baseline run and per shape (default 5; 0: no baseline)")
     ap.add_argument("--shapes", action="store_true",
@@ -738,7 +735,7 @@ def main(argv=None) -> int:
         print(json.dumps(run_reach_rate(shared, max(1, args.pairs))), flush=True)
         return 0
     for name in args.case or list(CASES):
-        for mode in args.mode or ["plain", "journal"]:
+        for mode in args.mode or ["plain", "record"]:
             print(json.dumps(run_case(name, shared, not args.no_check and mode == "plain",
                                       args.repeat, mode)), flush=True)
     for name, spec in BASELINE_RUNS:

@@ -150,10 +150,7 @@ class _Buffers:
 
 
 class _BandLogs(_Buffers):
-    """The change logs of the bands (see ``sweep_kernels.finish_move``), no journal."""
-
-    _DUMMY = (np.zeros(1, np.int64), np.zeros(1, np.float32), np.zeros(1, np.float32),
-              np.zeros(1, np.int32), np.zeros(1, np.int32))
+    """The change logs of the bands (see ``sweep_kernels.finish_move``)."""
 
     def __init__(self, n_bands: int, n_moves: int):
         super().__init__(n_bands, {"ray": (1 << 14, np.int64), "depth": (1 << 14, np.float32),
@@ -167,9 +164,8 @@ class _BandLogs(_Buffers):
         self.grow(("ray", "depth"), changes, keep=False)
 
     def buffers(self, t: int) -> tuple:
-        jptr, jn, jf, jni, jfi = self._DUMMY
-        return (self.row("ray", t), self.row("depth", t), jptr, self.counts[t], jn, jf, jni, jfi,
-                self.row("s_top", t), self.row("s_len", t))
+        return (self.row("ray", t), self.row("depth", t), self.counts[t], self.row("s_top", t),
+                self.row("s_len", t))
 
     def grow_for(self, state: np.ndarray) -> None:
         used, cur = int(state[3]), int(state[4])
@@ -264,8 +260,7 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
     the segments ``a .. b-1``: planned per chunk, as a chunk of a raster covers only part of
     the rows and bands planned for the whole batch would leave all its work to one;
     removed: float64 (n_moves,)
-    accumulates the length removed per move (mm). log: the cutter's change log (no
-    journal) or None; sink: the trace sink (``sim.trace.sink._Sink``) or None; reach: the rays
+    accumulates the length removed per move (mm). log: the cutter's change log or None; sink: the trace sink (``sim.trace.sink._Sink``) or None; reach: the rays
     within reach of each segment (:func:`reach_rays`: they bound the changes a band logs).
     """
     threads = threads or default_threads()
@@ -333,7 +328,7 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
                     logs.grow_for(states[t])
                 elif st == K.STOP_TRACE:
                     traces.grow_for(t)
-                else:  # journal stops cannot happen (no journal); keyframes are off in bands
+                else:  # keyframes are off in bands
                     raise RuntimeError(f"band cut stopped with status {st}")
             todo = again
         if logs is not None:

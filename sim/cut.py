@@ -51,9 +51,7 @@ _Z_AXIS = np.array([0.0, 0.0, 1.0])
 
 _EMPTY_I64 = np.zeros(0, np.int64)
 _EMPTY_F32 = np.zeros(0, np.float32)
-_EMPTY_I32 = np.zeros(0, np.int32)
 _EMPTY_F64 = np.zeros(0, np.float64)
-_PTR0 = np.zeros(1, np.int64)
 
 
 @dataclass
@@ -67,12 +65,6 @@ class CutResult:
     changed_depth: float32 aligned with ``changed_rays``, mm: the material the move took
     off that ray from the top down (top before the move minus the new top; where the top
     did not move - a split below it - or the ray was emptied, the length removed).
-
-    The journal (only with ``cut_moves(..., journal=True)``; else empty): for each entry
-    ``e`` of ``changed_rays``, the ray's complete segment list right after that move:
-    ``journal_near/far[journal_seg_ptr[e]:journal_seg_ptr[e+1]]`` (float32 mm, sorted)
-    with face ids ``journal_near_id/far_id`` (int32). An entry without segments means
-    the move emptied the ray.
     """
 
     removed: np.ndarray
@@ -80,21 +72,6 @@ class CutResult:
     changed_rays: np.ndarray
     seconds: float
     changed_depth: np.ndarray = field(default_factory=_EMPTY_F32.copy)
-    journal_seg_ptr: np.ndarray = field(default_factory=_PTR0.copy)
-    journal_near: np.ndarray = field(default_factory=_EMPTY_F32.copy)
-    journal_far: np.ndarray = field(default_factory=_EMPTY_F32.copy)
-    journal_near_id: np.ndarray = field(default_factory=_EMPTY_I32.copy)
-    journal_far_id: np.ndarray = field(default_factory=_EMPTY_I32.copy)
-
-    @property
-    def has_journal(self) -> bool:
-        return self.journal_seg_ptr.size == self.changed_rays.size + 1
-
-    def journal_segments(self, e: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(near, far, near_id, far_id) of journal entry ``e`` (the ray ``changed_rays[e]``)."""
-        a, b = self.journal_seg_ptr[e], self.journal_seg_ptr[e + 1]
-        return (self.journal_near[a:b], self.journal_far[a:b],
-                self.journal_near_id[a:b], self.journal_far_id[a:b])
 
     def changed(self, k: int) -> np.ndarray:
         """Flat ray indices move ``k`` changed."""
@@ -125,32 +102,22 @@ class _Log:
     """The change log of one batch cut, filled by the kernels (see ``K.finish_move``).
 
     ray (int64) / depth (float32): one entry per move and distinct ray it changed;
-    jptr (int64): journal segments of entry ``e`` end at ``jptr[e + 1]``; counts (int64
-    (n_moves,)): entries per move; jn / jf (float32), jni / jfi (int32): the journal's
-    segments; s_top / s_len (float64): per-move scratch, reused move after move.
-    Buffers grow in place (:func:`_grow`, :func:`_larger`): little slack, never two copies.
+    counts (int64 (n_moves,)): entries per move; s_top / s_len (float64): per-move
+    scratch, reused move after move. Buffers grow in place (:func:`_grow`,
+    :func:`_larger`): little slack, never two copies.
     """
 
-    def __init__(self, n_moves: int, journal: bool, small: bool):
+    def __init__(self, n_moves: int, small: bool):
         cap = 1 << 11 if small else 1 << 16
-        jcap = cap if journal else 1
-        self.journal = journal
         self.ray = np.empty(cap, np.int64)
         self.depth = np.empty(cap, np.float32)
-        self.jptr = np.zeros(cap + 1 if journal else 1, np.int64)
         self.counts = np.zeros(n_moves, np.int64)
-        self.jn = np.empty(jcap, np.float32)
-        self.jf = np.empty(jcap, np.float32)
-        self.jni = np.empty(jcap, np.int32)
-        self.jfi = np.empty(jcap, np.int32)
         self.s_top = np.empty(1 << 12)
         self.s_len = np.empty(1 << 12)
         self.n = 0   # entries closed
-        self.nj = 0  # journal segments used
 
     def buffers(self) -> tuple:
-        return (self.ray, self.depth, self.jptr, self.counts, self.jn, self.jf, self.jni, self.jfi,
-                self.s_top, self.s_len)
+        return (self.ray, self.depth, self.counts, self.s_top, self.s_len)
 
     def grow_entries(self, state) -> None:
         used, cur = int(state[3]), int(state[4])
@@ -158,28 +125,15 @@ class _Log:
             cap = max(_larger(self.ray.size), used + cur + 1)
             _grow(self.ray, cap)
             _grow(self.depth, cap)
-            if self.journal:
-                _grow(self.jptr, cap + 1)
         if cur >= self.s_top.size:
             self.s_top = np.concatenate([self.s_top, np.empty(self.s_top.size)])
             self.s_len = np.concatenate([self.s_len, np.empty(self.s_len.size)])
-
-    def grow_journal(self, state) -> None:
-        cap = max(_larger(self.jn.size), int(state[6]), 1024)
-        for a in (self.jn, self.jf, self.jni, self.jfi):
-            _grow(a, cap)
 
     def trim(self) -> None:
         """Give back the slack: every buffer cut to what was used."""
         for a in (self.ray, self.depth):
             _grow(a, self.n)
-        if self.journal:
-            _grow(self.jptr, self.n + 1)
-            for a in (self.jn, self.jf, self.jni, self.jfi):
-                _grow(a, self.nj)
         self.s_top = self.s_len = _EMPTY_F64
-
-
 
 
 class _Work:
@@ -273,7 +227,7 @@ class Cutter:
 
     # --- public API ---------------------------------------------------------------------
     def cut_moves(self, moves: np.ndarray, move_ids=None, record_changes: bool = True,
-                  journal: bool = False, trace=None, stages=None, body: Body | None = None) -> CutResult:
+                  trace=None, stages=None, body: Body | None = None) -> CutResult:
         """Cut every row of ``moves`` (MOVE_DTYPE) in order.
 
         body: sweep this body (a shank, a holder) instead of each row's cutting tool
@@ -281,23 +235,18 @@ class Cutter:
 
         move_ids: int (n,) face ids to write (default row index + 1; 0 is the stock).
         record_changes: False skips the changed-ray lists (saves memory on long programs).
-        journal: also return every changed ray's segments after each move (see
-        :class:`CutResult`); implies ``record_changes``.
         trace: a :class:`sim.trace.Trace` (or ``ZTrace``) of this grid, up to date: every
         row is recorded into it as its own stage while it is cut (the kernels write the
-        trace's events directly; no journal, no second pass). stages: int (n,) the rows'
+        trace's events directly; no second pass). stages: int (n,) the rows'
         stages (non-decreasing, not below the trace's last; default last + 1, + 2, ...).
         """
         t0 = time.perf_counter()
         n = len(moves)
         ids = self._ids(n, move_ids)
         removed = np.zeros(n, np.float64)
-        record = bool(record_changes or journal)
-        if trace is not None and journal:
-            raise InputError("cut_moves: a trace and a journal are two ways to record the same "
-                             "changes; ask for one")
+        record = bool(record_changes)
         sink = trace.sink(self.grid, n, stages, ids) if trace is not None else None
-        log = _Log(n, journal, n <= 8) if record else None
+        log = _Log(n, n <= 8) if record else None
         multi = np.zeros(n, bool)
         for lo, hi, tool in self._tool_runs(moves):
             sub = moves[lo:hi]
@@ -552,7 +501,6 @@ class Cutter:
         f = grid.frame
         eps = self.tol.length
         record = log is not None
-        journal = record and log.journal
         traced = sink is not None
         reach = bands.reach_rays(p0, p1, tp[6], f.spacing)
         events = min(int(reach.sum()), 32 * f.n_rays + len(p0) * 64)  # bounds the changes
@@ -563,20 +511,20 @@ class Cutter:
         top_bound = np.inf
         if len(p0) >= 64 and not probe:  # lets chained moves skip rays already cut
             top_bound = grid.max_top()
-        if self.threads > 1 and not probe and not journal and reach.sum() >= bands.MIN_PARALLEL_RAYS:
+        if self.threads > 1 and not probe and reach.sum() >= bands.MIN_PARALLEL_RAYS:
             def plan(a, b):
                 return bands.plan_bands(p0[a:b], p1[a:b], tp[6], f.origin[1], f.spacing, f.nv, self.threads)
 
             def band_cut(S, st, B, T, ts, rem, band, segs):
                 a, b = segs
                 return K.cut_linear_batch(S, f.origin[0], f.origin[1], f.spacing, f.nu, f.nv, p0[a:b],
-                                          p1[a:b], sm[a:b], sid[a:b], tp, eps, False, record, False, rem,
+                                          p1[a:b], sm[a:b], sid[a:b], tp, eps, False, record, rem,
                                           B, st, traced, T, ts, top_bound, band[0], band[1])
             bands.cut_in_bands(grid, band_cut, sm, plan, removed, log, sink, reach, self.threads)
             return
         self._loop(lambda S, st, B, T, ts: K.cut_linear_batch(
             S, f.origin[0], f.origin[1], f.spacing, f.nu, f.nv, p0, p1, sm, sid, tp, eps,
-            probe, record, journal, removed, B, st, traced, T, ts, top_bound, 0, int(f.nv)), log, sink)
+            probe, record, removed, B, st, traced, T, ts, top_bound, 0, int(f.nv)), log, sink)
 
     def _cut_poses(self, tips, axes, pm, pid, prof, rmax: float, removed, probe: bool,
                    log: _Log | None, sink) -> None:
@@ -585,13 +533,12 @@ class Cutter:
         f = self.grid.frame
         eps = self.tol.length
         record = log is not None
-        journal = record and log.journal
         traced = sink is not None
         per_pose = (2 * rmax / f.spacing + 2) ** 2
         if traced:
             sink.need_marks()
             sink.reserve(min(int(len(tips) * per_pose), 4 * f.n_rays))
-        if (self.threads > 1 and not probe and not journal and len(tips) >= 16
+        if (self.threads > 1 and not probe and len(tips) >= 16
                 and len(tips) * per_pose >= bands.MIN_PARALLEL_RAYS):
             # each pose's rows: from the bottom to the top of the (tilted) body, grown by rmax
             lo = tips + prof[0, 0] * axes
@@ -603,14 +550,14 @@ class Cutter:
             def band_cut(S, st, B, T, ts, rem, band, segs):
                 a, b = segs
                 return K.cut_poses(S, f.spacing, f.nu, f.nv, tips[a:b], axes[a:b], pm[a:b], pid[a:b],
-                                   prof, rmax, eps, False, record, False, rem, B, st, traced, T, ts,
+                                   prof, rmax, eps, False, record, rem, B, st, traced, T, ts,
                                    band[0], band[1])
             bands.cut_in_bands(self.grid, band_cut, pm, plan, removed, log, sink,
                                np.full(len(tips), per_pose), self.threads)
             return
         self._loop(lambda S, st, B, T, ts: K.cut_poses(
             S, f.spacing, f.nu, f.nv, tips, axes, pm, pid, prof, rmax, eps, probe, record,
-            journal, removed, B, st, traced, T, ts, 0, int(f.nv)), log, sink)
+            removed, B, st, traced, T, ts, 0, int(f.nv)), log, sink)
 
     def _loop(self, call, log: _Log | None, sink=None) -> None:
         """Call a batch kernel until it is done, growing the pool, the log's buffers and
@@ -619,7 +566,6 @@ class Cutter:
         state[1] = state[2] = -1
         if log is not None:
             state[3] = log.n
-            state[5] = log.nj
         while True:
             status = call(self.grid.S, state, K.NO_LOG if log is None else log.buffers(),
                           K.NO_TRACE if sink is None else sink.buffers(),
@@ -634,14 +580,11 @@ class Cutter:
                 ds.grow_pool(self.grid.store, max(1024, self.grid.store["pool_near"].size))
             elif status == K.STOP_CHANGES:
                 log.grow_entries(state)
-            elif status == K.STOP_JOURNAL:
-                log.grow_journal(state)
         if log is not None:
             log.n = int(state[3])
-            log.nj = int(state[5])
 
     def _result(self, n, log: _Log | None) -> CutResult:
-        """The CSR of changed rays (and journal) from the kernels' log, in move order.
+        """The CSR of changed rays from the kernels' log, in move order.
 
         The kernels close each move's entries sorted by ray with one entry per ray, and
         moves run in order, so the log is the CSR; no sort, no copy.
@@ -654,10 +597,6 @@ class Cutter:
         np.cumsum(log.counts, out=ptr[1:])
         res.changed_rays = log.ray
         res.changed_depth = log.depth
-        if log.journal:
-            res.journal_seg_ptr = log.jptr
-            res.journal_near, res.journal_far = log.jn, log.jf
-            res.journal_near_id, res.journal_far_id = log.jni, log.jfi
         return res
 
     def _probe_scratch(self, moves, body) -> np.ndarray:

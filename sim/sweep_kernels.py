@@ -45,7 +45,6 @@ N_PARAMS = 7
 DONE = 0
 STOP_POOL = 1
 STOP_CHANGES = 2
-STOP_JOURNAL = 3
 STOP_TRACE = 4
 TRACE_KEYFRAME = 5
 
@@ -53,9 +52,8 @@ TRACE_KEYFRAME = 5
 #: inside the swept footprint is kept (a spare ray is harmless, a missed one a bug)
 REACH_PAD = 1e-6
 
-#: int64 ``state`` of a batch kernel: [k, j, i, entries closed, entries of the current move,
-#: journal segments used, journal segments needed (after STOP_JOURNAL)]
-STATE_SIZE = 7
+#: int64 ``state`` of a batch kernel: [k, j, i, entries closed, entries of the current move]
+STATE_SIZE = 5
 
 #: int64 ``ts`` of a traced batch (see :func:`finish_trace_move`): far events written,
 #: general events written, their segments written, general rays of the open move, the open
@@ -630,109 +628,68 @@ def _rows_any(tp, x0, y0, z0, dz, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrows,
 
 
 @nb.njit(cache=True)
-def finish_move(S, B, mv, nout, mc, journal, state):
+def finish_move(S, B, mv, nout, mc):
     """Close the changed-ray log of one move: its ``mc`` entries from ``nout`` on.
 
-    B: (out_ray int64, out_depth float32, jptr int64, counts int64 (n_moves,), jnear
-    float32, jfar float32, jnear_id int32, jfar_id int32, s_top float64, s_len float64).
-    While a move runs every change writes its ray at ``out_ray[nout + q]`` and, in the
-    small per-move scratch, the material top before that change (``s_top[q]``) and the
-    length removed (``s_len[q]``). Here the move's entries are sorted by ray and merged
-    (one per distinct ray: highest top, summed length; already sorted and distinct for a
-    single straight segment, the common case), ``out_depth`` gets the depth of cut on
-    each ray (top before the move minus the new top; the removed length where the top
-    did not move or the ray was emptied), ``counts[mv]`` the number of entries and, with
-    ``journal``, each ray's whole segment list after the move is appended at ``state[5]``
-    with ``jptr[e + 1]`` its end.
-
-    Returns the new entry count, or -1 (nothing changed; ``state[6]`` = segments needed)
-    when the journal buffers lack room.
+    B: (out_ray int64, out_depth float32, counts int64 (n_moves,), s_top float64, s_len
+    float64). While a move runs every change writes its ray at ``out_ray[nout + q]`` and,
+    in the small per-move scratch, the material top before that change (``s_top[q]``) and
+    the length removed (``s_len[q]``). Here the move's entries are sorted by ray and
+    merged (one per distinct ray: highest top, summed length; already sorted and
+    distinct for a single straight segment, the common case), ``out_depth`` gets the
+    depth of cut on each ray (top before the move minus the new top; the removed length
+    where the top did not move or the ray was emptied) and ``counts[mv]`` the number of
+    entries. Returns the new entry count.
     """
     out_ray = B[0]
     out_depth = B[1]
-    jptr = B[2]
-    counts = B[3]
-    jn = B[4]
-    jf = B[5]
-    jni = B[6]
-    jfi = B[7]
-    s_top = B[8]
-    s_len = B[9]
+    counts = B[2]
+    s_top = B[3]
+    s_len = B[4]
     cnt = S[0]
     if mc <= 0:
         return nout
     end = nout + mc
-    if journal:
-        need = 0
-        for e in range(nout, end):
-            need += cnt[out_ray[e]]
-        if state[5] + need > jn.size:
-            state[6] = state[5] + need
-            return -1
     ordered = True
     for e in range(nout + 1, end):
         if out_ray[e] <= out_ray[e - 1]:
             ordered = False
             break
-    w = mc
-    if not ordered:
-        order = np.argsort(out_ray[nout:end], kind="mergesort")
-        rr = out_ray[nout:end].copy()
-        tt = s_top[:mc].copy()
-        ll = s_len[:mc].copy()
-        w = 0
-        for q in range(mc):
-            o = order[q]
-            r = rr[o]
-            if w > 0 and out_ray[nout + w - 1] == r:
-                if tt[o] > s_top[w - 1]:
-                    s_top[w - 1] = tt[o]
-                s_len[w - 1] += ll[o]
-            else:
-                out_ray[nout + w] = r
-                s_top[w] = tt[o]
-                s_len[w] = ll[o]
-                w += 1
+    if ordered:  # each ray changed once: its logged depth is final
+        counts[mv] += mc
+        return end
+    order = np.argsort(out_ray[nout:end], kind="mergesort")
+    rr = out_ray[nout:end].copy()
+    tt = s_top[:mc].copy()
+    ll = s_len[:mc].copy()
+    w = 0
+    for q in range(mc):
+        o = order[q]
+        r = rr[o]
+        if w > 0 and out_ray[nout + w - 1] == r:
+            if tt[o] > s_top[w - 1]:
+                s_top[w - 1] = tt[o]
+            s_len[w - 1] += ll[o]
+        else:
+            out_ray[nout + w] = r
+            s_top[w] = tt[o]
+            s_len[w] = ll[o]
+            w += 1
     # the store's arrays are read directly (not through ds.get_seg): a call per entry
     # passing the store tuple costs more than the rest of the loop
     far = S[2]
     first = S[5]
-    pool_near = S[7]
     pool_far = S[8]
-    pool_nid = S[9]
-    pool_fid = S[10]
-    ju = state[5]
-    if ordered and not journal:  # each ray changed once: its logged depth is final
-        counts[mv] += w
-        return nout + w
     for q in range(w):
-        e = nout + q
-        r = out_ray[e]
+        r = out_ray[nout + q]
         c = cnt[r]
-        if not ordered:
-            depth = s_len[q]
-            if c > 0:
-                top = far[r] if c == 1 else pool_far[first[r] + c - 2]
-                drop = s_top[q] - np.float64(top)
-                if drop > 0.0:
-                    depth = drop
-            out_depth[e] = depth
-        if journal:
-            if c > 0:
-                jn[ju] = S[1][r]
-                jf[ju] = far[r]
-                jni[ju] = S[3][r]
-                jfi[ju] = S[4][r]
-                ju += 1
-                p0 = first[r]
-                for p in range(p0, p0 + c - 1):
-                    jn[ju] = pool_near[p]
-                    jf[ju] = pool_far[p]
-                    jni[ju] = pool_nid[p]
-                    jfi[ju] = pool_fid[p]
-                    ju += 1
-            jptr[e + 1] = ju
-    state[5] = ju
+        depth = s_len[q]
+        if c > 0:
+            top = far[r] if c == 1 else pool_far[first[r] + c - 2]
+            drop = s_top[q] - np.float64(top)
+            if drop > 0.0:
+                depth = drop
+        out_depth[nout + q] = depth
     counts[mv] += w
     return nout + w
 
@@ -743,8 +700,8 @@ def _log_change(B, nout, mc, r, top_before, got, depth):
     (final unless the move changes the ray again; see :func:`finish_move`)."""
     B[0][nout + mc] = r
     B[1][nout + mc] = depth
-    B[8][mc] = top_before
-    B[9][mc] = got
+    B[3][mc] = top_before
+    B[4][mc] = got
 
 
 @nb.njit(cache=True)
@@ -935,7 +892,7 @@ def _close_traced_move(S, T, B, ts, state, blk_f, blk_g, blk_s, blk_r, record, k
         _save(state, k, -1, -1, nout, mc)
         return STOP_TRACE, nout, mc, nf, ngl, nr
     if record and mc > 0:
-        nout = finish_move(S, B, done, nout, mc, False, state)
+        nout = finish_move(S, B, done, nout, mc)
         mc = 0
     if _trace_due(ts, done):
         _save(state, k, -1, -1, nout, mc)
@@ -1028,7 +985,7 @@ def _stadium_span(ax, ay, dx, dy, rad, y):
 
 @nb.njit(cache=True, nogil=True)
 def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps, probe,
-                     record, journal, removed, B, state, trace, T, ts, top_bound, band0, band1):
+                     record, removed, B, state, trace, T, ts, top_bound, band0, band1):
     """Sweep the body ``tp`` along each straight tip move ``P0[k] -> P1[k]`` and cut it.
 
     S: store tuple; grid rays at ``(gx0 + i*sp, gy0 + j*sp)``, ``nu x nv`` of them.
@@ -1036,15 +993,13 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     move each segment belongs to; seg_id: int32 (n,) face id it writes.
     probe: measure the overlap instead of cutting. record: log changed rays (one entry
     per move and distinct ray, with its depth of cut; see :func:`finish_move`).
-    journal: also log each changed ray's segments after the move (needs ``record``).
     removed: float64 (n_moves,) accumulates removed (or overlapping) *length* (mm).
     B: the log buffers (see :func:`finish_move`); state: int64 (STATE_SIZE,) where to
-    resume. Returns DONE, STOP_POOL (grow the pool, call again), STOP_CHANGES (grow
-    B[0..2] when ``state[3] + state[4]`` fills them, the scratch B[8..9] when ``state[4]``
-    does; call again) or STOP_JOURNAL (grow B[4..7] to ``state[6]``); the state says
-    where it stopped.
+    resume. Returns DONE, STOP_POOL (grow the pool, call again) or STOP_CHANGES (grow
+    B[0..1] when ``state[3] + state[4]`` fills them, the scratch B[3..4] when ``state[4]``
+    does; call again); the state says where it stopped.
     A move's entries are closed when the next move starts (segments of one move are
-    consecutive), so the journal holds each ray as it was after the whole move.
+    consecutive).
     trace: write z-trace events into ``T`` as the rays change (state ``ts``; see
     :func:`finish_trace_move`); also returns STOP_TRACE (grow ``T`` as ``ts`` says, call
     again) and TRACE_KEYFRAME (a keyframe fell due after move ``ts[TS_KEY_MOVE]``: take it
@@ -1091,7 +1046,7 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
     nout = state[3]
     mc = state[4]
     out_ray = B[0]
-    s_top = B[8]
+    s_top = B[3]
     t_rs = T[0]
     t_val = T[1]
     t_rl = T[2]
@@ -1130,12 +1085,7 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
                     return st
         if (record and k > 0 and seg_move[k] != seg_move[k - 1]
                 and not (k == k0 and j_resume >= 0) and mc > 0):
-            w = finish_move(S, B, seg_move[k - 1], nout, mc, journal, state)
-            if w < 0:
-                _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
-                _save(state, k, -1, -1, nout, mc)
-                return STOP_JOURNAL
-            nout = w
+            nout = finish_move(S, B, seg_move[k - 1], nout, mc)
             mc = 0
         if trace:
             ts[TS_OPEN] = seg_move[k]
@@ -1341,12 +1291,7 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
         _save(state, n, -1, -1, nout, mc)
         return STOP_TRACE
     if record and mc > 0:
-        w = finish_move(S, B, seg_move[n - 1], nout, mc, journal, state)
-        if w < 0:
-            _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
-            _save(state, n, -1, -1, nout, mc)
-            return STOP_JOURNAL
-        nout = w
+        nout = finish_move(S, B, seg_move[n - 1], nout, mc)
         mc = 0
     _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
     _save(state, n, -1, -1, nout, mc)
@@ -1552,7 +1497,7 @@ def pose_intervals(prof, tip, axis, px, py, out, buf):
 
 @nb.njit(cache=True, nogil=True)
 def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, probe, record,
-              journal, removed, B, state, trace, T, ts, band0, band1):
+              removed, B, state, trace, T, ts, band0, band1):
     """Cut (or probe) one tool instance per row of ``tips``/``axes`` (frame-local, mm).
 
     Rays are at local ``(i*sp, j*sp)``. Other arguments and the return value as for
@@ -1570,7 +1515,7 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
     nout = state[3]
     mc = state[4]
     out_ray = B[0]
-    s_top = B[8]
+    s_top = B[3]
     t_rs = T[0]
     t_val = T[1]
     t_rl = T[2]
@@ -1602,12 +1547,7 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
                     return st
         if (record and k > 0 and pose_move[k] != pose_move[k - 1]
                 and not (k == k0 and j_resume >= 0) and mc > 0):
-            w = finish_move(S, B, pose_move[k - 1], nout, mc, journal, state)
-            if w < 0:
-                _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
-                _save(state, k, -1, -1, nout, mc)
-                return STOP_JOURNAL
-            nout = w
+            nout = finish_move(S, B, pose_move[k - 1], nout, mc)
             mc = 0
         if trace:
             ts[TS_OPEN] = pose_move[k]
@@ -1697,12 +1637,7 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
         _save(state, n, -1, -1, nout, mc)
         return STOP_TRACE
     if record and mc > 0:
-        w = finish_move(S, B, pose_move[n - 1], nout, mc, journal, state)
-        if w < 0:
-            _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
-            _save(state, n, -1, -1, nout, mc)
-            return STOP_JOURNAL
-        nout = w
+        nout = finish_move(S, B, pose_move[n - 1], nout, mc)
         mc = 0
     _tflush(ts, t_rs, t_rl, nf, ngl, nr, run0, runl)
     _save(state, n, -1, -1, nout, mc)
@@ -1710,9 +1645,7 @@ def cut_poses(S, sp, nu, nv, tips, axes, pose_move, pose_id, prof, rmax, eps, pr
 
 
 #: buffers of a kernel call that records nothing (never written)
-NO_LOG = (np.zeros(1, np.int64), np.zeros(1, np.float32), np.zeros(1, np.int64), np.zeros(1, np.int64),
-          np.zeros(1, np.float32), np.zeros(1, np.float32), np.zeros(1, np.int32), np.zeros(1, np.int32),
-          np.zeros(1), np.zeros(1))
+NO_LOG = (np.zeros(1, np.int64), np.zeros(1, np.float32), np.zeros(1, np.int64), np.zeros(1), np.zeros(1))
 #: trace buffers of a kernel call that traces nothing (never written)
 NO_TRACE = (np.zeros(1, np.int32), np.zeros(1, np.float32), np.zeros(1, np.int32), np.zeros(1, np.int32),
             np.zeros(1, np.int16), np.zeros(1, np.float32), np.zeros(1, np.float32), np.zeros(1, np.int32),

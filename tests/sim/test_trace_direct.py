@@ -164,12 +164,10 @@ def test_batches_and_records_mix_and_stages_carry_on():
         cut.cut_moves(moves[:1], record_changes=False, trace=tr, stages=[3])
 
 
-def test_direct_trace_refuses_a_journal_and_an_own_time_trace():
+def test_direct_trace_refuses_an_own_time_trace_and_another_frame():
     tool = parse_tool_spec("ball:4")
     moves = _moves(BALL_ROWS[:2])
     g = box()
-    with pytest.raises(InputError, match="journal"):
-        Cutter(g, tool).cut_moves(moves, journal=True, trace=Trace(g))
     with pytest.raises(InputError, match="shared time-trace"):
         Cutter(g, tool).cut_moves(moves, trace=Trace(g, shared_time=False))
     with pytest.raises(InputError, match="frame"):

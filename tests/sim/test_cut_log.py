@@ -1,4 +1,4 @@
-"""The cut journal (each changed ray's segments after every move) and the depth of cut."""
+"""The change log of a batch cut: the rays each move changed, and the depth of cut."""
 
 from __future__ import annotations
 
@@ -22,16 +22,6 @@ def assert_same_model(a: DexelGrid, b: DexelGrid, what=""):
         np.testing.assert_array_equal(x, y, err_msg=what)
 
 
-def replay(grid: DexelGrid, res, k: int) -> None:
-    """Write move ``k``'s journal entries into ``grid``."""
-    lo, hi = res.changed_ptr[k], res.changed_ptr[k + 1]
-    rays = res.changed_rays[lo:hi]
-    a, b = res.journal_seg_ptr[lo], res.journal_seg_ptr[hi]
-    counts = np.diff(res.journal_seg_ptr[lo:hi + 1])
-    grid._write_rays(rays, counts, res.journal_near[a:b], res.journal_far[a:b],
-                     res.journal_near_id[a:b], res.journal_far_id[a:b])
-
-
 FEED, CW, CCW = MoveKind.FEED, MoveKind.ARC_CW, MoveKind.ARC_CCW
 # lines, an arc, a helix, a plunge, a cut through an earlier split and moves that miss
 PROGRAM = (
@@ -46,23 +36,20 @@ PROGRAM = (
 
 
 @pytest.mark.parametrize("spec", ["ball:6:L=3", "flat:6:L=2", "bull:6:1:L=2.5", "vbit:6:90:L=2", "tslot"])
-def test_replaying_the_journal_rebuilds_the_grid_after_every_move(spec):
+def test_the_log_names_exactly_the_rays_each_move_changed(spec):
     tool = (Tool.custom([[0, 3], [1.5, 3], [1.5, 1], [20, 1]]) if spec == "tslot"
             else parse_tool_spec(spec))
     g = stock()
     g.subtract(80, 40, 1, 2, move_id=99)  # a ray that already holds two segments
     before = g.copy()
     mv = moves_of(*PROGRAM)
-    res = Cutter(g, tool).cut_moves(mv, journal=True)
-    assert res.has_journal
+    res = Cutter(g, tool).cut_moves(mv)
     assert (g.counts >= 2).sum() > 10  # the program did split rays
-    seq, rebuilt = before.copy(), before.copy()
+    seq = before.copy()
     for k in range(len(mv)):
         prev = seq.copy()
         Cutter(seq, tool).cut_moves(mv[k:k + 1], move_ids=[k + 1])
-        replay(rebuilt, res, k)
-        assert_same_model(rebuilt, seq, f"after move {k}")
-        # the journal names exactly the rays the move changed
+        # the log names exactly the rays the move changed, cut alone after the ones before
         p, s = all_segments(prev), all_segments(seq)
         pc, sc = p[4], s[4]
         differs = pc != sc
@@ -74,23 +61,20 @@ def test_replaying_the_journal_rebuilds_the_grid_after_every_move(spec):
             np.logical_or.at(seg_diff, owner, x != y)
         differs[same_count[seg_diff]] = True
         np.testing.assert_array_equal(res.changed(k), np.nonzero(differs)[0])
-    assert_same_model(rebuilt, g)
+    assert_same_model(seq, g)
     assert res.changed(5).size == 0
 
 
-def test_journal_entries_of_emptied_rays_have_no_segments():
+def test_emptied_rays_are_logged_with_their_whole_column():
     g = stock(z0=6.0, z1=8.0)
-    res = Cutter(g, parse_tool_spec("flat:4")).cut_moves(
-        moves_of((FEED, (10, 10, 5), (30, 10, 5))), journal=True)
-    counts = np.diff(res.journal_seg_ptr)
-    assert res.changed_rays.size > 0 and not counts.any()
+    res = Cutter(g, parse_tool_spec("flat:4")).cut_moves(moves_of((FEED, (10, 10, 5), (30, 10, 5))))
+    assert res.changed_rays.size > 0 and not g.counts.reshape(-1)[res.changed_rays].any()
     np.testing.assert_allclose(res.changed_depth, 2.0)  # the whole 2 mm column went
 
 
-def test_without_journal_the_result_has_no_journal_but_has_depths():
+def test_the_result_has_a_depth_per_changed_ray():
     g = stock()
     res = Cutter(g, parse_tool_spec("flat:6")).cut_moves(moves_of((FEED, (10, 10, 7), (30, 10, 7))))
-    assert not res.has_journal and res.journal_near.size == 0
     assert res.changed_depth.shape == res.changed_rays.shape
     assert res.changed_depth.dtype == np.float32
 
@@ -143,11 +127,11 @@ def test_depth_of_an_arc_groove_and_of_a_split_below_the_top():
 def test_log_grows_mid_move_and_matches_the_model():
     """One move changing ~10k rays (more than the log's and the per-move scratch's first
     size): the changed rays are exactly the rays whose segments changed, the depths the
-    drop of their tops, the journal each ray's segments after the move."""
+    drop of their tops."""
     g = stock(x1=60.0, y1=30.0, sp=0.1)
     before = g.copy()
     res = Cutter(g, parse_tool_spec("flat:20:L=20")).cut_moves(
-        moves_of((FEED, (10, 15, 8), (50, 15, 7))), journal=True)
+        moves_of((FEED, (10, 15, 8), (50, 15, 7))))
     top0 = before.top().reshape(-1).astype(np.float64)
     top1 = g.top().reshape(-1).astype(np.float64)
     moved = np.nonzero(top1 < top0)[0]
@@ -156,5 +140,3 @@ def test_log_grows_mid_move_and_matches_the_model():
     assert res.changed_rays.dtype == np.int64 and res.changed_depth.dtype == np.float32
     np.testing.assert_allclose(res.changed_depth, (top0 - top1)[moved], atol=1e-6)
     assert list(res.changed_ptr) == [0, moved.size]
-    assert res.has_journal and np.all(np.diff(res.journal_seg_ptr) == 1)
-    np.testing.assert_array_equal(res.journal_far, top1[moved].astype(np.float32))
