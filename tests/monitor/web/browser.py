@@ -21,10 +21,6 @@ ROOT = Path(__file__).resolve().parents[3]
 CHROMIUM = os.environ.get("DEXMON_CHROMIUM", "/usr/bin/chromium")
 #: generous: a page, a server and VTK start on a busy 2-core machine
 WAIT_S = 60.0
-#: for the process to end after Ctrl-C: it closes its run file and the server first; a
-#: fresh clone's CI run under two busy loops saw three exits take over 60 s (they take
-#: about 1 s warm, 4 s with an empty kernel cache, on a quiet machine)
-EXIT_WAIT_S = 180.0
 
 
 def chromium_or_skip() -> str:
@@ -73,7 +69,7 @@ class Served:
             if rec.get("event") == name:
                 return rec
 
-    def interrupt(self, timeout: float = EXIT_WAIT_S) -> int:
+    def interrupt(self, timeout: float = WAIT_S) -> int:
         """Ctrl-C, as a user stops the page; the exit status."""
         if self.proc.poll() is None:
             self.proc.send_signal(signal.SIGINT)

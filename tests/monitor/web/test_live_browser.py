@@ -8,7 +8,7 @@ import pytest
 
 from tests.monitor.web.browser import WAIT_S, Served, chromium_or_skip, drawn_fraction, open_browser, view_picture
 
-pytestmark = pytest.mark.timeout(600)   # the waits of browser.py, under load
+pytestmark = pytest.mark.timeout(300)
 
 
 def test_a_dry_run_updates_the_page_as_the_machine_runs(tmp_path):

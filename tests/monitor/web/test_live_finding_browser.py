@@ -12,7 +12,7 @@ import pytest
 from tests.monitor.web.browser import (WAIT_S, Served, chromium_or_skip, changed_fraction, open_browser,
                                        picture_src, view_picture, wait_changed_picture)
 
-pytestmark = pytest.mark.timeout(600)   # the waits of browser.py, under load
+pytestmark = pytest.mark.timeout(300)
 
 #: what the page may say on a first click, whatever the machine has cut by then
 CLEAR_NOTE = re.compile(r"^Finding 1: (predicted at line 22, not cut yet|happened at stage \d+, which the run "

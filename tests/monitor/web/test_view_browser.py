@@ -14,7 +14,7 @@ from monitor.trace_io import RunView
 from tests.monitor.web.browser import (WAIT_S, Served, chromium_or_skip, changed_fraction, drawn_fraction,
                                        open_browser, picture_src, view_picture, wait_changed_picture)
 
-pytestmark = pytest.mark.timeout(600)   # the waits of browser.py, under load
+pytestmark = pytest.mark.timeout(300)
 
 
 @pytest.fixture(scope="module")
