@@ -45,6 +45,17 @@ def _within_radius(tips, axes, point, direction, radius: float, enter, leave):
     return enter, leave
 
 
+def placing_lengths(moves: np.ndarray, tool_lengths: dict[int, float] | None) -> np.ndarray:
+    """float64 (n,) the tool length (mm) the kinematics places each row's tool by, from the
+    gauge point to the tip along the tool axis: the rows' ``tool_length`` column, unless
+    ``tool_lengths`` ({tool number: mm}) names the row's tool (a table of tips, whose
+    column is 0)."""
+    lengths = np.asarray(moves["tool_length"], np.float64).copy()
+    for tool_no, length in (tool_lengths or {}).items():
+        lengths[moves["tool"] == tool_no] = length
+    return lengths
+
+
 class RotaryPlan:
     """The rotary part of a cutter: ``grid`` (the model, in the part's frame),
     ``kinematics`` (with at least one rotary), ``origin`` (6,) the machine pose of the
@@ -108,14 +119,9 @@ class RotaryPlan:
         return tips - self.origin[:3], axes
 
     def placing_length(self, row) -> float:
-        """The tool length (mm) the kinematics places ``row``'s tool by: from the gauge
-        point to the tip along the tool axis. The row's ``tool_length`` unless
-        ``tool_lengths`` names its tool (a table of tips, whose column is 0)."""
-        if self.tool_lengths is not None:
-            length = self.tool_lengths.get(int(row["tool"]))
-            if length is not None:
-                return float(length)
-        return float(row["tool_length"])
+        """The tool length (mm) the kinematics places ``row``'s tool by (see
+        :func:`placing_lengths`)."""
+        return float(placing_lengths(np.asarray(row).reshape(1), self.tool_lengths)[0])
 
     def _material_box(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(lo, hi) (3,) frame-local mm of the material now in the grid (ray feet of the

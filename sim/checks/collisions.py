@@ -189,6 +189,7 @@ def tilted_reach(moves: np.ndarray, body, top: float, kinematics, origin=None, s
     ({tool: mm}): the G43 lengths a head places the tools by, for a table of tips (see
     :class:`sim.cut.Cutter`); default each row's ``tool_length``."""
     from sim import sweep
+    from sim.rotary_plan import placing_lengths
 
     n = len(moves)
     if n == 0 or not np.isfinite(top):
@@ -198,9 +199,7 @@ def tilted_reach(moves: np.ndarray, body, top: float, kinematics, origin=None, s
     o = np.zeros(6) if origin is None else np.asarray(origin, np.float64).reshape(6)
     start = np.asarray(moves["start"], np.float64) + o
     end = np.asarray(moves["end"], np.float64) + o
-    lengths = np.asarray(moves["tool_length"], np.float64).copy()
-    for tool_no, length in (tool_lengths or {}).items():
-        lengths[moves["tool"] == tool_no] = length
+    lengths = placing_lengths(moves, tool_lengths)
     counts = np.asarray(kinematics.instance_counts(start, end, lengths, h_hi, radius, step), np.int64)
     # every row's poses in one table: count + 1 equal steps of each row, both ends exact
     per_row = counts + 1
