@@ -32,13 +32,20 @@ def chromium_or_skip() -> str:
     return path
 
 
+def _default_sigint() -> None:
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 class Served:
     """``python -m monitor.cli ARGS`` in a subprocess, its stdout JSON lines in a queue."""
 
     def __init__(self, args: list[str]):
         env = {**os.environ, "PYVISTA_OFF_SCREEN": "true", "MPLBACKEND": "Agg"}
+        # Ctrl-C must reach it even when the suite itself was started in the background
+        # (a shell's `cmd &` ignores SIGINT, and an ignored signal stays ignored across exec)
         self.proc = subprocess.Popen([sys.executable, "-m", "monitor.cli", *args], stdout=subprocess.PIPE,
-                                     stderr=subprocess.PIPE, text=True, cwd=ROOT, env=env)
+                                     stderr=subprocess.PIPE, text=True, cwd=ROOT, env=env,
+                                     preexec_fn=_default_sigint)
         self.lines: queue.Queue = queue.Queue()
         self.stderr: list[str] = []
         threading.Thread(target=self._read, args=(self.proc.stdout, self.lines), daemon=True).start()
