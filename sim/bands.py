@@ -25,6 +25,7 @@ of bands, so the trace is the same).
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numba as nb
@@ -236,15 +237,17 @@ class _BandTraces(_Buffers):
 def ray_chunks_touched(starts: np.ndarray, lengths: np.ndarray, chunk: int, n_chunks: int) -> np.ndarray:
     """bool (n_chunks,): which chunks of ``chunk`` consecutive rays the runs of rays
     (``starts``, ``lengths``: int arrays) touch."""
-    dirty = np.zeros(n_chunks, bool)
-    first = starts.astype(np.int64)
-    last = first + lengths - 1
-    c0, c1 = first // chunk, last // chunk
-    dirty[c0] = True
-    dirty[c1] = True
-    for k in np.flatnonzero(c1 - c0 > 1):   # runs longer than a chunk (very wide grids)
-        dirty[c0[k]:c1[k] + 1] = True
+    dirty = np.zeros(n_chunks, np.bool_)
+    _mark_chunks(starts, lengths, chunk, dirty)
     return dirty
+
+
+@nb.njit(cache=True, nogil=True)
+def _mark_chunks(starts, lengths, chunk, dirty):
+    for q in range(starts.size):
+        first = np.int64(starts[q])
+        for c in range(first // chunk, (first + lengths[q] - 1) // chunk + 1):
+            dirty[c] = True
 
 
 def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
@@ -279,15 +282,11 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
     ex = BAND_POOL.get(threads) if threads > 1 else None
     # two sets of trace buffers: the bands cut a chunk into one while the calling thread
     # merges the chunk before from the other (the merge is mostly the first touch of the
-    # trace's fresh pages: done while the bands cut, it costs little wall time)
+    # trace's fresh pages: done while the bands cut, it costs little wall time; copied by
+    # the band threads instead, each touching pages the other touches, it cost twice the
+    # CPU)
     trace_bufs = [traces, _BandTraces(n_bands, n_moves, sink)] if traces is not None else None
-    pending = None   # (buffers, m0, m1) of the chunk cut but not merged yet
-
-    def merge_pending():
-        nonlocal pending
-        if pending is not None:
-            _merge_traces(sink, *pending)
-            pending = None
+    pending = None   # the _Merge of the chunk cut but not merged yet
 
     for ci, (a, b) in enumerate(chunks):
         m0, m1 = int(seg_move[a]), int(seg_move[b - 1]) + 1
@@ -304,7 +303,10 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
         bounds = plan(a, b)
         todo = list(range(len(bounds) - 1))
         while todo:
-            def run(t, S=grid.S, traces=traces):
+            started = threading.Semaphore(0)
+
+            def run(t, S=grid.S, traces=traces, started=started):
+                started.release()
                 band_S = (*S[:11], pools[t])
                 return kernel(band_S, states[t], logs.buffers(t) if logs is not None else K.NO_LOG,
                               traces.buffers(t) if traces is not None else K.NO_TRACE,
@@ -312,10 +314,19 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
                               (int(bounds[t]), int(bounds[t + 1])), (s0, b))
             if ex is not None and len(todo) > 1:
                 futures = [ex.submit(run, t) for t in todo]
-                merge_pending()
+                if pending is not None:
+                    # every band running first: a band waiting for its thread to start
+                    # while this one merges (holding the interpreter, or the core) ends
+                    # the chunk late
+                    for _ in todo:
+                        started.acquire()
+                    pending.run()
+                    pending = None
                 status = [f.result() for f in futures]
             else:
-                merge_pending()
+                if pending is not None:
+                    pending.run()
+                    pending = None
                 status = [run(t) for t in todo]
             again = []
             for t, st in zip(todo, status):
@@ -334,11 +345,13 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
         if logs is not None:
             _merge_logs(log, logs, states, m0, m1)
         if trace_bufs is not None:
-            merge_pending()
+            if pending is not None:
+                pending.run()
             if ci < len(chunks) - 1:   # the sink's end takes the batch's last keyframe
                 sink.chunk_end(m1 - 1, *traces.totals()[:2], traces.dirty_chunks)
-            pending = (traces, m0, m1)
-    merge_pending()
+            pending = _Merge(sink, traces, m0, m1)
+    if pending is not None:
+        pending.run()
     removed += rem.sum(axis=0)
     _end_pool_ranges(store, pools)
 
@@ -374,7 +387,7 @@ def _merge_logs(log, logs: _BandLogs, states: np.ndarray, m0: int, m1: int) -> N
                               log.depth, log.counts, log.n)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _merge_log_kernel(m0, m1, counts, ray, depth, out_ray, out_depth, out_counts, n):
     nb_ = counts.shape[0]
     pos = np.zeros(nb_, np.int64)
@@ -391,61 +404,68 @@ def _merge_log_kernel(m0, m1, counts, ray, depth, out_ray, out_depth, out_counts
     return n
 
 
-def _merge_traces(sink, traces: _BandTraces, m0: int, m1: int) -> None:
-    """Append the bands' trace events of moves ``m0 .. m1-1`` to the sink's columns and
-    close their blocks.
+class _Merge:
+    """The bands' trace events of moves ``m0 .. m1-1`` appended to the sink's columns, and
+    their blocks closed.
 
-    Where each band's events of each move go is worked out first (move by move, band by
-    band), then each band's are copied there. (Copied on the calling thread: most of the
-    cost is the first touch of the columns' fresh pages, and two threads touching the same
-    pages took longer, not shorter.) A band whose first run of far rays goes on from the
-    previous band's last one (a move reaching both edges of a narrow grid) adds its length
-    to that run afterwards, as one core would have made one run.
+    Where each band's events of each move go is worked out when the chunk is cut (move
+    by move, band by band), and room is made in the columns; :meth:`run` copies them
+    there while the bands cut the next chunk. A band whose first run of far rays goes on
+    from the previous band's last one (a move reaching both edges of a narrow grid) adds
+    its length to that run, as one core would have made one run.
     """
-    nb_ = traces.n_bands
-    m = m1 - m0
-    ts = sink.ts
-    E = traces.blk[:, :, m0:m1]                       # (4 columns, bands, moves): ends, -1 unopened
-    opened = (E[0] >= 0).any(axis=0)
-    ends = np.maximum.accumulate(np.maximum(E, 0), axis=2)
-    cnt = np.diff(ends, axis=2, prepend=0)
-    starts = ends - cnt
-    rs_b, rl_b = traces.a["rs"], traces.a["rl"]
-    join = np.zeros((nb_, m), np.bool_)
-    prev_end = np.full(m, -1, np.int64)
-    for t in range(nb_):
-        has = np.flatnonzero(cnt[3, t] > 0)
-        join[t, has] = rs_b[t, starts[3, t, has]] == prev_end[has]
-        last_run = ends[3, t, has] - 1
-        prev_end[has] = rs_b[t, last_run].astype(np.int64) + rl_b[t, last_run]
-    written = cnt.copy()
-    written[3] -= join                                 # a joined run is not written anew
-    base = np.array([ts[K.TS_NF], ts[K.TS_NG], ts[K.TS_NS], ts[K.TS_NR]], np.int64)
-    order = written.transpose(0, 2, 1).reshape(4, -1)  # move by move, band by band
-    after = np.cumsum(order, axis=1)
-    dest = (base[:, None] + after - order).reshape(4, m, nb_).transpose(0, 2, 1).copy()
-    block_end = base[:, None] + after.reshape(4, m, nb_)[:, :, -1]
-    sink.make_room(*(int(x) for x in written.sum(axis=(1, 2))))
-    cols = sink.buffers()[:9]
-    a = traces.a
-    band_cols = (a["rs"], a["f_val"], a["rl"], a["g_ray"], a["g_count"], a["g_near"], a["g_far"],
-                 a["g_nid"], a["g_fid"])
 
-    for t in range(nb_):
-        _copy_band_events(t, starts, cnt, dest, join, *band_cols, *cols)
-    jt, jq = np.nonzero(join)
-    if jt.size:
-        np.add.at(cols[2], dest[3, jt, jq] - 1, rl_b[jt, starts[3, jt, jq]])
-    for c, blk in enumerate(sink.blk):
-        blk[m0:m1][opened] = block_end[c][opened]
-    ts[K.TS_NF], ts[K.TS_NG], ts[K.TS_NS], ts[K.TS_NR] = block_end[:, -1] if m else base
-    sink.merged()
+    def __init__(self, sink, traces: _BandTraces, m0: int, m1: int):
+        nb_ = traces.n_bands
+        m = m1 - m0
+        ts = sink.ts
+        E = traces.blk[:, :, m0:m1]                       # (4 columns, bands, moves): ends, -1 unopened
+        self.opened = (E[0] >= 0).any(axis=0)
+        ends = np.maximum.accumulate(np.maximum(E, 0), axis=2)
+        cnt = np.diff(ends, axis=2, prepend=0)
+        starts = ends - cnt
+        rs_b, rl_b = traces.a["rs"], traces.a["rl"]
+        join = np.zeros((nb_, m), np.bool_)
+        prev_end = np.full(m, -1, np.int64)
+        for t in range(nb_):
+            has = np.flatnonzero(cnt[3, t] > 0)
+            join[t, has] = rs_b[t, starts[3, t, has]] == prev_end[has]
+            last_run = ends[3, t, has] - 1
+            prev_end[has] = rs_b[t, last_run].astype(np.int64) + rl_b[t, last_run]
+        written = cnt.copy()
+        written[3] -= join                                 # a joined run is not written anew
+        base = np.array([ts[K.TS_NF], ts[K.TS_NG], ts[K.TS_NS], ts[K.TS_NR]], np.int64)
+        order = written.transpose(0, 2, 1).reshape(4, -1)  # move by move, band by band
+        after = np.cumsum(order, axis=1)
+        dest = (base[:, None] + after - order).reshape(4, m, nb_).transpose(0, 2, 1).copy()
+        self.block_end = base[:, None] + after.reshape(4, m, nb_)[:, :, -1]
+        self.base = base
+        sink.make_room(*(int(x) for x in written.sum(axis=(1, 2))))
+        a = traces.a
+        self.args = (starts, cnt, dest, join, a["rs"], a["f_val"], a["rl"], a["g_ray"], a["g_count"],
+                     a["g_near"], a["g_far"], a["g_nid"], a["g_fid"], *sink.buffers()[:9])
+        self.sink, self.traces, self.m0, self.m1, self.m = sink, traces, m0, m1, m
+
+    def run(self) -> None:
+        """Copy the bands' events to their places and close the blocks."""
+        for t in range(self.traces.n_bands):
+            _copy_band_events(t, *self.args)
+        starts, cnt, dest, join = self.args[:4]
+        sink, rl_b = self.sink, self.traces.a["rl"]
+        jt, jq = np.nonzero(join)
+        if jt.size:
+            np.add.at(self.args[15], dest[3, jt, jq] - 1, rl_b[jt, starts[3, jt, jq]])
+        for c, blk in enumerate(sink.blk):
+            blk[self.m0:self.m1][self.opened] = self.block_end[c][self.opened]
+        ts = sink.ts
+        ts[K.TS_NF], ts[K.TS_NG], ts[K.TS_NS], ts[K.TS_NR] = self.block_end[:, -1] if self.m else self.base
+        sink.merged()
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, nogil=True)
 def _copy_band_events(t, starts, cnt, dest, join, b_rs, b_val, b_rl, b_gray, b_gcnt, b_gn, b_gf, b_gni,
                       b_gfi, rs, val, rl, gray, gcnt, gn, gf, gni, gfi):
-    """Copy band ``t``'s events of each move to where :func:`_merge_traces` placed them
+    """Copy band ``t``'s events of each move to where :class:`_Merge` placed them
     (``starts``/``cnt``/``dest``: (4 columns, bands, moves); a joined first run is left
     for the caller to add)."""
     for q in range(starts.shape[2]):
