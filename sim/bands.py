@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import os
 import threading
+import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numba as nb
@@ -87,9 +88,10 @@ def reach_rays(p0: np.ndarray, p1: np.ndarray, reach: float, spacing: float) -> 
 
 
 def plan_bands(p0: np.ndarray, p1: np.ndarray, reach: float, origin_y: float, spacing: float,
-               nv: int, n_bands: int) -> np.ndarray:
+               nv: int, n_bands: int, shares: np.ndarray | None = None) -> np.ndarray:
     """Row bounds (int64 (m + 1,), 0 ... nv) of ``m <= n_bands`` bands holding about the same
-    work: each segment's rays within reach spread evenly over the rows it spans."""
+    work: each segment's rays within reach spread evenly over the rows it spans.
+    ``shares``: float (n_bands,), the part of the work each band gets instead (relative)."""
     j0 = np.floor((np.minimum(p0[:, 1], p1[:, 1]) - reach - origin_y) / spacing)
     j1 = np.ceil((np.maximum(p0[:, 1], p1[:, 1]) + reach - origin_y) / spacing) + 1
     j0 = np.clip(j0, 0, nv).astype(np.int64)
@@ -103,7 +105,9 @@ def plan_bands(p0: np.ndarray, p1: np.ndarray, reach: float, origin_y: float, sp
     n_bands = max(1, min(n_bands, nv // MIN_BAND_ROWS))
     if work[-1] <= 0 or n_bands == 1:
         return np.array([0, nv], np.int64)
-    cuts = np.searchsorted(work, work[-1] * np.arange(1, n_bands) / n_bands)
+    if shares is None or len(shares) != n_bands:
+        shares = np.ones(n_bands)
+    cuts = np.searchsorted(work, work[-1] * np.cumsum(shares)[:-1] / np.sum(shares))
     bounds = np.unique(np.concatenate([[0], cuts, [nv]])).astype(np.int64)
     # no band thinner than MIN_BAND_ROWS: merge a thin one into its neighbour
     keep = [0]
@@ -112,6 +116,34 @@ def plan_bands(p0: np.ndarray, p1: np.ndarray, reach: float, origin_y: float, sp
             keep.append(int(b))
     keep.append(nv)
     return np.array(keep, np.int64)
+
+
+class _Balance:
+    """The part of a chunk's estimated work each band gets, corrected chunk by chunk by
+    how long each band took.
+
+    The estimate (rays within reach, :func:`plan_bands`) misses what the rays cost: on a
+    raster, the rows ahead of the tool change on every pass and those behind it rarely,
+    so equal estimates left one band idle for up to half of a chunk. Consecutive chunks
+    of a program look alike, so the speed each band showed (its share over its time)
+    sets the next chunk's shares, half and half with the shares before.
+    """
+
+    #: no band gets more than this many times an even share, nor less than its inverse
+    LIMIT = 3.0
+
+    def __init__(self, n_bands: int):
+        self.shares = np.ones(n_bands)
+
+    def update(self, times: np.ndarray) -> None:
+        """The bands took ``times`` (s, one per band of the last plan of all of them)."""
+        if times.size != self.shares.size or not np.all(times > 0):
+            return
+        before = self.shares / self.shares.sum()
+        speed = before / times
+        shares = 0.5 * before + 0.5 * speed / speed.sum()
+        even = 1.0 / shares.size
+        self.shares = np.clip(shares, even / self.LIMIT, even * self.LIMIT)
 
 
 def chunk_bounds(seg_move: np.ndarray, chunk: int) -> list[tuple[int, int]]:
@@ -259,9 +291,10 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
     returning the kernel's status (``state[0]``, counted from the slice's start, says
     where to begin: the slice holds one segment before the chunk, for the kernel to look
     back at).
-    plan(a, b): the row bounds of the bands (:func:`plan_bands`, at most ``threads``) for
-    the segments ``a .. b-1``: planned per chunk, as a chunk of a raster covers only part of
-    the rows and bands planned for the whole batch would leave all its work to one;
+    plan(a, b, shares): the row bounds of the bands (:func:`plan_bands`, at most ``threads``,
+    sharing the work as ``shares`` says) for the segments ``a .. b-1``: planned per chunk,
+    as a chunk of a raster covers only part of the rows and bands planned for the whole
+    batch would leave all its work to one;
     removed: float64 (n_moves,)
     accumulates the length removed per move (mm). log: the cutter's change log or None; sink: the trace sink (``sim.trace.sink._Sink``) or None; reach: the rays
     within reach of each segment (:func:`reach_rays`: they bound the changes a band logs).
@@ -287,6 +320,7 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
     # CPU)
     trace_bufs = [traces, _BandTraces(n_bands, n_moves, sink)] if traces is not None else None
     pending = None   # the _Merge of the chunk cut but not merged yet
+    balance = _Balance(n_bands)
 
     for ci, (a, b) in enumerate(chunks):
         m0, m1 = int(seg_move[a]), int(seg_move[b - 1]) + 1
@@ -300,18 +334,22 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
             traces.start_chunk(m0, m1, changes)
         if logs is not None:
             logs.start_chunk(m0, m1, changes)
-        bounds = plan(a, b)
+        bounds = plan(a, b, balance.shares)
         todo = list(range(len(bounds) - 1))
+        took = np.zeros(len(todo))
         while todo:
             started = threading.Semaphore(0)
 
             def run(t, S=grid.S, traces=traces, started=started):
                 started.release()
+                t0 = time.perf_counter()
                 band_S = (*S[:11], pools[t])
-                return kernel(band_S, states[t], logs.buffers(t) if logs is not None else K.NO_LOG,
-                              traces.buffers(t) if traces is not None else K.NO_TRACE,
-                              traces.ts[t] if traces is not None else K.NO_TS, rem[t],
-                              (int(bounds[t]), int(bounds[t + 1])), (s0, b))
+                st = kernel(band_S, states[t], logs.buffers(t) if logs is not None else K.NO_LOG,
+                            traces.buffers(t) if traces is not None else K.NO_TRACE,
+                            traces.ts[t] if traces is not None else K.NO_TS, rem[t],
+                            (int(bounds[t]), int(bounds[t + 1])), (s0, b))
+                took[t] += time.perf_counter() - t0
+                return st
             if ex is not None and len(todo) > 1:
                 futures = [ex.submit(run, t) for t in todo]
                 if pending is not None:
@@ -342,6 +380,7 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
                 else:  # keyframes are off in bands
                     raise RuntimeError(f"band cut stopped with status {st}")
             todo = again
+        balance.update(took)
         if logs is not None:
             _merge_logs(log, logs, states, m0, m1)
         if trace_bufs is not None:

@@ -512,8 +512,9 @@ class Cutter:
         if len(p0) >= 64 and not probe:  # lets chained moves skip rays already cut
             top_bound = grid.max_top()
         if self.threads > 1 and not probe and reach.sum() >= bands.MIN_PARALLEL_RAYS:
-            def plan(a, b):
-                return bands.plan_bands(p0[a:b], p1[a:b], tp[6], f.origin[1], f.spacing, f.nv, self.threads)
+            def plan(a, b, shares):
+                return bands.plan_bands(p0[a:b], p1[a:b], tp[6], f.origin[1], f.spacing, f.nv, self.threads,
+                                        shares)
 
             def band_cut(S, st, B, T, ts, rem, band, segs):
                 a, b = segs
@@ -544,8 +545,8 @@ class Cutter:
             lo = tips + prof[0, 0] * axes
             hi = tips + prof[-1, 0] * axes
 
-            def plan(a, b):
-                return bands.plan_bands(lo[a:b], hi[a:b], rmax, 0.0, f.spacing, f.nv, self.threads)
+            def plan(a, b, shares):
+                return bands.plan_bands(lo[a:b], hi[a:b], rmax, 0.0, f.spacing, f.nv, self.threads, shares)
 
             def band_cut(S, st, B, T, ts, rem, band, segs):
                 a, b = segs

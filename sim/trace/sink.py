@@ -57,6 +57,7 @@ class _Sink:
         self.g_at_key = int(z._g_ptr.a[z._keyframes[-1].block])
         self.r_at_key = int(z._r_ptr.a[z._keyframes[-1].block])
         self._key_before_merge = False   # see chunk_end / merged
+        self._dirty = None   # chunks of rays changed since the latest keyframe (see chunk_end)
         # in the kernels' order (T); _f_id grows with _f_val (index for index), unwritten
         self.cols = (z._f_rs, z._f_val, z._f_rl, z._g_ray, z._g_count,
                      z._g_near, z._g_far, z._g_nid, z._g_fid)
@@ -99,18 +100,20 @@ class _Sink:
         (``far_pending`` far and ``general_pending`` general events;
         ``pending_dirty(chunk, n_chunks)`` says which chunks of rays they touch). Take a
         keyframe of the model now if one fell due."""
+        if not self.inline:
+            return
         self._sync_counts()
         ts = self.ts
+        if self._dirty is None:   # the runs since the latest keyframe, of earlier batches
+            self._dirty = self._dirty_chunks(self.r_at_key, int(ts[K.TS_NR]))
+        # each chunk's runs are read once, as they come (not again at every keyframe)
+        self._dirty |= pending_dirty(_Chunked.CHUNK, self._dirty.size)
         ng = int(ts[K.TS_NG]) + general_pending
         events = int(ts[K.TS_NF]) + far_pending + ng
-        if not (self.inline and events >= ts[K.TS_NEXT_DUE]):
+        if events < ts[K.TS_NEXT_DUE]:
             return
-        general = ng > self.g_at_key
-        dirty = None
-        if not general:
-            dirty = self._dirty_chunks(self.r_at_key, int(ts[K.TS_NR]))
-            dirty |= pending_dirty(_Chunked.CHUNK, dirty.size)
-        self._snapshot(mv, general, dirty, events)
+        self._snapshot(mv, ng > self.g_at_key, self._dirty, events)
+        self._dirty[:] = False
         self._key_before_merge = True
 
     def merged(self) -> None:

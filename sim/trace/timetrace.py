@@ -13,7 +13,7 @@ from sim.trace.columns import (
     _BlockLog, _Column, _check_stage, _get, _get_rle, _get_runs,
     _pack_column, _rays_arg, _runs_of_consecutive, _runs_of_equal, _unpack_column,
     frame_from_array, frame_to_array)
-from sim.trace.keyframes import _Chunked, _Keyframe
+from sim.trace.keyframes import _Chunked, _Keyframe, thinned
 from sim.trace.ztrace import ZTrace
 
 
@@ -146,7 +146,7 @@ class TimeTrace(_BlockLog):
                 self._keyframes.append(_Keyframe(b1, int(self._stage.a[b1 - 1]), (top, tid)))
                 self._builder = None
                 if len(self._keyframes) > self.max_keyframes:
-                    self._keyframes = [self._keyframes[0]] + self._keyframes[2::2]
+                    self._keyframes = thinned(self._keyframes)
                     self.keyframe_every *= 2
         return self._builder is None and not self._due
 
@@ -334,7 +334,7 @@ class TimeTrace(_BlockLog):
                                                  (self._top.copy(), self._top_id.copy())))
                 self._since_key = 0
                 if len(self._keyframes) > self.max_keyframes:
-                    self._keyframes = [self._keyframes[0]] + self._keyframes[2::2]
+                    self._keyframes = thinned(self._keyframes)
                     self.keyframe_every *= 2
 
 

@@ -16,7 +16,7 @@ from sim.trace.columns import (
     frame_from_array, frame_to_array)
 from sim.trace.keyframes import (
     _Chunked, _FAR_FIELDS, _KeyBuilder, _Keyframe, _POOL_FIELDS,
-    _snapshot_sharing, _store_copy, _store_snapshot)
+    _snapshot_sharing, _store_copy, _store_snapshot, thinned)
 from sim.trace.sink import _Sink
 
 
@@ -260,8 +260,7 @@ class ZTrace(_BlockLog):
     def _add_keyframe(self, key: _Keyframe) -> None:
         self._keyframes.append(key)
         if len(self._keyframes) > self.max_keyframes:
-            # keep the stock and every other one: memory bounded, spacing doubles
-            self._keyframes = [self._keyframes[0]] + self._keyframes[2::2]
+            self._keyframes = thinned(self._keyframes)
             self.keyframe_every *= 2
 
     def _append_blocks(self, stage, f_n, g_n, f_ray, f_val, f_id, g_ray, g_count, gsegs) -> None:

@@ -7,7 +7,7 @@ import pytest
 
 from sim.errors import InputError
 from sim.trace import Trace, TimeTrace, ZTrace, model_difference, same_model
-from tests.sim.trace_helpers import ball_cut, box, program, slab_cut
+from tests.sim.trace_helpers import ball_cut, box, feed_moves, program, slab_cut
 
 
 @pytest.fixture(scope="module")
@@ -287,3 +287,35 @@ def test_cut_kernel_results_drive_the_trace():
         ref[k + 1] = g.copy()
     for s in ref:
         assert same_model(tr.grid_at(s), ref[s])
+
+
+@pytest.mark.parametrize("max_keyframes", [5, 6])
+def test_thinning_keyframes_keeps_the_latest(max_keyframes):
+    # an odd limit dropped the newest keyframe when thinning; the next one of the same
+    # batch, sharing the chunks of rays its own edits left clean with the newest kept,
+    # then held stale rays
+    from sim.cut import Cutter
+    from sim.tools import parse_tool_spec
+
+    g = box(401, 401, 0.25, 0.0, 10.0)   # 10 chunks of rays: keyframes share the clean ones
+    rng = np.random.default_rng(5)
+    rows = []
+    for s in range(1, 90):
+        # all over the part, then along one edge (one chunk of rays) only
+        a = rng.uniform(5, 95, 2) if s < 50 else np.array([rng.uniform(5, 95), 3.0])
+        b = a + rng.uniform(-4, 4, 2)
+        rows.append(((a[0], a[1], 9.0 - 0.05 * s), (b[0], b[1], 9.0 - 0.05 * s)))
+    moves = feed_moves(rows)
+    ref = g.copy()
+    refs = {}
+    for k in range(len(moves)):   # the model after each move, cut one at a time
+        Cutter(ref, parse_tool_spec("ball:3"), threads=1).cut_moves(moves[k:k + 1], move_ids=[k + 1], record_changes=False)
+        refs[k + 1] = ref.copy()
+    tr = Trace(g, keyframe_every=300)
+    tr.z.max_keyframes = max_keyframes
+    Cutter(g, parse_tool_spec("ball:3"), threads=1).cut_moves(moves, record_changes=False, trace=tr)
+    assert len(tr.z._keyframes) <= max_keyframes and tr.z.keyframe_every > 300   # thinned
+    for key in tr.z._keyframes:
+        assert np.array_equal(np.asarray(key.data["far"]), refs[key.stage].store["far"]) if key.stage else True
+    for s, want in refs.items():
+        assert same_model(tr.z.grid_at(s), want), s
