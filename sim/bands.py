@@ -146,13 +146,20 @@ class _Balance:
         self.shares = np.clip(shares, even / self.LIMIT, even * self.LIMIT)
 
 
-def chunk_bounds(seg_move: np.ndarray, chunk: int) -> list[tuple[int, int]]:
-    """Segment ranges ``[a, b)`` of about ``chunk`` segments that never split a move."""
+def chunk_bounds(seg_move: np.ndarray, chunk: int, first: int | None = None) -> list[tuple[int, int]]:
+    """Segment ranges ``[a, b)`` that never split a move: the first of about ``first``
+    segments (default ``chunk // 8``), each next one twice as long up to ``chunk``.
+
+    Short chunks first: the bands' shares of the first chunk are a guess (see
+    :class:`_Balance`), so the first chunk's wait for its slowest band should be short.
+    """
     n = len(seg_move)
     out = []
     a = 0
+    size = max(1, chunk // 8 if first is None else first)
     while a < n:
-        b = min(a + chunk, n)
+        b = min(a + size, n)
+        size = min(2 * size, chunk)
         while b < n and seg_move[b] == seg_move[b - 1]:
             b += 1
         out.append((a, b))
@@ -447,14 +454,19 @@ class _Merge:
     """The bands' trace events of moves ``m0 .. m1-1`` appended to the sink's columns, and
     their blocks closed.
 
-    Where each band's events of each move go is worked out when the chunk is cut (move
-    by move, band by band), and room is made in the columns; :meth:`run` copies them
-    there while the bands cut the next chunk. A band whose first run of far rays goes on
-    from the previous band's last one (a move reaching both edges of a narrow grid) adds
-    its length to that run, as one core would have made one run.
+    :meth:`run`, while the bands cut the next chunk, works out where each band's events
+    of each move go (move by move, band by band), makes room in the columns and copies
+    them there. A band whose first run of far rays goes on from the previous band's last
+    one (a move reaching both edges of a narrow grid) adds its length to that run, as one
+    core would have made one run.
     """
 
     def __init__(self, sink, traces: _BandTraces, m0: int, m1: int):
+        self.sink, self.traces, self.m0, self.m1 = sink, traces, m0, m1
+
+    def _place(self) -> None:
+        """Where each band's events of each move go; room for them in the columns."""
+        sink, traces, m0, m1 = self.sink, self.traces, self.m0, self.m1
         nb_ = traces.n_bands
         m = m1 - m0
         ts = sink.ts
@@ -483,10 +495,11 @@ class _Merge:
         a = traces.a
         self.args = (starts, cnt, dest, join, a["rs"], a["f_val"], a["rl"], a["g_ray"], a["g_count"],
                      a["g_near"], a["g_far"], a["g_nid"], a["g_fid"], *sink.buffers()[:9])
-        self.sink, self.traces, self.m0, self.m1, self.m = sink, traces, m0, m1, m
+        self.m = m
 
     def run(self) -> None:
         """Copy the bands' events to their places and close the blocks."""
+        self._place()
         for t in range(self.traces.n_bands):
             _copy_band_events(t, *self.args)
         starts, cnt, dest, join = self.args[:4]

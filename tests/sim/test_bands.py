@@ -198,10 +198,16 @@ def test_plan_bands_keeps_bands_thick(monkeypatch):
 
 def test_chunks_never_split_a_move():
     sm = np.array([0, 0, 0, 1, 2, 2, 2, 2, 3, 4])
-    ch = bands.chunk_bounds(sm, 2)
+    ch = bands.chunk_bounds(sm, 2, first=2)
     assert ch[0] == (0, 3) and ch[-1][1] == len(sm)
     for a, b in ch:
         assert a == 0 or sm[a] != sm[a - 1]
+
+
+def test_chunks_grow_from_short_to_full():
+    sm = np.arange(100)
+    ch = bands.chunk_bounds(sm, 16)
+    assert [b - a for a, b in ch] == [2, 4, 8, 16, 16, 16, 16, 16, 6]
 
 
 def test_threads_setting(monkeypatch):
