@@ -98,9 +98,7 @@ def plan_bands(p0: np.ndarray, p1: np.ndarray, reach: float, origin_y: float, sp
     j1 = np.clip(j1, 0, nv).astype(np.int64)
     rows = np.maximum(j1 - j0, 1)
     per_row = reach_rays(p0, p1, reach, spacing) / rows
-    density = np.zeros(nv + 1)
-    np.add.at(density, j0, per_row)
-    np.add.at(density, j1, -per_row)
+    density = np.bincount(j0, per_row, nv + 1) - np.bincount(j1, per_row, nv + 1)
     work = np.cumsum(np.cumsum(density)[:nv])
     n_bands = max(1, min(n_bands, nv // MIN_BAND_ROWS))
     if work[-1] <= 0 or n_bands == 1:
@@ -515,51 +513,90 @@ class _Merge:
     def _place(self) -> None:
         """Where each band's events of each move go; room for them in the columns."""
         sink, traces, m0, m1 = self.sink, self.traces, self.m0, self.m1
-        nb_ = traces.n_bands
-        m = m1 - m0
         ts = sink.ts
-        E = traces.blk[:, :, m0:m1]                       # (4 columns, bands, moves): ends, -1 unopened
-        self.opened = (E[0] >= 0).any(axis=0)
-        ends = np.maximum.accumulate(np.maximum(E, 0), axis=2)
-        cnt = np.diff(ends, axis=2, prepend=0)
-        starts = ends - cnt
-        rs_b, rl_b = traces.a["rs"], traces.a["rl"]
-        join = np.zeros((nb_, m), np.bool_)
-        prev_end = np.full(m, -1, np.int64)
-        for t in range(nb_):
-            has = np.flatnonzero(cnt[3, t] > 0)
-            join[t, has] = rs_b[t, starts[3, t, has]] == prev_end[has]
-            last_run = ends[3, t, has] - 1
-            prev_end[has] = rs_b[t, last_run].astype(np.int64) + rl_b[t, last_run]
-        written = cnt.copy()
-        written[3] -= join                                 # a joined run is not written anew
         base = np.array([ts[K.TS_NF], ts[K.TS_NG], ts[K.TS_NS], ts[K.TS_NR]], np.int64)
-        order = written.transpose(0, 2, 1).reshape(4, -1)  # move by move, band by band
-        after = np.cumsum(order, axis=1)
-        dest = (base[:, None] + after - order).reshape(4, m, nb_).transpose(0, 2, 1).copy()
-        self.block_end = base[:, None] + after.reshape(4, m, nb_)[:, :, -1]
-        self.base = base
-        sink.make_room(*(int(x) for x in written.sum(axis=(1, 2))))
+        E = traces.blk[:, :, m0:m1]   # (4 columns, bands, moves): ends, -1 unopened
+        self.starts, self.cnt, self.dest, self.join, self.block_end, self.opened, written = \
+            _place_events(E, traces.a["rs"], traces.a["rl"], base)
+        sink.make_room(*(int(x) for x in written))
         a = traces.a
-        self.args = (starts, cnt, dest, join, a["rs"], a["f_val"], a["rl"], a["g_ray"], a["g_count"],
-                     a["g_near"], a["g_far"], a["g_nid"], a["g_fid"], *sink.buffers()[:9])
-        self.m = m
+        self.args = (self.starts, self.cnt, self.dest, self.join, a["rs"], a["f_val"], a["rl"], a["g_ray"],
+                     a["g_count"], a["g_near"], a["g_far"], a["g_nid"], a["g_fid"], *sink.buffers()[:9])
+        self.base = base
 
     def run(self) -> None:
         """Copy the bands' events to their places and close the blocks."""
         self._place()
         for t in range(self.traces.n_bands):
             _copy_band_events(t, *self.args)
-        starts, cnt, dest, join = self.args[:4]
         sink, rl_b = self.sink, self.traces.a["rl"]
-        jt, jq = np.nonzero(join)
+        jt, jq = np.nonzero(self.join)
         if jt.size:
-            np.add.at(self.args[15], dest[3, jt, jq] - 1, rl_b[jt, starts[3, jt, jq]])
+            np.add.at(self.args[15], self.dest[3, jt, jq] - 1, rl_b[jt, self.starts[3, jt, jq]])
         for c, blk in enumerate(sink.blk):
             blk[self.m0:self.m1][self.opened] = self.block_end[c][self.opened]
         ts = sink.ts
-        ts[K.TS_NF], ts[K.TS_NG], ts[K.TS_NS], ts[K.TS_NR] = self.block_end[:, -1] if self.m else self.base
+        ts[K.TS_NF], ts[K.TS_NG], ts[K.TS_NS], ts[K.TS_NR] = \
+            self.block_end[:, -1] if self.m1 > self.m0 else self.base
         sink.merged()
+
+
+@nb.njit(cache=True, nogil=True)
+def _place_events(E, rs_b, rl_b, base):
+    """Where the bands' events of a chunk go in the trace's columns, move by move, band by
+    band (the one-core order).
+
+    E: int64 (4, bands, moves) each band's column ends after each move (far events,
+    general events, their segments, far runs; -1: the move never opened in the band);
+    rs_b/rl_b: the bands' far runs; base: the columns' fill before the chunk. Returns
+    (starts, cnt, dest, join, block_end, opened, written): where each (column, band,
+    move) piece starts in the band's buffers, its length and its place in the columns;
+    join (bands, moves): the band's first run of the move goes on from the run before it
+    (written by the band before: its length is added there, not written anew);
+    block_end (4, moves): the columns' ends after each move; opened (moves,): the move
+    was opened by some band; written (4,): what the chunk adds to each column.
+    """
+    nc, nb_, m = E.shape
+    starts = np.zeros((nc, nb_, m), np.int64)
+    cnt = np.zeros((nc, nb_, m), np.int64)
+    dest = np.zeros((nc, nb_, m), np.int64)
+    join = np.zeros((nb_, m), np.bool_)
+    block_end = np.zeros((nc, m), np.int64)
+    opened = np.zeros(m, np.bool_)
+    written = np.zeros(nc, np.int64)
+    for c in range(nc):
+        for t in range(nb_):
+            end = 0
+            for q in range(m):
+                e = E[c, t, q]
+                if c == 0 and e >= 0:
+                    opened[q] = True
+                if e > end:
+                    starts[c, t, q] = end
+                    cnt[c, t, q] = e - end
+                    end = e
+                else:
+                    starts[c, t, q] = end
+    pos = base.copy()
+    for q in range(m):
+        prev_end = -1   # the end of the last run written for this move
+        for t in range(nb_):
+            for c in range(nc):
+                n = cnt[c, t, q]
+                if c == 3 and n > 0:
+                    s = starts[3, t, q]
+                    if rs_b[t, s] == prev_end:
+                        join[t, q] = True
+                        n -= 1
+                    last = starts[3, t, q] + cnt[3, t, q] - 1
+                    prev_end = rs_b[t, last] + rl_b[t, last]
+                dest[c, t, q] = pos[c]
+                pos[c] += n
+                written[c] += n
+        for c in range(nc):
+            block_end[c, q] = pos[c]
+    return starts, cnt, dest, join, block_end, opened, written
+
 
 
 @nb.njit(cache=True, nogil=True)
