@@ -1,8 +1,8 @@
 """Where numba keeps the compiled kernels: a folder named after the kernel sources.
 
 numba's cache checks only the file of the function it compiled. A kernel that calls one in
-another file (``sweep_kernels.cut_linear_batch`` calls ``dexel_store.subtract_interval``;
-``correct.kernels`` calls ``sweep_kernels.linear_interval``) keeps the callee it was
+another file (``sweep_kernels.linear.cut_linear_batch`` calls ``dexel_store.subtract_interval``;
+``correct.kernels`` calls ``sweep_kernels.shapes.linear_interval``) keeps the callee it was
 compiled with, so after that other file changed (an upgrade, a checkout) it would go on
 running the old code, silently. Here every kernel is cached in a folder named after a
 fingerprint of all the kernel sources (their sizes and modification times): change any one
@@ -36,7 +36,12 @@ KERNEL_SOURCES = (
     "sim/grid.py",
     "sim/solids.py",
     "sim/surface.py",
-    "sim/sweep_kernels.py",
+    "sim/sweep_kernels/batch.py",
+    "sim/sweep_kernels/linear.py",
+    "sim/sweep_kernels/log.py",
+    "sim/sweep_kernels/poses.py",
+    "sim/sweep_kernels/shapes.py",
+    "sim/sweep_kernels/trace_sink.py",
     "sim/trace_kernels.py",
     "sim/tridexel_surface.py",
 )

@@ -6,7 +6,7 @@ position is its tip; the tool axis is +Z (3-axis).
 
 * :func:`sweep_gouge` - how a straight move (a single pose when both ends coincide)
   gouges the design: the exact lowest point of the swept tool on every ray
-  (:func:`sim.sweep_kernels.linear_interval`) assessed like the error map does
+  (:func:`sim.sweep_kernels.shapes.linear_interval`) assessed like the error map does
   (:func:`sim.checks.design_kernels.point_errors`): the distance along the ray to the
   surface, replaced by the exact near-point distance where it matters. It also sums the
   guide vector of eq. 7 over the gouged points.
@@ -26,7 +26,7 @@ import numba as nb
 import numpy as np
 
 from sim.checks.design_kernels import _nearest, _nearest_crossing
-from sim.sweep_kernels import _hstar, linear_interval
+from sim.sweep_kernels.shapes import _hstar, linear_interval
 
 #: layout of the float64 result of :func:`sweep_gouge`
 (G_COUNT, G_DEPTH, G_RAY, G_S, G_GX, G_GY, G_GZ, G_LIFT) = range(8)
