@@ -30,9 +30,8 @@ CODE_BALL = 1
 CODE_BULL = 2
 CODE_CONE = 3
 
-#: layout of the float64 parameter vector of a body for the exact linear kernel
-#: [code, R, rc, cot_half_angle, h_off (bottom above the tip), h_top, Rc (largest radius)]
-N_PARAMS = 7
+# ``tp``, a body's float64 parameters for the exact linear kernel:
+# [code, R, rc, cot_half_angle, h_off (bottom above the tip), h_top, Rc (largest radius)]
 
 
 @nb.njit(cache=True, inline="always")
@@ -57,7 +56,7 @@ def _hstar(code, R, rc, cot, d):
 def linear_interval(tp, x0, y0, z0, dz, ell, ux, uy, rx, ry):
     """Interval ``(lo, hi)`` (mm) of a vertical ray within the body swept along one move.
 
-    ``tp`` body parameters (see ``N_PARAMS``); the move starts at tip ``(x0, y0, z0)``,
+    ``tp`` body parameters (layout at the top of this module); the move starts at tip ``(x0, y0, z0)``,
     runs ``ell`` mm in XY along unit ``(ux, uy)`` and ``dz`` in Z; the ray is at
     ``(x0 + rx, y0 + ry)``. Returns ``lo > hi`` when the ray misses the body.
     """
