@@ -159,6 +159,27 @@ def test_bands_trace_the_events_one_core_traces(case, threads):
     assert same_model(t2.grid_at(len(moves)), g2) and same_model(g1, g2)
 
 
+def test_two_traced_batches_at_once_each_trace_as_alone():
+    """Band buffers are kept from batch to batch (sim.bands._Stash): two cutters tracing
+    on two threads at the same time must not share them."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    def traced(case):
+        make, spec, moves = CASES[case]
+        g = make()
+        tr = Trace(g, keyframe_every=997)
+        Cutter(g, parse_tool_spec(spec), threads=2).cut_moves(moves, record_changes=False, trace=tr)
+        return tr
+
+    alone = {case: traced(case) for case in ("raster_ball", "raster_bull")}
+    with ThreadPoolExecutor(2) as ex:
+        together = dict(zip(alone, ex.map(traced, alone)))
+    for case in alone:
+        for name in ("_f_rs", "_f_rl", "_f_val", "_r_ptr", "_f_ptr"):
+            np.testing.assert_array_equal(getattr(together[case].z, name).a, getattr(alone[case].z, name).a,
+                                          err_msg=f"{case} {name}")
+
+
 def test_runs_join_across_a_band_edge():
     """The narrow grid's moves reach both edges: the run of changed rays goes on from one
     row into the next, across the band boundary too, as on one core."""
