@@ -231,6 +231,8 @@ class _BandTraces(_Buffers):
     def attach(self, sink, n_moves: int) -> "_BandTraces":
         self.sink = sink
         self.blk = np.full((4, self.n_bands, max(n_moves, 1)), -1, np.int64)
+        # the chunks of rays (of the trace's keyframes) each band's chunk touched
+        self.dirty = np.zeros((self.n_bands, -(-sink.z.n_rays // sink.RAY_CHUNK)), np.bool_)
         return self
 
     def note_touched(self) -> None:
@@ -249,6 +251,13 @@ class _BandTraces(_Buffers):
         ts[:, K.TS_BLK0] = self.sink.ts[K.TS_BLK0]
         ts[:, K.TS_NEXT_DUE] = np.iinfo(np.int64).max   # keyframes: at chunk ends only
         self.blk[:, :, m0:m1] = -1
+        self.dirty[:] = False
+
+    def mark_dirty(self, t: int) -> None:
+        """Band ``t`` cut its chunk: mark the chunks of rays its runs touch (on its own
+        thread, not between chunks on the calling one)."""
+        nr = int(self.ts[t, K.TS_NR])
+        _mark_chunks(self.a["rs"][t, :nr], self.a["rl"][t, :nr], self.sink.RAY_CHUNK, self.dirty[t])
 
     def buffers(self, t: int) -> tuple:
         mark, slot = self.sink.marks()
@@ -267,13 +276,10 @@ class _BandTraces(_Buffers):
         self.grow(("g_ray", "g_count"), int(ts[K.TS_NEED_G]))
         self.grow(("g_near", "g_far", "g_nid", "g_fid"), int(ts[K.TS_NEED_S]))
 
-    def dirty_chunks(self, chunk: int, n_chunks: int) -> np.ndarray:
-        """Which chunks of ``chunk`` rays the bands' far-event runs touch: bool (n_chunks,)."""
-        dirty = np.zeros(n_chunks, bool)
-        for t in range(self.n_bands):
-            nr = int(self.ts[t, K.TS_NR])
-            dirty |= ray_chunks_touched(self.a["rs"][t, :nr], self.a["rl"][t, :nr], chunk, n_chunks)
-        return dirty
+    def dirty_chunks(self) -> np.ndarray:
+        """Which chunks of rays (``sink.RAY_CHUNK`` each) the bands' far-event runs touch:
+        bool (n_chunks,)."""
+        return self.dirty.any(axis=0)
 
     def totals(self) -> tuple[int, int, int, int]:
         """Far events, general events, their segments and runs over all bands."""
@@ -399,6 +405,8 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
                             traces.buffers(t) if traces is not None else K.NO_TRACE,
                             traces.ts[t] if traces is not None else K.NO_TS, rem[t],
                             (int(bounds[t]), int(bounds[t + 1])), (s0, b))
+                if st == K.DONE and traces is not None:
+                    traces.mark_dirty(t)
                 took[t] += time.perf_counter() - t0
                 return st
             if ex is not None and len(todo) > 1:

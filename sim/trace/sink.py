@@ -31,6 +31,9 @@ class _Sink:
     appends the block rows and brings the trace's mirror up to date.
     """
 
+    #: rays a chunk of the keyframes' arrays holds (what a keyframe copies or shares)
+    RAY_CHUNK = _Chunked.CHUNK
+
     def __init__(self, z: ZTrace, grid: DexelGrid, n_moves: int, stages, move_ids=None):
         if not grid.frame.same_rays(z.frame):
             raise InputError("the traced grid is not on the trace's dexel frame")
@@ -98,7 +101,7 @@ class _Sink:
         """Moves up to ``mv`` are cut (a chunk of ``sim.bands``, which runs with keyframes
         off); the columns hold them but for the last chunk's events, merged later
         (``far_pending`` far and ``general_pending`` general events;
-        ``pending_dirty(chunk, n_chunks)`` says which chunks of rays they touch). Take a
+        ``pending_dirty()`` says which chunks of ``RAY_CHUNK`` rays they touch). Take a
         keyframe of the model now if one fell due."""
         if not self.inline:
             return
@@ -107,7 +110,7 @@ class _Sink:
         if self._dirty is None:   # the runs since the latest keyframe, of earlier batches
             self._dirty = self._dirty_chunks(self.r_at_key, int(ts[K.TS_NR]))
         # each chunk's runs are read once, as they come (not again at every keyframe)
-        self._dirty |= pending_dirty(_Chunked.CHUNK, self._dirty.size)
+        self._dirty |= pending_dirty()
         ng = int(ts[K.TS_NG]) + general_pending
         events = int(ts[K.TS_NF]) + far_pending + ng
         if events < ts[K.TS_NEXT_DUE]:
