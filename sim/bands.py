@@ -378,6 +378,8 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
     traces = None
     pending = None   # the _Merge of the chunk cut but not merged yet
     balance = _Balance(n_bands)
+    key_copies = []   # a keyframe's copies of the model at the chunk's end, see below
+    nu = grid.frame.nu
 
     for ci, (a, b) in enumerate(chunks):
         m0, m1 = int(seg_move[a]), int(seg_move[b - 1]) + 1
@@ -394,12 +396,17 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
         bounds = plan(a, b, balance.shares)
         todo = list(range(len(bounds) - 1))
         took = np.zeros(len(todo))
+        # a keyframe taken at the last chunk's end: each band copies its own rows of the
+        # model into it before it cuts them (not the calling thread, between chunks)
+        owed, key_copies = key_copies, []
         while todo:
             started = threading.Semaphore(0)
 
-            def run(t, S=grid.S, traces=traces, started=started):
+            def run(t, S=grid.S, traces=traces, started=started, owed=owed):
                 started.release()
                 t0 = time.perf_counter()
+                if owed:
+                    sink.copy_rays(owed, int(bounds[t]) * nu, int(bounds[t + 1]) * nu)
                 band_S = (*S[:11], pools[t])
                 st = kernel(band_S, states[t], logs.buffers(t) if logs is not None else K.NO_LOG,
                             traces.buffers(t) if traces is not None else K.NO_TRACE,
@@ -425,6 +432,7 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
                     pending.run()
                     pending = None
                 status = [run(t) for t in todo]
+            owed = None
             again = []
             for t, st in zip(todo, status):
                 if st == K.DONE:
@@ -447,7 +455,7 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
             if pending is not None:
                 pending.run()
             if ci < len(chunks) - 1:   # the sink's end takes the batch's last keyframe
-                sink.chunk_end(m1 - 1, *traces.totals()[:2], traces.dirty_chunks)
+                sink.chunk_end(m1 - 1, *traces.totals()[:2], traces.dirty_chunks, key_copies)
             pending = _Merge(sink, traces, m0, m1)
     if pending is not None:
         pending.run()

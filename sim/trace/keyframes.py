@@ -14,16 +14,38 @@ if TYPE_CHECKING:
     from sim.trace.ztrace import ZTrace
 
 
-def _store_snapshot(store: dict) -> dict:
-    """A copy of a store with the pool trimmed to what is in use."""
+def _store_snapshot(store: dict, later: list | None = None) -> dict:
+    """A copy of a store with the pool trimmed to what is in use (``later``: the per-ray
+    arrays' copies left to whoever runs that list, see :func:`copy_rays`)."""
     top = int(store["pool_top"][0])
     out = {}
     for k, v in store.items():
         if k.startswith("pool_") and k != "pool_top":
             out[k] = v[:max(top, 16)].copy()
+        elif k in _RAY_FIELDS:
+            out[k] = _copy_rays_of(v, 0, v.size, later)
         else:
             out[k] = v.copy()
     return out
+
+
+def _copy_rays_of(src: np.ndarray, lo: int, hi: int, later: list | None) -> np.ndarray:
+    """``src[lo:hi]`` copied now, or into an array returned empty and filled when the
+    ``later`` list is run (:func:`copy_rays`)."""
+    if later is None:
+        return src[lo:hi].copy()
+    dst = np.empty(hi - lo, src.dtype)
+    later.append((src, lo, hi, dst))
+    return dst
+
+
+def copy_rays(later: list, r0: int, r1: int) -> None:
+    """Do the copies of ``later`` (see :func:`_store_snapshot`) for the rays ``r0 .. r1-1``
+    (``sim.bands``: each band copies its own rows of a keyframe before it cuts them)."""
+    for src, lo, hi, dst in later:
+        a, b = max(lo, r0), min(hi, r1)
+        if a < b:
+            dst[a - lo:b - lo] = src[a:b]
 
 
 def _store_copy(snap: dict, spare: int) -> dict:
@@ -47,6 +69,8 @@ class _Keyframe:
     data: object
 
 
+#: the store's arrays of one value per ray
+_RAY_FIELDS = ("count", "near", "far", "near_id", "far_id", "xstart", "xcap")
 #: fields a far-only (rule 5) edit writes; the others stay shared between keyframes
 _FAR_FIELDS = ("far", "far_id", "pool_far", "pool_far_id")
 _POOL_FIELDS = ("pool_near", "pool_far", "pool_near_id", "pool_far_id")
@@ -74,10 +98,11 @@ class _Chunked:
             return a
         return cls([a[i:i + cls.CHUNK] for i in range(0, a.size, cls.CHUNK)], a.size, a.dtype)
 
-    def updated(self, src: np.ndarray, dirty: np.ndarray) -> "_Chunked":
-        """These chunks with the ``dirty`` ones (bool per chunk) copied anew from ``src``."""
+    def updated(self, src: np.ndarray, dirty: np.ndarray, later: list | None = None) -> "_Chunked":
+        """These chunks with the ``dirty`` ones (bool per chunk) copied anew from ``src``
+        (``later``: see :func:`_store_snapshot`)."""
         ch = self.CHUNK
-        chunks = [src[i * ch:(i + 1) * ch].copy() if d else c
+        chunks = [_copy_rays_of(src, i * ch, min((i + 1) * ch, src.size), later) if d else c
                   for i, (c, d) in enumerate(zip(self.chunks, dirty))]
         return _Chunked(chunks, self.size, self.dtype)
 
@@ -111,13 +136,15 @@ def _plain(a) -> np.ndarray:
     return a.copy() if isinstance(a, _Chunked) else a
 
 
-def _snapshot_sharing(store: dict, prev: dict | None, general: bool, dirty=None) -> dict:
+def _snapshot_sharing(store: dict, prev: dict | None, general: bool, dirty=None,
+                      later: list | None = None) -> dict:
     """A snapshot of ``store``; when only far-only edits happened since keyframe ``prev``
     (``general`` False), the fields they cannot touch are ``prev``'s arrays, shared, and
     with ``dirty`` (bool per :class:`_Chunked` chunk of rays: where those edits fell) the
-    FarZ values and ids share their untouched chunks too."""
+    FarZ values and ids share their untouched chunks too. ``later``: see
+    :func:`_store_snapshot`."""
     if prev is None or general:
-        return _store_snapshot(store)
+        return _store_snapshot(store, later)
     out = dict(prev)
     top = int(store["pool_top"][0])
     for k in _FAR_FIELDS:
@@ -125,9 +152,9 @@ def _snapshot_sharing(store: dict, prev: dict | None, general: bool, dirty=None)
         if k.startswith("pool_"):
             out[k] = v[:max(top, 16)].copy()
         elif dirty is not None:
-            out[k] = _Chunked.of(prev[k]).updated(v, dirty)
+            out[k] = _Chunked.of(prev[k]).updated(v, dirty, later)
         else:
-            out[k] = v.copy()
+            out[k] = _copy_rays_of(v, 0, v.size, later)
     return out
 
 

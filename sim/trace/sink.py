@@ -11,7 +11,7 @@ from sim.bands import ray_chunks_touched
 from sim.errors import InputError
 from sim.grid import DexelGrid
 from sim.trace.columns import _batch_stages
-from sim.trace.keyframes import _Chunked, _Keyframe, _snapshot_sharing
+from sim.trace.keyframes import _Chunked, _Keyframe, _snapshot_sharing, copy_rays
 
 if TYPE_CHECKING:
     from sim.trace.ztrace import ZTrace
@@ -97,12 +97,15 @@ class _Sink:
                             (n_runs, n_far, n_runs, n_general, n_general, *(n_segments,) * 4, n_far)):
             c.grow_to(c.n + int(extra) + 1)
 
-    def chunk_end(self, mv: int, far_pending: int, general_pending: int, pending_dirty) -> None:
+    def chunk_end(self, mv: int, far_pending: int, general_pending: int, pending_dirty,
+                  later: list) -> None:
         """Moves up to ``mv`` are cut (a chunk of ``sim.bands``, which runs with keyframes
         off); the columns hold them but for the last chunk's events, merged later
         (``far_pending`` far and ``general_pending`` general events;
         ``pending_dirty()`` says which chunks of ``RAY_CHUNK`` rays they touch). Take a
-        keyframe of the model now if one fell due."""
+        keyframe of the model now if one fell due: its copies of the model's per-ray
+        arrays go to the list ``later``, for the bands to make before they cut on (see
+        ``sim.trace.keyframes.copy_rays``)."""
         if not self.inline:
             return
         self._sync_counts()
@@ -115,9 +118,14 @@ class _Sink:
         events = int(ts[K.TS_NF]) + far_pending + ng
         if events < ts[K.TS_NEXT_DUE]:
             return
-        self._snapshot(mv, ng > self.g_at_key, self._dirty, events)
+        self._snapshot(mv, ng > self.g_at_key, self._dirty, events, later)
         self._dirty[:] = False
         self._key_before_merge = True
+
+    @staticmethod
+    def copy_rays(later: list, r0: int, r1: int) -> None:
+        """The copies ``chunk_end`` left in ``later``, for rays ``r0 .. r1-1``."""
+        copy_rays(later, r0, r1)
 
     def merged(self) -> None:
         """``sim.bands`` merged a chunk into the columns: if the keyframe before was taken
@@ -170,13 +178,14 @@ class _Sink:
         self.g_at_key = ng
         self.r_at_key = nr
 
-    def _snapshot(self, mv: int, general: bool, dirty, events: int) -> None:
+    def _snapshot(self, mv: int, general: bool, dirty, events: int, later: list | None = None) -> None:
         """Keyframe after move ``mv``: the model's arrays (all when ``general``, else the
         ``dirty`` chunks of rays, the rest shared with the keyframe before); ``events``:
-        far and general events up to ``mv``, from which the next one falls due."""
+        far and general events up to ``mv``, from which the next one falls due;
+        ``later``: see :meth:`chunk_end`."""
         z = self.z
-        z._add_keyframe(_Keyframe(self.b0 + mv + 1, int(self.stages[mv]),
-                                  _snapshot_sharing(self.grid.store, z._keyframes[-1].data, general, dirty)))
+        data = _snapshot_sharing(self.grid.store, z._keyframes[-1].data, general, dirty, later)
+        z._add_keyframe(_Keyframe(self.b0 + mv + 1, int(self.stages[mv]), data))
         z._next_due = events + z.keyframe_every
         self.ts[K.TS_NEXT_DUE] = z._next_due
 
