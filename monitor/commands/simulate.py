@@ -533,13 +533,10 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
             from sim.checks.scallop import note
 
             notes = [*notes, note(*checker.undercut_basis, checker.tol.undercut)]
-    elif tri:
-        per_move = TriModelCutter(grid, tool, DEFAULT, tools=tools or None, kinematics=kinematics,
-                                  origin=origin).cut_moves(moves, record_changes=False).removed
     else:
-        per_move = Cutter(grid, tool, tools=tools or None, kinematics=kinematics, origin=origin,
-                          tool_lengths=tool_lengths).cut_moves(
-            moves, record_changes=False).removed
+        placing = dict(tools=tools or None, kinematics=kinematics, origin=origin, tool_lengths=tool_lengths)
+        cutter = TriModelCutter(grid, tool, DEFAULT, **placing) if tri else Cutter(grid, tool, **placing)
+        per_move = cutter.cut_moves(moves, record_changes=False).removed
         findings = []
     seconds = time.perf_counter() - t0
     grid_after = zgrid.volume(weights="trapezoid")
