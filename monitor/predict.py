@@ -233,8 +233,9 @@ def build_workpiece(job: Job, moves: np.ndarray, model: str = "z") -> Workpiece:
     machine whose head turns the tool its ``tool_length`` column gives each tool's G43
     length (:func:`head_tool_lengths`). ``model``: the stock as one Z grid (``"z"``, what
     the live session follows) or as a tri-dexel model (``"tri-dexel"``,
-    :class:`sim.tridexel.TriDexel`, ``simulate`` with ``[stock] model``): its lattice has
-    the Z frame's rays and covers the stock's height."""
+    :class:`sim.tridexel.TriDexel`, ``simulate`` with ``[stock] model``): its lattice
+    (:func:`tri_lattice`, nodes half a spacing inside the stock) covers the frame, and
+    its Z grid's rays are then the frame the design and the checks use."""
     from sim.checks.collisions import Fixture
     from sim.checks.error_map import DesignModel
     from sim.kinematics import head_only
@@ -257,6 +258,7 @@ def build_workpiece(job: Job, moves: np.ndarray, model: str = "z") -> Workpiece:
     frame = Frame.top(lo[0] - margin, lo[1] - margin, hi[0] + margin, hi[1] + margin, job.resolution)
     if model == "tri-dexel":
         stock = _tri_stock(frame, job, stock_mesh)
+        frame = stock.grids["z"].frame  # the design's and the checks' rays are the model's
     else:
         stock = _solid_grid(frame, job.stock, stock_mesh, job.tolerance)
     names = [f.name or f"fixture {k + 1}" for k, f in enumerate(job.fixtures)]
@@ -308,20 +310,24 @@ def head_tool_lengths(kinematics, moves: np.ndarray, where: str) -> dict[int, fl
 
 
 def tri_lattice(frame: Frame, job: Job, stock_mesh=None) -> tuple[np.ndarray, np.ndarray]:
-    """``(lo, hi)`` (3,) mm of the tri-dexel lattice of ``job``'s stock: the Z frame's XY
-    extent, and the stock's height grown by two spacings (nodes on the stock's bottom)."""
+    """``(lo, hi)`` (3,) mm: the first and last node of the tri-dexel lattice of ``job``'s
+    stock, :func:`sim.tridexel.stock_lattice`'s (as ``TriDexel.box`` and ``.mesh`` lay
+    it: nodes half a spacing inside the stock's lowest corner, no ray on a face of a box),
+    covering ``frame``'s rectangle and the stock's height grown by two spacings."""
+    from sim.tridexel import stock_lattice
+
     slo, shi, _ = _bounds(job.stock, "[stock]") if stock_mesh is None else (
         stock_mesh.bounds[0], stock_mesh.bounds[1], None)
-    sp = frame.spacing
-    z0 = float(slo[2]) - 2 * sp
-    nz = int(np.ceil((float(shi[2]) + 2 * sp - z0) / sp - 1e-9))
-    lo = np.array([frame.origin[0], frame.origin[1], z0])
-    hi = np.array([frame.origin[0] + (frame.nu - 1) * sp, frame.origin[1] + (frame.nv - 1) * sp, z0 + nz * sp])
-    return lo, hi
+    slo, shi = np.asarray(slo, np.float64), np.asarray(shi, np.float64)
+    f = frame
+    corner = f.origin + np.array([(f.nu - 1) * f.spacing, (f.nv - 1) * f.spacing, 0.0])
+    cover = (np.array([f.origin[0], f.origin[1], slo[2]]), np.array([corner[0], corner[1], shi[2]]))
+    return stock_lattice(slo, shi, f.spacing, 2 * f.spacing, cover)
 
 
 def _tri_stock(frame: Frame, job: Job, stock_mesh):
-    """The job's stock as a tri-dexel model whose Z grid is on ``frame``."""
+    """The job's stock as a tri-dexel model on :func:`tri_lattice` (its Z grid covers
+    ``frame``'s rectangle, half a spacing off it: the model's Z frame replaces it)."""
     from sim.tridexel import TriDexel
 
     lo, hi = tri_lattice(frame, job, stock_mesh)

@@ -103,7 +103,7 @@ class TriDexel:
         least ``margin`` (mm, default one spacing) of empty lattice round it."""
         lo = np.asarray(lo, np.float64).reshape(3)
         hi = np.asarray(hi, np.float64).reshape(3)
-        a, b = _lattice_around(lo, hi, lo + 0.5 * spacing, spacing, margin)
+        a, b = stock_lattice(lo, hi, spacing, margin)
         return cls.build(a, b, spacing, lambda f: box_grid(f, lo, hi, face_id, tol))
 
     @classmethod
@@ -119,7 +119,7 @@ class TriDexel:
                              f"x {x0}..{x1}")
         cy, cz = (float(c) for c in center)
         base = np.array([x0, cy, cz])
-        a, b = _lattice_around(base - [0.0, radius, radius], np.array([x1, cy + radius, cz + radius]),
+        a, b = lattice_around(base - [0.0, radius, radius], np.array([x1, cy + radius, cz + radius]),
                                base + [0.5 * spacing, 0.0, 0.0], spacing, margin)
         return cls.build(a, b, spacing, lambda f: cylinder_grid(f, base, (1.0, 0.0, 0.0), radius,
                                                                x1 - x0, face_id, tol))
@@ -134,7 +134,7 @@ class TriDexel:
         mesh, name = load_mesh(mesh_or_path)
         check_closed(mesh, name)
         lo, hi = (np.asarray(c, np.float64) for c in mesh.bounds)
-        a, b = _lattice_around(lo, hi, lo + 0.5 * spacing, spacing, margin)
+        a, b = stock_lattice(lo, hi, spacing, margin)
         return cls.build(a, b, spacing, lambda f: mesh_grid(f, mesh, face_id, tol))
 
     @property
@@ -153,8 +153,24 @@ class TriDexel:
         return {a: g.volume("trapezoid") for a, g in self.grids.items()}
 
 
-def _lattice_around(lo: np.ndarray, hi: np.ndarray, anchor: np.ndarray, spacing: float,
-                    margin: float | None) -> tuple[np.ndarray, np.ndarray]:
+def stock_lattice(lo, hi, spacing: float, margin: float | None = None,
+                  cover=None) -> tuple[np.ndarray, np.ndarray]:
+    """(first, last) node (mm) of the lattice of a stock whose box is ``[lo, hi]`` (mm
+    3-vectors): nodes half a spacing inside ``lo``, so no ray runs on a face of the box
+    (a tool touching a face cuts no ray); it covers the box grown by ``margin`` (mm,
+    default one spacing) and ``cover`` ((lo, hi) mm 3-vectors: e.g. a job's frame) when given."""
+    lo = np.asarray(lo, np.float64).reshape(3)
+    hi = np.asarray(hi, np.float64).reshape(3)
+    a, b = lattice_around(lo, hi, lo + 0.5 * spacing, spacing, margin)
+    if cover is not None:
+        c0, c1 = (np.asarray(c, np.float64).reshape(3) for c in cover)
+        c0, c1 = lattice_around(c0, c1, a, spacing, 0.0)
+        a, b = np.minimum(a, c0), np.maximum(b, c1)
+    return a, b
+
+
+def lattice_around(lo: np.ndarray, hi: np.ndarray, anchor: np.ndarray, spacing: float,
+                   margin: float | None) -> tuple[np.ndarray, np.ndarray]:
     """(first, last) node (mm) of the lattice that has a node at ``anchor`` and covers
     ``[lo, hi]`` grown by ``margin`` (default one spacing) on every side."""
     if not (np.isfinite(spacing) and spacing > 0):

@@ -24,7 +24,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -77,7 +77,9 @@ class Setup:
     position, work frame) and returns ``(program, rows, moves)``: the interpreter's
     result, its table (arcs as chords within ``chord`` mm when given) and that table in
     the design's coordinates (tips). ``fresh_stock()`` a new stock grid; ``checker(grid)`` the
-    checks ``simulate`` runs.
+    checks ``simulate`` runs. ``placing``: the keywords (``kinematics``, ``origin``,
+    ``tool_lengths``) that place a tool on a job's rotary machine, for every cut of the
+    check (empty: 3-axis).
     """
 
     program_path: Path
@@ -90,6 +92,7 @@ class Setup:
     tol: object
     #: the design on the rays the correction runs on (``--refine``: denser than the check's)
     fine: object = None
+    placing: dict = field(default_factory=dict)
 
 
 def _program_setup(args) -> Setup:
@@ -175,20 +178,31 @@ def setup_from_job(job, max_loop=None, block_delete: bool = False, sub_dirs=(), 
     dirs = [str(d) for d in job.subroutine_path] + list(sub_dirs)
     ref = reference_wco(job)
 
-    def load(p, chord=None):
+    def machine_table(p, chord=None):
+        """The interpreter's result, its rows and those rows from the job's start
+        (machine coordinates, the G43 length in ``tool_length``)."""
         program = S.load_program(str(p), job.dialect, table, job.var_file, job.machine_units, dirs,
                                  max_loop or job.max_loop, block_delete or job.block_delete)
         rows = _linearized(program.moves, chord)
-        return program, rows, work_moves(start_at(rows, job_start(job, rows)), ref)
+        return program, rows, start_at(rows, job_start(job, rows))
 
-    _, _, moves = load(job.program)
-    wp = build_workpiece(job, moves)
+    def load(p, chord=None):
+        program, rows, machine = machine_table(p, chord)
+        return program, rows, work_moves(machine, ref)
+
+    # the machine table, as simulate builds it: a turning head places its tools by the
+    # G43 lengths this table holds (the work table's tool_length is 0)
+    machine_moves = machine_table(job.program)[2]
+    wp = build_workpiece(job, machine_moves)
+    # a rotary job's tool is placed as simulate places it: turned by the kinematics, a
+    # turning head's tool by its G43 length (the work table holds tips)
+    placing = dict(kinematics=wp.kinematics, origin=wp.origin, tool_lengths=wp.tool_lengths)
 
     def checker(g):
         from sim.checks.checker import Checker
 
         return Checker(g, wp.default_tool, design=wp.design, fixtures=wp.fixtures, tol=job.tolerance,
-                       tools=wp.tools, min_volume=MIN_VOLUME)
+                       tools=wp.tools, min_volume=MIN_VOLUME, **placing)
 
     fine = wp.design
     if refine > 1:
@@ -196,8 +210,8 @@ def setup_from_job(job, max_loop=None, block_delete: bool = False, sub_dirs=(), 
 
         offset = job.design.offset if job.design.kind == "stl" else (0.0, 0.0, 0.0)
         fine = DesignModel(refined(wp.frame, refine), wp.design.mesh, offset=offset, name=wp.design.name)
-    return Setup(Path(job.program), load, lambda: build_workpiece(job, moves).stock, checker, wp.design,
-                 wp.tools, wp.default_tool, job.tolerance, fine)
+    return Setup(Path(job.program), load, lambda: build_workpiece(job, machine_moves).stock, checker, wp.design,
+                 wp.tools, wp.default_tool, job.tolerance, fine, placing)
 
 
 def refined(frame, n: int):
@@ -331,7 +345,8 @@ def verify(setup: Setup, out_path: Path, original_moves: np.ndarray) -> tuple[di
     verified = {"gouges": len(gouges), "worst_mm": round(max((f.depth for f in gouges), default=0.0), 6),
                 "gouge_lines": sorted({ln for f in gouges for ln in f.lines})[:50], "findings": kinds}
     before = setup.fresh_stock()
-    Cutter(before, setup.tool, setup.tol, tools=setup.tools or None).cut_moves(original_moves, record_changes=False)
+    Cutter(before, setup.tool, setup.tol, tools=setup.tools or None, **setup.placing).cut_moves(
+        original_moves, record_changes=False)
     return verified, undercut_left(before.top(), grid.top(), setup.design)
 
 

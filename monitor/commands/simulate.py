@@ -131,17 +131,16 @@ def _check_memory(nu: int, nv: int, limit_mb: float, nz: int | None = None) -> N
                          where="--resolution")
 
 
-def _tri_from(frame, z0: float, z1: float, make_grid, memory_limit_mb: float):
-    """A tri-dexel model whose Z grid is on ``frame``, its lattice from ``z0`` to ``z1``
-    (mm, grown by two spacings), each grid from ``make_grid(frame)``."""
-    from sim.tridexel import TriDexel
+def _tri_stock(lo, hi, resolution: float, memory_limit_mb: float, build):
+    """A tri-dexel stock whose box is ``[lo, hi]`` (mm) on :func:`sim.tridexel.stock_lattice`
+    (no ray on a face of the box), refused before it is made when it needs more than
+    ``memory_limit_mb``; ``build()`` makes it (``TriDexel.box`` or ``.mesh``)."""
+    from sim.tridexel import lattice_shape, stock_lattice
 
-    sp = frame.spacing
-    lo = np.array([frame.origin[0], frame.origin[1], z0 - 2 * sp])
-    nz = int(np.ceil((z1 + 2 * sp - lo[2]) / sp - 1e-9))
-    _check_memory(frame.nu, frame.nv, memory_limit_mb, nz + 1)
-    hi = np.array([lo[0] + (frame.nu - 1) * sp, lo[1] + (frame.nv - 1) * sp, lo[2] + nz * sp])
-    return TriDexel.build(lo, hi, sp, make_grid)
+    a, b = stock_lattice(lo, hi, resolution)
+    nx, ny, nz = lattice_shape(a, b, resolution)
+    _check_memory(nx, ny, memory_limit_mb, nz)
+    return build()
 
 
 def build_stock(spec: str, resolution: float, memory_limit_mb: float = 4096.0, tri_dexel: bool = False):
@@ -157,11 +156,11 @@ def build_stock(spec: str, resolution: float, memory_limit_mb: float = 4096.0, t
         nu = int(round((hi[0] - lo[0]) / resolution)) + 1
         nv = int(round((hi[1] - lo[1]) / resolution)) + 1
         _check_memory(nu, nv, memory_limit_mb)
-        frame = Frame.top(lo[0], lo[1], hi[0], hi[1], resolution)
         if tri_dexel:
-            from sim.solids import box_grid
+            from sim.tridexel import TriDexel
 
-            return _tri_from(frame, lo[2], hi[2], lambda f: box_grid(f, lo, hi), memory_limit_mb)
+            return _tri_stock(lo, hi, resolution, memory_limit_mb, lambda: TriDexel.box(lo, hi, resolution))
+        frame = Frame.top(lo[0], lo[1], hi[0], hi[1], resolution)
         return DexelGrid.from_intervals(frame, np.full(frame.shape, lo[2]), np.full(frame.shape, hi[2]))
     path = Path(spec)
     if not path.is_file():
@@ -173,9 +172,11 @@ def build_stock(spec: str, resolution: float, memory_limit_mb: float = 4096.0, t
     nu = int(round((x1 - x0) / resolution)) + 1
     nv = int(round((y1 - y0) / resolution)) + 1
     _check_memory(nu, nv, memory_limit_mb)
-    frame = Frame.top(x0, y0, x1, y1, resolution)
     if tri_dexel:
-        return _tri_from(frame, z0, z1, lambda f: mesh_grid(f, mesh), memory_limit_mb)
+        from sim.tridexel import TriDexel
+
+        return _tri_stock(*mesh.bounds, resolution, memory_limit_mb, lambda: TriDexel.mesh(mesh, resolution))
+    frame = Frame.top(x0, y0, x1, y1, resolution)
     return mesh_grid(frame, path)
 
 
@@ -533,13 +534,10 @@ def _simulate(args, program: str, moves, grid, tool, tools, checker, out=None, t
             from sim.checks.scallop import note
 
             notes = [*notes, note(*checker.undercut_basis, checker.tol.undercut)]
-    elif tri:
-        per_move = TriModelCutter(grid, tool, DEFAULT, tools=tools or None, kinematics=kinematics,
-                                  origin=origin).cut_moves(moves, record_changes=False).removed
     else:
-        per_move = Cutter(grid, tool, tools=tools or None, kinematics=kinematics, origin=origin,
-                          tool_lengths=tool_lengths).cut_moves(
-            moves, record_changes=False).removed
+        placing = dict(tools=tools or None, kinematics=kinematics, origin=origin, tool_lengths=tool_lengths)
+        cutter = TriModelCutter(grid, tool, DEFAULT, **placing) if tri else Cutter(grid, tool, **placing)
+        per_move = cutter.cut_moves(moves, record_changes=False).removed
         findings = []
     seconds = time.perf_counter() - t0
     grid_after = zgrid.volume(weights="trapezoid")

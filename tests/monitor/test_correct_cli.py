@@ -302,3 +302,35 @@ def test_a_job_with_a_var_file_that_is_not_there_is_a_clear_error(tmp_path, caps
     rc, _, err = run(capsys, EXAMPLE_JOB, "-o", tmp_path / "fixed.nc", "--var", missing)
     assert rc == 2 and f"--var {missing}" in err and "no such parameter (.var) file" in err, err
     assert not (tmp_path / "fixed.nc").exists()
+
+
+def test_a_head_tilted_plunge_is_checked_where_the_head_puts_the_tool(tmp_path, capsys):
+    """On a head-head machine the written program is checked with the job's kinematics
+    and the tool's G43 length (pivot to tip), as ``simulate`` cuts it: the tilted plunge
+    that gouges the design 3.5 mm (line 9) is not reported gouge-free. Checked at the
+    gauge point (3-axis, or with the head but without the G43 length) the tool lands
+    beside the design and the check found nothing."""
+    from tests.monitor.test_rotary_job import _tilted_plunge_job
+
+    job = _tilted_plunge_job(tmp_path, "G0 Z60\n")
+    job.write_text(job.read_text() + '[design]\nbox = [20, 0, 0, 40, 20, 18]\n'
+                   '[tolerance]\ngouge = 0.05\nundercut = 5\ninterest = 6\n')
+    assert main(["simulate", str(job), "--json"]) == 1
+    simulated = [f for f in json.loads(capsys.readouterr().out)["findings"] if f["kind"] == "gouge"]
+    rc, doc, err = run(capsys, job, "-o", tmp_path / "fixed.nc", "--json")
+    assert rc == 1, (err, doc)
+    assert doc["verified"]["gouges"] == 1 and doc["verified"]["gouge_lines"] == [f["line"] for f in simulated] == [9]
+    assert doc["verified"]["worst_mm"] == pytest.approx(simulated[0]["depth"], abs=1e-4)
+
+
+def test_the_rotary_example_is_checked_on_the_turned_bar(tmp_path, capsys):
+    """The bundled 4th-axis job (its line 35 plunges 1 mm into the bar at A225): the
+    corrected program and the original are cut on the bar the A axis turns, as
+    ``simulate`` cuts them. Raised to the design, the line leaves no undercut; cut
+    unturned (3-axis) the original's reference cut lay elsewhere and a 0.54 mm undercut
+    was reported."""
+    job = Path(__file__).resolve().parents[2] / "monitor" / "examples" / "rotary_job" / "job.toml"
+    rc, doc, err = run(capsys, job, "-o", tmp_path / "fixed.nc", "--json")
+    assert rc == 0, err
+    assert doc["changed_lines"][0] == 35 and doc["verified"]["gouges"] == 0
+    assert doc["undercut_left"]["max_mm"] == 0.0, doc["undercut_left"]

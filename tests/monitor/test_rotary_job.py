@@ -286,3 +286,17 @@ def test_a_tilted_retract_up_its_own_plunge_is_no_rapid_into_stock(tmp_path, cap
     main(["simulate", str(job), "--json"])
     doc = json.loads(capsys.readouterr().out)
     assert [(f["kind"], f["line"]) for f in doc["findings"]] == [("rapid_into_stock", 10)], doc["findings"]
+
+
+@pytest.mark.parametrize("model", ["z", "tri-dexel"])
+def test_the_unchecked_cut_places_a_tilted_tool_by_its_g43_length(tmp_path, capsys, model):
+    """``simulate --no-checks`` cuts the tilted plunge where the checked cut does, on
+    either stock model: the head places the tool by its G43 length (50 mm), not at the
+    gauge point (beside the stock, where it removed nothing)."""
+    job = _tilted_plunge_job(tmp_path, "G0 Z60\n")
+    flags = ["--tri-dexel"] if model == "tri-dexel" else []
+    assert main(["simulate", str(job), "--json", *flags]) == 0
+    checked = json.loads(capsys.readouterr().out)["removed_mm3"]
+    assert main(["simulate", str(job), "--json", "--no-checks", *flags]) == 0
+    unchecked = json.loads(capsys.readouterr().out)["removed_mm3"]
+    assert checked > 100.0 and unchecked == pytest.approx(checked, abs=1e-3)

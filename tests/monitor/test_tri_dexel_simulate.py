@@ -109,7 +109,11 @@ def test_the_rotary_example_on_a_tri_dexel_model(capsys):
 
 
 def test_a_program_with_stock_on_the_command_line(tmp_path, capsys):
-    """No job: ``--stock box:...`` and ``--tri-dexel`` (3-axis): the same findings as the Z grid."""
+    """No job: ``--stock box:...`` and ``--tri-dexel`` (3-axis): the same findings as the Z
+    grid. The slot (5 mm deep, 6 mm wide, 20 mm between its ends' centres) is measured on
+    the tri-dexel lattice's Z rays, half a spacing inside the box (TriDexel.box): within
+    1 % of its true volume; the Z grid's rays lie on the slot's walls (Y7, Y13) and count
+    them whole (791 mm^3)."""
     prog = tmp_path / "p.nc"
     prog.write_text("G21 G90\nM3 S10000\nG0 X10 Y10 Z30\nG0 Z15\nG1 X30 F500\nG0 Z30\nM30\n")
     args = [prog, "--stock", "box:0,0,0,40,20,20", "--tool", "flat:6:L=20", "--resolution", "0.5"]
@@ -118,7 +122,9 @@ def test_a_program_with_stock_on_the_command_line(tmp_path, capsys):
     assert code_z == code_t == 1
     assert [(f["kind"], f["line"]) for f in on_t["findings"]] == [(f["kind"], f["line"]) for f in on_z["findings"]] \
         == [("rapid_into_stock", 4)]
-    assert on_t["removed_mm3"] == pytest.approx(on_z["removed_mm3"])
+    slot = (20 * 6 + np.pi * 3**2) * 5
+    assert on_t["removed_mm3"] == pytest.approx(slot, rel=0.01)
+    assert on_z["removed_mm3"] == pytest.approx(slot, rel=0.1)
     assert on_t["lattice"][2] > 1
 
 
@@ -160,3 +166,61 @@ def test_png_pictures_the_cut_stock_coloured_by_move(tmp_path, capsys, model):
     shares = hue_shares(img)
     b = _hue_bin(id_palette()[3])     # the slot: move 3 (to the first point, down, the feed)
     assert shares[[(b - 1) % 36, b, (b + 1) % 36]].sum() > 0.05
+
+
+BOX = (0.0, 0.0, 0.0, 20.0, 10.0, 5.0)
+
+
+def box_job(tmp_path: Path, program: str) -> Path:
+    (tmp_path / "p.nc").write_text(program)
+    job = tmp_path / "job.toml"
+    job.write_text(f'resolution = 0.5\n[program]\npath = "p.nc"\n[stock]\nbox = {list(BOX)}\nmodel = "tri-dexel"\n'
+                   '[tools]\n1 = "flat:6:L=20"\n')
+    return job
+
+
+@pytest.mark.parametrize("given", ["job", "command line"])
+def test_a_rapid_along_the_top_face_of_a_box_stock_removes_nothing(tmp_path, capsys, given):
+    """A rapid at the stock's top (Z5, touching it) cuts nothing, on the Z grid as on the
+    X and Y grids: no ray of the lattice lies in a face of the box (TriDexel.box's nodes,
+    half a spacing inside it). With nodes on the faces the X and Y rays in the top face
+    were cut by the tool's end: a rapid into stock of 61.5 mm^3."""
+    program = "G21 G90\nT1 M6\nM3 S10000\nG0 X-10 Y5 Z30\nG0 Z5\nG0 X30\nG0 Z30\nM30\n"
+    job = box_job(tmp_path, program)
+    if given == "job":
+        code, doc = simulate_json(capsys, job)
+    else:
+        code, doc = simulate_json(capsys, tmp_path / "p.nc", "--stock", "box:" + ",".join(f"{v:g}" for v in BOX),
+                                  "--tool", "flat:6:L=20", "--resolution", "0.5", "--tri-dexel")
+    assert code == 0 and doc["model"] == "tri-dexel"
+    assert doc["findings"] == [] and doc["removed_by_rapids_mm3"] == 0.0 and doc["removed_mm3"] == 0.0
+
+
+def test_a_jobs_box_stock_is_the_box_on_all_three_grids(tmp_path):
+    """The job's tri-dexel box stock is what TriDexel.box gives for it, on a lattice
+    covering the job's frame: each grid holds the box's volume (20 x 10 x 5 mm, whole
+    spacings) and its segments, face ids included, on the rays both lattices share."""
+    from monitor.predict import build_workpiece
+    from sim.gcode.program import interpret
+    from sim.tridexel import TriDexel
+
+    stock = build_workpiece(load_job(box_job(tmp_path, "")), interpret("T1 M6\nG0 Z30\n").moves, "tri-dexel").stock
+    assert stock.volumes() == pytest.approx({"x": 1000.0, "y": 1000.0, "z": 1000.0}, abs=1e-9)
+    box = TriDexel.box(BOX[:3], BOX[3:], 0.5)
+    shift = (box.lo - stock.lo) / 0.5
+    assert np.allclose(shift, np.rint(shift)) and (shift >= 0).all()
+    assert (np.array(stock.shape) >= np.rint(shift) + box.shape).all()
+    # every ray of the job's lattice holds what the box's ray there holds (none outside it)
+    i, j, k = (int(v) for v in np.rint(shift))
+    offsets = {"z": (i, j), "x": (j, k), "y": (k, i)}  # (u, v) of each grid's frame
+    for a, (du, dv) in offsets.items():
+        mine, ref = stock.grids[a], box.grids[a]
+        for v in range(mine.frame.nv):
+            for u in range(mine.frame.nu):
+                inside = 0 <= u - du < ref.frame.nu and 0 <= v - dv < ref.frame.nv
+                got = (mine.segments(u, v), mine.face_ids(u, v))
+                want = (ref.segments(u - du, v - dv), ref.face_ids(u - du, v - dv)) if inside else None
+                if want is None:
+                    assert got[0].size == 0, (a, u, v)
+                else:
+                    assert np.array_equal(got[0], want[0]) and np.array_equal(got[1], want[1]), (a, u, v)
