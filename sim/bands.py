@@ -369,11 +369,11 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
         reach = np.zeros(len(seg_move))
     bound = np.concatenate([[0.0], np.cumsum(reach)])
     ex = BAND_POOL.get(threads) if threads > 1 else None
-    # two sets of trace buffers: the bands cut a chunk into one while the calling thread
-    # merges the chunk before from the other (the merge is mostly the first touch of the
-    # trace's fresh pages: done while the bands cut, it costs little wall time; copied by
-    # the band threads instead, each touching pages the other touches, it cost twice the
-    # CPU)
+    # two sets of trace buffers: the bands cut a chunk into one while the chunk before,
+    # in the other, is merged into the trace: each band's thread first copies a part of
+    # it, the columns' places split evenly (a merge on the calling thread took a core from
+    # a band; copied band by band, each thread touching the pages the other touched, it
+    # cost twice the CPU: most of its cost is the first touch of the trace's fresh pages)
     trace_bufs = [b.attach(sink, n_moves) for b in _STASH.take(n_bands)] if sink is not None else None
     traces = None
     pending = None   # the _Merge of the chunk cut but not merged yet
@@ -399,12 +399,14 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
         # a keyframe taken at the last chunk's end: each band copies its own rows of the
         # model into it before it cuts them (not the calling thread, between chunks)
         owed, key_copies = key_copies, []
+        merge, parts = pending, len(todo)
+        if merge is not None:
+            merge.place()
         while todo:
-            started = threading.Semaphore(0)
-
-            def run(t, S=grid.S, traces=traces, started=started, owed=owed):
-                started.release()
+            def run(t, S=grid.S, traces=traces, owed=owed, merge=merge):
                 t0 = time.perf_counter()
+                if merge is not None:
+                    merge.copy_part(t, parts)
                 if owed:
                     sink.copy_rays(owed, int(bounds[t]) * nu, int(bounds[t + 1]) * nu)
                 band_S = (*S[:11], pools[t])
@@ -417,21 +419,12 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
                 took[t] += time.perf_counter() - t0
                 return st
             if ex is not None and len(todo) > 1:
-                futures = [ex.submit(run, t) for t in todo]
-                if pending is not None:
-                    # every band running first: a band waiting for its thread to start
-                    # while this one merges (holding the interpreter, or the core) ends
-                    # the chunk late
-                    for _ in todo:
-                        started.acquire()
-                    pending.run()
-                    pending = None
-                status = [f.result() for f in futures]
+                status = list(ex.map(run, todo))
             else:
-                if pending is not None:
-                    pending.run()
-                    pending = None
                 status = [run(t) for t in todo]
+            if merge is not None:
+                merge.finish()
+                merge = pending = None
             owed = None
             again = []
             for t, st in zip(todo, status):
@@ -452,13 +445,16 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
             _merge_logs(log, logs, states, m0, m1)
         if trace_bufs is not None:
             traces.note_touched()
-            if pending is not None:
-                pending.run()
             if ci < len(chunks) - 1:   # the sink's end takes the batch's last keyframe
                 sink.chunk_end(m1 - 1, *traces.totals()[:2], traces.dirty_chunks, key_copies)
             pending = _Merge(sink, traces, m0, m1)
-    if pending is not None:
-        pending.run()
+    if pending is not None:   # the last chunk's events: copied on every thread
+        pending.place()
+        if ex is not None:
+            list(ex.map(lambda k: pending.copy_part(k, threads), range(threads)))
+        else:
+            pending.copy_part(0, 1)
+        pending.finish()
         _STASH.give(trace_bufs)
     removed += rem.sum(axis=0)
     _end_pool_ranges(store, pools)
@@ -516,17 +512,19 @@ class _Merge:
     """The bands' trace events of moves ``m0 .. m1-1`` appended to the sink's columns, and
     their blocks closed.
 
-    :meth:`run`, while the bands cut the next chunk, works out where each band's events
-    of each move go (move by move, band by band), makes room in the columns and copies
-    them there. A band whose first run of far rays goes on from the previous band's last
-    one (a move reaching both edges of a narrow grid) adds its length to that run, as one
-    core would have made one run.
+    :meth:`place` works out where each band's events of each move go (move by move, band
+    by band) and makes room in the columns; the threads of the bands cutting the next
+    chunk each first copy a part (:meth:`copy_part`: the columns' places split evenly, so
+    each thread touches fresh pages of its own); :meth:`finish` closes the blocks. A band
+    whose first run of far rays goes on from the previous band's last one (a move
+    reaching both edges of a narrow grid) adds its length to that run, as one core would
+    have made one run.
     """
 
     def __init__(self, sink, traces: _BandTraces, m0: int, m1: int):
         self.sink, self.traces, self.m0, self.m1 = sink, traces, m0, m1
 
-    def _place(self) -> None:
+    def place(self) -> None:
         """Where each band's events of each move go; room for them in the columns."""
         sink, traces, m0, m1 = self.sink, self.traces, self.m0, self.m1
         ts = sink.ts
@@ -540,11 +538,15 @@ class _Merge:
                      a["g_count"], a["g_near"], a["g_far"], a["g_nid"], a["g_fid"], *sink.buffers()[:9])
         self.base = base
 
-    def run(self) -> None:
-        """Copy the bands' events to their places and close the blocks."""
-        self._place()
-        for t in range(self.traces.n_bands):
-            _copy_band_events(t, *self.args)
+    def copy_part(self, k: int, n: int) -> None:
+        """Copy part ``k`` of ``n`` of the events (each column's places split evenly)."""
+        end = self.block_end[:, -1] if self.m1 > self.m0 else self.base
+        lo = self.base + (end - self.base) * k // n
+        hi = self.base + (end - self.base) * (k + 1) // n
+        _copy_events(lo, hi, *self.args)
+
+    def finish(self) -> None:
+        """Every part copied: join the runs that go on across bands, close the blocks."""
         sink, rl_b = self.sink, self.traces.a["rl"]
         jt, jq = np.nonzero(self.join)
         if jt.size:
@@ -616,35 +618,34 @@ def _place_events(E, rs_b, rl_b, base):
 
 
 @nb.njit(cache=True, nogil=True)
-def _copy_band_events(t, starts, cnt, dest, join, b_rs, b_val, b_rl, b_gray, b_gcnt, b_gn, b_gf, b_gni,
-                      b_gfi, rs, val, rl, gray, gcnt, gn, gf, gni, gfi):
-    """Copy band ``t``'s events of each move to where :class:`_Merge` placed them
+def _copy_events(lo, hi, starts, cnt, dest, join, b_rs, b_val, b_rl, b_gray, b_gcnt, b_gn, b_gf, b_gni,
+                 b_gfi, rs, val, rl, gray, gcnt, gn, gf, gni, gfi):
+    """Copy the bands' events to where :class:`_Merge` placed them, those whose places lie
+    in ``lo[c] <= place < hi[c]`` of each column c (far events, general events, their
+    segments, far runs): threads copying disjoint ranges touch pages of their own.
     (``starts``/``cnt``/``dest``: (4 columns, bands, moves); a joined first run is left
-    for the caller to add)."""
-    for q in range(starts.shape[2]):
-        c = cnt[0, t, q]
-        if c > 0:
-            s = starts[0, t, q]
-            d = dest[0, t, q]
-            val[d:d + c] = b_val[t, s:s + c]
-        j = 1 if join[t, q] else 0
-        c = cnt[3, t, q] - j
-        if c > 0:
-            s = starts[3, t, q] + j
-            d = dest[3, t, q]
-            rs[d:d + c] = b_rs[t, s:s + c]
-            rl[d:d + c] = b_rl[t, s:s + c]
-        c = cnt[1, t, q]
-        if c > 0:
-            s = starts[1, t, q]
-            d = dest[1, t, q]
-            gray[d:d + c] = b_gray[t, s:s + c]
-            gcnt[d:d + c] = b_gcnt[t, s:s + c]
-        c = cnt[2, t, q]
-        if c > 0:
-            s = starts[2, t, q]
-            d = dest[2, t, q]
-            gn[d:d + c] = b_gn[t, s:s + c]
-            gf[d:d + c] = b_gf[t, s:s + c]
-            gni[d:d + c] = b_gni[t, s:s + c]
-            gfi[d:d + c] = b_gfi[t, s:s + c]
+    for the caller to add.)"""
+    for t in range(starts.shape[1]):
+        for q in range(starts.shape[2]):
+            for c in range(4):
+                j = 1 if (c == 3 and join[t, q]) else 0
+                d = dest[c, t, q]
+                a = max(d, lo[c])
+                b = min(d + cnt[c, t, q] - j, hi[c])
+                if a >= b:
+                    continue
+                s = starts[c, t, q] + j + a - d
+                e = s + b - a
+                if c == 0:
+                    val[a:b] = b_val[t, s:e]
+                elif c == 3:
+                    rs[a:b] = b_rs[t, s:e]
+                    rl[a:b] = b_rl[t, s:e]
+                elif c == 1:
+                    gray[a:b] = b_gray[t, s:e]
+                    gcnt[a:b] = b_gcnt[t, s:e]
+                else:
+                    gn[a:b] = b_gn[t, s:e]
+                    gf[a:b] = b_gf[t, s:e]
+                    gni[a:b] = b_gni[t, s:e]
+                    gfi[a:b] = b_gfi[t, s:e]
