@@ -5,7 +5,9 @@ moves of its lines are corrected as ``dexmon correct`` would (:mod:`sim.correct`
 the job's design) and the lines that would change are appended to FILE, each original
 line followed by what would replace it, for the user to decide. Nothing is sent to the
 machine and the program is not touched. A gouge that cannot be corrected (an arc, a loop)
-gets its reason written instead.
+gets its reason written instead. Lines a rotary axis turns are never proposed for: the
+correction works on 3-axis lines only (:data:`sim.correct.path.TURNED_WHY`); the file and
+the message name them.
 """
 
 from __future__ import annotations
@@ -56,7 +58,7 @@ class Proposer:
         return self._ready
 
     def __call__(self, finding: dict) -> dict | None:
-        from sim.correct.path import check_fixed_rows, correct_span
+        from sim.correct.path import TURNED_WHY, check_fixed_rows, correct_span
         from sim.correct.rewrite import rewrite_program
 
         setup, program, rows, moves, probe, to_prog, data = self._setup()
@@ -72,6 +74,8 @@ class Proposer:
         refused = [(r.row + a, r.reason) for r in check_fixed_rows(moves[a:b], probe, setup.tools, setup.tool,
                                                                    setup.tol, setup.tol.chord)]
         refused += [(r.row, r.reason) for r in corr.refused]
+        turned = sorted({int(moves["line"][k]) for k in sel if corr.turned[k]})
+        left = f"lines {', '.join(map(str, turned))} left as written, {TURNED_WHY}" if turned else ""
         try:
             if refused:
                 row, reason = min(refused)
@@ -94,10 +98,15 @@ class Proposer:
                 shift += len(repl) - 1
                 body.append(f"line {ln}: {old[ln - 1]}\n" + "".join(f"  -> {r}\n" for r in repl))
             changed = list(written.changed)
+            if not changed and turned:
+                body = [f"# no proposal: {name}:{turned[0]}: {left}\n"]
+            elif turned:
+                body.append(f"# {left}\n")
             text = head + "".join(body)
         with open(self.path, "a", encoding="utf-8", errors="surrogateescape") as fh:
             fh.write(text)
         what = f"lines {changed}" if changed else "no correction possible"
+        what += f"; {left}" if left else ""
         return {"file": str(self.path), "lines": changed,
                 "message": f"proposed correction for the gouge at line {finding.get('line')} ({what}) "
                            f"written to {self.path}; nothing was sent to the machine"}

@@ -10,7 +10,9 @@ on the rays of the same dexel frame ``simulate`` uses (:mod:`sim.correct`). The 
 written in its own dialect and units: lines that need no change byte for byte, changed and
 inserted lines marked ``(dexmon: corrected line N)`` / ``(dexmon: inserted for line N)``
 (:mod:`sim.correct.rewrite`). An arc, a canned cycle or a move in a subroutine or loop that
-needs a correction is refused, naming its line.
+needs a correction is refused, naming its line. The correction works on 3-axis lines
+only: a line a rotary axis turns (A, B or C not 0 at either end of its move) is left
+exactly as written, and the report names it (``left_turned``).
 
 Then the written program is read again and cut through the checks ``dexmon simulate
 --design`` runs (a fresh stock, the same design, tools and tolerance): the report says
@@ -285,6 +287,7 @@ def run(args) -> int:
         "lines_changed": len(written.changed),
         "lines_inserted": written.inserted,
         "changed_lines": written.changed[:200],
+        "left_turned": turned_lines(program, moves, correction.turned, name),
         "positions": correction.poses,
         "positions_corrected": correction.corrected,
         "guide_steps": correction.guide_steps,
@@ -308,6 +311,18 @@ def run(args) -> int:
     else:
         print(summary_text(report))
     return status
+
+
+def turned_lines(program, moves, turned: np.ndarray, name: str) -> dict:
+    """The lines left as written because a rotary axis turns them: ``{"count", "lines"
+    (main-file line numbers, then "file:line" of other files; the first 200), "why"}``."""
+    from sim.correct.path import TURNED_WHY
+
+    rows = np.flatnonzero(turned)
+    main = sorted({int(moves["line"][k]) for k in rows if int(moves["file"][k]) == 0})
+    other = sorted({_where(program, moves, int(k), name) for k in rows if int(moves["file"][k]) != 0})
+    lines = main + other
+    return {"count": len(lines), "lines": lines[:200], "why": TURNED_WHY}
 
 
 def _where(program, moves, row: int, name: str) -> str:
@@ -374,8 +389,12 @@ def summary_text(r: dict) -> str:
              f"({r['positions_corrected']} positions moved, {r['splits']} splits, {r['lifts']} lifts) "
              f"in {r['seconds']:.2f} s",
              f"deepest gouge before {r['gouge_before_mm']:.4f} mm; largest shift {r['largest_shift_mm']:.4f} mm; "
-             f"path length {r['added_length_mm']:+.3f} mm",
-             f"wrote {r['output']}"]
+             f"path length {r['added_length_mm']:+.3f} mm"]
+    left = r["left_turned"]
+    if left["count"]:
+        more = " ..." if left["count"] > 20 else ""
+        lines.append(f"left as written, {left['why']}: {left['count']} lines {left['lines'][:20]}{more}")
+    lines.append(f"wrote {r['output']}")
     v = r.get("verified")
     if v is not None:
         if v["gouges"]:

@@ -299,7 +299,7 @@ def correct_move(tp, p0, q, frame, design, t_l, target, search, min_len, max_ite
 
 #: row codes of :func:`correct_rows`
 ROW_STRAIGHT = 0  # rapid or feed: corrected
-ROW_FIXED = 1     # arc or probe: never reshaped (refused when its start moved)
+ROW_FIXED = 1     # arc, probe or turned row: never reshaped (refused when its start moved)
 ROW_STILL = 2     # no motion: the path stands where it is
 #: per-row statuses of :func:`correct_rows` beyond those of :func:`correct_move`
 MOVED_FIXED = 3
@@ -332,6 +332,7 @@ def correct_rows(codes, tool_idx, tps, p_start, p_end, frame, design, t_l, targe
     points of straight rows ``pts[offs[k]:offs[k + 1]]``, ``status`` (n,) per row (OK,
     FULL, NOT_CLEAN, MOVED_FIXED), and for rows that changed: ``before`` the programmed
     move's deepest gouge (mm) and ``shift`` the farthest corrected point from it (mm).
+    Where ``p_start[k]`` is not ``p_end[k - 1]`` the path jumps by the difference.
     Returns the number of rows done (less than n
     when ``pts`` is full: grow it and call again).
     """
@@ -342,6 +343,16 @@ def correct_rows(codes, tool_idx, tps, p_start, p_end, frame, design, t_l, targe
     used = 0
     offs[0] = 0
     for k in range(n):
+        if k > 0:
+            # the table's tip jumps between rows without a motion (a G43 / G49 change, a tool
+            # change): the machine stays where it is, so the corrected tip jumps the same
+            a = p_start[k]
+            b = p_end[k - 1]
+            if a[0] != b[0] or a[1] != b[1] or a[2] != b[2]:
+                if cur[0] == b[0] and cur[1] == b[1] and cur[2] == b[2]:
+                    cur = a.copy()
+                else:
+                    cur = cur + (a - b)
         start[k] = cur
         status[k] = OK
         c = codes[k]

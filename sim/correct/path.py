@@ -8,6 +8,16 @@ gouges. Arcs, probes and the like are never changed here: one that gouges, or wh
 the correction moved, is *refused* (the caller names its line), unless the table was
 linearised first.
 
+The correction's tool stands upright on the unturned part (3-axis). A row that a rotary
+axis turns (A, B or C not 0 at either end: a turned table, or a head that tilts the tool)
+is therefore never reshaped, split or retimed: it is left as written
+(:func:`turned_rows`, :data:`TURNED_WHY`) and treated like an arc (refused when its start
+moved); the check of the written program, which places tools as ``simulate`` does, says
+whether it gouges.
+
+Where the table's tip jumps between two rows without a motion (a G43 / G49 change, a tool
+change: the machine stays, the tip moves by the change), the corrected path jumps with it.
+
 All positions are tool tips (the table's ``start``/``end`` less ``tool_length``) in the
 design's world coordinates, mm.
 """
@@ -31,6 +41,8 @@ FIXED_MOTION = (MoveKind.ARC_CW, MoveKind.ARC_CCW, MoveKind.PROBE)
 SAME_POINT = 1e-7
 #: most points one row may become
 MAX_POINTS_PER_ROW = K.MAX_POINTS
+#: why a turned row is left as written (the reports say it with its lines)
+TURNED_WHY = "turned by A/B/C: correction works on 3-axis lines only"
 
 
 @dataclass
@@ -49,7 +61,8 @@ class Correction:
     path (rows without motion: where the path stands). ``points[k]``: the tips row ``k``
     visits, last = ``end[k]`` (None: the row as programmed, one point). ``changed`` (n,)
     bool: rows whose points differ from the program's. ``orig_start`` / ``orig_end``: the
-    programmed tips. ``refused``: rows that needed a
+    programmed tips. ``turned`` (n,) bool: rows left as written because a rotary axis
+    turns them (:func:`turned_rows`). ``refused``: rows that needed a
     change the correction may not make. Stats: ``poses`` positions looked at, ``corrected``
     poses moved, ``guide_steps``, ``splits``, ``lifts``; ``largest_shift`` (mm, the
     farthest a corrected point lies from its programmed move), ``added_length`` (mm of
@@ -62,6 +75,7 @@ class Correction:
     changed: np.ndarray
     orig_start: np.ndarray = None
     orig_end: np.ndarray = None
+    turned: np.ndarray = None
     refused: list = field(default_factory=list)
     poses: int = 0
     corrected: int = 0
@@ -76,7 +90,8 @@ class Correction:
 def correct_moves(moves: np.ndarray, probe: GougeProbe, tools: dict, default_tool, tol: Tolerance,
                   min_segment: float = 0.02, margin: float = 0.5, max_iter: int = 30) -> Correction:
     """Correct every straight row of ``moves`` (MOVE_DTYPE, coordinates of ``probe``'s
-    design) so that no sweep gouges the design deeper than ``tol.gouge``.
+    design) so that no sweep gouges the design deeper than ``tol.gouge``. Rows a rotary
+    axis turns are left as written (``Correction.turned``).
 
     ``tools``: {tool number: Tool}; rows use ``tools[row.tool]`` or ``default_tool``.
     ``min_segment`` (mm): pieces shorter than this are lifted rather than split.
@@ -90,6 +105,8 @@ def correct_moves(moves: np.ndarray, probe: GougeProbe, tools: dict, default_too
     codes = np.full(n, K.ROW_STILL, np.int8)
     codes[np.isin(kinds, STRAIGHT)] = K.ROW_STRAIGHT
     codes[np.isin(kinds, FIXED_MOTION)] = K.ROW_FIXED
+    turned = turned_rows(moves)
+    codes[turned] = K.ROW_FIXED
     # one parameter row per tool the straight rows use
     numbers = sorted(set(int(t) for t in moves["tool"][codes == K.ROW_STRAIGHT]))
     by_number = {num: tools.get(num, default_tool) for num in numbers}
@@ -115,7 +132,7 @@ def correct_moves(moves: np.ndarray, probe: GougeProbe, tools: dict, default_too
         pts = np.empty((2 * pts.shape[0], 3))  # more points than room: again with twice the room
     points: list = [None] * n
     changed = np.zeros(n, bool)
-    out = Correction(start, end, points, changed, orig_start=p_start, orig_end=p_end)
+    out = Correction(start, end, points, changed, orig_start=p_start, orig_end=p_end, turned=turned)
     for k in np.flatnonzero(codes == K.ROW_STRAIGHT):
         k = int(k)
         st = int(status[k])
@@ -127,8 +144,9 @@ def correct_moves(moves: np.ndarray, probe: GougeProbe, tools: dict, default_too
             points[k] = pts[offs[k]:offs[k + 1]].copy()
             changed[k] = True
     for k in np.flatnonzero(status == K.MOVED_FIXED):
+        why = f", and it is {TURNED_WHY}" if turned[k] else ""
         out.refused.append(Refusal(int(k), f"it starts where the correction moved the tool "
-                                           f"({_fmt(start[k])} instead of {_fmt(p_start[k])})"))
+                                           f"({_fmt(start[k])} instead of {_fmt(p_start[k])}){why}"))
     out.refused.sort(key=lambda r: r.row)
     out.poses = int((codes == K.ROW_STRAIGHT).sum())
     out.corrected, out.guide_steps, out.splits, out.lifts = (int(v) for v in stats)
@@ -137,6 +155,14 @@ def correct_moves(moves: np.ndarray, probe: GougeProbe, tools: dict, default_too
     out.added_length = _path_length(out, codes == K.ROW_STRAIGHT) - float(
         np.linalg.norm(p_end[codes == K.ROW_STRAIGHT] - p_start[codes == K.ROW_STRAIGHT], axis=1).sum())
     return out
+
+
+def turned_rows(moves: np.ndarray) -> np.ndarray:
+    """bool (n,): the rows of ``moves`` that move the tool with A, B or C not 0 at either
+    end (the table's rotary columns, degrees, those the check turns the tool by)."""
+    motion = np.isin(moves["kind"], STRAIGHT + FIXED_MOTION)
+    rotary = (moves["start"][:, 3:6] != 0.0).any(axis=1) | (moves["end"][:, 3:6] != 0.0).any(axis=1)
+    return motion & rotary
 
 
 def _path_length(c: Correction, rows: np.ndarray) -> float:
@@ -158,7 +184,7 @@ def correct_span(moves: np.ndarray, a: int, b: int, probe: GougeProbe, tools: di
     p_start = tip_positions(moves, "start")
     p_end = tip_positions(moves, "end")
     out = Correction(p_start.copy(), p_end.copy(), [None] * n, np.zeros(n, bool), orig_start=p_start,
-                     orig_end=p_end)
+                     orig_end=p_end, turned=turned_rows(moves))
     sub = correct_moves(moves[a:b], probe, tools, default_tool, tol, **kw)
     out.start[a:b] = sub.start
     out.end[a:b] = sub.end
@@ -170,17 +196,21 @@ def correct_span(moves: np.ndarray, a: int, b: int, probe: GougeProbe, tools: di
         setattr(out, name, getattr(sub, name))
     later = np.flatnonzero(np.isin(moves["kind"][b:], STRAIGHT + FIXED_MOTION))
     if later.size and b > a:
-        out.start[b + int(later[0])] = sub.end[-1]
+        nxt = b + int(later[0])
+        moved = sub.end[-1] - p_end[b - 1]
+        # where the table's tip jumps between the rows (a tool length change), it jumps from there
+        out.start[nxt] = p_start[nxt] + moved if np.abs(moved).max() > 0 else p_start[nxt]
     return out
 
 
 def check_fixed_rows(moves: np.ndarray, probe: GougeProbe, tools: dict, default_tool, tol: Tolerance,
                      chord: float) -> list[Refusal]:
     """Arcs that gouge the design deeper than ``tol.gouge`` (their chords within ``chord``
-    mm, checked like straight moves): they need a correction only ``--linearize`` allows."""
+    mm, checked like straight moves): they need a correction only ``--linearize`` allows.
+    A turned arc is left as written (:func:`turned_rows`), never refused."""
     from sim.gcode.linearize import linearize
 
-    arcs = np.flatnonzero(np.isin(moves["kind"], (MoveKind.ARC_CW, MoveKind.ARC_CCW)))
+    arcs = np.flatnonzero(np.isin(moves["kind"], (MoveKind.ARC_CW, MoveKind.ARC_CCW)) & ~turned_rows(moves))
     out = []
     for k in arcs:
         tool = tools.get(int(moves["tool"][k]), default_tool)
@@ -197,4 +227,5 @@ def _fmt(p) -> str:
     return "X{:.4f} Y{:.4f} Z{:.4f}".format(*(float(v) for v in p[:3]))
 
 
-__all__ = ["Correction", "Refusal", "check_fixed_rows", "correct_moves", "correct_span"]
+__all__ = ["TURNED_WHY", "Correction", "Refusal", "check_fixed_rows", "correct_moves", "correct_span",
+           "turned_rows"]

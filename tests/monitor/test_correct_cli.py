@@ -323,14 +323,115 @@ def test_a_head_tilted_plunge_is_checked_where_the_head_puts_the_tool(tmp_path, 
     assert doc["verified"]["worst_mm"] == pytest.approx(simulated[0]["depth"], abs=1e-4)
 
 
-def test_the_rotary_example_is_checked_on_the_turned_bar(tmp_path, capsys):
-    """The bundled 4th-axis job (its line 35 plunges 1 mm into the bar at A225): the
-    corrected program and the original are cut on the bar the A axis turns, as
-    ``simulate`` cuts them. Raised to the design, the line leaves no undercut; cut
-    unturned (3-axis) the original's reference cut lay elsewhere and a 0.54 mm undercut
-    was reported."""
+TURNED_WHY = "turned by A/B/C: correction works on 3-axis lines only"
+
+
+def lines_of_file(path: Path) -> list:
+    return path.read_bytes().splitlines(keepends=True)
+
+
+def test_the_rotary_example_keeps_its_turned_lines_as_written_and_names_them(tmp_path, capsys):
+    """The bundled 4th-axis job: its line 35 plunges 1 mm into the bar at A225. The
+    correction works on 3-axis lines only: every line the A axis turns (A not 0 at either
+    end) is left exactly as written and named, so the gouge stays and the check (on the
+    bar the A axis turns, as ``simulate`` cuts it) says so: exit status 1. (The 3-axis
+    model had reshaped line 35 as if the tool stood upright over the unturned bar.) The
+    original's reference cut is placed as the check's: no undercut is made up."""
     job = Path(__file__).resolve().parents[2] / "monitor" / "examples" / "rotary_job" / "job.toml"
-    rc, doc, err = run(capsys, job, "-o", tmp_path / "fixed.nc", "--json")
-    assert rc == 0, err
-    assert doc["changed_lines"][0] == 35 and doc["verified"]["gouges"] == 0
+    out = tmp_path / "fixed.nc"
+    rc, doc, err = run(capsys, job, "-o", out, "--json")
+    assert rc == 1, (err, doc)
+    assert out.read_bytes() == (job.parent / "engrave.nc").read_bytes()
+    assert doc["lines_changed"] == 0 and doc["lines_inserted"] == 0
+    left = doc["left_turned"]
+    assert left["why"] == TURNED_WHY
+    # A0 at both ends: lines 6-9 and the flute at A0 (14-17) are 3-axis lines
+    assert 35 in left["lines"] and 10 in left["lines"] and 18 in left["lines"]
+    assert not {6, 7, 9, 14, 15, 16, 17} & set(left["lines"]), left
+    assert left["count"] == len(left["lines"])
+    assert doc["verified"]["gouges"] == 1 and doc["verified"]["gouge_lines"] == [35, 36]
     assert doc["undercut_left"]["max_mm"] == 0.0, doc["undercut_left"]
+
+
+def test_a_head_tilted_job_keeps_its_turned_lines_and_the_check_still_finds_the_gouge(tmp_path, capsys):
+    """A head-head job: lines 6-15 run with the head at B30 (or turn it). The 3-axis model
+    sees the tool upright at the gauge point less its G43 length; there line 13 (G1 X30)
+    runs 7 mm deep through the design and was reshaped. Turned, every such line is left as
+    written and named in the JSON and the text report; the tilted plunge's real gouge
+    (line 9) is still reported, exit status 1."""
+    from tests.monitor.test_rotary_job import _tilted_plunge_job
+
+    job = _tilted_plunge_job(tmp_path, "G91\nG0 Z15\nG90\nG1 X30 F300\nG0 Z60\nG0 B0\nG0 X5 Y5\n")
+    job.write_text(job.read_text() + '[design]\nbox = [20, 0, 0, 40, 20, 18]\n'
+                   '[tolerance]\ngouge = 0.05\nundercut = 5\ninterest = 6\n')
+    out = tmp_path / "fixed.nc"
+    rc, doc, err = run(capsys, job, "-o", out, "--json")
+    assert rc == 1, (err, doc)
+    assert out.read_bytes() == (tmp_path / "tilt.nc").read_bytes()
+    assert doc["left_turned"]["lines"] == [6, 7, 8, 9, 11, 13, 14, 15]
+    assert doc["left_turned"]["why"] == TURNED_WHY
+    assert doc["verified"]["gouge_lines"] == [9]
+
+
+def test_the_text_report_names_the_turned_lines_it_left(tmp_path, capsys):
+    from tests.monitor.test_rotary_job import _tilted_plunge_job
+
+    job = _tilted_plunge_job(tmp_path, "G0 Z60\n")
+    job.write_text(job.read_text() + '[design]\nbox = [20, 0, 0, 40, 20, 18]\n'
+                   '[tolerance]\ngouge = 0.05\nundercut = 5\ninterest = 6\n')
+    rc = main(["correct", str(job), "-o", str(tmp_path / "fixed.nc")])
+    text = capsys.readouterr().out
+    assert rc == 1
+    assert f"left as written, {TURNED_WHY}: 5 lines [6, 7, 8, 9, 10]" in text, text
+    assert "check: STILL GOUGES" in text
+
+
+def test_a_3axis_correction_names_no_turned_lines(tmp_path, capsys):
+    text = "G21 G90\nG0 Z5 A0\nG0 X-8 Y15\nG1 Z-5 F600\nG1 X12\nG1 X16 Z-5.8\nG1 X20 Z-5\nG1 X48\nG0 Z5\nM2\n"
+    rc, doc, err, out = correct_program(tmp_path, capsys, text)
+    assert rc == 0, err
+    assert doc["changed_lines"] == [6] and doc["left_turned"] == {"count": 0, "lines": [], "why": TURNED_WHY}
+
+
+def test_a_line_turned_after_a_corrected_3axis_line_is_refused_naming_it(tmp_path, capsys):
+    """Line 6's end is lifted out of the design; line 7 turns A from there, a move the
+    correction may not reshape: refused (exit 2), naming line 7 and why."""
+    text = "G21 G90\nG0 Z5\nG0 X-8 Y15\nG1 Z-5 F600\nG1 X12\nG1 X16 Z-5.8\nG1 X20 A10\nG0 Z5\nM2\n"
+    rc, doc, err, out = correct_program(tmp_path, capsys, text)
+    assert rc == 2 and f"{tmp_path / 'p.nc'}:7" in err and "turned by A/B/C" in err, err
+    assert not out.exists()
+
+
+def test_a_tool_length_change_without_motion_leaves_a_gouge_free_program_unchanged(tmp_path, capsys):
+    """``G43.1 Z10`` on a line of its own: the machine stays, the tip is 10 mm lower and the
+    table's next row starts there. The correction went on from the old tip: it counted
+    the jump as added path (a head job reported ``added_length_mm: 50``) and rewrote line
+    4, which omits Z, with a Z word."""
+    text = "G21 G90\nG0 Z30\nG43.1 Z10\nG0 X-8 Y15\nG1 Z-4 F600\nG1 X48\nG0 Z5\nG49\nG0 X50\nM2\n"
+    rc, doc, err, out = correct_program(tmp_path, capsys, text)
+    assert rc == 0, err
+    assert doc["lines_changed"] == 0 and doc["added_length_mm"] == 0.0 and doc["largest_shift_mm"] == 0.0
+    assert out.read_bytes() == (tmp_path / "p.nc").read_bytes()
+
+
+def test_an_arc_right_after_a_tool_length_change_is_not_refused(tmp_path, capsys):
+    """The arc starts where the table puts it after ``G43.1`` (10 mm lower tip): not a
+    start the correction moved."""
+    text = "G21 G90\nG0 X-8 Y15 Z30\nG43.1 Z10\nG2 X-8 Y15 Z20 I-2 J0 F600\nG0 Z5\nM2\n"
+    rc, doc, err, out = correct_program(tmp_path, capsys, text)
+    assert rc == 0, err
+    assert doc["lines_changed"] == 0 and doc["added_length_mm"] == 0.0
+    assert out.read_bytes() == (tmp_path / "p.nc").read_bytes()
+
+
+def test_the_head_job_reports_no_added_length_for_its_tool_length_change(tmp_path, capsys):
+    """The head job's ``G43.1 Z50`` has no motion: the 50 mm the tip drops there is no
+    path the correction added."""
+    from tests.monitor.test_rotary_job import _tilted_plunge_job
+
+    job = _tilted_plunge_job(tmp_path, "G0 Z60\n")
+    job.write_text(job.read_text() + '[design]\nbox = [20, 0, 0, 40, 20, 18]\n'
+                   '[tolerance]\ngouge = 0.05\nundercut = 5\ninterest = 6\n')
+    rc, doc, err = run(capsys, job, "-o", tmp_path / "fixed.nc", "--json")
+    assert rc == 1, err
+    assert doc["added_length_mm"] == 0.0 and doc["lines_changed"] == 0

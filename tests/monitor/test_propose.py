@@ -41,3 +41,20 @@ def test_a_gouge_that_cannot_be_corrected_gets_its_reason_written(tmp_path):
     assert got["lines"] == [] and "no correction possible" in got["message"]
     assert "face.nc:7: the arc gouges the design by 0.5" in out.read_text()
     assert p({"kind": "gouge", "line": 99, "lines": [99]}) is None
+
+
+def test_a_gouge_on_turned_lines_gets_no_3axis_proposal(tmp_path):
+    """The rotary example's gouge (lines 35-36, at A225): the correction works on 3-axis
+    lines only, so nothing is proposed for them; the file and the message say why."""
+    from monitor.job import load_job
+    from monitor.propose import Proposer
+    from tests.monitor.test_correct_cli import TURNED_WHY
+    from tests.monitor.test_rotary_job import JOB
+
+    out = tmp_path / "proposed.txt"
+    got = Proposer(load_job(JOB), out)({"kind": "gouge", "line": 35, "lines": [35, 36], "depth": 1.0,
+                                        "predicted": True})
+    text = out.read_text()
+    assert got["lines"] == [] and TURNED_WHY in got["message"], got
+    assert f"# no proposal: {JOB.parent / 'engrave.nc'}:35: lines 35, 36 left as written, {TURNED_WHY}" in text, text
+    assert "->" not in text

@@ -110,3 +110,42 @@ def test_lowest_instance_is_where_the_ball_passes_the_ray_lowest():
     assert K.lowest_instance(tp, 0, 0, 0, 10, 0, 0, 3.0, 1.0) == pytest.approx(0.3, abs=1e-6)
     # descending: later (deeper) instances win as far as the ball still reaches the ray
     assert K.lowest_instance(tp, 0, 0, 0, 10, 0, -1, 3.0, 0.0) > 0.3
+
+
+def _rows(*specs):
+    """A move table of feed rows (start, end, tool_length, rotary end (A, B, C))."""
+    from sim.gcode.moves import MoveKind, empty_moves
+
+    moves = empty_moves(len(specs))
+    for k, (a, b, length, abc) in enumerate(specs):
+        moves["kind"][k] = MoveKind.FEED
+        moves["line"][k] = k + 1
+        moves["start"][k, :3] = a
+        moves["end"][k, :3] = b
+        moves["end"][k, 3:] = abc
+        if k:
+            moves["start"][k, 3:] = moves["end"][k - 1, 3:]
+        moves["tool_length"][k] = length
+    return moves
+
+
+def test_a_row_a_rotary_axis_turns_is_left_as_written_and_a_3axis_one_is_corrected():
+    """A plunge 1 mm under the valley's floor turned by A (and the lift turning A back)
+    is left alone (``turned``); the same plunge unturned is reshaped. The tool length
+    change between them (the tip 5 mm lower, no motion) is followed: the row after it
+    starts where the table says and adds no path."""
+    from sim.correct.path import correct_moves
+
+    probe = probe_of(sheet(+1.0))
+    tool = parse_tool_spec("ball:6")
+    moves = _rows(([-5, 0, 5], [-1, 0, -1], 0.0, (10, 0, 0)),
+                  ([-1, 0, -1], [-1, 0, 20], 0.0, (0, 0, 0)),   # A back to 0: turned at its start
+                  ([-1, 0, 20], [5, 0, 20], 5.0, (0, 0, 0)),    # G43: tip 15
+                  ([5, 0, 20], [8, 0, 4], 5.0, (0, 0, 0)))      # tip Z-1
+    c = correct_moves(moves, probe, {}, tool, TOL)
+    assert c.turned.tolist() == [True, True, False, False]
+    assert c.changed.tolist() == [False, False, False, True] and not c.refused
+    assert np.array_equal(c.start[:3], c.orig_start[:3]) and np.array_equal(c.end[:3], c.orig_end[:3])
+    path = np.vstack([c.start[3], c.points[3]])
+    reshaped = np.linalg.norm(np.diff(path, axis=0), axis=1).sum() - np.linalg.norm(c.orig_end[3] - c.orig_start[3])
+    assert c.added_length == pytest.approx(reshaped, abs=1e-9)
