@@ -348,18 +348,25 @@ def top_all(S, out):
         out[r] = ray_top(S, r)
 
 
-@nb.njit(cache=True)
+@nb.njit(cache=True, fastmath={"nnan", "reassoc", "nsz"})   # not ninf: -inf is a value here
 def max_top(S):
     """Largest top over all rays (mm, float64 of the stored float32); -inf if all are empty."""
-    best = -np.inf
-    for r in range(S[0].size):
-        c = S[0][r]
-        if c == 0:
-            continue
-        v = np.float64(S[2][r]) if c == 1 else np.float64(S[8][S[5][r] + c - 2])
-        if v > best:
-            best = v
-    return best
+    cnt = S[0]
+    far = S[2]
+    # rays of one segment (nearly all) in a loop the compiler vectorises, then the others
+    best = np.float32(-np.inf)
+    multi = False
+    for r in range(cnt.size):
+        c = cnt[r]
+        best = max(best, far[r] if c == 1 else np.float32(-np.inf))
+        multi |= c > 1
+    best64 = np.float64(best)
+    if multi:
+        for r in range(cnt.size):
+            c = cnt[r]
+            if c > 1:
+                best64 = max(best64, np.float64(S[8][S[5][r] + c - 2]))
+    return best64
 
 
 @nb.njit(cache=True)
