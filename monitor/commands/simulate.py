@@ -151,14 +151,14 @@ def build_stock(spec: str, resolution: float, memory_limit_mb: float = 4096.0, t
 
     if not (math.isfinite(resolution) and resolution > 0):
         raise InputError(f"resolution must be a positive length in mm, got {resolution:g}", where="--resolution")
+    if tri_dexel:
+        from sim.tridexel import TriDexel
     if spec.strip().lower().startswith("box:"):
         lo, hi = parse_stock_box(spec)
         nu = int(round((hi[0] - lo[0]) / resolution)) + 1
         nv = int(round((hi[1] - lo[1]) / resolution)) + 1
         _check_memory(nu, nv, memory_limit_mb)
         if tri_dexel:
-            from sim.tridexel import TriDexel
-
             return _tri_stock(lo, hi, resolution, memory_limit_mb, lambda: TriDexel.box(lo, hi, resolution))
         frame = Frame.top(lo[0], lo[1], hi[0], hi[1], resolution)
         return DexelGrid.from_intervals(frame, np.full(frame.shape, lo[2]), np.full(frame.shape, hi[2]))
@@ -173,8 +173,6 @@ def build_stock(spec: str, resolution: float, memory_limit_mb: float = 4096.0, t
     nv = int(round((y1 - y0) / resolution)) + 1
     _check_memory(nu, nv, memory_limit_mb)
     if tri_dexel:
-        from sim.tridexel import TriDexel
-
         return _tri_stock(*mesh.bounds, resolution, memory_limit_mb, lambda: TriDexel.mesh(mesh, resolution))
     frame = Frame.top(x0, y0, x1, y1, resolution)
     return mesh_grid(frame, path)
