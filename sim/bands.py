@@ -254,10 +254,12 @@ class _BandTraces(_Buffers):
         self.dirty[:] = False
 
     def mark_dirty(self, t: int) -> None:
-        """Band ``t`` cut its chunk: mark the chunks of rays its runs touch (on its own
-        thread, not between chunks on the calling one)."""
-        nr = int(self.ts[t, K.TS_NR])
+        """Band ``t`` cut its chunk: mark the chunks of rays its far runs and its general
+        rays touch (on its own thread, not between chunks on the calling one)."""
+        nr, ng = int(self.ts[t, K.TS_NR]), int(self.ts[t, K.TS_NG])
         _mark_chunks(self.a["rs"][t, :nr], self.a["rl"][t, :nr], self.sink.RAY_CHUNK, self.dirty[t])
+        general = self.a["g_ray"][t, :ng]
+        _mark_chunks(general, np.ones(ng, np.int32), self.sink.RAY_CHUNK, self.dirty[t])
 
     def buffers(self, t: int) -> tuple:
         mark, slot = self.sink.marks()

@@ -138,18 +138,24 @@ def _plain(a) -> np.ndarray:
 
 def _snapshot_sharing(store: dict, prev: dict | None, general: bool, dirty=None,
                       later: list | None = None) -> dict:
-    """A snapshot of ``store``; when only far-only edits happened since keyframe ``prev``
-    (``general`` False), the fields they cannot touch are ``prev``'s arrays, shared, and
-    with ``dirty`` (bool per :class:`_Chunked` chunk of rays: where those edits fell) the
-    FarZ values and ids share their untouched chunks too. ``later``: see
-    :func:`_store_snapshot`."""
-    if prev is None or general:
+    """A snapshot of ``store`` sharing with keyframe ``prev`` what no edit since touched.
+
+    ``dirty``: bool per :class:`_Chunked` chunk of rays, the chunks the edits since
+    ``prev`` fell in (their far runs, and their general rays when ``general``). Only
+    far-only edits (``general`` False): the fields they cannot touch are ``prev``'s
+    arrays, and the FarZ values and ids share their clean chunks. General rewrites too:
+    every per-ray field shares its clean chunks, the pool is copied. Without ``dirty`` a
+    general snapshot copies everything. ``later``: see :func:`_store_snapshot`.
+    """
+    if prev is None or (general and dirty is None):
         return _store_snapshot(store, later)
     out = dict(prev)
     top = int(store["pool_top"][0])
-    for k in _FAR_FIELDS:
+    for k in (ds.STORE_FIELDS if general else _FAR_FIELDS):
         v = store[k]
-        if k.startswith("pool_"):
+        if k == "pool_top":
+            out[k] = v.copy()
+        elif k.startswith("pool_"):
             out[k] = v[:max(top, 16)].copy()
         elif dirty is not None:
             out[k] = _Chunked.of(prev[k]).updated(v, dirty, later)

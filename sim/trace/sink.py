@@ -110,8 +110,10 @@ class _Sink:
             return
         self._sync_counts()
         ts = self.ts
-        if self._dirty is None:   # the runs since the latest keyframe, of earlier batches
+        if self._dirty is None:   # the edits since the latest keyframe, of earlier batches
             self._dirty = self._dirty_chunks(self.r_at_key, int(ts[K.TS_NR]))
+            g = self.z._g_ray.buf[self.g_at_key:int(ts[K.TS_NG])]
+            self._dirty |= ray_chunks_touched(g, np.ones(g.size, np.int32), _Chunked.CHUNK, self._dirty.size)
         # each chunk's runs are read once, as they come (not again at every keyframe)
         self._dirty |= pending_dirty()
         ng = int(ts[K.TS_NG]) + general_pending

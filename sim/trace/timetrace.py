@@ -394,12 +394,11 @@ class SharedTimeTrace(TimeTrace):
     def _key_tops(self, key: _Keyframe, top: np.ndarray, tid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The visible surface of keyframe ``key`` into ``top`` / ``tid`` (n_rays,)."""
         d = key.data
-        far, fid = _Chunked.of(d["far"]), _Chunked.of(d["far_id"])
+        parts = zip(*(_Chunked.of(d[k]).chunks for k in ("count", "far", "far_id", "xstart")))
         ch = _Chunked.CHUNK
-        for i, (f, fi) in enumerate(zip(far.chunks, fid.chunks)):   # chunk by chunk: no copy
+        for i, (c, f, fi, x) in enumerate(parts):   # chunk by chunk: no copy
             sl = slice(i * ch, i * ch + f.size)
-            tk.tops_of_store(d["count"][sl], f, fi, d["xstart"][sl], d["pool_far"], d["pool_far_id"],
-                             top[sl], tid[sl])
+            tk.tops_of_store(c, f, fi, x, d["pool_far"], d["pool_far_id"], top[sl], tid[sl])
         return top, tid
 
     def _apply(self, top: np.ndarray, tid: np.ndarray, b0: int, b1: int) -> None:
