@@ -240,7 +240,6 @@ class _BandTraces(_Buffers):
         per_event = sum(np.dtype(dt).itemsize for _, dt in _TRACE_COLS[:3])
         self.touched = max(self.touched, int(self.ts[:, K.TS_NF].max()) * per_event * self.n_bands)
 
-
     def start_chunk(self, m0: int, m1: int, changes: int) -> None:
         """Empty columns with room for ``changes`` far events a band (see
         :meth:`_BandLogs.start_chunk`); keyframes off."""
@@ -258,8 +257,7 @@ class _BandTraces(_Buffers):
         rays touch (on its own thread, not between chunks on the calling one)."""
         nr, ng = int(self.ts[t, K.TS_NR]), int(self.ts[t, K.TS_NG])
         _mark_chunks(self.a["rs"][t, :nr], self.a["rl"][t, :nr], self.sink.RAY_CHUNK, self.dirty[t])
-        general = self.a["g_ray"][t, :ng]
-        _mark_chunks(general, np.ones(ng, np.int32), self.sink.RAY_CHUNK, self.dirty[t])
+        self.dirty[t][self.a["g_ray"][t, :ng] // self.sink.RAY_CHUNK] = True
 
     def buffers(self, t: int) -> tuple:
         mark, slot = self.sink.marks()
@@ -279,8 +277,8 @@ class _BandTraces(_Buffers):
         self.grow(("g_near", "g_far", "g_nid", "g_fid"), int(ts[K.TS_NEED_S]))
 
     def dirty_chunks(self) -> np.ndarray:
-        """Which chunks of rays (``sink.RAY_CHUNK`` each) the bands' far-event runs touch:
-        bool (n_chunks,)."""
+        """Which chunks of rays (``sink.RAY_CHUNK`` each) the bands' far runs and general
+        rays touch: bool (n_chunks,)."""
         return self.dirty.any(axis=0)
 
     def totals(self) -> tuple[int, int, int, int]:
@@ -317,7 +315,7 @@ class _Stash:
         if sum(b.touched for b in pair) > self.MAX_BYTES:
             return
         for b in pair:
-            b.sink = b.blk = None   # the batch's, not to be held
+            b.sink = b.blk = b.dirty = None   # the batch's, not to be held
         with self._lock:
             self._kept = [p for p in self._kept if p[0].n_bands != pair[0].n_bands] + [pair]
 
@@ -354,9 +352,10 @@ def cut_in_bands(grid, kernel, seg_move: np.ndarray, plan, removed: np.ndarray,
     sharing the work as ``shares`` says) for the segments ``a .. b-1``: planned per chunk,
     as a chunk of a raster covers only part of the rows and bands planned for the whole
     batch would leave all its work to one;
-    removed: float64 (n_moves,)
-    accumulates the length removed per move (mm). log: the cutter's change log or None; sink: the trace sink (``sim.trace.sink._Sink``) or None; reach: the rays
-    within reach of each segment (:func:`reach_rays`: they bound the changes a band logs).
+    removed: float64 (n_moves,) accumulates the length removed per move (mm). log: the
+    cutter's change log or None; sink: the trace sink (``sim.trace.sink._Sink``) or None;
+    reach: the rays within reach of each segment (:func:`reach_rays`: they bound the
+    changes a band logs).
     """
     threads = threads or default_threads()
     n_bands = threads   # buffers for as many bands as a chunk may have
@@ -616,7 +615,6 @@ def _place_events(E, rs_b, rl_b, base):
         for c in range(nc):
             block_end[c, q] = pos[c]
     return starts, cnt, dest, join, block_end, opened, written
-
 
 
 @nb.njit(cache=True, nogil=True)

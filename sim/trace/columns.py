@@ -257,6 +257,16 @@ class _BlockLog:
     def last_stage(self) -> int:
         return int(self._stage.a[-1]) if self._stage.n else self.first_stage
 
+    def _add_keyframe(self, key) -> None:
+        """Keep keyframe ``key``; past ``max_keyframes`` keep the stock's and every other one
+        of the rest counted back from the newest (memory bounded, spacing doubled; the
+        newest is kept, as a batch's next keyframe copies only what changed since it)."""
+        self._keyframes.append(key)
+        if len(self._keyframes) > self.max_keyframes:
+            rest = self._keyframes[1:]
+            self._keyframes = self._keyframes[:1] + rest[(len(rest) - 1) % 2::2]
+            self.keyframe_every *= 2
+
     def _pop_due_block(self) -> int | None:
         """The block of the next keyframe that fell due (those a later keyframe already
         covers dropped), taken off the list; None when none is due."""

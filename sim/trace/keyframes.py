@@ -124,14 +124,6 @@ class _Chunked:
         return int(sum(c.nbytes for c in self.chunks))
 
 
-def thinned(keyframes: list) -> list:
-    """The stock's keyframe and every other one of the rest, counted back from the newest:
-    memory stays bounded as the spacing doubles, and the newest is kept (the next keyframe
-    of a batch copies only what changed since it)."""
-    rest = keyframes[1:]
-    return keyframes[:1] + rest[(len(rest) - 1) % 2::2]
-
-
 def _plain(a) -> np.ndarray:
     return a.copy() if isinstance(a, _Chunked) else a
 

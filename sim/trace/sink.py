@@ -111,9 +111,7 @@ class _Sink:
         self._sync_counts()
         ts = self.ts
         if self._dirty is None:   # the edits since the latest keyframe, of earlier batches
-            self._dirty = self._dirty_chunks(self.r_at_key, int(ts[K.TS_NR]))
-            g = self.z._g_ray.buf[self.g_at_key:int(ts[K.TS_NG])]
-            self._dirty |= ray_chunks_touched(g, np.ones(g.size, np.int32), _Chunked.CHUNK, self._dirty.size)
+            self._dirty = self._dirty_chunks(self.r_at_key, int(ts[K.TS_NR]), self.g_at_key, int(ts[K.TS_NG]))
         # each chunk's runs are read once, as they come (not again at every keyframe)
         self._dirty |= pending_dirty()
         ng = int(ts[K.TS_NG]) + general_pending
@@ -174,15 +172,15 @@ class _Sink:
         """A keyframe after move ``mv``, every event so far in the columns."""
         ts = self.ts
         ng, nr = int(ts[K.TS_NG]), int(ts[K.TS_NR])
-        general = ng > self.g_at_key
-        dirty = None if general else self._dirty_chunks(self.r_at_key, nr)
-        self._snapshot(mv, general, dirty, int(ts[K.TS_NF]) + ng)
+        dirty = self._dirty_chunks(self.r_at_key, nr, self.g_at_key, ng)
+        self._snapshot(mv, ng > self.g_at_key, dirty, int(ts[K.TS_NF]) + ng)
         self.g_at_key = ng
         self.r_at_key = nr
 
     def _snapshot(self, mv: int, general: bool, dirty, events: int, later: list | None = None) -> None:
-        """Keyframe after move ``mv``: the model's arrays (all when ``general``, else the
-        ``dirty`` chunks of rays, the rest shared with the keyframe before); ``events``:
+        """Keyframe after move ``mv``: the ``dirty`` chunks of rays of the model's arrays
+        (every per-ray array when ``general``, else those of the FarZ values), the rest
+        shared with the keyframe before (see ``_snapshot_sharing``); ``events``:
         far and general events up to ``mv``, from which the next one falls due;
         ``later``: see :meth:`chunk_end`."""
         z = self.z
@@ -191,10 +189,14 @@ class _Sink:
         z._next_due = events + z.keyframe_every
         self.ts[K.TS_NEXT_DUE] = z._next_due
 
-    def _dirty_chunks(self, r0: int, r1: int) -> np.ndarray:
-        """Which :class:`_Chunked` chunks of rays the far-event runs ``r0:r1`` touch."""
+    def _dirty_chunks(self, r0: int, r1: int, g0: int, g1: int) -> np.ndarray:
+        """Which :class:`_Chunked` chunks of rays the far-event runs ``r0:r1`` and the
+        general events ``g0:g1`` touch."""
         ch = _Chunked.CHUNK
-        return ray_chunks_touched(self.z._f_rs.buf[r0:r1], self.z._f_rl.buf[r0:r1], ch, -(-self.z.n_rays // ch))
+        z = self.z
+        dirty = ray_chunks_touched(z._f_rs.buf[r0:r1], z._f_rl.buf[r0:r1], ch, -(-z.n_rays // ch))
+        dirty[z._g_ray.buf[g0:g1] // ch] = True
+        return dirty
 
     def end(self) -> None:
         """Append the block rows, sync the mirror, trim the columns."""

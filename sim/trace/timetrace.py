@@ -13,7 +13,7 @@ from sim.trace.columns import (
     _BlockLog, _Column, _check_stage, _get, _get_rle, _get_runs,
     _pack_column, _rays_arg, _runs_of_consecutive, _runs_of_equal, _unpack_column,
     frame_from_array, frame_to_array)
-from sim.trace.keyframes import _Chunked, _Keyframe, thinned
+from sim.trace.keyframes import _Chunked, _Keyframe
 from sim.trace.ztrace import ZTrace
 
 
@@ -143,11 +143,8 @@ class TimeTrace(_BlockLog):
             left -= max(int(p[stop] - p[cur]), 1)
             self._builder[3] = stop
             if stop >= b1:
-                self._keyframes.append(_Keyframe(b1, int(self._stage.a[b1 - 1]), (top, tid)))
+                self._add_keyframe(_Keyframe(b1, int(self._stage.a[b1 - 1]), (top, tid)))
                 self._builder = None
-                if len(self._keyframes) > self.max_keyframes:
-                    self._keyframes = thinned(self._keyframes)
-                    self.keyframe_every *= 2
         return self._builder is None and not self._due
 
     def state_at(self, stage: int, out: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -330,12 +327,9 @@ class TimeTrace(_BlockLog):
             self._since_key += e - o
             b, o = stop, e
             if self._since_key >= self.keyframe_every:
-                self._keyframes.append(_Keyframe(self.n_blocks, self.last_stage,
-                                                 (self._top.copy(), self._top_id.copy())))
+                self._add_keyframe(_Keyframe(self.n_blocks, self.last_stage,
+                                             (self._top.copy(), self._top_id.copy())))
                 self._since_key = 0
-                if len(self._keyframes) > self.max_keyframes:
-                    self._keyframes = thinned(self._keyframes)
-                    self.keyframe_every *= 2
 
 
 class SharedTimeTrace(TimeTrace):

@@ -16,7 +16,7 @@ from sim.trace.columns import (
     frame_from_array, frame_to_array)
 from sim.trace.keyframes import (
     _Chunked, _FAR_FIELDS, _KeyBuilder, _Keyframe, _POOL_FIELDS,
-    _snapshot_sharing, _store_copy, _store_snapshot, thinned)
+    _snapshot_sharing, _store_copy, _store_snapshot)
 from sim.trace.sink import _Sink
 
 
@@ -256,12 +256,6 @@ class ZTrace(_BlockLog):
                 self._add_keyframe(self._builder.finish())
                 self._builder = None
         return self._builder is None and not self._due
-
-    def _add_keyframe(self, key: _Keyframe) -> None:
-        self._keyframes.append(key)
-        if len(self._keyframes) > self.max_keyframes:
-            self._keyframes = thinned(self._keyframes)
-            self.keyframe_every *= 2
 
     def _append_blocks(self, stage, f_n, g_n, f_ray, f_val, f_id, g_ray, g_count, gsegs) -> None:
         """Append decoded blocks in bulk, then bring the mirror (and keyframes) up to date."""

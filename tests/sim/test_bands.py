@@ -180,10 +180,12 @@ def test_two_traced_batches_at_once_each_trace_as_alone():
                                           err_msg=f"{case} {name}")
 
 
-def test_keyframes_after_general_edits_share_the_chunks_no_edit_touched():
+@pytest.mark.parametrize("threads", [1, 2])
+def test_keyframes_after_general_edits_share_the_chunks_no_edit_touched(threads):
     """A keyframe after general rewrites (rays emptied by a plunge through the bottom)
-    copies only the chunks of rays the edits since the keyframe before touched; every
-    stage still rebuilds to the model one core traces."""
+    copies only the chunks of rays the edits since the keyframe before touched, on one
+    core (keyframes due inside a batch) and on bands (at chunk ends); every stage still
+    rebuilds to the model cut move by move without a trace."""
     from sim.trace.keyframes import _Chunked
 
     make = lambda: box(401, 401, 0.25, 0.0, 10.0)   # noqa: E731 - 10 chunks of rays
@@ -194,26 +196,27 @@ def test_keyframes_after_general_edits_share_the_chunks_no_edit_touched():
         rows.append(((x0, y, 8.0 - 0.01 * k), (x1, y, 8.0 - 0.01 * k)))
     rows += [((20, 3, 12), (20, 3, -1))]                             # and again, later
     moves = feed_moves(rows)
-    traced = []
-    for threads in (1, 2):
-        g = make()
-        tr = Trace(g, keyframe_every=2000)
-        # a flat end through the bottom empties every ray it reaches: general edits only;
-        # the first plunge is a batch of its own (the next batch's first keyframe must copy
-        # the chunks it emptied too)
-        cutter = Cutter(g, parse_tool_spec("flat:3"), threads=threads)
-        cutter.cut_moves(moves[:2], move_ids=[1, 2], record_changes=False, trace=tr)
-        cutter.cut_moves(moves[2:], move_ids=np.arange(3, len(moves) + 1), record_changes=False, trace=tr)
-        traced.append(tr)
-    one, two = traced
-    assert two.z._g_ray.n > 0 and len(two.z._keyframes) > 2
-    shared = [k for k in two.z._keyframes[1:] if isinstance(k.data["near"], _Chunked)]
+    tool = parse_tool_spec("flat:3")   # a flat end through the bottom empties every ray it reaches
+    ref = make()
+    refs = [ref.copy()]
+    for k in range(len(moves)):
+        Cutter(ref, tool, threads=1).cut_moves(moves[k:k + 1], move_ids=[k + 1], record_changes=False)
+        refs.append(ref.copy())
+    g = make()
+    tr = Trace(g, keyframe_every=2000)
+    cutter = Cutter(g, tool, threads=threads)
+    # the first plunge is a batch of its own: the next batch's first keyframe must copy
+    # the chunks it emptied too
+    cutter.cut_moves(moves[:2], move_ids=[1, 2], record_changes=False, trace=tr)
+    cutter.cut_moves(moves[2:], move_ids=np.arange(3, len(moves) + 1), record_changes=False, trace=tr)
+    assert tr.z._g_ray.n > 0 and len(tr.z._keyframes) > 2
+    shared = [k for k in tr.z._keyframes[1:] if isinstance(k.data["near"], _Chunked)]
     assert shared, "no keyframe after general edits shared a chunk"
-    full = two.z._keyframes[0].data["near"].nbytes
+    full = tr.z._keyframes[0].data["near"].nbytes
     assert all(sum(c.nbytes for c in k.data["near"].chunks if c.base is None) < full for k in shared)
-    for s in range(len(moves) + 1):
-        assert same_model(one.grid_at(s), two.grid_at(s)), s
-        np.testing.assert_array_equal(one.t.heights_at(s), two.t.heights_at(s))
+    for s, want in enumerate(refs):
+        assert same_model(tr.grid_at(s), want), s
+        np.testing.assert_array_equal(tr.t.heights_at(s), want.top())
 
 
 def test_runs_join_across_a_band_edge():
