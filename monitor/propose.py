@@ -70,9 +70,9 @@ class Proposer:
         head = (f"# {time.strftime('%Y-%m-%d %H:%M:%S')} gouge predicted at line {finding.get('line')} "
                 f"({float(finding.get('depth') or 0.0):.3f} mm): proposed by dexmon, NOT sent to the machine\n")
         a, b = int(sel[0]), int(sel[-1]) + 1
-        corr = correct_span(moves, a, b, probe, setup.tools, setup.tool, setup.tol)
+        corr = correct_span(moves, a, b, probe, setup.tools, setup.tool, setup.tol, **setup.turning)
         refused = [(r.row + a, r.reason) for r in check_fixed_rows(moves[a:b], probe, setup.tools, setup.tool,
-                                                                   setup.tol, setup.tol.chord)]
+                                                                   setup.tol, setup.tol.chord, **setup.turning)]
         refused += [(r.row, r.reason) for r in corr.refused]
         turned = sorted({int(moves["line"][k]) for k in sel if corr.turned[k]})
         left = f"lines {', '.join(map(str, turned))} left as written, {TURNED_WHY}" if turned else ""

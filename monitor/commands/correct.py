@@ -96,6 +96,11 @@ class Setup:
     fine: object = None
     placing: dict = field(default_factory=dict)
 
+    @property
+    def turning(self) -> dict:
+        """The keywords that say which rows a rotary turns (``sim.correct.path.turned_rows``)."""
+        return {k: self.placing[k] for k in ("kinematics", "origin") if k in self.placing}
+
 
 def _program_setup(args) -> Setup:
     from monitor.commands import simulate as S
@@ -266,8 +271,9 @@ def run(args) -> int:
     probe = GougeProbe(setup.fine or setup.design, setup.tol)
     t0 = time.perf_counter()
     arcs = [] if args.linearize else check_fixed_rows(moves, probe, setup.tools, setup.tool, setup.tol,
-                                                      setup.tol.chord)
-    correction = correct_moves(moves, probe, setup.tools, setup.tool, setup.tol, min_segment=args.min_segment)
+                                                      setup.tol.chord, **setup.turning)
+    correction = correct_moves(moves, probe, setup.tools, setup.tool, setup.tol, min_segment=args.min_segment,
+                               **setup.turning)
     seconds = time.perf_counter() - t0
     refused = sorted(arcs + correction.refused, key=lambda r: r.row)
     name = str(setup.program_path)

@@ -88,10 +88,12 @@ class Correction:
 
 
 def correct_moves(moves: np.ndarray, probe: GougeProbe, tools: dict, default_tool, tol: Tolerance,
-                  min_segment: float = 0.02, margin: float = 0.5, max_iter: int = 30) -> Correction:
+                  min_segment: float = 0.02, margin: float = 0.5, max_iter: int = 30,
+                  kinematics=None, origin=None) -> Correction:
     """Correct every straight row of ``moves`` (MOVE_DTYPE, coordinates of ``probe``'s
     design) so that no sweep gouges the design deeper than ``tol.gouge``. Rows a rotary
-    axis turns are left as written (``Correction.turned``).
+    axis turns are left as written (``Correction.turned``; ``kinematics``, ``origin``: see
+    :func:`turned_rows`).
 
     ``tools``: {tool number: Tool}; rows use ``tools[row.tool]`` or ``default_tool``.
     ``min_segment`` (mm): pieces shorter than this are lifted rather than split.
@@ -105,7 +107,7 @@ def correct_moves(moves: np.ndarray, probe: GougeProbe, tools: dict, default_too
     codes = np.full(n, K.ROW_STILL, np.int8)
     codes[np.isin(kinds, STRAIGHT)] = K.ROW_STRAIGHT
     codes[np.isin(kinds, FIXED_MOTION)] = K.ROW_FIXED
-    turned = turned_rows(moves)
+    turned = turned_rows(moves, kinematics, origin)
     codes[turned] = K.ROW_FIXED
     # one parameter row per tool the straight rows use
     numbers = sorted(set(int(t) for t in moves["tool"][codes == K.ROW_STRAIGHT]))
@@ -157,10 +159,16 @@ def correct_moves(moves: np.ndarray, probe: GougeProbe, tools: dict, default_too
     return out
 
 
-def turned_rows(moves: np.ndarray) -> np.ndarray:
-    """bool (n,): the rows of ``moves`` that move the tool with A, B or C not 0 at either
-    end (the table's rotary columns, degrees, those the check turns the tool by)."""
+def turned_rows(moves: np.ndarray, kinematics=None, origin=None) -> np.ndarray:
+    """bool (n,): the rows of ``moves`` that move the tool turned by a rotary axis. With a
+    machine's ``kinematics`` (and ``origin``, as the check and the Cutter take them): those
+    its rotaries turn (:func:`sim.checks.collisions.turned_rows`, the check's own reading);
+    without: those with A, B or C not 0 at either end."""
+    from sim.checks.collisions import turned_rows as machine_turned
+
     motion = np.isin(moves["kind"], STRAIGHT + FIXED_MOTION)
+    if kinematics is not None:
+        return motion & machine_turned(moves, kinematics, origin)
     rotary = (moves["start"][:, 3:6] != 0.0).any(axis=1) | (moves["end"][:, 3:6] != 0.0).any(axis=1)
     return motion & rotary
 
@@ -184,7 +192,7 @@ def correct_span(moves: np.ndarray, a: int, b: int, probe: GougeProbe, tools: di
     p_start = tip_positions(moves, "start")
     p_end = tip_positions(moves, "end")
     out = Correction(p_start.copy(), p_end.copy(), [None] * n, np.zeros(n, bool), orig_start=p_start,
-                     orig_end=p_end, turned=turned_rows(moves))
+                     orig_end=p_end, turned=turned_rows(moves, kw.get("kinematics"), kw.get("origin")))
     sub = correct_moves(moves[a:b], probe, tools, default_tool, tol, **kw)
     out.start[a:b] = sub.start
     out.end[a:b] = sub.end
@@ -204,13 +212,14 @@ def correct_span(moves: np.ndarray, a: int, b: int, probe: GougeProbe, tools: di
 
 
 def check_fixed_rows(moves: np.ndarray, probe: GougeProbe, tools: dict, default_tool, tol: Tolerance,
-                     chord: float) -> list[Refusal]:
+                     chord: float, kinematics=None, origin=None) -> list[Refusal]:
     """Arcs that gouge the design deeper than ``tol.gouge`` (their chords within ``chord``
     mm, checked like straight moves): they need a correction only ``--linearize`` allows.
     A turned arc is left as written (:func:`turned_rows`), never refused."""
     from sim.gcode.linearize import linearize
 
-    arcs = np.flatnonzero(np.isin(moves["kind"], (MoveKind.ARC_CW, MoveKind.ARC_CCW)) & ~turned_rows(moves))
+    arcs = np.isin(moves["kind"], (MoveKind.ARC_CW, MoveKind.ARC_CCW))
+    arcs = np.flatnonzero(arcs & ~turned_rows(moves, kinematics, origin))
     out = []
     for k in arcs:
         tool = tools.get(int(moves["tool"][k]), default_tool)

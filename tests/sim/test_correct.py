@@ -149,3 +149,19 @@ def test_a_row_a_rotary_axis_turns_is_left_as_written_and_a_3axis_one_is_correct
     path = np.vstack([c.start[3], c.points[3]])
     reshaped = np.linalg.norm(np.diff(path, axis=0), axis=1).sum() - np.linalg.norm(c.orig_end[3] - c.orig_start[3])
     assert c.added_length == pytest.approx(reshaped, abs=1e-9)
+
+
+def test_turned_rows_read_the_machine_as_the_check_does():
+    """With the machine's kinematics, a row is turned where the check turns it: by the
+    machine angle (the row's plus the work offset's), only on the machine's rotaries. A
+    program read without a machine leaves every row naming A, B or C alone."""
+    from sim.correct.path import turned_rows
+    from sim.kinematics import FourthAxis, Trivial
+
+    moves = _rows(([-5, 0, 5], [-1, 0, 5], 0.0, (0, 0, 0)),      # A 0 in work coordinates
+                  ([-1, 0, 5], [3, 0, 5], 0.0, (0, 10, 0)))      # B, which an xyza machine lacks
+    assert turned_rows(moves).tolist() == [False, True]
+    # the work offset turns A by 30 degrees: every row is turned on the xyza machine
+    assert turned_rows(moves, FourthAxis("A"), origin=(0, 0, 0, 30, 0, 0)).tolist() == [True, True]
+    assert turned_rows(moves, FourthAxis("A")).tolist() == [False, False]
+    assert turned_rows(moves, Trivial()).tolist() == [False, False]
