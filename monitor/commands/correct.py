@@ -11,8 +11,9 @@ written in its own dialect and units: lines that need no change byte for byte, c
 inserted lines marked ``(dexmon: corrected line N)`` / ``(dexmon: inserted for line N)``
 (:mod:`sim.correct.rewrite`). An arc, a canned cycle or a move in a subroutine or loop that
 needs a correction is refused, naming its line. The correction works on 3-axis lines
-only: a line a rotary axis turns (A, B or C not 0 at either end of its move) is left
-exactly as written, and the report names it (``left_turned``).
+only: a line a rotary axis turns (as the check reads the job's machine, or A, B or C not
+0 at either end of its move without one) is left exactly as written, and the report
+names it (``left_turned``).
 
 Then the written program is read again and cut through the checks ``dexmon simulate
 --design`` runs (a fresh stock, the same design, tools and tolerance): the report says
