@@ -99,7 +99,6 @@ def warm_up(tool, moves) -> None:
     grid = DexelGrid.from_intervals(frame, np.zeros(frame.shape), np.full(frame.shape, 20.0))
     Cutter(grid, tool).cut_moves(moves[:50], record_changes=False)
     Cutter(grid, tool).cut_moves(moves[:50], record_changes=True)
-    Cutter(grid, tool).cut_moves(moves[:50], record_changes=True)
 
 
 # --- the independent reference ------------------------------------------------------
