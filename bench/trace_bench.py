@@ -17,6 +17,11 @@ JSON lines:
 * ``trace_live``: the per-call cost of recording one move at a time (the live session's
   pattern: a few rows per poll), with keyframe work amortised: p50 / p99 / max ms.
 * ``live_view``: frames per second of the live view on the 1M-ray grid. Target >= 10.
+* ``fresh_memory``: what writing 100 MB of fresh memory costs here, on pages the process
+  freed just before and on pages left free for 3 s. A traced batch writes about 110 MB
+  of new trace and keyframes where the plain one writes nothing new: on a virtual machine
+  whose host takes back pages the guest leaves free (virtio-balloon free page reporting),
+  that first write costs ten times more, and the traced runs vary with it.
 """
 
 from __future__ import annotations
@@ -46,6 +51,25 @@ def model_after(stock, tool, moves, ids, upto: int):
     g = stock.copy()
     Cutter(g, tool).cut_moves(moves[:upto], move_ids=ids[:upto], record_changes=False)
     return g
+
+
+def fresh_memory(mb: int = 100, idle_s: float = 3.0) -> dict:
+    """ms to fill ``mb`` MB of new numpy memory: right after freeing as much (pages the
+    kernel hands back at once) and after ``idle_s`` s with it freed (pages a host that
+    reclaims free guest memory has taken back)."""
+    n = mb << 20
+    out = {}
+    for label, wait in (("recycled_ms", 0.0), ("after_idle_ms", idle_s)):
+        a = np.empty(n, np.uint8)
+        a[:] = 1
+        del a
+        time.sleep(wait)
+        t0 = time.perf_counter()
+        a = np.empty(n, np.uint8)
+        a[:] = 1
+        out[label] = round(1e3 * (time.perf_counter() - t0), 1)
+        del a
+    return out
 
 
 def main(argv=None) -> int:
@@ -115,6 +139,8 @@ def main(argv=None) -> int:
          z_changes=tr.z.n_changes, z_far_events=tr.z._f_val.n, z_general_events=tr.z._g_ray.n,
          keyframes=len(tr.z._keyframes), threads=Cutter(g, tool).threads,
          load_avg=[round(x, 2) for x in os.getloadavg()], target_extra_pct=20)
+
+    emit(case="fresh_memory", mb=100, **fresh_memory())
 
     z, t = tr.z, tr.t
     z_arr = {**z.header_arrays(), **z.chunk_since(None)}
