@@ -129,7 +129,6 @@ def chain_prev(top, top_id, rays, vals, ids, prev, prev_id):
 #: ingest kernels' return codes
 DONE = 0
 POOL_FULL = 1
-KEYFRAME = 2
 
 
 @nb.njit(cache=True)
@@ -163,7 +162,7 @@ def simple_rec_from_store(S, rec, recf):
 @nb.njit(cache=True)
 def ingest_journal_fast(rec, recf, M, ptr, rays, seg_ptr, jn, jf, jni, jfi, jnb, jfb, state, cnt,
                         blk_f, blk_g, blk_s, f_ray, f_val, f_id, g_ray, g_count, g_near,
-                        g_far, g_nid, g_fid, stop_at, f_base):
+                        g_far, g_nid, g_fid, f_base):
     """Record a cut journal move by move into the z-trace columns (one block per move),
     with a one-segment cache ``rec`` in front of the mirror.
 
@@ -173,9 +172,8 @@ def ingest_journal_fast(rec, recf, M, ptr, rays, seg_ptr, jn, jf, jni, jfi, jnb,
     to the output columns: far-only (rule 5: value and id of the last FarZ) or general
     (the ray's new segment list). ``state`` (2,) int64 = (move, entry) to resume from;
     ``cnt`` (3,) int64 = far-only events, general events, general segments written so
-    far. ``blk_*[k]`` get the column ends after move k. Returns DONE, KEYFRAME (see
-    ``stop_at``), or POOL_FULL with ``state`` set to redo (grow the mirror's pool and call
-    again). The body is one loop on purpose: a helper per entry cost ~1 us of argument
+    far. ``blk_*[k]`` get the column ends after move k. Returns DONE, or POOL_FULL with
+    ``state`` set to redo (grow the mirror's pool and call again). The body is one loop on purpose: a helper per entry cost ~1 us of argument
     passing per call.
 
     rec : (n_rays, 4) int32: (near bits, far bits, near_id, far_id) of each ray that holds
@@ -185,10 +183,6 @@ def ingest_journal_fast(rec, recf, M, ptr, rays, seg_ptr, jn, jf, jni, jfi, jnb,
         instead of five scattered ones.
     recf : the same memory as ``rec`` viewed as float32 (values are copied through it,
         compared as bits through ``rec``). jnb, jfb : int32 views of ``jn`` / ``jf``.
-    stop_at : int
-        Return KEYFRAME (``state`` set to resume) after the first move at whose end the
-        events recorded so far (far-only + general) reach this count: the caller snapshots
-        the mirror there, which costs a copy instead of a replay.
     f_base : int
         Far event ``nf`` writes its ray at ``f_ray[nf - f_base]`` (a scratch the caller
         turns into runs), its value and id at ``f_val[nf]`` / ``f_id[nf]``.
@@ -277,13 +271,6 @@ def ingest_journal_fast(rec, recf, M, ptr, rays, seg_ptr, jn, jf, jni, jfi, jnb,
         blk_f[k] = nf
         blk_g[k] = ng
         blk_s[k] = ns
-        if nf + ng >= stop_at:
-            cnt[0] = nf
-            cnt[1] = ng
-            cnt[2] = ns
-            state[0] = k + 1
-            state[1] = ptr[k + 1]
-            return KEYFRAME
     cnt[0] = nf
     cnt[1] = ng
     cnt[2] = ns

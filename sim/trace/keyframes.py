@@ -159,9 +159,15 @@ def _snapshot_sharing(store: dict, prev: dict | None, general: bool, dirty=None,
 class _KeyBuilder:
     """A keyframe built in small steps off the recording path.
 
-    Starts from the latest keyframe (sharing every array no event in between can touch),
-    copies the rest in slices, then replays the blocks up to ``block`` in slices, so no
-    single call costs more than about ``budget`` array elements / events.
+    Starts from the latest keyframe and shares with it every chunk of rays
+    (:class:`_Chunked`) no event up to ``block`` touched, and every field the events
+    cannot write (far-only edits write FarZ values and ids only). The touched chunks are
+    copied, a slice at a time, into scratch arrays the size of the model, the blocks are
+    replayed on those in slices (an event reads and writes its own ray only, so the
+    scratch's other chunks are never read, nor its untouched pages ever made), and the
+    keyframe takes the touched chunks from the scratch at the end. No call costs more
+    than about ``budget`` array elements / events. A live session cuts a strip of the
+    part between two keyframes: its keyframes hold that strip, not the whole model.
     """
 
     def __init__(self, trace: "ZTrace", block: int):
@@ -171,19 +177,32 @@ class _KeyBuilder:
         self.base = base
         self.cur = base.block
         tr = trace
-        self.general = bool(tr._g_ptr.a[self.block] > tr._g_ptr.a[base.block])
+        g0, g1 = int(tr._g_ptr.a[base.block]), int(tr._g_ptr.a[self.block])
+        self.general = g1 > g0
+        self.dirty = tr._dirty_chunks(int(tr._r_ptr.a[base.block]), int(tr._r_ptr.a[self.block]), g0, g1)
+        self.written = ds.STORE_FIELDS if self.general else _FAR_FIELDS
         self.work = dict(base.data)
-        fields = ds.STORE_FIELDS if self.general else _FAR_FIELDS
-        # (field, destination, source) copies still to do, sliced as the budget allows
+        # (destination, source, first element, next element) copies still to do, sliced
+        # as the budget allows
         self.copies = []
         top = int(base.data["pool_top"][0])
         spare = 2 * int(tr._gs_ptr.a[self.block] - tr._gs_ptr.a[base.block]) + 64 if self.general else 0
-        for k in fields:
-            src = _plain(base.data[k])
-            size = max(top + spare, src.size) if k in _POOL_FIELDS else src.size
-            dst = np.zeros(size, src.dtype) if size != src.size else np.empty_like(src)
-            self.work[k] = dst
-            self.copies.append([dst, src, 0])
+        ch = _Chunked.CHUNK
+        for k, v in base.data.items():
+            if k in _RAY_FIELDS:
+                if k not in self.written and isinstance(v, np.ndarray):
+                    continue   # read by the replay as it is
+                src = _Chunked.of(v)
+                dst = np.empty(src.size, src.dtype)
+                for i in np.flatnonzero(self.dirty):
+                    self.copies.append([dst[i * ch:i * ch + src.chunks[i].size], src.chunks[i], 0])
+                self.work[k] = dst
+            elif k in self.written:
+                src = _plain(v)
+                size = max(top + spare, src.size) if k in _POOL_FIELDS else src.size
+                dst = np.zeros(size, src.dtype) if size != src.size else np.empty_like(src)
+                self.work[k] = dst
+                self.copies.append([dst[:src.size], src, 0])
 
     def step(self, budget: int) -> int:
         """Do up to ``budget`` units of work; returns the units used (0 when finished)."""
@@ -211,7 +230,17 @@ class _KeyBuilder:
         return not self.copies and self.cur >= self.block
 
     def finish(self) -> _Keyframe:
-        data = self.work
-        if self.general:  # trim the pool's spare room
-            data = _store_snapshot(data)
+        """The keyframe: the base's data with what the replay wrote (its touched chunks of
+        rays; the pool trimmed to its use)."""
+        data = dict(self.base.data)
+        top = int(self.work["pool_top"][0])
+        for k in self.written:
+            v = self.work[k]
+            if k in _RAY_FIELDS:
+                data[k] = _Chunked.of(self.base.data[k]).updated(v, self.dirty)
+            elif k.startswith("pool_") and k != "pool_top":
+                data[k] = v[:max(top, 16)].copy()
+            else:
+                data[k] = v
+        self.work = None
         return _Keyframe(self.block, int(self.trace._stage.a[self.block - 1]), data)

@@ -7,7 +7,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from sim import sweep_kernels as K
-from sim.bands import ray_chunks_touched
 from sim.errors import InputError
 from sim.grid import DexelGrid
 from sim.trace.columns import _batch_stages
@@ -111,7 +110,7 @@ class _Sink:
         self._sync_counts()
         ts = self.ts
         if self._dirty is None:   # the edits since the latest keyframe, of earlier batches
-            self._dirty = self._dirty_chunks(self.r_at_key, int(ts[K.TS_NR]), self.g_at_key, int(ts[K.TS_NG]))
+            self._dirty = self.z._dirty_chunks(self.r_at_key, int(ts[K.TS_NR]), self.g_at_key, int(ts[K.TS_NG]))
         # each chunk's runs are read once, as they come (not again at every keyframe)
         self._dirty |= pending_dirty()
         ng = int(ts[K.TS_NG]) + general_pending
@@ -172,7 +171,7 @@ class _Sink:
         """A keyframe after move ``mv``, every event so far in the columns."""
         ts = self.ts
         ng, nr = int(ts[K.TS_NG]), int(ts[K.TS_NR])
-        dirty = self._dirty_chunks(self.r_at_key, nr, self.g_at_key, ng)
+        dirty = self.z._dirty_chunks(self.r_at_key, nr, self.g_at_key, ng)
         self._snapshot(mv, ng > self.g_at_key, dirty, int(ts[K.TS_NF]) + ng)
         self.g_at_key = ng
         self.r_at_key = nr
@@ -188,15 +187,6 @@ class _Sink:
         z._add_keyframe(_Keyframe(self.b0 + mv + 1, int(self.stages[mv]), data))
         z._next_due = events + z.keyframe_every
         self.ts[K.TS_NEXT_DUE] = z._next_due
-
-    def _dirty_chunks(self, r0: int, r1: int, g0: int, g1: int) -> np.ndarray:
-        """Which :class:`_Chunked` chunks of rays the far-event runs ``r0:r1`` and the
-        general events ``g0:g1`` touch."""
-        ch = _Chunked.CHUNK
-        z = self.z
-        dirty = ray_chunks_touched(z._f_rs.buf[r0:r1], z._f_rl.buf[r0:r1], ch, -(-z.n_rays // ch))
-        dirty[z._g_ray.buf[g0:g1] // ch] = True
-        return dirty
 
     def end(self) -> None:
         """Append the block rows, sync the mirror, trim the columns."""

@@ -6,6 +6,7 @@ import numpy as np
 
 from sim import dexel_store as ds
 from sim import trace_kernels as tk
+from sim.bands import ray_chunks_touched
 from sim.errors import InputError
 from sim.grid import DexelGrid
 from sim.tolerance import DEFAULT, Tolerance
@@ -132,7 +133,7 @@ class ZTrace(_BlockLog):
         seg_ptr = np.zeros(rays.size + 1, np.int64)
         np.cumsum(counts, out=seg_ptr[1:])
         return self._ingest(np.array([0, rays.size], np.int64), rays, seg_ptr, (n, f, ni, fi),
-                            np.array([stage], np.int64), 0)
+                            np.array([stage], np.int64))
 
     def _ensure_mirror(self) -> None:
         """Make the mirror (the model at the last stage, rebuilt from the nearest keyframe)
@@ -152,7 +153,7 @@ class ZTrace(_BlockLog):
         (n_moves,) the face ids the moves write (default 1, 2, ...)."""
         return _Sink(self, grid, n_moves, stages, move_ids)
 
-    def _ingest(self, ptr, rays, seg_ptr, segs, stages, budget) -> int:
+    def _ingest(self, ptr, rays, seg_ptr, segs, stages) -> int:
         self._ensure_mirror()
         n_moves = ptr.size - 1
         n_entries, n_segs = rays.size, int(seg_ptr[-1])
@@ -167,25 +168,17 @@ class ZTrace(_BlockLog):
                 zip(segs, (np.float32, np.float32, np.int32, np.int32))]
         jn, jf = segs[0], segs[1]
         jnb, jfb = jn.view(np.int32), jf.view(np.int32)
-        # a batch (budget None) with no keyframe work pending snapshots the mirror where each
-        # keyframe falls due: a copy, instead of replaying the events again later
-        inline = budget is None and self.auto_maintain and not self._due and self._builder is None
-        b0 = self.n_blocks
         while True:
             out = self._event_columns(scratch, n_entries, n_segs)
-            stop_at = self._next_due if inline else np.iinfo(np.int64).max
             status = tk.ingest_journal_fast(self._rec, self._recf, self._mirror.S, ptr, rays, seg_ptr,
-                                            *segs, jnb, jfb, state, cnt, *blk, *out, stop_at, f0)
+                                            *segs, jnb, jfb, state, cnt, *blk, *out, f0)
             if status == tk.DONE:
                 break
-            if status == tk.KEYFRAME:
-                self._snapshot_inline(b0, int(state[0]), stages, blk[1])
-                continue
             ds.grow_pool(self._mirror.store, 2 * n_segs + 64)
         self._set_counts()
         r_end = self._append_runs(scratch[:int(cnt[0]) - f0], np.diff(blk[0], prepend=f0))
         new = self.n_changes - before
-        self._close_blocks(stages, *blk, r_end, budget=4 * new if budget is None else budget)
+        self._close_blocks(stages, *blk, r_end)
         return new
 
     def _append_runs(self, rays: np.ndarray, per_block: np.ndarray) -> np.ndarray:
@@ -207,16 +200,14 @@ class ZTrace(_BlockLog):
         # runs starting before each block's end
         return r0 + np.searchsorted(first, ends, side="left")
 
-    def _snapshot_inline(self, b0: int, k: int, stages, g_end) -> None:
-        """A keyframe of the mirror after the batch's first ``k`` moves (block ``b0 + k``,
-        not yet appended; ``g_end`` holds the batch's general-event ends per move)."""
-        prev = self._keyframes[-1]
-        g_prev = int(self._g_ptr.a[prev.block]) if prev.block <= b0 else int(g_end[prev.block - b0 - 1])
-        general = int(self._cnt[1]) > g_prev
-        tk.sync_mirror(self._rec, self._recf, self._mirror.S)
-        self._add_keyframe(_Keyframe(b0 + k, int(stages[k - 1]),
-                                     _snapshot_sharing(self._mirror.store, prev.data, general)))
-        self._next_due = int(self._cnt[0] + self._cnt[1]) + self.keyframe_every
+    def _dirty_chunks(self, r0: int, r1: int, g0: int, g1: int) -> np.ndarray:
+        """bool (n_chunks,): which :class:`_Chunked` chunks of rays the far-event runs
+        ``r0:r1`` and the general events ``g0:g1`` touch (what a keyframe after them copies;
+        it shares the rest with the keyframe before)."""
+        ch = _Chunked.CHUNK
+        dirty = ray_chunks_touched(self._f_rs.buf[r0:r1], self._f_rl.buf[r0:r1], ch, -(-self.n_rays // ch))
+        dirty[self._g_ray.buf[g0:g1] // ch] = True
+        return dirty
 
     def _close_blocks(self, stages, f_end, g_end, s_end, r_end, budget: int = 0, block_ids=None) -> None:
         """Append block rows (stage, column ends, the blocks' one face id or -1) and schedule
@@ -289,9 +280,10 @@ class ZTrace(_BlockLog):
             b = stop
             if int(ev[b]) >= self._next_due:
                 prev = self._keyframes[-1]
-                general = bool(self._g_ptr.a[b] > self._g_ptr.a[prev.block])
+                g0, g1 = int(self._g_ptr.a[prev.block]), int(self._g_ptr.a[b])
+                dirty = self._dirty_chunks(int(self._r_ptr.a[prev.block]), int(self._r_ptr.a[b]), g0, g1)
                 self._add_keyframe(_Keyframe(b, int(self._stage.a[b - 1]),
-                                             _snapshot_sharing(self._mirror.store, prev.data, general)))
+                                             _snapshot_sharing(self._mirror.store, prev.data, g1 > g0, dirty)))
                 self._next_due = int(ev[b]) + self.keyframe_every
         tk.simple_rec_from_store(self._mirror.S, self._rec, self._recf)
 

@@ -149,3 +149,86 @@ def test_far_only_keyframes_share_the_arrays_cuts_from_above_cannot_touch():
         assert k.data["near"] is keys[0].data["near"]
         assert k.data["far"] is not keys[0].data["far"]
     assert z.keyframe_nbytes() <= (len(keys) - 1) * g.frame.n_rays * 8 + 4096
+
+
+def _plunge_then_raster(nx=401, ny=401, spacing=0.25):
+    """A grid of several chunks of rays, a flat end mill through its bottom (general
+    rewrites: rays emptied), then a raster of far-only cuts well away from it."""
+    from sim.trace.keyframes import _Chunked
+
+    assert nx * ny > 2 * _Chunked.CHUNK
+    rows = [((5, 5, 12), (5, 5, -1)), ((5, 5, -1), (5, 5, 12))]
+    for k, y in enumerate(np.arange(20, 38, 0.6)):
+        x0, x1 = (8, 36) if k % 2 == 0 else (36, 8)
+        rows.append(((x0, y, 8.0 - 0.01 * k), (x1, y, 8.0 - 0.01 * k)))
+    return (lambda: box(nx, ny, spacing, 0.0, 10.0)), feed_moves(rows), parse_tool_spec("flat:3")
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_moves_recorded_one_by_one_after_a_traced_batch_build_their_keyframes(threads, monkeypatch):
+    """A traced batch whose keyframes share chunks (after its general rewrites), then
+    moves recorded one at a time as a live session does: the keyframes those records
+    make are built from the batch's (its per-ray arrays kept as chunks). That crashed
+    (the replay was handed a chunked array); every stage must rebuild to the model."""
+    from sim import bands
+
+    monkeypatch.setattr(bands, "MIN_PARALLEL_RAYS", 0)   # the batch on bands too
+    monkeypatch.setattr(bands, "CHUNK_SEGMENTS", 4)
+    make, moves, tool = _plunge_then_raster()
+    refs = [make()]
+    for k in range(len(moves)):
+        g = refs[-1].copy()
+        Cutter(g, tool, threads=1).cut_moves(moves[k:k + 1], move_ids=[k + 1], record_changes=False)
+        refs.append(g)
+    g = make()
+    n_batch = 12
+    tr = Trace(g, keyframe_every=3000)
+    cutter = Cutter(g, tool, threads=threads)
+    cutter.cut_moves(moves[:n_batch], move_ids=np.arange(1, n_batch + 1), record_changes=False, trace=tr)
+    before = len(tr.z._keyframes)
+    for k in range(n_batch, len(moves)):
+        tr.record_cut(g, cutter.cut_moves(moves[k:k + 1], move_ids=[k + 1]), k + 1)
+    tr.maintain(None)
+    assert len(tr.z._keyframes) > before + 2
+    for s, want in enumerate(refs):
+        assert same_model(tr.grid_at(s), want), s
+        np.testing.assert_array_equal(tr.t.heights_at(s), want.top())
+
+
+@pytest.mark.parametrize("path", ["records", "read back"])
+def test_keyframes_of_records_and_of_a_read_back_trace_copy_only_the_chunks_edited(path):
+    """Keyframes made off the batch path (moves recorded one at a time, as a live session
+    does, and a run file's trace read back) copy only the chunks of rays the events since
+    the keyframe before touched, after general rewrites too: a raster over a strip of the
+    part made keyframes of the whole FarZ array each time (8 MB a keyframe at 1M rays)."""
+    from sim.trace.keyframes import _Chunked
+
+    make, moves, tool = _plunge_then_raster()
+    g = make()
+    tr = Trace(g, keyframe_every=3000)
+    cutter = Cutter(g, tool, threads=1)
+    snaps = [g.copy()]
+    for k in range(len(moves)):
+        tr.record_cut(g, cutter.cut_moves(moves[k:k + 1], move_ids=[k + 1]), k + 1)
+        snaps.append(g.copy())
+    tr.maintain(None)
+    z = tr.z
+    if path == "read back":   # the run file's z-trace, its keyframes taken as it is read
+        chunk = tr.take_chunk()
+        z = ZTrace.from_chunks([{k[2:]: v for k, v in chunk.items() if k.startswith("z/")}],
+                               keyframe_every=3000)
+    keys = z._keyframes
+    assert len(keys) > 3 and z._g_ray.n > 0
+    n_chunks = -(-z.n_rays // _Chunked.CHUNK)
+    for key in keys[1:]:
+        far = key.data["far"]
+        assert isinstance(far, _Chunked)
+        own = sum(c.base is None for c in far.chunks)   # copied for this keyframe, not shared
+        assert 0 < own < n_chunks / 2, key.stage
+    # the chunks edited by the plunge are the only ones of count a keyframe holds anew
+    assert any(isinstance(key.data["count"], _Chunked) for key in keys[1:])
+    full = z.n_rays * 4
+    assert z.keyframe_nbytes() < (len(keys) - 1) * full
+    for s, want in enumerate(snaps):
+        assert same_model(z.grid_at(s), want), s
+        np.testing.assert_array_equal(tr.t.heights_at(s), want.top())
