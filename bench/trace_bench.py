@@ -9,13 +9,16 @@ JSON lines:
   traced one (one batch cut writing straight into a ``Trace``: ``cut_moves(...,
   trace=tr)``, keyframes included), 5 of each interleaved; the extra time in per cent
   from the best of each, and the median of the side-by-side ratios. Target <= 20 %.
+  ``*_sys_s``: the kernel time of each run (page faults on new memory, see
+  ``fresh_memory``), which is most of what the traced runs vary by.
 * ``trace_bytes``: trace bytes (serialised and in memory, keyframes apart) vs the
   model's bytes. Target <= 5x. The time-trace shares the z-trace's events (its own
   bytes are 0).
 * ``trace_rebuild``: rebuilding stages 1/4, 1/2, 3/4, the end and back, into a grid (and
   heights arrays) the caller reuses, and into fresh ones. Target <= 20 ms per stage.
 * ``trace_live``: the per-call cost of recording one move at a time (the live session's
-  pattern: a few rows per poll), with keyframe work amortised: p50 / p99 / max ms.
+  pattern: a few rows per poll), with keyframe work amortised: p50 / p99 / max ms, and
+  the keyframes' bytes.
 * ``live_view``: frames per second of the live view on the 1M-ray grid. Target >= 10.
 * ``fresh_memory``: what writing 100 MB of fresh memory costs here, on pages the process
   freed just before and on pages left free for 3 s. A traced batch writes about 110 MB
@@ -115,25 +118,29 @@ def main(argv=None) -> int:
     Cutter(stock_grid.copy(), tool).cut_moves(moves[:2000], move_ids=ids[:2000], record_changes=False)
     # plain and traced runs interleaved, 5 of each: the best of each, and the median of the
     # five side-by-side ratios (this machine's speed drifts between runs; a pair shares it)
-    plain, traced = [], []
+    # (and the kernel time each spent on page faults: new memory, see fresh_memory)
+    plain, traced, plain_sys, traced_sys = [], [], [], []
     for _ in range(5):
         g = stock_grid.copy()
-        t0 = time.perf_counter()
+        s0, t0 = os.times().system, time.perf_counter()
         Cutter(g, tool).cut_moves(moves, move_ids=ids, record_changes=False)
         plain.append(time.perf_counter() - t0)
+        plain_sys.append(os.times().system - s0)
         final_ref = g
         g = stock_grid.copy()
         tr = None
-        t0 = time.perf_counter()
+        s0, t0 = os.times().system, time.perf_counter()
         tr = Trace(g)
         Cutter(g, tool).cut_moves(moves, move_ids=ids, record_changes=False, trace=tr)
         tr.maintain(None)
         traced.append(time.perf_counter() - t0)
+        traced_sys.append(os.times().system - s0)
     t_plain, t_traced = min(plain), min(traced)
     assert same_model(g, final_ref, ids=False)
     emit(case="trace_record", program=Path(args.program).name, moves=n, rays=g.frame.n_rays,
          resolution=args.resolution, plain_s=round(t_plain, 3), traced_s=round(t_traced, 3),
          plain_runs_s=[round(x, 3) for x in plain], traced_runs_s=[round(x, 3) for x in traced],
+         plain_sys_s=[round(x, 3) for x in plain_sys], traced_sys_s=[round(x, 3) for x in traced_sys],
          extra_pct=round(100 * (t_traced - t_plain) / t_plain, 1),
          extra_pct_pairs_median=round(100 * (float(np.median(np.array(traced) / np.array(plain))) - 1), 1),
          z_changes=tr.z.n_changes, z_far_events=tr.z._f_val.n, z_general_events=tr.z._g_ray.n,
@@ -210,6 +217,7 @@ def main(argv=None) -> int:
         emit(case="trace_live", calls=m, record_p50_ms=round(1e3 * float(np.median(rec)), 3),
              record_p99_ms=round(1e3 * float(np.quantile(rec, 0.99)), 3),
              record_max_ms=round(1e3 * float(rec.max()), 3), keyframes=len(live.z._keyframes),
+             keyframe_bytes=live.z.keyframe_nbytes(),
              maintain_per_50_calls_max_ms=round(1e3 * float(upkeep.max()), 3),
              rays_changed_per_call=round(live.z.n_changes / m, 1))
 

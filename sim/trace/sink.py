@@ -189,7 +189,8 @@ class _Sink:
         self.ts[K.TS_NEXT_DUE] = z._next_due
 
     def end(self) -> None:
-        """Append the block rows, sync the mirror, trim the columns."""
+        """Append the block rows (a keyframe at the end if one fell due); the mirror is left
+        stale, rebuilt from the keyframes if a later record needs it."""
         z, ts = self.z, self.ts
         ends = []
         for blk, start in zip(self.blk, self.start):
