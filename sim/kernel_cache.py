@@ -42,6 +42,7 @@ KERNEL_SOURCES = (
     "sim/sweep_kernels/poses.py",
     "sim/sweep_kernels/shapes.py",
     "sim/sweep_kernels/trace_sink.py",
+    "sim/trace/keyframes.py",
     "sim/trace_kernels.py",
     "sim/tridexel_surface.py",
 )

@@ -17,7 +17,7 @@ from sim.trace.columns import (
     frame_from_array, frame_to_array)
 from sim.trace.keyframes import (
     _Chunked, _FAR_FIELDS, _KeyBuilder, _Keyframe, _POOL_FIELDS,
-    _snapshot_sharing, _store_copy, _store_snapshot)
+    _snapshot_sharing, _stock_snapshot, _store_copy)
 from sim.trace.sink import _Sink
 
 
@@ -57,7 +57,7 @@ class ZTrace(_BlockLog):
         self.first_stage = int(stage)
         self.keyframe_every = int(keyframe_every or max(2 * self.n_rays, 1))
         self.max_keyframes = int(max_keyframes)
-        self._init = _store_snapshot(grid.store)
+        self._init = _stock_snapshot(grid.store)
         self._keyframes = [_Keyframe(0, self.first_stage, self._init)]
         #: build due keyframes a slice at a time inside record calls; False leaves them to
         #: :meth:`maintain` (a live loop calls it off the poll's critical path)
@@ -473,9 +473,20 @@ class ZTrace(_BlockLog):
         return _expand_consecutive(self._f_rs.a[r0:r1], self._f_rl.a[r0:r1])
 
     def _init_ray(self, r: int):
-        g = DexelGrid(self.frame, self.tol, self._init)
-        n, f, ni, fi, _ = g.segments_of(np.array([r]))
-        return np.stack([n, f], axis=1), np.stack([ni, fi], axis=1)
+        """Ray ``r`` at the first stage: segments (k, 2) float32, face ids (k, 2) int32
+        (read from the first keyframe's arrays: its first segment in the per-ray arrays,
+        the others in the pool from ``xstart``)."""
+        s = self._init
+        c = int(s["count"][r])
+        x0 = int(s["xstart"][r])
+        cols = [np.concatenate([s[k][r:r + 1], s["pool_" + k][x0:x0 + c - 1]])[:c]
+                for k in ("near", "far", "near_id", "far_id")]
+        return np.stack(cols[:2], axis=1), np.stack(cols[2:], axis=1)
+
+    def _init_store(self) -> dict:
+        """The first stage's store as plain arrays (its keyframe may hold broadcast ones,
+        see ``_stock_snapshot``)."""
+        return {k: np.ascontiguousarray(v) for k, v in self._init.items()}
 
     def z_elements(self, i: int, j: int) -> np.ndarray:
         """Z elements of ray (i, j) as in the paper: a structured array sorted by value with
@@ -522,11 +533,14 @@ class ZTrace(_BlockLog):
             return v.chunks if isinstance(v, _Chunked) else [v]
         if not self._keyframes:  # forgotten (forget_blocks)
             return 0
+        def root(a):   # the array owning the memory (a view's base is its owner's)
+            return a if a.base is None else a.base
         seen = {id(p) for v in self._keyframes[0].data.values() for p in parts(v)}
-        # chunks that are views of the stock's arrays are the stock's bytes
+        # chunks that are views of the stock's arrays (or of its broadcast values) are
+        # the stock's bytes
+        stock = {id(root(v)) for v in self._keyframes[0].data.values() if isinstance(v, np.ndarray)}
         seen |= {id(p) for k in self._keyframes for v in k.data.values() for p in parts(v)
-                 if isinstance(p, np.ndarray) and p.base is not None
-                 and any(p.base is b for b in self._keyframes[0].data.values())}
+                 if isinstance(p, np.ndarray) and id(root(p)) in stock}
         total = 0
         for k in self._keyframes[1:]:
             for v in k.data.values():
@@ -541,7 +555,7 @@ class ZTrace(_BlockLog):
         """Frame, tolerance and the model at the first stage (run-length coded where it pays)."""
         if self._init is None:
             raise InputError("this trace handed its header and blocks on (keep_history=False)")
-        g = DexelGrid(self.frame, self.tol, self._init)
+        g = DexelGrid(self.frame, self.tol, self._init_store())
         n, f, ni, fi, c = g.segments_of(np.arange(self.n_rays))
         out = {"frame": frame_to_array(self.frame),
                "tol_length": np.array([self.tol.length]),

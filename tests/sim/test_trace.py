@@ -319,3 +319,36 @@ def test_thinning_keyframes_keeps_the_latest(max_keyframes):
         assert np.array_equal(np.asarray(key.data["far"]), refs[key.stage].store["far"]) if key.stage else True
     for s, want in refs.items():
         assert same_model(tr.z.grid_at(s), want), s
+
+
+def test_a_block_of_stock_is_held_once_as_its_values_and_a_shaped_one_copied():
+    """The first keyframe of a box stock holds each per-ray array as its one value,
+    broadcast (nothing copied: 26 MB at 1M rays); a stock whose rays differ is copied.
+    Either way the first stage stays the stock while the grid is cut, and reads back."""
+    from sim.trace.keyframes import _RAY_FIELDS
+
+    flat = box()
+    shaped = box()
+    ball_cut(shaped, (5.0, 5.0, 9.0), 2.0, 7)     # a stock with a dimple: its rays differ
+    for g, uniform in ((flat, True), (shaped, False)):
+        stock = g.copy()
+        tr = Trace(g, keyframe_every=40)
+        first = tr.z._keyframes[0].data
+        if uniform:
+            assert all(first[k].strides == (0,) for k in _RAY_FIELDS)
+        else:   # the dimple's tops and their face ids: copies of their own
+            assert all(first[k].strides != (0,) and first[k].base is None for k in ("far", "far_id"))
+        for s in range(1, 12):
+            tr.record(g, ball_cut(g, (2.0 * s, 7.0, 9.5 - 0.3 * s), 3.0, s), s)
+        tr.maintain(None)
+        assert same_model(tr.grid_at(0), stock)
+        assert same_model(tr.grid_at(11), g)
+        stages = [st for st, _, _ in tr.z.ray_history(3, 3)]
+        assert stages[0] == 0
+        segs0, ids0 = tr.z.ray_history(10, 10)[0][1:]
+        n, f, ni, fi, _ = stock.segments_of(np.array([10 * stock.frame.nu + 10]))
+        np.testing.assert_array_equal(segs0, np.stack([n, f], axis=1))
+        np.testing.assert_array_equal(ids0, np.stack([ni, fi], axis=1))
+        back = Trace.from_chunks([tr.take_chunk()])
+        assert same_model(back.grid_at(0), stock) and same_model(back.grid_at(11), g)
+        assert tr.z.keyframe_nbytes() < len(tr.z._keyframes) * g.frame.n_rays * 8
