@@ -390,7 +390,10 @@ class SharedTimeTrace(TimeTrace):
         d = key.data
         parts = zip(*(_Chunked.of(d[k]).chunks for k in ("count", "far", "far_id", "xstart")))
         ch = _Chunked.CHUNK
-        for i, (c, f, fi, x) in enumerate(parts):   # chunk by chunk: no copy
+        for i, chunk in enumerate(parts):   # chunk by chunk: no copy of the model
+            # but of a block of stock's broadcast values (a chunk of 16k rays): the kernel
+            # takes plain arrays (a read-only one would compile it again, slower)
+            c, f, fi, x = (p if p.flags.writeable else p.copy() for p in chunk)
             sl = slice(i * ch, i * ch + f.size)
             tk.tops_of_store(c, f, fi, x, d["pool_far"], d["pool_far_id"], top[sl], tid[sl])
         return top, tid

@@ -325,6 +325,7 @@ def test_a_block_of_stock_is_held_once_as_its_values_and_a_shaped_one_copied():
     """The first keyframe of a box stock holds each per-ray array as its one value,
     broadcast (nothing copied: 26 MB at 1M rays); a stock whose rays differ is copied.
     Either way the first stage stays the stock while the grid is cut, and reads back."""
+    from sim import trace_kernels as tk
     from sim.trace.keyframes import _RAY_FIELDS
 
     flat = box()
@@ -343,6 +344,13 @@ def test_a_block_of_stock_is_held_once_as_its_values_and_a_shaped_one_copied():
         tr.maintain(None)
         assert same_model(tr.grid_at(0), stock)
         assert same_model(tr.grid_at(11), g)
+        # kernels are handed plain arrays, never the broadcast ones (a new compile)
+        kernels = (tk.tops_of_store, tk.replay_blocks, tk.replay_far_only)
+        before = [set(k.signatures) for k in kernels]
+        for s in (0, 5, 11):
+            np.testing.assert_array_equal(tr.t.heights_at(s), tr.grid_at(s).top(), err_msg=str(s))
+        for k, sigs in zip(kernels, before):
+            assert all(getattr(a, "mutable", True) for sig in set(k.signatures) - sigs for a in sig), k
         stages = [st for st, _, _ in tr.z.ray_history(3, 3)]
         assert stages[0] == 0
         segs0, ids0 = tr.z.ray_history(10, 10)[0][1:]
