@@ -42,7 +42,6 @@ KERNEL_SOURCES = (
     "sim/sweep_kernels/poses.py",
     "sim/sweep_kernels/shapes.py",
     "sim/sweep_kernels/trace_sink.py",
-    "sim/trace/keyframes.py",
     "sim/trace_kernels.py",
     "sim/tridexel_surface.py",
 )

@@ -6,7 +6,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-import numba as nb
 import numpy as np
 
 from sim import dexel_store as ds
@@ -43,14 +42,11 @@ def _stock_snapshot(store: dict) -> dict:
     return out
 
 
-@nb.njit(cache=True)
-def _uniform(a) -> bool:
-    """Every element of ``a`` (1-D) equals the first (stops at the first that differs)."""
-    first = a[0]
-    for q in range(1, a.size):
-        if a[q] != first:
-            return False
-    return True
+def _uniform(a: np.ndarray) -> bool:
+    """Every element of ``a`` (1-D) has the same bits (compared as integers: -0.0 is not
+    0.0 here, and a NaN is a value). Two vectorised passes, no temporary array."""
+    bits = a.view(f"i{a.itemsize}")
+    return bool(bits.min() == bits.max())
 
 
 def _writable(a) -> bool:

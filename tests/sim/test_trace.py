@@ -326,7 +326,7 @@ def test_a_block_of_stock_is_held_once_as_its_values_and_a_shaped_one_copied():
     broadcast (nothing copied: 26 MB at 1M rays); a stock whose rays differ is copied.
     Either way the first stage stays the stock while the grid is cut, and reads back."""
     from sim import trace_kernels as tk
-    from sim.trace.keyframes import _RAY_FIELDS
+    from sim.trace.keyframes import _RAY_FIELDS, _uniform
 
     flat = box()
     shaped = box()
@@ -360,3 +360,7 @@ def test_a_block_of_stock_is_held_once_as_its_values_and_a_shaped_one_copied():
         back = Trace.from_chunks([tr.take_chunk()])
         assert same_model(back.grid_at(0), stock) and same_model(back.grid_at(11), g)
         assert tr.z.keyframe_nbytes() < len(tr.z._keyframes) * g.frame.n_rays * 8
+    # "one value" means the same bits: a -0.0 among 0.0 keeps the array as it is
+    signed = np.zeros(8, np.float32)
+    signed[5] = -0.0
+    assert not _uniform(signed) and _uniform(np.zeros(8, np.float32))
