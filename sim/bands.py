@@ -256,8 +256,8 @@ class _BandTraces(_Buffers):
         """Band ``t`` cut its chunk: mark the chunks of rays its far runs and its general
         rays touch (on its own thread, not between chunks on the calling one)."""
         nr, ng = int(self.ts[t, K.TS_NR]), int(self.ts[t, K.TS_NG])
-        _mark_chunks(self.a["rs"][t, :nr], self.a["rl"][t, :nr], self.sink.RAY_CHUNK, self.dirty[t])
-        self.dirty[t][self.a["g_ray"][t, :ng] // self.sink.RAY_CHUNK] = True
+        mark_ray_chunks(self.dirty[t], self.sink.RAY_CHUNK, self.a["rs"][t, :nr], self.a["rl"][t, :nr],
+                        self.a["g_ray"][t, :ng])
 
     def buffers(self, t: int) -> tuple:
         mark, slot = self.sink.marks()
@@ -323,11 +323,13 @@ class _Stash:
 _STASH = _Stash()
 
 
-def ray_chunks_touched(starts: np.ndarray, lengths: np.ndarray, chunk: int, n_chunks: int) -> np.ndarray:
-    """bool (n_chunks,): which chunks of ``chunk`` consecutive rays the runs of rays
-    (``starts``, ``lengths``: int arrays) touch."""
-    dirty = np.zeros(n_chunks, np.bool_)
+def mark_ray_chunks(dirty: np.ndarray, chunk: int, starts: np.ndarray, lengths: np.ndarray,
+                    rays: np.ndarray) -> np.ndarray:
+    """Mark in ``dirty`` (bool per chunk of ``chunk`` consecutive rays) the chunks that the
+    runs of rays (``starts``, ``lengths``) and the single ``rays`` touch (far events and
+    general rewrites: what a keyframe after them must copy). Returns ``dirty``."""
     _mark_chunks(starts, lengths, chunk, dirty)
+    dirty[np.asarray(rays) // chunk] = True
     return dirty
 
 

@@ -116,16 +116,7 @@ class DexelGrid:
         Returns ``(near, far, near_id, far_id, counts)``: four arrays of the total segment
         count (float32, float32, int32, int32) and ``counts`` (len(rays),) int64.
         """
-        rays = np.asarray(rays, np.int64)
-        st = self.store
-        counts = st["count"][rays].astype(np.int64)
-        total = int(counts.sum())
-        out_n = np.empty(total, np.float32)
-        out_f = np.empty(total, np.float32)
-        out_ni = np.empty(total, np.int32)
-        out_fi = np.empty(total, np.int32)
-        _gather(self.S, rays, counts, out_n, out_f, out_ni, out_fi)
-        return out_n, out_f, out_ni, out_fi, counts
+        return store_segments(self.store, rays)
 
     def _write_rays(self, rays, counts, nears, fars, nids, fids) -> None:
         """Replace the given rays by the given segments (layout of :meth:`segments_of`)."""
@@ -216,6 +207,18 @@ def _ray_lengths(S, out):
             n, f, nid, fid = ds.get_seg(S, r, k)
             total += np.float64(f) - np.float64(n)
         out[r] = total
+
+
+def store_segments(store: dict, rays: np.ndarray):
+    """:meth:`DexelGrid.segments_of` of a store (see :mod:`sim.dexel_store`): the segments
+    of the flat ``rays``, concatenated in ray order, and their counts."""
+    rays = np.asarray(rays, np.int64)
+    counts = store["count"][rays].astype(np.int64)
+    total = int(counts.sum())
+    out = (np.empty(total, np.float32), np.empty(total, np.float32), np.empty(total, np.int32),
+           np.empty(total, np.int32))
+    _gather(ds.store_tuple(store), rays, counts, *out)
+    return (*out, counts)
 
 
 @nb.njit(cache=True)

@@ -173,8 +173,8 @@ def ingest_journal_fast(rec, recf, M, ptr, rays, seg_ptr, jn, jf, jni, jfi, jnb,
     (the ray's new segment list). ``state`` (2,) int64 = (move, entry) to resume from;
     ``cnt`` (3,) int64 = far-only events, general events, general segments written so
     far. ``blk_*[k]`` get the column ends after move k. Returns DONE, or POOL_FULL with
-    ``state`` set to redo (grow the mirror's pool and call again). The body is one loop on purpose: a helper per entry cost ~1 us of argument
-    passing per call.
+    ``state`` set to redo (grow the mirror's pool and call again). The body is one loop on
+    purpose: a helper per entry cost ~1 us of argument passing per call.
 
     rec : (n_rays, 4) int32: (near bits, far bits, near_id, far_id) of each ray that holds
         exactly one segment, ``rec[r, 0] = NOT_SIMPLE`` otherwise; for those rays ``rec``

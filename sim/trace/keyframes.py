@@ -150,7 +150,9 @@ class _Chunked:
 
 
 def _plain(a) -> np.ndarray:
-    return a.copy() if isinstance(a, _Chunked) else a
+    """``a`` as an array a kernel may be handed: itself, or a copy of a chunked or
+    broadcast keyframe array."""
+    return a if _writable(a) else a.copy()
 
 
 def _snapshot_sharing(store: dict, prev: dict | None, general: bool, dirty=None,
@@ -191,8 +193,8 @@ class _KeyBuilder:
     replayed on those in slices (an event reads and writes its own ray only, so the
     scratch's other chunks are never read, nor its untouched pages ever made), and the
     keyframe takes the touched chunks from the scratch at the end. No call costs more
-    than about ``budget`` array elements / events. A live session cuts a strip of the
-    part between two keyframes: its keyframes hold that strip, not the whole model.
+    than about ``budget`` array elements / events. Moves recorded one by one cut a strip of
+    the part between two keyframes: their keyframes hold that strip, not the whole model.
     """
 
     def __init__(self, trace: "ZTrace", block: int):
@@ -207,8 +209,7 @@ class _KeyBuilder:
         self.dirty = tr._dirty_chunks(int(tr._r_ptr.a[base.block]), int(tr._r_ptr.a[self.block]), g0, g1)
         self.written = ds.STORE_FIELDS if self.general else _FAR_FIELDS
         self.work = dict(base.data)
-        # (destination, source, first element, next element) copies still to do, sliced
-        # as the budget allows
+        # [destination, source, next element] copies still to do, sliced as the budget allows
         self.copies = []
         top = int(base.data["pool_top"][0])
         spare = 2 * int(tr._gs_ptr.a[self.block] - tr._gs_ptr.a[base.block]) + 64 if self.general else 0

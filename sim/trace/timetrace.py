@@ -13,7 +13,7 @@ from sim.trace.columns import (
     _BlockLog, _Column, _check_stage, _get, _get_rle, _get_runs,
     _pack_column, _rays_arg, _runs_of_consecutive, _runs_of_equal, _unpack_column,
     frame_from_array, frame_to_array)
-from sim.trace.keyframes import _Chunked, _Keyframe
+from sim.trace.keyframes import _Chunked, _Keyframe, _plain
 from sim.trace.ztrace import ZTrace
 
 
@@ -393,7 +393,7 @@ class SharedTimeTrace(TimeTrace):
         for i, chunk in enumerate(parts):   # chunk by chunk: no copy of the model
             # but of a block of stock's broadcast values (a chunk of 16k rays): the kernel
             # takes plain arrays (a read-only one would compile it again, slower)
-            c, f, fi, x = (p if p.flags.writeable else p.copy() for p in chunk)
+            c, f, fi, x = (_plain(p) for p in chunk)
             sl = slice(i * ch, i * ch + f.size)
             tk.tops_of_store(c, f, fi, x, d["pool_far"], d["pool_far_id"], top[sl], tid[sl])
         return top, tid

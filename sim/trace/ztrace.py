@@ -6,9 +6,9 @@ import numpy as np
 
 from sim import dexel_store as ds
 from sim import trace_kernels as tk
-from sim.bands import ray_chunks_touched
+from sim.bands import mark_ray_chunks
 from sim.errors import InputError
-from sim.grid import DexelGrid
+from sim.grid import DexelGrid, store_segments
 from sim.tolerance import DEFAULT, Tolerance
 from sim.trace import keyframes  # KEYFRAME_BUDGET read at call time (tests lower it)
 from sim.trace.columns import (
@@ -16,7 +16,7 @@ from sim.trace.columns import (
     _get_rle, _get_runs, _pack_column, _rays_arg, _runs_of_equal, _unpack_column,
     frame_from_array, frame_to_array)
 from sim.trace.keyframes import (
-    _Chunked, _FAR_FIELDS, _KeyBuilder, _Keyframe, _POOL_FIELDS,
+    _Chunked, _FAR_FIELDS, _KeyBuilder, _Keyframe, _POOL_FIELDS, _RAY_FIELDS,
     _snapshot_sharing, _stock_snapshot, _store_copy)
 from sim.trace.sink import _Sink
 
@@ -205,9 +205,8 @@ class ZTrace(_BlockLog):
         ``r0:r1`` and the general events ``g0:g1`` touch (what a keyframe after them copies;
         it shares the rest with the keyframe before)."""
         ch = _Chunked.CHUNK
-        dirty = ray_chunks_touched(self._f_rs.buf[r0:r1], self._f_rl.buf[r0:r1], ch, -(-self.n_rays // ch))
-        dirty[self._g_ray.buf[g0:g1] // ch] = True
-        return dirty
+        return mark_ray_chunks(np.zeros(-(-self.n_rays // ch), np.bool_), ch, self._f_rs.buf[r0:r1],
+                               self._f_rl.buf[r0:r1], self._g_ray.buf[g0:g1])
 
     def _close_blocks(self, stages, f_end, g_end, s_end, r_end, budget: int = 0, block_ids=None) -> None:
         """Append block rows (stage, column ends, the blocks' one face id or -1) and schedule
@@ -473,20 +472,11 @@ class ZTrace(_BlockLog):
         return _expand_consecutive(self._f_rs.a[r0:r1], self._f_rl.a[r0:r1])
 
     def _init_ray(self, r: int):
-        """Ray ``r`` at the first stage: segments (k, 2) float32, face ids (k, 2) int32
-        (read from the first keyframe's arrays: its first segment in the per-ray arrays,
-        the others in the pool from ``xstart``)."""
-        s = self._init
-        c = int(s["count"][r])
-        x0 = int(s["xstart"][r])
-        cols = [np.concatenate([s[k][r:r + 1], s["pool_" + k][x0:x0 + c - 1]])[:c]
-                for k in ("near", "far", "near_id", "far_id")]
-        return np.stack(cols[:2], axis=1), np.stack(cols[2:], axis=1)
-
-    def _init_store(self) -> dict:
-        """The first stage's store as plain arrays (its keyframe may hold broadcast ones,
-        see ``_stock_snapshot``)."""
-        return {k: np.ascontiguousarray(v) for k, v in self._init.items()}
+        """Ray ``r`` at the first stage: segments (k, 2) float32, face ids (k, 2) int32 (read
+        from a one-ray store: the first keyframe's per-ray arrays may be broadcast)."""
+        one = {k: np.ascontiguousarray(v[r:r + 1]) if k in _RAY_FIELDS else v for k, v in self._init.items()}
+        n, f, ni, fi, _ = store_segments(one, np.zeros(1, np.int64))
+        return np.stack([n, f], axis=1), np.stack([ni, fi], axis=1)
 
     def z_elements(self, i: int, j: int) -> np.ndarray:
         """Z elements of ray (i, j) as in the paper: a structured array sorted by value with
@@ -555,8 +545,8 @@ class ZTrace(_BlockLog):
         """Frame, tolerance and the model at the first stage (run-length coded where it pays)."""
         if self._init is None:
             raise InputError("this trace handed its header and blocks on (keep_history=False)")
-        g = DexelGrid(self.frame, self.tol, self._init_store())
-        n, f, ni, fi, c = g.segments_of(np.arange(self.n_rays))
+        plain = {k: np.ascontiguousarray(v) for k, v in self._init.items()}   # broadcast ones too
+        n, f, ni, fi, c = store_segments(plain, np.arange(self.n_rays))
         out = {"frame": frame_to_array(self.frame),
                "tol_length": np.array([self.tol.length]),
                "first_stage": np.array([self.first_stage], np.int64)}
