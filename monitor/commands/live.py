@@ -42,6 +42,10 @@ until Ctrl-C. Another host than this computer's loopback is warned about.
 With a passthrough URL (``grbl+passthrough:///dev/ttyUSB0``) dexmon opens the machine's
 port and prints the pseudo-terminal (and TCP port) to point your own G-code sender at;
 the lines the sender streams tell the monitor where in the program the machine is.
+
+The run follows the stock on one Z grid (the start record's ``stock_model``); a job that
+asks for another (``[stock] model = "tri-dexel"``, used by ``simulate``) is told so at the
+start (JSON: ``{"event": "note", "kind": "stock_model", "text": ...}``).
 """
 
 from __future__ import annotations
@@ -154,11 +158,17 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
         _connect(controller)
         connected = True
         say_limits = _take_limits(session, controller, console, as_json)
+        note = _stock_model_note(job)
         if as_json:
             _jsonl({"event": "start", "run": str(run_path), "program": str(job.program),
-                    "controller": getattr(controller, "url", ""), "machine": _limits_record(session.in_force)})
+                    "controller": getattr(controller, "url", ""), "machine": _limits_record(session.in_force),
+                    "stock_model": LIVE_STOCK_MODEL})
+            if note is not None:
+                _jsonl({"event": "note", "kind": "stock_model", "text": note})
         elif not quiet:
             console.print(f"run file: {run_path}", soft_wrap=True)
+            if note is not None:
+                console.print(f"[yellow]note:[/yellow] {_escape(note)}", soft_wrap=True)
         say_limits(session.in_force)
         _announce_endpoints(controller, console, as_json)
         # a setup that cannot be meant is said before the machine's first move is judged
@@ -238,6 +248,21 @@ def _machine_limits(controller):
 def _limits_record(force) -> dict:
     """The limits in force as JSON: the figures, ``sources`` and a ``message``."""
     return {"message": force.describe(), **force.to_json()}
+
+
+#: the stock model a live run and a dry run follow (the session's cut, look-ahead and
+#: checks are built on one grid of vertical rays)
+LIVE_STOCK_MODEL = "z"
+
+
+def _stock_model_note(job) -> str | None:
+    """What to tell a user whose job asks for another stock model than the live one."""
+    if job.stock_model == LIVE_STOCK_MODEL:
+        return None
+    return (f'the job\'s [stock] model = "{job.stock_model}" is used by dexmon simulate only: this run '
+            f"follows the stock on one Z grid (vertical rays {job.resolution:g} mm apart), as every live run "
+            f"does, where a wall thinner than that or one a tilted tool leaves may fall between the rays; "
+            f"dexmon simulate checks the job on the tri-dexel model")
 
 
 def _take_limits(session, controller, console, as_json: bool):

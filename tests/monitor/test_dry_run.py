@@ -50,7 +50,7 @@ def test_cli_dry_run_bundled_example(tmp_path, capsys):
     out = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
     assert code == 1
     assert out[0] == {"event": "start", "run": str(run), "program": str(load_job(EXAMPLE_JOB).program),
-                      "controller": out[0]["controller"], "machine": out[0]["machine"]}
+                      "controller": out[0]["controller"], "machine": out[0]["machine"], "stock_model": "z"}
     # the virtual machine's own limits time the program
     assert set(out[0]["machine"]["sources"].values()) == {"controller"}
     assert out[0]["machine"]["max_rate"] == [5000.0, 5000.0, 2000.0]
