@@ -23,10 +23,9 @@ import math
 from dataclasses import dataclass, field
 
 from sim.gcode.errors import LineError
-from sim.gcode.moves import MoveKind
+from sim.gcode.moves import INCH, MoveKind
 
 G83_RAPID_DELTA_INCH = 0.010  # LinuxCNC: how far above the last depth a peck returns
-INCH = 25.4
 LETTERS = "XYZABC"
 NAMES = {730: "G73", 740: "G74", 810: "G81", 820: "G82", 830: "G83", 840: "G84", 850: "G85",
          860: "G86", 870: "G87", 880: "G88", 890: "G89"}

@@ -22,14 +22,14 @@ from sim.gcode.expr import evaluate
 from sim.gcode.lathe import lathe_message
 from sim.gcode.limits import DEFAULT_LIMITS, MAX_LINEAR_MM, MAX_ROTARY_DEG, Limits
 from sim.gcode.mcodes import M_GROUP
-from sim.gcode.moves import COOLANT_FLOOD, COOLANT_MIST, MOVE_DTYPE, MoveKind
+from sim.gcode.moves import COOLANT_FLOOD, COOLANT_MIST, INCH, MOVE_DTYPE, MoveKind
+from sim.gcode.params import Parameters
 from sim.gcode.parser import AXES, Block, dialect_parts, is_deleted, parse_line
 from sim.gcode.cycles import CycleMemory
 from sim.gcode.probe import straight_probe
 from sim.gcode.state import ModalState
-from sim.gcode.tool_length import CANON_MOTIONS, refresh_after_tool_change, set_tool_length, tool_parameter
+from sim.gcode.tool_length import CANON_MOTIONS, refresh_after_tool_change, set_tool_length
 
-INCH = 25.4
 NAN3 = (math.nan, math.nan, math.nan)
 
 # modal group of each G code (in tenths); 0 = non-modal
@@ -68,129 +68,6 @@ SPLINE_CHORD = 0.001  # mm: G5/G5.1 chords stay this close to the curve
 
 def _code10(v: float) -> int:
     return int(round(v * 10.0))
-
-
-class _Params:
-    """LinuxCNC parameter store: numbered (with the offset parameters live) and named."""
-
-    def __init__(self, interp: "Interpreter"):
-        self.it = interp
-        self.numbered: dict[int, float] = {}
-        self.globals: dict[str, float] = {}
-        self.frames: list[dict[str, float]] = [{}]
-
-    # numbered parameters that mirror interpreter state (program units)
-    def get_numbered(self, idx: float) -> float:
-        i = int(round(idx))
-        if abs(idx - i) > 1e-6 or not 1 <= i <= 5602:
-            raise LineError(f"parameter number #{idx:g} out of range 1..5602")
-        it = self.it
-        if 5161 <= i <= 5166:
-            return self._user_out(it.g28[i - 5161], i - 5161)
-        if 5181 <= i <= 5186:
-            return self._user_out(it.g30[i - 5181], i - 5181)
-        if 5211 <= i <= 5216:
-            return self._user_out(it.g92_saved[i - 5211], i - 5211)
-        if i == 5210:
-            return 1.0 if it.g92_enabled else 0.0
-        if i == 5220:
-            return float(it.coord + 1)
-        if 5221 <= i <= 5390:
-            k, a = divmod(i - 5221, 20)
-            if k < 9 and a < 6:
-                return self._user_out(it.g5x[k][a], a)
-            if k < 9 and a == 9:
-                return 0.0  # rotation
-        tool = tool_parameter(it, i)
-        if tool is not None:
-            return tool
-        if 5420 <= i <= 5428 and it.comp != 400:
-            raise LineError(f"cannot read the current position (#{i}) with cutter radius compensation on")
-        if 5420 <= i <= 5425:
-            w = it.work()
-            return self._out(w[i - 5420], i - 5420)
-        return self.numbered.get(i, 0.0)
-
-    def _out(self, v: float, axis: int) -> float:
-        return v / self.it.factor if axis < 3 else v
-
-    # stored positions and offsets (#5161.. #5181.. #5211.. #5221..) are in machine units,
-    # LinuxCNC's "user units", whatever G20/G21 says
-    def _user_out(self, v: float, axis: int) -> float:
-        return v / INCH if axis < 3 and self.it.machine_units == "inch" else v
-
-    def _user_in(self, v: float, axis: int) -> float:
-        return v * INCH if axis < 3 and self.it.machine_units == "inch" else v
-
-    def set_numbered(self, idx: float, v: float) -> None:
-        i = int(round(idx))
-        if abs(idx - i) > 1e-6 or not 1 <= i <= 5602:
-            raise LineError(f"parameter number #{idx:g} out of range 1..5602")
-        if 5381 <= i <= 5390 or 5400 <= i <= 5413 or 5420 <= i <= 5428:
-            raise LineError(f"parameter #{i} is read-only")
-        it = self.it
-        if 5161 <= i <= 5166:
-            it.g28[i - 5161] = self._user_in(v, i - 5161)
-        elif 5181 <= i <= 5186:
-            it.g30[i - 5181] = self._user_in(v, i - 5181)
-        elif 5211 <= i <= 5216:
-            it.g92_saved[i - 5211] = self._user_in(v, i - 5211)
-        elif 5221 <= i <= 5380:
-            k, a = divmod(i - 5221, 20)
-            if a < 6:
-                it.g5x[k][a] = self._user_in(v, a)
-        self.numbered[i] = v
-
-    def get_named(self, name: str) -> float:
-        if name.startswith("_"):
-            if name in self.globals:
-                return self.globals[name]
-            v = self._predefined(name)
-            if v is None:
-                raise LineError(f"named parameter #<{name}> is not defined" + mcodes.live_only(name))
-            return v
-        frame = self.frames[-1]
-        if name not in frame:
-            raise LineError(f"named parameter #<{name}> is not defined")
-        return frame[name]
-
-    def set_named(self, name: str, v: float) -> None:
-        if name.startswith("_"):
-            self.globals[name] = v
-        else:
-            self.frames[-1][name] = v
-
-    def exists(self, name: str) -> bool:
-        if name.startswith("_"):
-            return name in self.globals or self._predefined(name) is not None
-        return name in self.frames[-1]
-
-    def _predefined(self, name: str):
-        it = self.it
-        w = it.work()
-        axes = {"_x": 0, "_y": 1, "_z": 2, "_a": 3, "_b": 4, "_c": 5}
-        if name in axes:
-            return self._out(w[axes[name]], axes[name])
-        table = {
-            "_metric": 1.0 if it.units == 210 else 0.0,
-            "_imperial": 1.0 if it.units == 200 else 0.0,
-            "_absolute": 1.0 if it.distance == 900 else 0.0,
-            "_incremental": 1.0 if it.distance == 910 else 0.0,
-            "_coord_system": float(it.coord_code) / 10.0,
-            "_feed": it.feed_word,
-            "_rpm": it.spindle,
-            "_current_tool": float(it.tool),
-            "_selected_tool": float(it.selected_tool),
-            "_motion_mode": it.motion / 10.0,
-            "_plane": it.plane / 10.0,
-            "_value": self.globals.get("_value", 0.0),
-            "_value_returned": self.globals.get("_value_returned", 0.0),
-            "_line": float(it.line),
-            "_task": 0.0,
-            "_vmajor": 2.0,
-            "_vminor": 9.0,
-        }
-        return table.get(name)
 
 
 class Interpreter:
@@ -267,7 +144,7 @@ class Interpreter:
         self._table_lines = np.zeros(0, dtype=np.int32)
         self._n = 0
         self.main_line = 0
-        self.params = _Params(self)
+        self.params = Parameters(self)
         self.comp_engine = None    # sim.gcode.comp.CompEngine while compensation offsets moves
         self.tool_pos = None       # machine position of the tool when it is not at pos (after G40)
         self.arc_not_allowed = False  # just after G40: the next move must be straight

@@ -38,6 +38,9 @@ class Plane(enum.IntEnum):
     YZ = 2  # G19, arc axis X
 
 
+#: mm in an inch: G20 program units and inch machines are converted with it
+INCH = 25.4
+
 #: bit flags of the ``coolant`` column
 COOLANT_MIST = 1   # M7
 COOLANT_FLOOD = 2  # M8

@@ -25,10 +25,9 @@ LinuxCNC calls user units), whatever G20/G21 says: rs274's set_tool_parameters.
 from __future__ import annotations
 
 from sim.gcode.errors import LineError
-from sim.gcode.moves import MoveKind
+from sim.gcode.moves import INCH, MoveKind
 from sim.gcode.parser import AXES
 
-INCH = 25.4
 #: rows whose end the canon takes as its position: traverse, feed, arcs, probe (MoveKind)
 CANON_MOTIONS = frozenset((0, 1, 2, 3, 6))
 
