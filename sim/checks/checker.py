@@ -405,8 +405,49 @@ class Checker:
         else:
             self.error_map.update(self.grid, self.design, np.arange(self.frame.n_rays), self.tol, faces=faces)
         allowance = self.undercut_allowance() if undercut else None
+        reach_detail = self._reach_detail() if undercut else None
+        more = {} if reach_detail is None else {"detail_of": reach_detail}   # Z grids only
         return self.annotate(self.error_map.findings(self.tol, self._lines, undercut=undercut, min_rays=min_rays,
-                                                     join=self.reach(), undercut_limit=allowance))
+                                                     join=self.reach(), undercut_limit=allowance, **more))
+
+    def _reach_detail(self):
+        """For the whole-model assessment of a 3-axis Z grid: a function giving an undercut
+        region's ``unreachable_share`` (:func:`reach.unreachable_share`: how much of its
+        material the finishing tool cannot reach without a gouge) and that tool, or None."""
+        from sim.checks import reach
+
+        tool = self._finishing_tool()[0]
+        if (tool is None or self.kinematics is not None or isinstance(self.error_map, TriErrorMap)
+                or not self.frame.is_top):
+            return None
+        design_top, model_top = self.design.top(), self.grid.top().astype(np.float64)
+
+        def detail_of(kind, members):
+            if kind != "undercut":
+                return {}
+            share = reach.unreachable_share(design_top, model_top, members, tool, self.frame.spacing,
+                                            self.tol.undercut)
+            if share is None:
+                return {}
+            return {"unreachable_share": round(share, 3), "finishing_tool": tool.describe()}
+        return detail_of
+
+    def _finishing_tool(self):
+        """The tool that cut the longest feed path (it finishes the part) and a bool mask of
+        the moves it cut (indexed by move id), or (None, None) without feed moves."""
+        n = self._lines.size
+        feed = self._feed[:n] & np.isfinite(self._tips[:n]).all(axis=1)
+        if not feed.any():
+            return None, None
+        nums = self._tool_nums[:n][feed]
+        lengths = np.linalg.norm(self._tips[:n][feed, 3:5] - self._tips[:n][feed, :2], axis=1)
+        best = {}
+        for num, ln in zip(nums.tolist(), lengths.tolist()):
+            best[num] = best.get(num, 0.0) + ln
+        num = max(best, key=best.get)
+        sel = feed.copy()
+        sel[feed] = nums == num
+        return self.tools.get(int(num), self.tool), sel
 
     def undercut_allowance(self):
         """Per-ray undercut tolerance (float64 (n_rays,) mm) from the path, or None: the
@@ -417,21 +458,10 @@ class Checker:
             return None
         from sim.checks import scallop
 
-        n = self._lines.size
-        feed = self._feed[:n] & np.isfinite(self._tips[:n]).all(axis=1)
-        if not feed.any():
+        tool, sel = self._finishing_tool()
+        if tool is None:
             return None
-        nums = self._tool_nums[:n][feed]
-        # the tool that cut the longest feed path finishes the part
-        lengths = np.linalg.norm(self._tips[:n][feed, 3:5] - self._tips[:n][feed, :2], axis=1)
-        best = {}
-        for num, ln in zip(nums.tolist(), lengths.tolist()):
-            best[num] = best.get(num, 0.0) + ln
-        num = max(best, key=best.get)
-        tool = self.tools.get(int(num), self.tool)
-        sel = feed.copy()
-        sel[feed] = nums == num
-        raster = scallop.raster_of(self._tips[:n][sel])
+        raster = scallop.raster_of(self._tips[:sel.size][sel])
         if raster is None:
             return None
         got = scallop.allowance(self.design, tool, raster, self.tol.undercut)

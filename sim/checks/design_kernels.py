@@ -307,3 +307,44 @@ def update_rays(S, rays, design_rays, cut_only, nu, spacing, ptr, hit_s, hit_tri
         excess_id[r] = hi_id
         excess_s[r] = hi_s
         excess_len[r] = hi_dv if hi_e > 0.0 else 0.0
+
+
+@nb.njit(cache=True)
+def tool_reach_floor(z, di, dj, dh, mi, mj):
+    """The lowest a vertical tool's lower face reaches over rays ``(mi, mj)`` of a height
+    field without cutting into it: the field closed by the tool (its gouge-free tip
+    heights, then the surface those tips sweep).
+
+    z: float64 (nv, nu) design heights (mm, -inf where there is no design); di, dj: int64
+    (k,) ray offsets of the tool's footprint (a disc of its cutting radius), dh: float64
+    (k,) the tool's lowest height above its tip there; mi, mj: int64 (m,) the rays asked
+    for. Returns float64 (m,): the lowest ``tip + dh`` over the tips whose footprint covers
+    the ray, each tip the highest ``z - dh`` under its footprint (computed once, for the
+    tips near the rays asked for only). A ray within two cutting radii of the field's edge
+    sees only part of it."""
+    nv, nu = z.shape
+    tip = np.full((nv, nu), np.nan)
+    out = np.empty(mi.size)
+    for q in range(mi.size):
+        best = np.inf
+        for k in range(di.size):
+            tj = mj[q] - dj[k]
+            ti = mi[q] - di[k]
+            if not (0 <= tj < nv and 0 <= ti < nu):
+                continue
+            t = tip[tj, ti]
+            if t != t:   # not computed yet
+                t = -np.inf
+                for kk in range(di.size):
+                    jj = tj + dj[kk]
+                    ii = ti + di[kk]
+                    if 0 <= jj < nv and 0 <= ii < nu:
+                        v = z[jj, ii] - dh[kk]
+                        if v > t:
+                            t = v
+                tip[tj, ti] = t
+            v = t + dh[k]
+            if v < best:
+                best = v
+        out[q] = best
+    return out

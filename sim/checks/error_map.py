@@ -334,7 +334,8 @@ class ErrorMap:
         return rays[~np.isnan(self.gouge[rays])]
 
     def findings(self, tol: Tolerance, move_lines=None, rays=None, undercut: bool = True,
-                 min_rays: int = 1, join: float = 0.0, undercut_limit=None, volume_of=None) -> list[Finding]:
+                 min_rays: int = 1, join: float = 0.0, undercut_limit=None, volume_of=None,
+                 detail_of=None) -> list[Finding]:
         """Gouge and undercut findings: one per region of rays whose worst point is past
         the tolerance (restricted to ``rays`` when given); rays closer than ``join`` mm
         (the tool radius: one cause, like the strips one too-deep raster leaves under its
@@ -353,6 +354,8 @@ class ErrorMap:
         point (world). Regions of fewer than ``min_rays`` rays are dropped.
         ``volume_of(kind, members)``: the volume of a region of flat rays ``members``
         (mm^3), instead of the sum above (a tri-dexel model's map, :mod:`.tri`).
+        ``detail_of(kind, members)``: more of the finding's ``detail`` (a dict) for a region,
+        e.g. how much of an undercut its tool cannot reach (:mod:`.reach`).
         """
         f = self.frame
         out: list[Finding] = []
@@ -429,6 +432,8 @@ class ErrorMap:
                 volume = float(ml_len[fin].sum()) * f.spacing**2 if fin.any() else math.nan
                 if volume_of is not None:
                     volume = volume_of(kind, members)
+                if detail_of is not None:
+                    detail.update(detail_of(kind, members))
                 out.append(Finding(
                     kind=kind, line=line, worst_line=worst_line, lines=lines, stage=int(ids[w]), position=tuple(pos),
                     depth=depth,

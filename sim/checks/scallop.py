@@ -7,7 +7,8 @@ apart along the surface, so the cusp grows. That material is the path's design, 
 mistake: left to the fixed scallop-sized tolerance, a clean finishing pass on a dome
 reports dozens of crests. Here the path's own stepover decides the tolerance per ray, from
 the slope of the design under it (its top triangle's normal); material left higher than
-that (a crease or a corner the tool cannot reach) is still an undercut.
+that (a crease or a corner the tool cannot reach) is still an undercut; :mod:`.reach`
+says how much of it the tool cannot reach.
 """
 
 from __future__ import annotations
