@@ -44,6 +44,16 @@ def fillet(x):
     return out
 
 
+SP = 0.1
+
+
+def step_field():
+    """The step on rays SP apart: x (nu,), the design (41, nu) and the rays of a row at
+    least two ball radii from the field's ends (they see the whole field around them)."""
+    x = np.arange(0.0, 40.0 + 1e-9, SP)
+    return x, np.tile(step_height(x), (41, 1)).astype(np.float64), (x > 2 * R) & (x < 40 - 2 * R)
+
+
 def floor_of_row(z, tool, sp, row: int = 20):
     """The tool's reach over every ray of a middle row (the field runs on along y)."""
     mi = np.arange(z.shape[1], dtype=np.int64)
@@ -51,11 +61,9 @@ def floor_of_row(z, tool, sp, row: int = 20):
 
 
 def test_the_ball_reaches_down_to_the_fillet_of_an_inside_corner():
-    sp = 0.1
-    x = np.arange(0.0, 40.0 + 1e-9, sp)
-    z = np.tile(step_height(x), (41, 1))
+    x, z, inner = step_field()
+    sp = SP
     floor = floor_of_row(z, parse_tool_spec("ball:6"), sp)
-    inner = (x > 2 * R) & (x < 40 - 2 * R)
     # the fillet, to the grid's resolution: the ray on the wall's foot holds the plateau,
     # so the grid's wall stands anywhere from one spacing before x = 20 to x = 20
     assert np.all(floor[inner] >= fillet(x[inner]) - 1e-9)
@@ -69,18 +77,14 @@ def test_the_ball_reaches_down_to_the_fillet_of_an_inside_corner():
 
 
 def test_a_flat_end_mill_reaches_into_the_corner():
-    sp = 0.1
-    x = np.arange(0.0, 40.0 + 1e-9, sp)
-    z = np.tile(step_height(x), (41, 1))
-    floor = floor_of_row(z, parse_tool_spec("flat:6"), sp)
-    inner = (x > 2 * R) & (x < 40 - 2 * R)
+    x, z, inner = step_field()
+    floor = floor_of_row(z, parse_tool_spec("flat:6"), SP)
     assert np.array_equal(floor[inner], step_height(x[inner]).astype(np.float64))
 
 
 def test_unreachable_share_of_a_fillet_and_of_a_missed_strip():
-    sp = 0.1
-    x = np.arange(0.0, 40.0 + 1e-9, sp)
-    design = np.tile(step_height(x), (41, 1)).astype(np.float64)
+    x, design, _ = step_field()
+    sp = SP
     ball = parse_tool_spec("ball:6")
     # the fillet left in the corner: all out of reach
     model = np.tile(fillet(x), (41, 1))
