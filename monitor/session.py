@@ -418,22 +418,28 @@ class Session:
         info = StepInfo(s)
         wco = self._wco(state, s.row, learn=s.how in ("track", "line") and s.distance <= self.sync.lost)
         tip = np.asarray(state.mpos_array[:3], np.float64) - wco[:3]
+        restart = None   # the look-ahead starts again from the live model (behind: overtaken)
         if prev is None:
             self._start(s, state)
         elif gap is not None:
             info.gap = self._close_gap(gap, state, tip, prev, s)
-            self.lookahead.anchor(self.live, s.row, wco)
+            restart = False
         elif s.how in ("search", "line") and abs(s.progress - prev.progress) > JUMP_S:
-            self.lookahead.anchor(self.live, s.row, wco)  # a jump: predict again from the live model
+            restart = False  # a jump: predict again from the live model
         elif self.lookahead.next_row < s.row:
             # the spindle overtook the look-ahead: its rows are history now, unpredicted
             info.overtaken = (self.lookahead.next_row, s.row - 1)
-            self.lookahead.anchor(self.live, s.row, wco, behind=True)
+            restart = True
         elif not np.array_equal(wco, self.lookahead.wco):
             self.lookahead.set_wco(wco)
         self.live_checks.set_wco(wco)
         fresh = self._offset_check.see(state, tip) if self._offset_check is not None else []
         cut, info.removed = self._cut_live(tip, s, state)
+        if restart is not None:
+            # from the live model with the path since the last state cut in: taken before,
+            # the rows the machine has just run were not in it, and the row it is on (a
+            # retract out of the slot it just cut) rose through stock it had removed
+            self.lookahead.anchor(self.live, s.row, wco, behind=restart)
         fresh += cut + self._predict(s, state)
         if fresh:
             info.new_findings = self._alert(fresh, state)

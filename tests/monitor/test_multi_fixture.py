@@ -16,7 +16,7 @@ from monitor.alerts import Alerter
 from monitor.cli import main
 from monitor.commands.dry_run import EXAMPLE_JOB
 from monitor.job import JobError, add_job_arguments, job_from_args, load_job, parse_job_text
-from monitor.predict import build_workpiece, reference_wco, row_shifts, work_moves
+from monitor.predict import Lookahead, build_workpiece, reference_wco, row_shifts, work_moves
 from monitor.loop import run_controller
 from monitor.session import Session, load_moves
 
@@ -222,6 +222,48 @@ def test_dry_run_clean_wherever_the_polls_fall(tmp_path, case, rate):
     assert s.findings == []
     second = (22.0, 38.0) if case == "near" else (37.0, 53.0)
     assert _slots(_cut_columns(s.live.top(), s.live.frame)) == [(2.0, 18.0), second]
+
+
+#: machine seconds between polls of a dry run: the fourth comes 3.65 s after the third, as a
+#: poll held up by a busy computer does on the wall clock, from the rapid towards the first
+#: slot to half way up the retract after it
+STALLED_POLLS = (0.134, 1.782, 0.206, 3.652)
+
+
+def test_dry_run_clean_after_a_late_poll_restarts_the_lookahead(tmp_path, capsys, monkeypatch):
+    """One late poll: the machine ran the plunge, the slot and half the retract since the
+    last state, a jump of 3.6 s along the program, so the look-ahead restarts from the live
+    model at the machine's row (as it does when the spindle overtakes it). It took the
+    live model as it was before this poll's path was cut in: the retract rose through a slot not cut yet, a 56.5 mm^3
+    rapid into stock (line 12) "predicted as the machine reached it". (On the wall clock
+    under load ``test_cli_dry_run_two_stations_with_var_flag`` failed so.)"""
+    from drivers.virtual.controller import VirtualController
+
+    polls = []
+    poll = VirtualController.poll
+
+    def stalled_poll(self):
+        k = len(polls)
+        self.speed = (STALLED_POLLS[k] if k < len(STALLED_POLLS) else 0.2) * self.rate
+        polls.append(k)
+        return poll(self)
+    monkeypatch.setattr(VirtualController, "poll", stalled_poll)
+    anchored = []   # the rows the look-ahead restarted from
+    anchor = Lookahead.anchor
+
+    def noted_anchor(self, live, row, *a, **k):
+        anchored.append(row)
+        return anchor(self, live, row, *a, **k)
+    monkeypatch.setattr(Lookahead, "anchor", noted_anchor)
+    var = tmp_path / "near.var"
+    var.write_text(NEAR_VAR)
+    run = tmp_path / "run.sqlite"
+    code = main(["dry-run", str(TWO), "--var", str(var), "--clock", "sim", "--json", "--run", str(run)])
+    out = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    # the late poll's jump restarted the look-ahead at the retract (else this test would
+    # mean nothing): at the start, then there
+    assert anchored[1:2] == [5], anchored
+    assert [x for x in out if x["event"] == "finding"] == [] and code == 0, out
 
 
 def test_cli_dry_run_two_stations_with_var_flag(tmp_path, capsys):
