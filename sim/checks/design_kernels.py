@@ -320,8 +320,8 @@ def tool_reach_floor(z, di, dj, dh, mi, mj):
     (k,) the tool's lowest height above its tip there; mi, mj: int64 (m,) the rays asked
     for. Returns float64 (m,): the lowest ``tip + dh`` over the tips whose footprint covers
     the ray, each tip the highest ``z - dh`` under its footprint (computed once, for the
-    tips near the rays asked for only). A ray within two cutting radii of the field's edge
-    sees only part of it."""
+    tips near the rays asked for only). The field must reach two cutting radii past the
+    rays asked for: a tip off its edge is not tried."""
     nv, nu = z.shape
     tip = np.full((nv, nu), np.nan)
     out = np.empty(mi.size)

@@ -58,9 +58,14 @@ def unreachable_share(design_top: np.ndarray, model_top: np.ndarray, members: np
         return None
     pad = 2 * int(max(np.abs(di).max(), np.abs(dj).max())) + 1
     mi, mj = members % nu, members // nu
-    i0, i1 = max(int(mi.min()) - pad, 0), min(int(mi.max()) + pad + 1, nu)
-    j0, j1 = max(int(mj.min()) - pad, 0), min(int(mj.max()) + pad + 1, nv)
-    z = np.ascontiguousarray(np.nan_to_num(design_top[j0:j1, i0:i1], nan=-np.inf))
+    # the window holds every tip that reaches the members and every ray under those tips;
+    # past the grid's edge lies no design (the grid covers the stock): the tool may stand
+    # there, as a path running off the stock's edge does
+    i0, i1 = int(mi.min()) - pad, int(mi.max()) + pad + 1
+    j0, j1 = int(mj.min()) - pad, int(mj.max()) + pad + 1
+    z = np.full((j1 - j0, i1 - i0), -np.inf)
+    a, b, c, d = max(i0, 0), min(i1, nu), max(j0, 0), min(j1, nv)
+    z[c - j0:d - j0, a - i0:b - i0] = np.nan_to_num(design_top[c:d, a:b], nan=-np.inf)
     floor = tool_reach_floor(z, di, dj, dh, mi - i0, mj - j0)
     top = model_top.reshape(-1)[members]
     out_of_reach = top <= floor + slack

@@ -88,12 +88,15 @@ def test_unreachable_share_of_a_fillet_and_of_a_missed_strip():
     ball = parse_tool_spec("ball:6")
     # the fillet left in the corner: all out of reach
     model = np.tile(fillet(x), (41, 1))
-    corner = np.nonzero(((x > WALL_X - R) & (x < WALL_X))[None, :].repeat(41, 0).reshape(-1))[0]
+    # rows 10-30: the field runs on along y past them (its ends are open: tips may stand there)
+    rows = np.zeros((41, 1), bool)
+    rows[10:31] = True
+    corner = np.nonzero((((x > WALL_X - R) & (x < WALL_X))[None, :] & rows).reshape(-1))[0]
     assert reach.unreachable_share(design, model, corner, ball, sp, 0.05) == pytest.approx(1.0)
     # a strip 1 mm high the path left on the open floor: all within reach
     model = design.copy()
     model[:, (x > 8) & (x < 10)] += 1.0
-    strip = np.nonzero(((x > 8) & (x < 10))[None, :].repeat(41, 0).reshape(-1))[0]
+    strip = np.nonzero((((x > 8) & (x < 10))[None, :] & rows).reshape(-1))[0]
     assert reach.unreachable_share(design, model, strip, ball, sp, 0.05) == 0.0
 
 
@@ -175,3 +178,28 @@ def test_a_region_too_large_to_measure_is_not_measured(monkeypatch):
     assert reach.unreachable_share(design, model, members, ball, 0.5, 0.05) == 0.0
     monkeypatch.setattr(reach, "MAX_STEPS", 1000)
     assert reach.unreachable_share(design, model, members, ball, 0.5, 0.05) is None
+
+
+def test_past_the_grids_edge_the_tool_may_stand():
+    """The grid covers the stock: past its edge lies no design, and the tool may stand
+    there, as on rays of the grid with no design. A 0.8 mm trough along the edge, a wall
+    5 mm high beside it: measured on the grid, and on the same grid with 3 mm of empty rays
+    added around it, the trough's share out of the ball's reach is the same (before, tips
+    past the edge were not tried and all of it was out of reach: the carpet path's strips
+    along the stock's ends, which its passes stop short of, read "a smaller tool would")."""
+    sp, pad = 0.2, 15
+    design = np.full((60, 40), 5.0)
+    design[:5, :] = 0.0
+    model = design.copy()
+    model[:5, :] += 1.0
+    trough = np.arange(5 * 40, dtype=np.int64)
+    ball = parse_tool_spec("ball:6")
+    share = reach.unreachable_share(design, model, trough, ball, sp, 0.05)
+    big_design = np.full((60 + 2 * pad, 40 + 2 * pad), np.nan)
+    big_design[pad:-pad, pad:-pad] = design
+    big_model = big_design.copy()
+    big_model[pad:-pad, pad:-pad] = model
+    j, i = trough // 40 + pad, trough % 40 + pad
+    assert share == reach.unreachable_share(big_design, big_model, j * (40 + 2 * pad) + i, ball, sp, 0.05)
+    # part of it is out of reach all the same (the wall's fillet), part is not
+    assert 0.0 < share < 1.0
