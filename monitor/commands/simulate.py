@@ -685,13 +685,13 @@ def _size_text(f) -> str:
 
 
 def _what_text(f) -> str:
-    from sim.checks.reach import UNREACHABLE_SHARE
+    from sim.checks.reach import MENTION_SHARE, UNREACHABLE_SHARE
 
     what = WHAT.get(f.kind, f.kind.replace("_", " "))
     share = f.detail.get("unreachable_share", 0.0) if f.kind == "undercut" else 0.0
     if share >= UNREACHABLE_SHARE:
         what = f"material left where the {f.detail['finishing_tool']} cannot reach (a smaller tool would)"
-    elif share >= 0.25:
+    elif share >= MENTION_SHARE:
         what += f" ({100 * share:.0f} % of it where the {f.detail['finishing_tool']} cannot reach)"
     group = f.detail.get("group")
     if group and f.kind in ("fixture_collision", "travel_limit"):

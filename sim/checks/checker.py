@@ -405,10 +405,9 @@ class Checker:
         else:
             self.error_map.update(self.grid, self.design, np.arange(self.frame.n_rays), self.tol, faces=faces)
         allowance = self.undercut_allowance() if undercut else None
-        reach_detail = self._reach_detail() if undercut else None
-        more = {} if reach_detail is None else {"detail_of": reach_detail}   # Z grids only
         return self.annotate(self.error_map.findings(self.tol, self._lines, undercut=undercut, min_rays=min_rays,
-                                                     join=self.reach(), undercut_limit=allowance, **more))
+                                                     join=self.reach(), undercut_limit=allowance,
+                                                     detail_of=self._reach_detail() if undercut else None))
 
     def _reach_detail(self):
         """For the whole-model assessment of a 3-axis Z grid: a function giving an undercut
@@ -420,13 +419,14 @@ class Checker:
         if (tool is None or self.kinematics is not None or isinstance(self.error_map, TriErrorMap)
                 or not self.frame.is_top):
             return None
-        design_top, model_top = self.design.top(), self.grid.top().astype(np.float64)
+        tops = []   # (design, model) heights, read at the first undercut region
 
         def detail_of(kind, members):
             if kind != "undercut":
                 return {}
-            share = reach.unreachable_share(design_top, model_top, members, tool, self.frame.spacing,
-                                            self.tol.undercut)
+            if not tops:
+                tops.extend((self.design.top(), self.grid.top().astype(np.float64)))
+            share = reach.unreachable_share(*tops, members, tool, self.frame.spacing, self.tol.undercut)
             if share is None:
                 return {}
             return {"unreachable_share": round(share, 3), "finishing_tool": tool.describe()}

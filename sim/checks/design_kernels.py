@@ -310,7 +310,7 @@ def update_rays(S, rays, design_rays, cut_only, nu, spacing, ptr, hit_s, hit_tri
 
 
 @nb.njit(cache=True)
-def tool_reach_floor(z, di, dj, dh, mi, mj):
+def tool_reach_floor(z, di, dj, dh, mi, mj, max_steps):
     """The lowest a vertical tool's lower face reaches over rays ``(mi, mj)`` of a height
     field without cutting into it: the field closed by the tool (its gouge-free tip
     heights, then the surface those tips sweep).
@@ -318,15 +318,18 @@ def tool_reach_floor(z, di, dj, dh, mi, mj):
     z: float64 (nv, nu) design heights (mm, -inf where there is no design); di, dj: int64
     (k,) ray offsets of the tool's footprint (a disc of its cutting radius), dh: float64
     (k,) the tool's lowest height above its tip there; mi, mj: int64 (m,) the rays asked
-    for. Returns float64 (m,): the lowest ``tip + dh`` over the tips whose footprint covers
-    the ray, each tip the highest ``z - dh`` under its footprint (computed once, for the
-    tips near the rays asked for only). The field must reach two cutting radii past the
-    rays asked for: a tip off its edge is not tried."""
+    for. Returns (float64 (m,), bool): the lowest ``tip + dh`` over the tips whose
+    footprint covers each ray, each tip the highest ``z - dh`` under its footprint
+    (computed once, for the tips near the rays asked for only); False, and the rays not
+    all measured, when that took more than ``max_steps`` footprint steps. The field must
+    reach two cutting radii past the rays asked for: a tip off its edge is not tried."""
     nv, nu = z.shape
     tip = np.full((nv, nu), np.nan)
-    out = np.empty(mi.size)
+    out = np.full(mi.size, np.nan)
+    steps = 0
     for q in range(mi.size):
         best = np.inf
+        steps += di.size
         for k in range(di.size):
             tj = mj[q] - dj[k]
             ti = mi[q] - di[k]
@@ -335,6 +338,7 @@ def tool_reach_floor(z, di, dj, dh, mi, mj):
             t = tip[tj, ti]
             if t != t:   # not computed yet
                 t = -np.inf
+                steps += di.size
                 for kk in range(di.size):
                     jj = tj + dj[kk]
                     ii = ti + di[kk]
@@ -347,4 +351,6 @@ def tool_reach_floor(z, di, dj, dh, mi, mj):
             if v < best:
                 best = v
         out[q] = best
-    return out
+        if steps > max_steps:
+            return out, False
+    return out, True

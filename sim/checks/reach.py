@@ -20,9 +20,11 @@ from sim.checks.design_kernels import tool_reach_floor
 #: the share of a region's material that must lie out of the tool's reach for its finding
 #: to say "the tool cannot reach it"
 UNREACHABLE_SHARE = 0.9
-#: a region whose closing would take more footprint steps than this is not measured (a
-#: whole part left under a finishing allowance, a large tool on a fine grid: seconds)
-MAX_STEPS = 4e8
+#: from this share on, a finding says how much of it the tool cannot reach
+MENTION_SHARE = 0.25
+#: a region whose closing takes more footprint steps than this is not measured (a whole
+#: part left under a finishing allowance, a large tool on a fine grid: about 0.4 s)
+MAX_STEPS = 400_000_000
 
 
 def footprint(tool, spacing: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -54,8 +56,6 @@ def unreachable_share(design_top: np.ndarray, model_top: np.ndarray, members: np
     if not left.sum() > 0:
         return 0.0
     di, dj, dh = footprint(tool, spacing)
-    if 3.0 * members.size * di.size > MAX_STEPS:   # the tips near the region, then the region
-        return None
     pad = 2 * int(max(np.abs(di).max(), np.abs(dj).max())) + 1
     mi, mj = members % nu, members // nu
     # the window holds every tip that reaches the members and every ray under those tips;
@@ -66,7 +66,9 @@ def unreachable_share(design_top: np.ndarray, model_top: np.ndarray, members: np
     z = np.full((j1 - j0, i1 - i0), -np.inf)
     a, b, c, d = max(i0, 0), min(i1, nu), max(j0, 0), min(j1, nv)
     z[c - j0:d - j0, a - i0:b - i0] = np.nan_to_num(design_top[c:d, a:b], nan=-np.inf)
-    floor = tool_reach_floor(z, di, dj, dh, mi - i0, mj - j0)
+    floor, measured = tool_reach_floor(z, di, dj, dh, mi - i0, mj - j0, MAX_STEPS)
+    if not measured:
+        return None
     top = model_top.reshape(-1)[members]
     out_of_reach = top <= floor + slack
     return float(left[out_of_reach].sum() / left.sum())

@@ -233,9 +233,10 @@ class TriErrorMap:
         return out, worst_axis, lengths
 
     def findings(self, tol, move_lines=None, rays=None, undercut: bool = True, min_rays: int = 1,
-                 join: float = 0.0, undercut_limit=None) -> list:
+                 join: float = 0.0, undercut_limit=None, detail_of=None) -> list:
         """Gouge and undercut findings of the whole model, as ``ErrorMap.findings`` (the
-        regions on the lattice's columns; ``rays``: columns to report, None for all).
+        regions on the lattice's columns; ``rays``: columns to report, None for all;
+        ``detail_of(kind, members)`` on the lattice's Z columns).
         Volume: the largest of the grids' estimates (each grid's rays past the tolerance
         in the region, their lengths beyond the design times spacing^2)."""
         cmap, worst_axis, lengths = self.combined(tol, undercut_limit)
@@ -250,7 +251,7 @@ class TriErrorMap:
             return best * area
 
         found = cmap.findings(tol, move_lines, rays=rays, undercut=undercut, min_rays=min_rays, join=join,
-                              undercut_limit=undercut_limit, volume_of=volume_of)
+                              undercut_limit=undercut_limit, volume_of=volume_of, detail_of=detail_of)
         f = self.frame
         out = []
         for x in found:

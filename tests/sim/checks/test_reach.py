@@ -57,7 +57,9 @@ def step_field():
 def floor_of_row(z, tool, sp, row: int = 20):
     """The tool's reach over every ray of a middle row (the field runs on along y)."""
     mi = np.arange(z.shape[1], dtype=np.int64)
-    return tool_reach_floor(z, *reach.footprint(tool, sp), mi, np.full_like(mi, row))
+    floor, measured = tool_reach_floor(z, *reach.footprint(tool, sp), mi, np.full_like(mi, row), 10**12)
+    assert measured
+    return floor
 
 
 def test_the_ball_reaches_down_to_the_fillet_of_an_inside_corner():
