@@ -14,9 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 from sim.checks.findings import Finding
-from sim.gcode.moves import MoveKind
+from sim.gcode.moves import INCH, MoveKind
 
-MM_PER_INCH = 25.4
 _CUTTING = (MoveKind.FEED, MoveKind.ARC_CW, MoveKind.ARC_CCW)
 
 
@@ -89,7 +88,7 @@ def setup_findings(moves: np.ndarray, stock_box, reach: float, design_box=None,
         if inch:
             hint = ("the program is in inches (G20) and dexmon reads it in mm; is the stock given in mm? "
                     + hint)
-        elif _overlaps(*cutting_boxes(moves, reach, MM_PER_INCH)[1:], s_lo, s_hi).any():
+        elif _overlaps(*cutting_boxes(moves, reach, INCH)[1:], s_lo, s_hi).any():
             hint = "the stock would be cut if the program were in inches (G20 missing?); " + hint
         first = int(moves["line"][rows[0]])
         out.append(Finding("setup", line=first, lines=(first,), position=tuple(moves["end"][rows[0], :3]),
