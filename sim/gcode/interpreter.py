@@ -12,11 +12,9 @@ path mode, distance mode, retract mode, G10/G28/G30/G92, motion, stop.
 from __future__ import annotations
 
 import math
-from dataclasses import replace
-
 import numpy as np
 
-from sim.gcode import arcs, comp, mcodes
+from sim.gcode import arcs, comp, mcodes, nonmodal, splines
 from sim.gcode.errors import GCodeError, LineError
 from sim.gcode.expr import evaluate
 from sim.gcode.lathe import lathe_message
@@ -63,7 +61,6 @@ COORD_INDEX = {540: 0, 550: 1, 560: 2, 570: 3, 580: 4, 590: 5, 591: 6, 592: 7, 5
 ARC_TOL_INCH = 0.0005  # LinuxCNC TOLERANCE_INCH (program inch)
 ARC_TOL_MM = 0.005     # LinuxCNC TOLERANCE_MM
 _AXIS_BOUND = (MAX_LINEAR_MM,) * 3 + (MAX_ROTARY_DEG,) * 3
-SPLINE_CHORD = 0.001  # mm: G5/G5.1 chords stay this close to the curve
 
 
 def _code10(v: float) -> int:
@@ -612,9 +609,9 @@ class Interpreter:
         # ---- 10. G10 G28 G30 G92 G53
         g53 = g0code == 530
         if g0code in (100, 280, 281, 300, 301, 920, 921, 922, 923):
-            self._non_modal(g0code, g0[1], words, cols, used)
+            nonmodal.non_modal(self, g0code, g0[1], words, cols, used)
         if 16 in gmodes:
-            self._non_modal(gmodes[16][0], gmodes[16][1], words, cols, used)
+            nonmodal.non_modal(self, gmodes[16][0], gmodes[16][1], words, cols, used)
         if g53:
             # GRBL checks the motion mode in force; LinuxCNC the block's motion: no axis
             # words and no G0/G1 on the line is none
@@ -720,119 +717,6 @@ class Interpreter:
         off = self.offsets()
         return [work[i] + off[i] for i in range(6)]
 
-    def _non_modal(self, code, col, words, cols, used) -> None:
-        f = self.factor
-        if code == 100:
-            self._g10(col, words, cols, used)
-        elif code in (280, 300):
-            if self.comp != 400:
-                raise LineError(f"G{code // 10} cannot be used with cutter compensation on", col)
-            home = self.g28 if code == 280 else self.g30
-            if any(a in words for a in AXES):
-                mid_work = self._axis_values(words, cols, used)
-                mid = self.to_machine(mid_work)
-                self._rapid_to(mid)
-                end = list(mid)
-                for i, a in enumerate(AXES):
-                    if a in words:
-                        end[i] = home[i]
-                self._rapid_to(end)
-            else:
-                if not self.grbl:  # LinuxCNC's waypoint: where the tool is (GRBL goes home at once)
-                    self._rapid_to(list(self.pos))
-                self._rapid_to(list(home))
-        elif code in (281, 301):
-            target = self.g28 if code == 281 else self.g30
-            target[:] = list(self.pos)
-            used.update(a for a in AXES if a in words)  # LinuxCNC ignores axis words here
-        elif code in (920, 921, 922, 923) and self.comp != 400:
-            comp.refuse_while_on(self, "change the G92 offsets", col)
-        elif code == 920:
-            if not any(a in words for a in AXES):
-                raise LineError("G92 needs at least one axis word", col, 26)
-            g = self.g5x[self.coord]
-            for i, a in enumerate(AXES):
-                if a in words:
-                    v = words[a] * (f if i < 3 else 1.0)
-                    self.g92[i] = self.pos[i] - g[i] - self.tlo[i] - v
-                    used.add(a)
-            self.g92_saved = list(self.g92)
-            self.g92_enabled = True
-        elif code == 921:
-            self.g92 = [0.0] * 6
-            self.g92_saved = [0.0] * 6
-            self.g92_enabled = False
-        elif code == 922:
-            self.g92 = [0.0] * 6
-            self.g92_enabled = False  # #5210 = 0, as LinuxCNC (the saved #5211.. stay for G92.3)
-        elif code == 923:
-            self.g92 = list(self.g92_saved)
-            self.g92_enabled = True
-
-    def _g10(self, col, words, cols, used) -> None:
-        f = self.factor
-        if "L" not in words or "P" not in words:
-            raise LineError("G10 needs L and P words", col, 28)
-        used.update(("L", "P"))
-        L = words["L"]
-        P = words["P"]
-        if L != int(L) or int(L) not in (1, 2, 10, 11, 20):
-            raise LineError(f"G10 L{L:g} is not supported (L1, L2, L10, L11, L20)", cols["L"], 20)
-        if P != int(P):
-            raise LineError("G10 P must be an integer", cols["P"], 23)
-        L, P = int(L), int(P)
-        if self.grbl and L not in (2, 20):
-            raise LineError(f"GRBL supports only G10 L2 and L20, not L{L}", cols["L"], 20)
-        if L in (2, 20):
-            if not 0 <= P <= (6 if self.grbl else 9):
-                raise LineError(f"G10 L{L} P must be 0..{6 if self.grbl else 9}", cols["P"], 29)
-            k = self.coord if P == 0 else P - 1
-            if k == self.coord:
-                comp.refuse_while_on(self, "change the active coordinate system", col)
-            if "R" in words:
-                used.add("R")
-                if words["R"] != 0.0:
-                    raise LineError("coordinate system rotation (G10 L2 R) is not supported", cols["R"], 20)
-            g = self.g5x[k]
-            for i, a in enumerate(AXES):
-                if a in words:
-                    v = words[a] * (f if i < 3 else 1.0)
-                    used.add(a)
-                    if L == 2:
-                        g[i] = v
-                    else:
-                        g[i] = self.pos[i] - self.g92[i] - self.tlo[i] - v
-            return
-        # tool table edits
-        if P < 1 and L != 1 or P < 0:
-            raise LineError("G10 L1/L10/L11 P must be a tool number", cols["P"])
-        if not any(k in words for k in AXES + "RQIJ"):
-            raise LineError(f"G10 L{L} without offsets has no effect: give an axis or R word", col)
-        from sim.tooltable import ToolEntry
-
-        entry = self.tool_table.get(P) or ToolEntry(number=P, pocket=P)
-        offsets = dict(entry.offsets)
-        diameter = entry.diameter
-        if "R" in words:
-            diameter = 2.0 * words["R"] * f
-            used.add("R")
-        for k in ("I", "J", "Q"):
-            if k in words:
-                used.add(k)
-        for i, a in enumerate(AXES):
-            if a in words:
-                v = words[a] * (f if i < 3 else 1.0)
-                used.add(a)
-                if L == 1:
-                    offsets[a] = v
-                elif L == 10:
-                    g = self.g5x[self.coord]
-                    offsets[a] = self.pos[i] - g[i] - self.g92[i] - v
-                else:
-                    g = self.g5x[8]
-                    offsets[a] = self.pos[i] - g[i] - v
-        self.tool_table[P] = replace(entry, diameter=diameter, z_offset=offsets.get("Z", 0.0), offsets=offsets)
-
     # ----------------------------------------------------------------- motion
     def _feed_rate(self, col: int, words, length: float) -> tuple[float, float]:
         """(feed mm/min, inverse-time 1/min) for a feed move of ``length`` mm."""
@@ -901,7 +785,7 @@ class Interpreter:
         elif motion in (20, 30):
             arcs.arc_motion(self, motion == 20, explicit, words, cols, used, has_axes)
         elif motion in (50, 51):
-            self._spline(motion, end, words, cols, used, first_axis_col)
+            splines.spline(self, motion, end, words, cols, used, first_axis_col)
         elif motion in (330, 331):
             if self.comp_engine is not None:  # LinuxCNC compensates G33/G33.1 as plain feeds, unsynchronised
                 used.update(k for k in ("K", "I") if k in words)
@@ -931,64 +815,6 @@ class Interpreter:
         self._line_to(end, MoveKind.FEED, feed, 0.0)
         if motion == 331:
             self._line_to(start, MoveKind.FEED, feed, 0.0)
-
-    def _spline(self, motion, end, words, cols, used, col) -> None:
-        """G5 (cubic) / G5.1 (quadratic) B-spline in the XY plane, emitted as feed chords.
-
-        The chords stay within ``SPLINE_CHORD`` mm of the curve: a Bezier segment of
-        parameter length h deviates at most ``max|B''| h^2 / 8`` from its chord.
-        """
-        if self.plane != 170:
-            raise LineError(f"G{motion / 10:g} splines need the XY plane (G17)", col)
-        if self.comp != 400:
-            raise LineError("splines cannot be used with cutter compensation on", col)
-        f = self.factor
-        p0 = np.array(self.work()[:2])
-        p3 = np.array(self.work_of(end)[:2])
-        if motion == 51:
-            if "I" not in words and "J" not in words:
-                raise LineError("G5.1 needs I and J (control point offsets)", col)
-            c = p0 + np.array([words.get("I", 0.0), words.get("J", 0.0)]) * f
-            used.update(k for k in ("I", "J") if k in words)
-            bound = float(np.linalg.norm(2.0 * (p0 - 2.0 * c + p3)))
-            ctrl = (p0, c, p3)
-        else:
-            if "P" not in words or "Q" not in words:
-                raise LineError("G5 needs P and Q (second control point offsets)", col)
-            if ("I" in words) != ("J" in words):
-                raise LineError("G5 needs both I and J or neither", col)
-            if "I" in words:
-                c1 = p0 + np.array([words["I"], words["J"]]) * f
-            elif self.last_spline_ctrl is not None:
-                c1 = 2.0 * p0 - self.last_spline_ctrl
-            else:
-                raise LineError("the first G5 of a spline needs I and J", col)
-            c2 = p3 + np.array([words["P"], words["Q"]]) * f
-            used.update(k for k in ("I", "J", "P", "Q") if k in words)
-            bound = 6.0 * max(float(np.linalg.norm(p0 - 2 * c1 + c2)), float(np.linalg.norm(c1 - 2 * c2 + p3)))
-            ctrl = (p0, c1, c2, p3)
-            self.last_spline_ctrl = c2
-        n = max(1, int(math.ceil(math.sqrt(bound / (8.0 * SPLINE_CHORD)))))
-        n = min(n, 10000)
-        t = np.linspace(0.0, 1.0, n + 1)[1:, None]
-        if len(ctrl) == 3:
-            pts = (1 - t) ** 2 * ctrl[0] + 2 * (1 - t) * t * ctrl[1] + t**2 * ctrl[2]
-        else:
-            pts = ((1 - t) ** 3 * ctrl[0] + 3 * (1 - t) ** 2 * t * ctrl[1] + 3 * (1 - t) * t**2 * ctrl[2]
-                   + t**3 * ctrl[3])
-        start_work = self.work()
-        end_work = self.work_of(end)
-        for k in range(n):
-            w = list(end_work)
-            frac = (k + 1) / n
-            for i in range(2, 6):
-                w[i] = start_work[i] + (end_work[i] - start_work[i]) * frac
-            w[0], w[1] = float(pts[k, 0]), float(pts[k, 1])
-            if k == n - 1:
-                w = end_work
-            target = self.to_machine(w)
-            feed, inv = self._feed_rate(col, words, math.dist(self.pos[:3], target[:3]))
-            self._line_to(target, MoveKind.FEED, feed, inv)
 
     def work_of(self, machine) -> list:
         off = self.offsets()
