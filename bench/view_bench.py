@@ -65,7 +65,7 @@ def percentiles(ms: list[float]) -> dict:
 def loop_latency(grid, feed, seconds: float, period: float = 0.02) -> tuple[list[float], int]:
     """A stand-in for the session loop: every ``period`` s one step (a small cut, its rays'
     tops, a post). Returns the step times (ms) and the number of steps."""
-    from monitor.render.live import tops_of
+    from monitor.render.feed import tops_of
 
     times = []
     t_end = time.monotonic() + seconds
@@ -91,7 +91,8 @@ def main(argv=None) -> int:
     ap.add_argument("--seconds", type=float, default=3.0)
     args = ap.parse_args(argv)
 
-    from monitor.render.live import LiveView, ViewFeed
+    from monitor.render.feed import ViewFeed
+    from monitor.render.live import LiveView
 
     g = make_grid(args.rays_side)
     n = g.frame.n_rays

@@ -198,7 +198,7 @@ class Session:
         self._trace = None
         self._trace_from = 0
         self._fill_horizon = False
-        self.view = None                 # a monitor.render.live.ViewFeed, or None
+        self.view = None                 # a monitor.render.feed.ViewFeed, or None
         self.line_source = None          # a monitor.linesync.StreamedLines, or None
         self._changed: np.ndarray | None = None
         #: compares the reported WCO with the job's work_offset (:meth:`check_setup`), or None
@@ -317,13 +317,13 @@ class Session:
                 self.on_limits(self.in_force)
 
     def attach_view(self, feed) -> None:
-        """Post every state to ``feed`` (a :class:`monitor.render.live.ViewFeed`): the
+        """Post every state to ``feed`` (a :class:`monitor.render.feed.ViewFeed`): the
         rays each step changed with their new tops, the tool pose, the progress and the
         findings. Costs the loop O(changed rays) per state; the drawing is the feed's."""
         self.view = feed
 
     def _post_view(self, tip: np.ndarray, s: SyncResult, wco: np.ndarray) -> None:
-        from monitor.render.live import tops_of
+        from monitor.render.feed import tops_of
 
         rays, self._changed = self._changed, None
         tops = tops_of(self.live, rays) if rays is not None and rays.size else None

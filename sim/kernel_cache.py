@@ -23,7 +23,7 @@ from pathlib import Path
 #: every module with numba kernels, relative to the project root (a test keeps this list
 #: equal to the modules that import numba)
 KERNEL_SOURCES = (
-    "monitor/render/live.py",
+    "monitor/render/feed.py",
     "monitor/render/shaded.py",
     "monitor/session.py",
     "sim/bands.py",

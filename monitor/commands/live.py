@@ -402,7 +402,8 @@ def _view_options(args):
 def _start_view(session, frames, fps: float):
     """A LiveView of the session's live model fed from its own thread (kernels compiled
     here, before the machine is followed)."""
-    from monitor.render.live import LiveView, ViewFeed
+    from monitor.render.feed import ViewFeed
+    from monitor.render.live import LiveView
 
     wp = session.wp
     tool = wp.tool(int(session.moves["tool"][0])) if len(session.moves) else wp.default_tool

@@ -9,7 +9,8 @@ import pytest
 
 from monitor.cli import main
 from monitor.render import shaded
-from monitor.render.live import LiveView, ViewFeed, feed_status, finding_positions, path_ahead, tops_of
+from monitor.render.feed import ViewFeed, feed_status, path_ahead, tops_of
+from monitor.render.live import LiveView, finding_marks
 from monitor.runreader import RunReader
 from monitor.sync import ProgramPath
 from sim.frame import Frame
@@ -218,16 +219,17 @@ def test_tops_of_rays_equals_the_full_top():
     assert tops_of(g, np.zeros(0, np.int64)).shape == (0,)
 
 
-def test_path_ahead_and_finding_positions():
+def test_path_ahead_and_finding_marks():
     path = _line_path([(0, 0, 0), (10, 0, 0), (10, 10, 0)])
     t_end = path.t1[-1]
     ahead = path_ahead(path, path.t1[0] / 2, t_end)
     assert np.allclose(ahead, [(5, 0, 0), (10, 0, 0), (10, 10, 0)])
     assert np.allclose(path_ahead(path, 0.0, path.t1[0] / 2)[0], (0, 0, 0))
-    pts = finding_positions([{"kind": "gouge", "position": [1, 2, 3]},
-                             {"kind": "travel_limit", "position": [110, 2, 3]}, {"kind": "x"}],
-                            wco=(100, 0, 0, 0, 0, 0))
-    assert np.allclose(pts, [(1, 2, 3), (10, 2, 3)])
+    marks = finding_marks([{"kind": "gouge", "position": [1, 2, 3]},
+                           {"kind": "travel_limit", "position": [110, 2, 3]}, {"kind": "x"}],
+                          wco=(100, 0, 0, 0, 0, 0))
+    assert np.allclose([m["position"] for m in marks], [(1, 2, 3), (10, 2, 3)])
+    assert [m["kind"] for m in marks] == ["gouge", "travel_limit"]
 
 
 def test_feed_needs_a_positive_rate(tmp_path):
