@@ -133,6 +133,11 @@ class GrblController(Streaming, Controller):
         self._banner_seq = 0
         self._alarm: int | None = None
         self._alarm_seq = 0
+        # a hard/soft limit ALARM code (p.CRITICAL_ALARMS) since the last reset: GRBL answers
+        # no '?' until Ctrl-X, so polls report the alarm from it instead
+        self._critical: int | None = None
+        self._offset_told = False   # the BAD event of reports with no work offset known yet was sent
+        self._reported = RunState.UNKNOWN   # the run state of the latest report, even a BAD one
         self._message_seq = 0
         self._connected = False
         self._closing = threading.Event()
@@ -202,7 +207,8 @@ class GrblController(Streaming, Controller):
                                                 f"{_state_name(state)}", raw=state.raw)
         with self._cond:
             self._queries_due = True
-        if state.state is RunState.IDLE:
+        # a report is BAD before the work offset is known (it comes from $#): its run state counts
+        if RunState.IDLE in (state.state, self._reported):
             self._read_settings()  # a failure is told, and they are asked again when Idle
             return
         units = "inches" if _inches_by_format(state.raw) else "mm"
@@ -381,6 +387,8 @@ class GrblController(Streaming, Controller):
                 self._alarm = msg.code
                 self._alarm_seq += 1
                 self.alarms.append((t, msg.code))
+                if msg.code in p.CRITICAL_ALARMS:
+                    self._critical = msg.code
                 if self._back_pending:
                     self._alarm_since_back = msg.code
             elif isinstance(msg, p.Banner):
@@ -413,6 +421,7 @@ class GrblController(Streaming, Controller):
         with the lock held."""
         self.banner = msg
         self._banner_seq += 1
+        self._critical = None
         self._fail_pending(DriverError(f"GRBL {self.port}: controller reset ({msg.raw})"))
         if self._back_pending:
             self._banner_since_back = msg.raw
@@ -441,25 +450,32 @@ class GrblController(Streaming, Controller):
     def _on_status(self, report: p.StatusReport, t: float) -> None:
         prev = self._state
         why = None
+        self._reported = report.run_state
+        # before any report carried WCO: the offset in force from the handshake's $# and $G
+        wco = prev.wco if prev else p.offset_in_force(self.offsets, self.parser_state, self.settings)
         try:
-            state = p.status_to_state(report, self.settings, prev.wco if prev else None, t, prev=prev,
-                                      alarm=self._alarm)
+            state = p.status_to_state(report, self.settings, wco, t, prev=prev, alarm=self._alarm)
             why = implausible(state)
+            no_offset = False
+        except p.OffsetUnknown as exc:
+            why, no_offset = str(exc), True
         except Exception as exc:  # noqa: BLE001 - a report that cannot be converted is a bad one
-            why = f"cannot convert it ({type(exc).__name__}: {exc})"
+            why, no_offset = f"cannot convert it ({type(exc).__name__}: {exc})", False
         with self._cond:
             if why is None:
                 self._state = reply = state
             else:
                 reply = stale_state(prev, RunState.BAD, t, f"{why}: {report.raw}")
-                self._link_event(LinkKind.BAD, f"GRBL {self.port}: status report skipped: {why}",
-                                 raw=report.raw, t=t)
+                if not (no_offset and self._offset_told):   # told once, not for each of 30 reports
+                    self._link_event(LinkKind.BAD, f"GRBL {self.port}: status report skipped: {why}",
+                                     raw=report.raw, t=t)
+            self._offset_told = no_offset
             self._reply = reply
             self._reply_seq += 1
             if self._back_pending:
                 self._came_back(reply, t)
             self._cond.notify_all()
-        if reply.state is RunState.IDLE and self._queries_due:
+        if self._reported is RunState.IDLE and self._queries_due:
             self._start_queries()
         if self.on_state is not None:
             self.on_state(reply)
@@ -604,10 +620,20 @@ class GrblController(Streaming, Controller):
                     self.poll_counts[reply.state] += 1
                 return reply
             garbled = list(self.garbage)[-min(self._garbage_seq - garbage0, 3):] if self._garbage_seq > garbage0 else []
+            critical = self._critical
+        if critical is not None:
+            return self._silent_alarm(critical)
         why = f"no status report within {timeout:g} s after '?'"
         if garbled:
             why += "; garbled: " + "; ".join(f"{line[:100]!r} ({err[:100]})" for _, line, err in garbled)
         return self._not_fresh(RunState.MISSED, why)
+
+    def _silent_alarm(self, code: int) -> MachineState:
+        """Alarm ``code`` that GRBL will not report (see :func:`p.critical_alarm_state`)."""
+        with self._cond:
+            t = max(time.monotonic(), self._last_t)
+            self._last_t = t
+            return p.critical_alarm_state(self._state, code, t)
 
     def _not_fresh(self, kind: RunState, why: str) -> MachineState:
         """A ``kind`` (MISSED/DISCONNECTED) state stamped now, at the last known position."""

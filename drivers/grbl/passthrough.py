@@ -41,6 +41,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import math
+import re
 import threading
 import time
 from dataclasses import dataclass
@@ -56,6 +57,11 @@ from drivers.grbl.endpoints import Endpoint, PtyEndpoint, TcpEndpoint
 from drivers.state import (Controller, Gap, LinkKind, MachineState, RunState, check_device, implausible,
                            stale_state)
 
+#: a ``$N=value`` line (spaces dropped): a setting the sender writes
+_SETTING_LINE = re.compile(r"\$(\d+)=([-+]?(?:\d+\.?\d*|\.\d+))")
+#: Grbl 1.1h's on/off settings (invert step enable, limit and probe pins, report inches,
+#: soft limits, hard limits, homing, laser mode)
+_FLAG_SETTINGS = frozenset({4, 5, 6, 13, 20, 21, 22, 32})
 _MAX_HELD = 512  # bytes of an unterminated line held before passing them on anyway
 #: pause between attempts to reopen the machine's port while it is gone, s (never grows:
 #: a backoff would cost more than the outage)
@@ -158,6 +164,12 @@ class Passthrough(Controller):
         self._lines_lost = 0
         self._failures: collections.Counter = collections.Counter()
         self._alarm: int | None = None
+        #: ``$#`` lines (name -> values as sent) and the ``$G`` state that passed by
+        self.offsets: dict[str, tuple[float, ...]] = {}
+        self.parser_state: p.ParserState | None = None
+        # a hard/soft limit ALARM code since the last reset: GRBL answers no "?" until
+        # Ctrl-X, so polls report the alarm from it (see p.critical_alarm_state)
+        self._critical: int | None = None
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._connected = False
@@ -415,8 +427,11 @@ class Passthrough(Controller):
                     if line is None:
                         break
                     line.result, line.t_ack = msg.raw.strip(), t
+                    if isinstance(msg, p.Ok):
+                        self._learn_from_line(line.text)
                     break
             elif isinstance(msg, p.Banner):
+                self._critical = None
                 self._fail_awaiting("reset", t)
                 self._sender_pending = self._own_pending = 0
                 self._query_t = None
@@ -425,10 +440,30 @@ class Passthrough(Controller):
             elif isinstance(msg, p.Alarm):
                 self._alarm = msg.code
                 self.alarms.append((t, msg.code))
+                if msg.code in p.CRITICAL_ALARMS:
+                    self._critical = msg.code
             elif isinstance(msg, p.Setting) and math.isfinite(msg.value):
                 self.settings[msg.number] = msg.value  # a value no number names is not learned
+            elif isinstance(msg, p.Offset):   # $# and $G passing by: the work offset in force
+                self.offsets[msg.name] = msg.values
+            elif isinstance(msg, p.ParserState):
+                self.parser_state = msg
             self._cond.notify_all()
         return True
+
+    def _learn_from_line(self, text: str) -> None:
+        """A sender line Grbl accepted (under ``_cond``): ``$N=value`` sets a setting (``$13``
+        turns the reports to inches at once); ``$RST=$`` / ``$RST=*`` restore the defaults,
+        so every setting is unknown until the next ``$$`` passes (the report format then
+        says the units)."""
+        cmd = "".join(text.split()).upper()   # Grbl drops spaces and reads letters upper case
+        m = _SETTING_LINE.fullmatch(cmd)
+        if m:
+            number, value = int(m.group(1)), float(m.group(2))
+            # settings.c keeps these as flags: any non-zero value reads back as 1
+            self.settings[number] = float(value != 0) if number in _FLAG_SETTINGS else value
+        elif cmd in ("$RST=$", "$RST=*"):
+            self.settings.clear()
 
     def _answer_query(self) -> bool:
         """A status report arrived (under ``_cond``): whose '?' it answers; True if the
@@ -449,10 +484,13 @@ class Passthrough(Controller):
         """Turn a report into the newest reading (under ``_cond``): a state, or BAD when
         its numbers cannot be right (the last plausible state is kept)."""
         prev = self._state
+        # before any report carried WCO: the offset in force from the sender's $# and $G
+        wco = prev.wco if prev else p.offset_in_force(self.offsets, self.parser_state, self.settings)
         try:
-            state = p.status_to_state(report, self.settings, prev.wco if prev else None, t, prev=prev,
-                                      alarm=self._alarm)
+            state = p.status_to_state(report, self.settings, wco, t, prev=prev, alarm=self._alarm)
             why = implausible(state)
+        except p.OffsetUnknown as exc:
+            state, why = None, str(exc)
         except (ArithmeticError, ValueError) as exc:  # numbers no machine has
             state, why = None, f"cannot be converted ({type(exc).__name__}: {exc})"
         self._status_seq += 1
@@ -560,13 +598,15 @@ class Passthrough(Controller):
             seq = self._status_seq
             self._cond.wait_for(lambda: self._status_seq > seq or not self._connected, timeout)
             connected, fresh = self._connected, self._status_seq > seq
-            latest, last = self._latest, self._state
+            latest, last, critical = self._latest, self._state, self._critical
             if not connected:
                 self._polls_missed += 1
         t = time.monotonic()
         if not connected:
             state = stale_state(last, RunState.DISCONNECTED, t,
                                 f"machine port {self.port} lost ({self._lost_reason})")
+        elif (not fresh or latest is None) and critical is not None:
+            state = p.critical_alarm_state(last, critical, t)
         elif not fresh or latest is None:
             state = stale_state(last, RunState.MISSED, t, f"no status report within {timeout:g} s")
         else:

@@ -44,7 +44,6 @@ BANNER = "Grbl 1.1h ['$' for help]"
 LINE_BUFFER_SIZE = 80  # GRBL's line buffer: longer lines get error:11
 _LINE_MEMORY = 1024  # raw bytes of one line kept (comments and spaces included)
 _BYTES_PER_S = 115200 / 10  # serial line speed: 8N1 is 10 bits a byte
-_CRITICAL_ALARMS = (1, 2)  # hard and soft limit: GRBL waits for a reset
 _V_EPS = 1e-9  # mm/s: a machine slower than this stands
 #: real-time override bytes -> GRBL's exec_motion_override / exec_accessory_override bits
 _MOTION_OVERRIDES = frozenset(range(0x90, 0x98))
@@ -324,7 +323,10 @@ class GrblPeer(GcodeExecution, SystemCommands):
         self.realtime_log.append(b)
         if b == 0x3F:  # '?'
             self.status_requests += 1
-            self._send(self.status_report(), transport)
+            # protocol.c: after a hard or soft limit the main loop spins until Ctrl-X and
+            # never reaches the status report (gnea/grbl#224): the '?' goes unanswered
+            if not self._critical:
+                self._send(self.status_report(), transport)
             return
         if b == 0x18:
             self.reset()
@@ -395,7 +397,7 @@ class GrblPeer(GcodeExecution, SystemCommands):
         if name == "alarm":
             code = int(payload)
             self._send(f"ALARM:{code}")
-            if code in _CRITICAL_ALARMS:
+            if code in p.CRITICAL_ALARMS:
                 self._critical = True
                 self.accessories.killed = True  # limits.c calls mc_reset: pins off
                 self._send("[MSG:Reset to continue]")

@@ -18,12 +18,13 @@ Facts the parsers rely on (Grbl 1.1h, grblHAL):
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 from dataclasses import dataclass, field
 
 from drivers.errors import ProtocolError
-from drivers.state import MAX_REPORTED_INT, ControllerLimits, MachineState, RunState
+from drivers.state import MAX_REPORTED_INT, ControllerLimits, MachineState, RunState, stale_state
 
 # --------------------------------------------------------------------------------------
 # Real-time bytes (sent alone, never followed by a newline; GRBL acts on them at once)
@@ -340,6 +341,10 @@ class StatusReport(Message):
     overrides: tuple[int, int, int] | None = None
     accessories: str | None = None
     extra: tuple[tuple[str, str], ...] = field(default=())
+
+    @property
+    def run_state(self) -> RunState:
+        return _STATES.get(self.state, RunState.UNKNOWN)
 
 
 # --------------------------------------------------------------------------------------
@@ -684,22 +689,22 @@ def status_to_state(
         Last ``ALARM:N`` code, kept when the state is Alarm.
 
     The returned state's ``wco`` is the offset in force, so callers remember it as the
-    next ``last_wco``. With ``WPos:`` and no offset known yet, WCO is taken as zero.
+    next ``last_wco``. With no offset known yet (neither in the report nor remembered)
+    raises :class:`OffsetUnknown`: a work position is then no position at all, and a
+    machine position without its offset would put the tool elsewhere in the work
+    system (see :func:`offset_in_force` for the offset a driver can know from ``$#``).
     """
     inches = inch_setting(settings)
     if inches is None:
         inches = report_in_inches(report)
-    scale = MM_PER_INCH if inches else 1.0
-    # per axis: grblHAL leaves the axes $376 calls rotary in degrees in an inch report
-    rotary = rotary_axes(settings)
-    scales = tuple(1.0 if i in rotary else scale for i in range(6))
-    wco = None
+    scales = _axis_scales(settings, inches)
     if report.wco is not None:
         wco = tuple(v * k for v, k in zip(report.wco, scales))
     elif last_wco is not None:
         wco = tuple(float(v) for v in last_wco)
     else:
-        wco = (0.0,) * 6
+        raise OffsetUnknown(f"{'work' if report.mpos is None else 'machine'} position reported and the work "
+                            "offset (WCO) not known yet: Grbl sends it in every 10th to 30th report")
     wco6 = (tuple(wco) + (0.0,) * 6)[:6]
     if report.mpos is not None:
         mpos = tuple(v * k for v, k in zip(report.mpos, scales))
@@ -716,7 +721,7 @@ def status_to_state(
     spindle = abs(spindle)
     if "C" in accessories:
         spindle = -spindle
-    feed = (report.feed or 0.0) * scale
+    feed = (report.feed or 0.0) * (MM_PER_INCH if inches else 1.0)
     state = _STATES[report.state]
     return MachineState(
         t=t,
@@ -734,6 +739,51 @@ def status_to_state(
         accessories=accessories,
         raw=report.raw,
     )
+
+
+#: ALARM codes after which Grbl 1.1h spins until Ctrl-X (hard and soft limit, protocol.c):
+#: it answers no ``?`` meanwhile, so a driver knows the state only from the ALARM line
+CRITICAL_ALARMS = (1, 2)
+
+
+class OffsetUnknown(ValueError):
+    """A status report converted before the work offset (WCO) in force is known."""
+
+
+def _axis_scales(settings: dict[int, float] | None, inches: bool) -> tuple[float, ...]:
+    """mm per reported unit of each axis: 25.4 in inches but for the axes grblHAL's
+    ``$376`` calls rotary, which stay in degrees."""
+    rotary = rotary_axes(settings)
+    return tuple(1.0 if i in rotary or not inches else MM_PER_INCH for i in range(6))
+
+
+def offset_in_force(offsets: dict[str, tuple[float, ...]], parser: ParserState | None,
+                    settings: dict[int, float] | None) -> tuple[float, ...] | None:
+    """The WCO a status report would carry, mm (6,), from the ``$#`` lines ``offsets``
+    (name -> values as sent) and the ``$G`` state ``parser``: the active work system's
+    offset plus G92, plus the tool length offset on Z (report.c); None until all of them
+    are known. In inches when ``$13`` says so, as ``$#`` prints them."""
+    if parser is None:
+        return None
+    system = next((w for w in parser.words if w in OFFSET_TAGS[:6]), None)
+    if system is None or system not in offsets or "G92" not in offsets or "TLO" not in offsets:
+        return None
+    scales = _axis_scales(settings, bool(inch_setting(settings)))
+    wco = [0.0] * 6
+    for values in (offsets[system], offsets["G92"]):
+        for i, v in enumerate(values[:6]):
+            wco[i] += v * scales[i]
+    wco[2] += offsets["TLO"][0] * scales[2]
+    return tuple(wco)
+
+
+def critical_alarm_state(last: MachineState | None, code: int, t: float) -> MachineState:
+    """The state at ``t`` after critical ``ALARM:code`` (:data:`CRITICAL_ALARMS`), which
+    Grbl will not report: Alarm, at the last position reported (the machine stopped
+    there or just past it), feed 0."""
+    why = (f"ALARM:{code} ({ALARM_MEANINGS.get(code, 'unknown alarm')}): GRBL answers no status report "
+           "until it is reset (Ctrl-X); position as last reported")
+    return dataclasses.replace(stale_state(last, RunState.ALARM, t, why), alarm=code, feed=0.0)
 
 
 def inch_setting(settings: dict[int, float] | None) -> bool | None:

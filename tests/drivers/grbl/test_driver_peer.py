@@ -103,6 +103,59 @@ def test_wpos_mask_and_g10_offsets(link):
     assert g54.values == pytest.approx((-5.0, 2.0, -1.0))
 
 
+@pytest.mark.parametrize("transport", ["pty", "tcp"])
+def test_attaching_to_work_position_reports_never_takes_them_for_machine_positions(peer, transport):
+    # report.c: WPos = MPos - WCO in every report, but WCO is printed only every 10th
+    # (idle) to 30th (busy) report. A driver attaching mid-count must not take WPos for
+    # MPos meanwhile: it knows the offset from its own $# and $G
+    pr = peer(make_vm())
+    url = pr.serve_url(transport, "rate=50")
+    first = open_controller(url)
+    first.connect()
+    first.command("$10=0")
+    first.command("G10 L20 P1 X5 Y-2 Z1")        # WCO -5, 2, -1 at MPos 0, 0, 0
+    first.command("G92 X1")                      # and G92 (WPos X1): WCO -1, 2, -1
+    for _ in range(3):
+        assert first.poll().mpos[:3] == pytest.approx((0.0, 0.0, 0.0))
+    first.close()
+    c = open_controller(url)
+    c.connect()
+    try:
+        states = [c.poll() for _ in range(12)]
+        assert all(s.fresh for s in states), [s.raw for s in states if not s.fresh]
+        assert sum("WCO:" in s.raw for s in states) >= 1 and "WCO:" not in states[0].raw
+        for s in states:
+            assert s.mpos[:3] == pytest.approx((0.0, 0.0, 0.0)), s.raw
+            assert s.wco[:3] == pytest.approx((-1.0, 2.0, -1.0)), s.raw
+    finally:
+        c.close()
+
+
+def test_a_work_position_report_with_no_offset_known_is_not_a_position():
+    from drivers.grbl import protocol as p
+
+    rep = p.parse_status("<Run|WPos:5.000,-2.000,1.000|FS:300,0>")
+    with pytest.raises(p.OffsetUnknown, match="WCO"):
+        p.status_to_state(rep, {}, None, 0.0)
+    s = p.status_to_state(rep, {}, (-5.0, 2.0, -1.0, 0, 0, 0), 0.0)
+    assert s.mpos[:3] == pytest.approx((0.0, 0.0, 0.0))
+    # nor is a machine position whose offset is unknown taken with an offset of zero
+    with pytest.raises(p.OffsetUnknown):
+        p.status_to_state(p.parse_status("<Run|MPos:5.000,-2.000,1.000|FS:300,0>"), {}, None, 0.0)
+
+
+def test_the_offset_in_force_from_dollar_hash_and_dollar_g():
+    from drivers.grbl import protocol as p
+
+    offsets = {"G54": (1.0, 2.0, 3.0), "G55": (10.0, 20.0, 30.0), "G92": (0.5, 0.0, 0.0), "TLO": (2.0,)}
+    gc = p.parse_line("[GC:G0 G55 G17 G21 G90 G94 M5 M9 T0 F0 S0]")
+    assert p.offset_in_force(offsets, gc, {13: 0}) == pytest.approx((10.5, 20.0, 32.0, 0, 0, 0))
+    # in inches when $13=1, as Grbl prints $#
+    assert p.offset_in_force(offsets, gc, {13: 1})[:3] == pytest.approx((266.7, 508.0, 812.8))
+    assert p.offset_in_force({"G54": (1.0, 2.0, 3.0)}, gc, {}) is None     # no G55, G92, TLO yet
+    assert p.offset_in_force(offsets, None, {}) is None
+
+
 @pytest.mark.parametrize("mode", ["counting", "send-response"])
 def test_stream_program(link, mode):
     pr, c = link(speed=4.0)

@@ -176,3 +176,44 @@ def test_machine_port_vanishes_and_comes_back():
         sp.close()
         pt.close()
         peer.close()
+
+
+def test_a_setting_the_sender_changes_is_learned_from_its_ok(rig):
+    # a sender reads $$ when it connects, then sets $13=1: Grbl answers ok and reports
+    # in inches from then on (settings.c, report.c printFloat_CoordValue); the positions
+    # must still come out in mm, not 25.4 times too small
+    peer, pt, sender = rig
+    assert sender.command("$$")[-1] == "ok"
+    assert pt.settings[13] == 0
+    assert sender.command("G0 X25.4 Y-12.7") == ["ok"]
+    while not sender.query().startswith("<Idle"):
+        pass
+    assert sender.command("$13=1") == ["ok"]
+    assert pt.wait_lines(3, 5)
+    assert pt.settings[13] == 1
+    report = sender.query()
+    assert "MPos:1.0000,-0.5000," in report
+    assert pt.poll().mpos[:2] == pytest.approx((25.4, -12.7))
+    # settings.c keeps $13 as a flag: any non-zero value is 1; a line Grbl refuses
+    # (no such setting: error:3) teaches nothing
+    assert sender.command("$13 = 7") == ["ok"] and sender.command("$999=1") == ["error:3"]
+    assert pt.wait_lines(5, 5)
+    assert pt.settings[13] == 1 and 999 not in pt.settings
+
+
+def test_a_limit_alarm_is_polled_as_alarm_though_grbl_answers_no_report(rig):
+    # protocol.c: after a soft limit Grbl spins until Ctrl-X and answers no '?': the
+    # passthrough's polls must say Alarm, not Missed until the monitor gives up
+    peer, pt, sender = rig
+    assert sender.command("G0 X20") == ["ok"]
+    while not sender.query().startswith("<Idle"):
+        pass
+    sender.port.write(b"G0 X500\n")
+    while sender.read_line() != "[MSG:Reset to continue]":
+        pass
+    s = pt.poll(0.2)
+    assert s.state is RunState.ALARM and s.alarm == 2 and s.mpos[0] == pytest.approx(20.0)
+    sender.port.write(b"\x18")
+    while "Grbl 1.1h" not in sender.read_line():
+        pass
+    assert pt.poll().state is RunState.ALARM and pt.poll().alarm == 2   # reported again: ALARM until unlocked

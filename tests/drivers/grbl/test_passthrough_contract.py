@@ -23,7 +23,9 @@ from drivers.virtual.machine import MachineConfig, VirtualMachine
 
 WAIT = 10.0  # generous timeout of every wait, s
 
-IDLE = "<Idle|MPos:1.000,2.000,3.000|FS:0,0>"
+# a first report after a reset carries WCO (report.c); without one the passthrough cannot know
+# the work offset and keeps the state BAD (see test_driver_peer)
+IDLE = "<Idle|MPos:1.000,2.000,3.000|FS:0,0|WCO:0.000,0.000,0.000>"
 
 
 class ScriptedMachine:
@@ -353,3 +355,23 @@ def test_reset_banner_is_a_reset_event_and_flushes_lines_in_flight():
     finally:
         pt.close()
         peer.close()
+
+
+def test_work_positions_wait_for_the_offset_and_take_it_from_dollar_hash_passing_by(scripted):
+    """WPos = MPos - WCO, and WCO comes every 10th-30th report: before the passthrough
+    knows it, a work position is no position (BAD, told once); the sender's $# and $G
+    passing by tell it the offset in force, as the reports would."""
+    wpos = "<Idle|WPos:4.000,-1.000,2.500|FS:0,0>"
+    m, pt = scripted([wpos])
+    first = pt.poll(timeout=WAIT)
+    assert first.state is RunState.BAD and "(WCO)" in first.raw
+    assert _poll_until(pt, lambda s: s.state is RunState.BAD).state is RunState.BAD
+    assert len([e for e in _events(pt, LinkKind.BAD) if "(WCO)" in e.message]) == 1
+    m.push(b"[G54:-5.000,2.000,-1.000]\r\n[G55:0.000,0.000,0.000]\r\n[G92:1.000,0.000,0.000]\r\n"
+           b"[TLO:0.500]\r\n[GC:G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0]\r\n")
+    st = _poll_until(pt, lambda s: s.fresh)
+    # WCO = G54 + G92 + TLO on Z = (-4, 2, -0.5): MPos = WPos + WCO
+    assert st.wco[:3] == pytest.approx((-4.0, 2.0, -0.5)) and st.mpos[:3] == pytest.approx((0.0, 1.0, 2.0))
+    # a report's own WCO wins over what $# said
+    m.reports[:] = ["<Idle|WPos:4.000,-1.000,2.500|FS:0,0|WCO:0.000,0.000,0.000>"]
+    assert _poll_until(pt, lambda s: s.fresh and s.mpos[0] == 4.0).wco[:3] == (0.0, 0.0, 0.0)
