@@ -11,6 +11,11 @@ from sim.gcode.moves import INCH
 from sim.gcode.tool_length import tool_parameter
 
 
+#: (#<_vmajor>, #<_vminor>) of the LinuxCNC dexmon follows, 2.9.0: interp_namedparams.cc
+#: init_named_parameters reads PACKAGE_VERSION "2.9.0" with sscanf("%lf%lf"): 2.9 then .0
+LINUXCNC_VERSION = (2.9, 0.0)
+
+
 class Parameters:
     """LinuxCNC parameter store: numbered (with the offset parameters live) and named."""
 
@@ -117,18 +122,21 @@ class Parameters:
             "_imperial": 1.0 if it.units == 200 else 0.0,
             "_absolute": 1.0 if it.distance == 900 else 0.0,
             "_incremental": 1.0 if it.distance == 910 else 0.0,
-            "_coord_system": float(it.coord_code) / 10.0,
+            # G codes times ten, as LinuxCNC keeps them: G59.1 is 591 (programs restore
+            # the work offset with G[#<_coord_system>/10])
+            "_coord_system": float(it.coord_code),
             "_feed": it.feed_word,
             "_rpm": it.spindle,
             "_current_tool": float(it.tool),
             "_selected_tool": float(it.selected_tool),
-            "_motion_mode": it.motion / 10.0,
-            "_plane": it.plane / 10.0,
+            "_motion_mode": float(it.motion),
+            "_plane": float(it.plane),
             "_value": self.globals.get("_value", 0.0),
             "_value_returned": self.globals.get("_value_returned", 0.0),
             "_line": float(it.line),
             "_task": 0.0,
-            "_vmajor": 2.0,
-            "_vminor": 9.0,
+            # LinuxCNC reads its version "M.N.m" as two numbers, M.N and .m
+            "_vmajor": LINUXCNC_VERSION[0],
+            "_vminor": LINUXCNC_VERSION[1],
         }
         return table.get(name)
