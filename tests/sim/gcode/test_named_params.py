@@ -34,6 +34,14 @@ def test_the_work_offset_is_restored_from_coord_system():
     assert got == [591]
 
 
+# ------------------------------------------------------------------ MOD
+@pytest.mark.parametrize("a, b, result", [
+    (-7, -3, 2), (-1, -4, 3), (7, -3, 1), (-7, 3, 2), (7.5, -2, 1.5), (-7.5, -2, 0.5), (-6, -3, 0), (7, 3, 1),
+])
+def test_mod_makes_a_negative_result_non_negative_by_the_divisors_size(a, b, result):
+    assert values("", f"[{a} MOD {b}]") == [pytest.approx(result)]
+
+
 # ------------------------------------------------------------------ version
 def test_version_is_major_minor_and_patch():
     # LinuxCNC 2.9.0: sscanf("2.9.0", "%lf%lf") reads 2.9 and .0
