@@ -26,7 +26,7 @@ from sim.gcode.parser import AXES, Block, dialect_parts, is_deleted, parse_line
 from sim.gcode.cycles import CycleMemory
 from sim.gcode.probe import straight_probe
 from sim.gcode.state import ModalState
-from sim.gcode.tool_length import CANON_MOTIONS, refresh_after_tool_change, set_tool_length
+from sim.gcode.tool_length import CANON_MOTIONS, Pockets, refresh_after_tool_change, set_tool_length
 
 NAN3 = (math.nan, math.nan, math.nan)
 
@@ -127,6 +127,10 @@ class Interpreter:
         self.tool = 0
         self.selected_tool = 0
         self.coolant = 0
+        # M48-M53 state: rs274 starts with the overrides enabled and feed hold allowed
+        # (its stand-alone canon's answers; a live machine's come from its HAL setup)
+        self.overrides = mcodes.Overrides()
+        self.pockets = Pockets(self.tool_table)
         self.cycle = CycleMemory()
         self.prev_motion = 0        # the motion mode before the block being executed
         self.last_spline_ctrl = None
@@ -522,6 +526,7 @@ class Interpreter:
             if not grbl and self.has_tool_table and t != 0 and t not in self.tool_table:
                 raise LineError(f"unknown tool T{t}: it is not in the tool table", cols["T"])
             self.selected_tool = t
+            self.pockets.select(t)
         # ---- 2. I/O (M62-M68), M6 / M61
         if 5 in mmodes:
             mcodes.convert_io(self, mmodes[5], words, cols, used)
@@ -535,6 +540,7 @@ class Interpreter:
                     self.spindle_dir = 0   # LinuxCNC stops the spindle for a tool change
                 old = list(self.pos)
                 self.tool = self.selected_tool
+                self.pockets.load(self.selected_tool)
                 self.emit(MoveKind.TOOL_CHANGE, old, old)
             else:  # M61 Qn
                 if "Q" not in words:
@@ -546,6 +552,7 @@ class Interpreter:
                 if self.has_tool_table and int(q) != 0 and int(q) not in self.tool_table:
                     raise LineError(f"unknown tool T{int(q)}: it is not in the tool table", cols["Q"])
                 self.tool = self.selected_tool = int(q)
+                self.pockets.load(int(q))
         if 9 in mmodes:
             comp.refuse_while_on(self, "change the overrides (M48-M53)", mmodes[9][1])
         # ---- 3. spindle (M19, M70-M73 too), coolant, overrides, user M codes

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from sim.gcode import mcodes
 from sim.gcode.errors import LineError
-from sim.gcode.moves import INCH
+from sim.gcode.moves import COOLANT_FLOOD, COOLANT_MIST, INCH
 from sim.gcode.tool_length import tool_parameter
 
 
@@ -135,8 +135,54 @@ class Parameters:
             "_value_returned": self.globals.get("_value_returned", 0.0),
             "_line": float(it.line),
             "_task": 0.0,
+            "_call_level": float(len(self.frames) - 1),
+            "_remap_level": 0.0,      # dexmon has no remaps
+            # no INI file, as for rs274 stand-alone: LinuxCNC gives -1 then (inicheck)
+            "_metric_machine": -1.0,
             # LinuxCNC reads its version "M.N.m" as two numbers, M.N and .m
             "_vmajor": LINUXCNC_VERSION[0],
             "_vminor": LINUXCNC_VERSION[1],
         }
-        return table.get(name)
+        if name in table:
+            return table[name]
+        return self._machine_state(name)
+
+    def _machine_state(self, name: str):
+        """The predefined parameters of the modes and switches rs274 reports as 1.0 / 0.0
+        (or a G code times ten), interp_namedparams.cc lookup_named_param."""
+        it = self.it
+        if name in ("_abs_x", "_abs_y", "_abs_z", "_abs_a", "_abs_b", "_abs_c"):
+            axis = "xyzabc".index(name[-1])
+            return self._out(it.pos[axis], axis)   # the machine position, in program units
+        o = it.overrides
+        flags = {
+            "_spindle_on": it.spindle_dir != 0,
+            "_spindle_cw": it.spindle_dir > 0,
+            "_mist": bool(it.coolant & COOLANT_MIST),
+            "_flood": bool(it.coolant & COOLANT_FLOOD),
+            "_speed_override": o.speed,
+            "_feed_override": o.feed,
+            "_adaptive_feed": o.adaptive,
+            "_feed_hold": o.hold,
+            "_tool_offset": any(it.tlo),
+            "_inverse_time": it.feed_mode == 930,
+            "_units_per_minute": it.feed_mode == 940,
+            "_units_per_rev": it.feed_mode == 950,
+            "_spindle_css_mode": False,   # G96 is refused: dexmon is always in G97
+            "_spindle_rpm_mode": True,
+            "_ijk_absolute_mode": it.arc_distance == 901,
+            "_retract_r_plane": it.retract == 990,
+            "_retract_old_z": it.retract == 980,
+            "_lathe_diameter_mode": False,   # G7 is refused (lathe)
+            "_lathe_radius_mode": True,
+            "_u": False, "_v": False, "_w": False,   # no U V W axes
+        }
+        if name in flags:
+            return 1.0 if flags[name] else 0.0
+        if name == "_ccomp":
+            return float(it.comp)
+        if name == "_current_pocket":
+            return it.pockets.current_value()
+        if name == "_selected_pocket":
+            return it.pockets.selected_value()
+        return None
