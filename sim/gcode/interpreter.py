@@ -21,7 +21,7 @@ from sim.gcode.lathe import lathe_message
 from sim.gcode.limits import DEFAULT_LIMITS, MAX_LINEAR_MM, MAX_ROTARY_DEG, Limits
 from sim.gcode.mcodes import M_GROUP
 from sim.gcode.moves import COOLANT_FLOOD, COOLANT_MIST, INCH, MOVE_DTYPE, MoveKind
-from sim.gcode.params import Parameters
+from sim.gcode.params import LineParameters, Parameters
 from sim.gcode.parser import AXES, Block, dialect_parts, is_deleted, parse_line
 from sim.gcode.cycles import CycleMemory
 from sim.gcode.probe import straight_probe
@@ -399,17 +399,20 @@ class Interpreter:
         if not block.has_expr:
             return block.words, block.g, block.m
         p = self.params
-        words = {k: evaluate(v, p) for k, v in block.words.items()}
-        g = [(evaluate(v, p), c) for v, c in block.g]
-        m = [(evaluate(v, p), c) for v, c in block.m]
+        if any(target[0] == "n" for target, _value, _col in block.assigns):
+            p = LineParameters(p, block.assigns)
+        words = {k: evaluate(v, p.at(block.cols.get(k, 0))) for k, v in block.words.items()}
+        g = [(evaluate(v, p.at(c)), c) for v, c in block.g]
+        m = [(evaluate(v, p.at(c)), c) for v, c in block.m]
         if block.assigns:
             values = []
             for target, value, col in block.assigns:
                 try:
-                    values.append((target, evaluate(value, p)))
+                    values.append((target, evaluate(value, p.at(col + 1))))   # the value follows the name
                 except LineError as exc:
                     exc.column = col
                     raise
+            p = self.params
             for target, v in values:
                 if target[0] == "n":
                     p.set_named(target[1], v)

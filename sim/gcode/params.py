@@ -87,6 +87,10 @@ class Parameters:
                 it.g5x[k][a] = self._user_in(v, a)
         self.numbered[i] = v
 
+    def at(self, column: int) -> "Parameters":
+        """The parameters as read at ``column`` of the line: these (see :class:`LineParameters`)."""
+        return self
+
     def get_named(self, name: str) -> float:
         if name.startswith("_"):
             if name in self.globals:
@@ -186,3 +190,40 @@ class Parameters:
         if name == "_selected_pocket":
             return it.pockets.selected_value()
         return None
+
+
+class LineParameters:
+    """The parameters as rs274 reads one line that sets named parameters.
+
+    rs274 reads a line left to right and defines a new named parameter as 0 when it reads
+    its setting ``#<name>=`` (interp_read.cc read_named_parameter_setting -> add_named_param);
+    values change only once the line is read. So on its line a name set there reads as its
+    old value, or 0 when new, from the setting on (``#<d>=3 #<h>=[#<d>/2]`` gives h 0,
+    ``#<q>=[#<q>+1]`` gives q 1), and is not defined before it (``G0 X#<z> #<z>=1`` fails).
+    """
+
+    def __init__(self, params: Parameters, assigns):
+        self.params = params
+        self.column = 0
+        #: name -> column of its first setting on the line
+        self.set_at: dict[str, int] = {}
+        for target, _value, col in assigns:
+            if target[0] == "n":
+                self.set_at.setdefault(target[1], col)
+
+    def at(self, column: int) -> "LineParameters":
+        self.column = column
+        return self
+
+    def _new_here(self, name: str) -> bool:
+        """``name`` was not defined before the line and its setting comes before the column."""
+        return self.set_at.get(name, self.column) < self.column and not self.params.exists(name)
+
+    def get_numbered(self, idx: float) -> float:
+        return self.params.get_numbered(idx)
+
+    def get_named(self, name: str) -> float:
+        return 0.0 if self._new_here(name) else self.params.get_named(name)
+
+    def exists(self, name: str) -> bool:
+        return self._new_here(name) or self.params.exists(name)

@@ -88,3 +88,18 @@ def test_call_level_counts_the_subroutines_running():
     text = "o1 sub\nG0 X[#<_call_level>]\no2 call\no1 endsub\no2 sub\nG0 X[#<_call_level>]\no2 endsub\no1 call\n"
     ends = work_end(interpret("G21\n" + text + "G0 X[#<_call_level>]\nM2").moves)[:3, 0]
     assert ends.tolist() == [1, 2, 0]
+
+
+# ------------------------------------------------------------------ set and read on one line
+def test_a_name_set_on_a_line_reads_as_its_old_value_after_the_setting():
+    assert values("#<depth>=3 #<half>=[#<depth>/2+1]", "#<half>") == [1]   # new: 0 until the line ends
+    assert values("#<a>=3\n#<a>=5 #<b>=#<a>", "#<b>") == [3]
+    assert values("#<q>=[#<q>+1]", "#<q>") == [1]
+    assert values("#<_g>=2 #<_h>=[#<_g>+1]", "#<_h>") == [1]
+    ends = work_end(interpret("G21\n#<zz>=4 G0 X[#<zz>+1]\nM2").moves)[0, 0]
+    assert ends == 1
+
+
+def test_a_name_read_before_its_setting_on_the_line_is_not_defined():
+    with pytest.raises(GCodeError, match="not defined"):
+        interpret("G21\nG0 X[#<zz>+1] #<zz>=4\nM2")
