@@ -58,8 +58,6 @@ PLANE_AXES = {170: (0, 1, 2), 180: (2, 0, 1), 190: (1, 2, 0)}  # first, second, 
 PLANE_CODE = {170: 0, 180: 1, 190: 2}
 PLANE_OFFSET_WORDS = {170: ("I", "J", "K"), 180: ("K", "I", "J"), 190: ("J", "K", "I")}
 COORD_INDEX = {540: 0, 550: 1, 560: 2, 570: 3, 580: 4, 590: 5, 591: 6, 592: 7, 593: 8}
-ARC_TOL_INCH = 0.0005  # LinuxCNC TOLERANCE_INCH (program inch)
-ARC_TOL_MM = 0.005     # LinuxCNC TOLERANCE_MM
 _AXIS_BOUND = (MAX_LINEAR_MM,) * 3 + (MAX_ROTARY_DEG,) * 3
 
 
