@@ -19,6 +19,17 @@ PLANE_AXES_BY_CODE = ((0, 1, 2), (2, 0, 1), (1, 2, 0))
 FULL_CIRCLE_EPS = 1e-9  # rad: a sweep smaller than this is a full circle (start == end)
 TWO_PI = 2.0 * math.pi
 
+# rs274's arc tolerances (interp_internal.hh), in program units: inches in G20, mm in G21.
+#: how far R may fall short of half the chord (arc_data_r), and the smallest I J K radius
+RADIUS_TOLERANCE = {"in": 0.00005, "mm": 0.00005 * 25.4}
+#: how much the end's radius may differ from the start's (arc_data_ijk): 2 * 0.01 * sqrt 2
+#: mm, 2 * 0.001 * sqrt 2 in, what rounding the end and centre to 0.01 mm / 0.001 in makes;
+#: more only when it is within SPIRAL_RELATIVE_TOLERANCE of the radius, and never more than
+#: SPIRAL_CAP times the absolute tolerance. The arc is then a spiral to the programmed end.
+SPIRAL_ABS_TOLERANCE = {"in": 2 * 0.001 * math.sqrt(2), "mm": 2 * 0.01 * math.sqrt(2)}
+SPIRAL_RELATIVE_TOLERANCE = 0.001
+SPIRAL_CAP = 100.0
+
 
 def arc_rows_geometry(moves: np.ndarray):
     """Geometry of arc rows.
@@ -64,9 +75,32 @@ def _sweep(a0: float, a1: float, cw: bool, turns: int) -> float:
     return -d if cw else d
 
 
+def end_radius(moves: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """Distance (n,) mm from the centre to the end of arc rows, in their plane (``axes`` as
+    :func:`arc_rows_geometry` gives them). rs274 accepts an end a little off the start's
+    circle; the arc is then a spiral whose radius goes evenly from start to end."""
+    rows = np.arange(len(moves))
+    e, c = moves["end"], moves["center"]
+    return np.hypot(e[rows, axes[:, 0]] - c[rows, axes[:, 0]], e[rows, axes[:, 1]] - c[rows, axes[:, 1]])
+
+
+def _spiral_error(r1: float, r2: float, unit: str) -> str | None:
+    """Why rs274 refuses an I J K arc whose start and end radii (program units) are ``r1``
+    and ``r2`` (interp_arc.cc arc_data_ijk), or None when it takes it."""
+    abs_err = abs(r1 - r2)
+    rel_err = abs_err / max(r1, r2)
+    tol = SPIRAL_ABS_TOLERANCE[unit]
+    if abs_err > SPIRAL_CAP * tol:
+        return f"they differ by {abs_err:.4g} {unit}, more than {SPIRAL_CAP * tol:.3g} {unit} (LinuxCNC's limit)"
+    if rel_err > SPIRAL_RELATIVE_TOLERANCE and abs_err > tol:
+        return (f"they differ by {abs_err:.4g} {unit} ({100 * rel_err:.3f} %), more than {tol:.3g} {unit} "
+                f"and {100 * SPIRAL_RELATIVE_TOLERANCE:g} % of the radius (LinuxCNC's limits)")
+    return None
+
+
 def arc_motion(it, cw: bool, explicit: bool, words, cols, used, has_axes: bool) -> None:
     """Execute G2/G3 for interpreter ``it`` (see :mod:`sim.gcode.interpreter`)."""
-    from sim.gcode.interpreter import ARC_TOL_INCH, ARC_TOL_MM, INCH, PLANE_AXES, PLANE_OFFSET_WORDS
+    from sim.gcode.interpreter import PLANE_AXES, PLANE_OFFSET_WORDS
 
     grbl = it.grbl
     if it.arc_not_allowed:
@@ -105,7 +139,7 @@ def arc_motion(it, cw: bool, explicit: bool, words, cols, used, has_axes: bool) 
             raise LineError(f"arc P{p:.0f}: at most {it.limits.max_arc_turns} turns in one arc", cols["P"])
         turns = int(p)
         used.add("P")
-    tol = ARC_TOL_INCH * INCH if it.units == 200 else ARC_TOL_MM
+    unit = "in" if it.units == 200 else "mm"
     s1, s2 = cur[a1], cur[a2]
     e1, e2 = target[a1], target[a2]
     u = f  # reporting in program units
@@ -135,10 +169,11 @@ def arc_motion(it, cw: bool, explicit: bool, words, cols, used, has_axes: bool) 
             absr = abs(R)
             m1, m2 = (e1 + s1) / 2.0, (e2 + s2) / 2.0
             half = math.hypot(m1 - e1, m2 - e2)
-            if half - absr > tol:
+            if (half - absr) / u > RADIUS_TOLERANCE[unit]:
                 raise LineError(
                     f"arc radius R{words['R']:g} is too small to reach the end point "
-                    f"(half the chord is {half / u:.4f})", cols["R"])
+                    f"(half the chord is {half / u:.5f}; LinuxCNC lets R fall short of it by "
+                    f"{RADIUS_TOLERANCE[unit]:g} {unit} at most)", cols["R"])
             if absr == 0.0 or half / absr > 1.0 - 1e-12:
                 half = absr
             if (cw and R > 0) or (not cw and R < 0):
@@ -169,14 +204,15 @@ def arc_motion(it, cw: bool, explicit: bool, words, cols, used, has_axes: bool) 
             if dr > 0.005 and (dr > 0.5 or dr > 0.001 * r1):
                 raise LineError(f"arc end is not on the circle (radii {r1:.4f} and {r2:.4f} mm)", col, 33)
         else:
-            if r1 < 0.1 * tol or r2 < 0.1 * tol:
+            if min(r1, r2) / u < RADIUS_TOLERANCE[unit]:
                 raise LineError("zero radius arc", col)
-            if abs(r1 - r2) > tol:
+            why = _spiral_error(r1 / u, r2 / u, unit)
+            if why is not None:
                 L = letters
                 raise LineError(
                     "radius to end of arc differs from radius to start: "
                     f"start=({L[a1]}{s1 / u:.4f},{L[a2]}{s2 / u:.4f}) center=({L[a1]}{c1 / u:.4f},{L[a2]}{c2 / u:.4f}) "
-                    f"end=({L[a1]}{e1 / u:.4f},{L[a2]}{e2 / u:.4f}) r1={r1 / u:.4f} r2={r2 / u:.4f}", col)
+                    f"end=({L[a1]}{e1 / u:.4f},{L[a2]}{e2 / u:.4f}) r1={r1 / u:.4f} r2={r2 / u:.4f}: {why}", col)
     if it.comp_engine is not None:
         it.comp_engine.arc(cw, target, (c1, c2), turns, col, words)
         return

@@ -53,6 +53,15 @@ def _fn(name: str, x: float) -> float:
     raise LineError(f"unknown function {name}")
 
 
+def _mod(a: float, b: float) -> float:
+    """``a MOD b`` as rs274 computes it (interp_execute.cc ``execute_binary1``): C's fmod,
+    then a negative result made non-negative by adding ``|b|`` whatever b's sign
+    (-7 MOD -3 is 2, 7 MOD -3 is 1). fmod is exact, so the result is in [0, |b|)
+    but for a tiny negative remainder, where adding |b| rounds to |b| as in C."""
+    r = math.fmod(a, b)
+    return r + abs(b) if r < 0.0 else r
+
+
 def _binary(op: str, a: float, b: float) -> float:
     if op == "+":
         return a + b
@@ -67,7 +76,7 @@ def _binary(op: str, a: float, b: float) -> float:
     if op == "MOD":
         if b == 0.0:
             raise LineError("MOD by zero in expression")
-        return math.fmod(math.fmod(a, b) + b, b) if b > 0 else math.fmod(a, b)
+        return _mod(a, b)
     if op == "**":
         if a < 0.0 and b != math.floor(b):
             raise LineError(f"{a:g} ** {b:g}: negative base with a non-integer exponent")

@@ -21,12 +21,12 @@ from sim.gcode.lathe import lathe_message
 from sim.gcode.limits import DEFAULT_LIMITS, MAX_LINEAR_MM, MAX_ROTARY_DEG, Limits
 from sim.gcode.mcodes import M_GROUP
 from sim.gcode.moves import COOLANT_FLOOD, COOLANT_MIST, INCH, MOVE_DTYPE, MoveKind
-from sim.gcode.params import Parameters
+from sim.gcode.params import LineParameters, Parameters
 from sim.gcode.parser import AXES, Block, dialect_parts, is_deleted, parse_line
 from sim.gcode.cycles import CycleMemory
 from sim.gcode.probe import straight_probe
 from sim.gcode.state import ModalState
-from sim.gcode.tool_length import CANON_MOTIONS, refresh_after_tool_change, set_tool_length
+from sim.gcode.tool_length import CANON_MOTIONS, Pockets, refresh_after_tool_change, set_tool_length
 
 NAN3 = (math.nan, math.nan, math.nan)
 
@@ -58,8 +58,6 @@ PLANE_AXES = {170: (0, 1, 2), 180: (2, 0, 1), 190: (1, 2, 0)}  # first, second, 
 PLANE_CODE = {170: 0, 180: 1, 190: 2}
 PLANE_OFFSET_WORDS = {170: ("I", "J", "K"), 180: ("K", "I", "J"), 190: ("J", "K", "I")}
 COORD_INDEX = {540: 0, 550: 1, 560: 2, 570: 3, 580: 4, 590: 5, 591: 6, 592: 7, 593: 8}
-ARC_TOL_INCH = 0.0005  # LinuxCNC TOLERANCE_INCH (program inch)
-ARC_TOL_MM = 0.005     # LinuxCNC TOLERANCE_MM
 _AXIS_BOUND = (MAX_LINEAR_MM,) * 3 + (MAX_ROTARY_DEG,) * 3
 
 
@@ -127,6 +125,10 @@ class Interpreter:
         self.tool = 0
         self.selected_tool = 0
         self.coolant = 0
+        # M48-M53 state: rs274 starts with the overrides enabled and feed hold allowed
+        # (its stand-alone canon's answers; a live machine's come from its HAL setup)
+        self.overrides = mcodes.Overrides()
+        self.pockets = Pockets(self.tool_table)
         self.cycle = CycleMemory()
         self.prev_motion = 0        # the motion mode before the block being executed
         self.last_spline_ctrl = None
@@ -395,17 +397,20 @@ class Interpreter:
         if not block.has_expr:
             return block.words, block.g, block.m
         p = self.params
-        words = {k: evaluate(v, p) for k, v in block.words.items()}
-        g = [(evaluate(v, p), c) for v, c in block.g]
-        m = [(evaluate(v, p), c) for v, c in block.m]
+        if any(target[0] == "n" for target, _value, _col in block.assigns):
+            p = LineParameters(p, block.assigns)
+        words = {k: evaluate(v, p.at(block.cols.get(k, 0))) for k, v in block.words.items()}
+        g = [(evaluate(v, p.at(c)), c) for v, c in block.g]
+        m = [(evaluate(v, p.at(c)), c) for v, c in block.m]
         if block.assigns:
             values = []
             for target, value, col in block.assigns:
                 try:
-                    values.append((target, evaluate(value, p)))
+                    values.append((target, evaluate(value, p.at(col + 1))))   # the value follows the name
                 except LineError as exc:
                     exc.column = col
                     raise
+            p = self.params
             for target, v in values:
                 if target[0] == "n":
                     p.set_named(target[1], v)
@@ -522,6 +527,7 @@ class Interpreter:
             if not grbl and self.has_tool_table and t != 0 and t not in self.tool_table:
                 raise LineError(f"unknown tool T{t}: it is not in the tool table", cols["T"])
             self.selected_tool = t
+            self.pockets.select(t)
         # ---- 2. I/O (M62-M68), M6 / M61
         if 5 in mmodes:
             mcodes.convert_io(self, mmodes[5], words, cols, used)
@@ -535,6 +541,7 @@ class Interpreter:
                     self.spindle_dir = 0   # LinuxCNC stops the spindle for a tool change
                 old = list(self.pos)
                 self.tool = self.selected_tool
+                self.pockets.load(self.selected_tool)
                 self.emit(MoveKind.TOOL_CHANGE, old, old)
             else:  # M61 Qn
                 if "Q" not in words:
@@ -546,6 +553,7 @@ class Interpreter:
                 if self.has_tool_table and int(q) != 0 and int(q) not in self.tool_table:
                     raise LineError(f"unknown tool T{int(q)}: it is not in the tool table", cols["Q"])
                 self.tool = self.selected_tool = int(q)
+                self.pockets.load(int(q))
         if 9 in mmodes:
             comp.refuse_while_on(self, "change the overrides (M48-M53)", mmodes[9][1])
         # ---- 3. spindle (M19, M70-M73 too), coolant, overrides, user M codes

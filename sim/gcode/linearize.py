@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from sim.gcode.arcs import arc_rows_geometry
+from sim.gcode.arcs import arc_rows_geometry, end_radius
 from sim.gcode.moves import MOVE_DTYPE, MoveKind
 from sim.tolerance import DEFAULT, Tolerance
 
@@ -28,6 +28,9 @@ def arc_points(moves: np.ndarray, t: np.ndarray, src: np.ndarray) -> np.ndarray:
     """Machine positions (k, 6) at parameters ``t`` (k,) in [0, 1] of arc rows ``moves[src]``."""
     arcs = moves[src]
     radius, a0, sweep, axes = arc_rows_geometry(arcs)
+    # an end off the start's circle (rs274 takes a little): a spiral, the radius going evenly
+    # from the start's to the end's, as LinuxCNC's motion makes it
+    radius = radius + t * (end_radius(arcs, axes) - radius)
     ang = a0 + t * sweep
     pts = arcs["start"] + (arcs["end"] - arcs["start"]) * t[:, None]  # normal axis and ABC: linear
     rows = np.arange(len(arcs))

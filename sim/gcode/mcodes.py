@@ -124,13 +124,36 @@ def convert_io(it, mode, words, cols, used) -> None:
         _index(words, cols, "E", code)
 
 
+@dataclass
+class Overrides:
+    """What M48-M53 switch, as rs274 keeps it for ``#<_feed_override>`` and the like.
+    The start values are rs274's stand-alone canon's: overrides enabled, feed hold allowed."""
+
+    feed: bool = True        # M50, M48/M49
+    speed: bool = True       # M51, M48/M49
+    adaptive: bool = False   # M52
+    hold: bool = True        # M53
+
+
 def convert_overrides(it, mode, words, used) -> None:
     """M48/M49 (all overrides on/off), M50-M53 P (feed / spindle override, adaptive feed,
-    feed hold): no effect on the move table."""
+    feed hold): no effect on the move table, only on the parameters that report them."""
     code, col = mode
     if code >= 50 and "P" in words:
         used.add("P")
     _comp_off(it, "change overrides", col)
+    o = it.overrides
+    on = words.get("P", -1.0) != 0.0   # rs274: a missing P is -1, which enables
+    if code in (48, 49):
+        o.feed = o.speed = code == 48
+    elif code == 50:
+        o.feed = on
+    elif code == 51:
+        o.speed = on
+    elif code == 52:
+        o.adaptive = on
+    else:
+        o.hold = on
 
 
 def convert_user(mode) -> None:

@@ -125,3 +125,44 @@ def tool_parameter(it, number: int) -> float | None:
         return entry.diameter / unit
     v = (entry.front_angle, entry.back_angle, entry.orientation)[number - 5411]
     return float(v or 0.0)
+
+
+class Pockets:
+    """The tool table pockets rs274 reports as ``#<_current_pocket>`` and ``#<_selected_pocket>``
+    (interp_namedparams.cc, a non-random tool changer): the pocket (P) of a table entry.
+
+    rs274 keeps table indices; entry 0 is the spindle, a copy of the entry last loaded by M6
+    or M61 (pocket -1 before any). Here an index is the tool number of its entry, 0 the
+    spindle. rs274's stand-alone canon starts with the table's first entry loaded (slot 1),
+    which is what ``#<_current_pocket>`` shows before any tool change.
+    """
+
+    def __init__(self, tool_table: dict):
+        self.table = tool_table
+        first = min(tool_table.values(), key=lambda e: e.line, default=None)
+        self.current = first.number if first is not None else 0
+        self.selected = 0
+        self.spindle = -1
+
+    def _pocket(self, tool: int) -> int:
+        if tool == 0:
+            return self.spindle
+        entry = self.table.get(tool)
+        return entry.pocket if entry is not None else tool   # no table: pocket = tool number
+
+    def select(self, tool: int) -> None:
+        """T word."""
+        self.selected = tool
+
+    def load(self, tool: int) -> None:
+        """M6 (the selected tool) or M61 Q: the entry becomes current and the spindle's copy."""
+        self.current = tool
+        if tool != 0:
+            self.spindle = self._pocket(tool)
+
+    def current_value(self) -> float:
+        return float(self._pocket(self.current))
+
+    def selected_value(self) -> float:
+        pocket = self._pocket(self.selected)
+        return -1.0 if pocket == 0 else float(pocket)   # pocket 0: none selected

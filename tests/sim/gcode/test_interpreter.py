@@ -123,12 +123,43 @@ def test_arc_errors():
 
 
 def test_arc_tolerance_is_linuxcncs():
-    interpret("G21 G0 X0 Y0\nG2 X10.004 Y0 I5 J0 F100")  # 0.004 mm < TOLERANCE_MM 0.005
-    with pytest.raises(GCodeError):
-        interpret("G21 G0 X0 Y0\nG2 X10.02 Y0 I5 J0 F100")
-    interpret("G20 G0 X0 Y0\nG2 X1.0004 Y0 I.5 J0 F10")  # 0.0004 < TOLERANCE_INCH 0.0005
-    with pytest.raises(GCodeError):
-        interpret("G20 G0 X0 Y0\nG2 X1.002 Y0 I.5 J0 F10")
+    # interp_arc.cc arc_data_ijk: refused when the radii differ by more than 0.0283 mm (2 * 0.01 * sqrt 2)
+    # and by more than 0.1 % of the larger one, or by more than 2.83 mm (100 times that)
+    interpret("G21 G0 X0 Y0\nG2 X10.028 Y0 I5 J0 F100")
+    interpret("G21 G0 X0 Y0\nG2 X100 Y0 I50.01 J0 F100")
+    interpret("G21 G0 X0 Y0\nG2 X2000 Y0 I1000.25 J0 F100")   # 0.5 mm, 0.05 %
+    with pytest.raises(GCodeError, match=r"more than 0\.0283 mm and 0\.1 %"):
+        interpret("G21 G0 X0 Y0\nG2 X10.035 Y0 I5 J0 F100")
+    with pytest.raises(GCodeError, match=r"more than 2\.83 mm"):
+        interpret("G21 G0 X0 Y0\nG2 X10000 Y0 I5001.5 J0 F100")
+    interpret("G20 G0 X0 Y0\nG2 X1.0028 Y0 I.5 J0 F10")  # inch: 0.00283 in
+    with pytest.raises(GCodeError, match=r"0\.00283 in"):
+        interpret("G20 G0 X0 Y0\nG2 X1.003 Y0 I.5 J0 F10")
+
+
+def test_r_arc_shortfall_is_linuxcncs():
+    # interp_arc.cc arc_data_r: R may fall short of half the chord by RADIUS_TOLERANCE
+    # (0.00005 in, 0.00127 mm), then the arc is a half circle
+    interpret("G21 G0 X0 Y0\nG2 X10 Y0 R4.999 F100")
+    with pytest.raises(GCodeError, match="too small"):
+        interpret("G21 G0 X0 Y0\nG2 X10 Y0 R4.997 F100")
+    interpret("G20 G0 X0 Y0\nG2 X1 Y0 R.49996 F10")
+    with pytest.raises(GCodeError, match="too small"):
+        interpret("G20 G0 X0 Y0\nG2 X1 Y0 R.49993 F10")
+
+
+def test_an_arc_off_its_circle_is_a_spiral_to_the_programmed_end():
+    # LinuxCNC moves the radius evenly from the start's to the end's: no jump at the end
+    from sim.gcode.linearize import linearize
+    m = run("G21 G0 X0 Y0\nG2 X10.02 Y0 I5 J0 F100\nM2")
+    arc = m[1]
+    np.testing.assert_allclose(arc["end"][:2], [10.02, 0])
+    chords = linearize(m[1:2], 0.001)
+    r = np.hypot(chords["end"][:, 0] - 5, chords["end"][:, 1])
+    assert np.all(np.diff(r) > 0) and r[-1] == pytest.approx(5.02)
+    np.testing.assert_allclose(chords["end"][-1, :2], [10.02, 0])
+    steps = np.hypot(*(chords["end"][:, :2] - chords["start"][:, :2]).T)
+    assert steps.max() < 1.5 * steps.min()
 
 
 # ------------------------------------------------------------------ offsets
