@@ -16,6 +16,8 @@
 * G-code goes through ``sim.gcode.Interpreter(dialect="grbl")``; what it refuses gets
   the ``error:N`` of its ``GCodeError.grbl_code``; spindle, coolant and offset changes
   wait for the planner to empty, as GRBL's ``protocol_buffer_synchronize`` does;
+* after a reset not ending in alarm the stored ``$N`` startup blocks run before the next
+  line, each reported as ``>block:ok`` / ``>block:error:N``;
 * ``ALARM:N`` pushed as the machine raises it; a soft or hard limit is critical: the
   peer says ``[MSG:Reset to continue]`` and ignores lines until Ctrl-X.
 
@@ -93,7 +95,8 @@ class GrblPeer(GcodeExecution, SystemCommands):
         self.line_numbers = line_numbers
         self._make_interpreter = interpreter_factory or _default_interpreter
         self.interpreter = self._new_interpreter()
-        self.startup_lines = ["", ""]
+        self.startup_lines = ["", ""]  # $N0 $N1, as the main loop keeps them (N_STARTUP_LINE 2)
+        self._startup_due = False  # a reset not ending in alarm: run the startup blocks first
         # RX buffer and main loop
         self._rx = bytearray()          # GRBL's serial RX buffer (128 bytes)
         self._line = bytearray()        # the line the main loop is reading
@@ -289,7 +292,8 @@ class GrblPeer(GcodeExecution, SystemCommands):
         return (vm.state == RunState.HOLD and vm.speed <= _V_EPS) or vm.state == RunState.SLEEP
 
     def _take_direct(self) -> bool:
-        return not self._executing and self._line_ready is None and not self._suspended()
+        return (not self._executing and self._line_ready is None and not self._startup_due
+                and not self._suspended())
 
     def _take(self, b: int) -> bool:
         """One byte into GRBL; False when the RX buffer is full.
@@ -426,6 +430,7 @@ class GrblPeer(GcodeExecution, SystemCommands):
                 self._critical = False
                 self._check_mode = False
                 self._reset_after_reply = False
+                self._startup_due = False
                 self.cadence = ReportCadence()  # main.c clears sys: WCO, then Ov, at once
                 self.accessories = Accessories()  # mc_reset stops spindle and coolant
                 self._cond.notify_all()
@@ -435,6 +440,22 @@ class GrblPeer(GcodeExecution, SystemCommands):
         self._send(BANNER)
         if in_alarm or was_alarm:
             self._send("[MSG:'$H'|'$X' to unlock]")
+        elif any(self.startup_lines):
+            # protocol_main_loop runs them after the banner, before it reads a line
+            with self._cond:
+                self._startup_due = True
+                self._cond.notify_all()
+
+    def _run_startup_blocks(self, gen: int) -> None:
+        """system_execute_startup: each stored block through the G-code path, reported as
+        ``>block:ok`` or ``>block:error:N`` (report_execute_startup_message)."""
+        for block in self.startup_lines:
+            if not block:
+                continue
+            reply = self._gcode(block, block, gen)
+            if reply is None or gen != self._reset_gen:
+                return  # a reset or a limit alarm cut it short
+            self._send(f">{block}:{reply}")
 
     # ------------------------------------------------------------------ status
 
@@ -460,26 +481,32 @@ class GrblPeer(GcodeExecution, SystemCommands):
             with self._cond:
                 # a line is run only when the main loop is not suspended (a complete hold
                 # ends with '~' or a reset, both of which wake this wait)
-                self._cond.wait_for(lambda: self._stop.is_set()
+                self._cond.wait_for(lambda: self._stop.is_set() or self._startup_due
                                     or (self._line_ready is not None and not self._suspended()), 0.5)
                 if self._stop.is_set():
                     return
-                if self._suspended():
+                startup, self._startup_due = self._startup_due, False
+                if not startup and self._suspended():
                     continue
-                line, self._line_ready = self._line_ready, None
-                overflow, self._line_overflow = self._line_overflow, False
-                if line is None:
-                    continue
+                line, overflow = None, False
+                if not startup:
+                    line, self._line_ready = self._line_ready, None
+                    overflow, self._line_overflow = self._line_overflow, False
+                    if line is None:
+                        continue
                 self._executing = True
                 gen = self._reset_gen
             try:
                 if self._critical:
                     continue  # GRBL waits for a reset after a limit alarm; lines are lost
                 try:
+                    if startup:
+                        self._run_startup_blocks(gen)
+                        continue
                     reply = "error:11" if overflow else self._execute(line, gen)
                 except Exception as exc:  # noqa: BLE001 - an emulator bug must not kill the port
                     self._reply(f"[MSG:dexmon peer error: {type(exc).__name__}: {exc}]")
-                    reply = "error:20"
+                    reply = None if startup else "error:20"  # no line of the sender's to answer
                 if reply is not None and gen == self._reset_gen:
                     self._reply(reply)
                     if self._reset_after_reply:

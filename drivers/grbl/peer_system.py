@@ -82,6 +82,7 @@ class SystemCommands:
                 return "error:5"
             with vm.lock:
                 vm.unlock()  # homing succeeds at the current position (no switches here)
+            self._run_startup_blocks(gen)  # system.c: after a successful $H, before its ok
             return "ok"
         if cmd[0] == "S":
             if cmd != "SLP":
@@ -120,8 +121,11 @@ class SystemCommands:
                 return "error:2"
             if not sep or int(key) >= len(self.startup_lines):
                 return "error:3"
-            self.startup_lines[int(key)] = value
-            return "ok"
+            # system.c runs the block (gc_execute_line) and stores it only if it passes
+            reply = self._gcode(value, value, gen) if value else "ok"
+            if reply == "ok":
+                self.startup_lines[int(key)] = value
+            return reply
         # $x=val
         key, sep, value = cmd.partition("=")
         if not re.fullmatch(r"\d+(\.\d*)?", key):

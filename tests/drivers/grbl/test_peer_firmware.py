@@ -428,3 +428,43 @@ def test_wco_and_ov_cadence_while_jogging(wire):
     assert w.status().startswith("<Jog|")  # answered after the cancel byte was taken
     advance(peer, 5.0)
     assert w.status().startswith("<Idle|")
+
+
+# ------------------------------------------------------------------ 9. startup blocks ($N)
+
+
+def test_startup_blocks_run_after_every_reset_not_in_alarm(wire):
+    # system.c: $Nx=line runs the block through gc_execute_line before storing it (its
+    # error refuses it); protocol.c runs the stored blocks after a reset or power-up that
+    # does not end in alarm, each reported as '>' block ':' ok|error:N (report.c)
+    peer, w = wire()
+    assert w.reply(b"$n0=g20 (inch)\n") == ["ok"]  # stored as the main loop keeps it
+    assert w.reply(b"$G\n")[0].startswith("[GC:G0 G54 G17 G20 ")  # run when stored
+    assert w.reply(b"$N1=G1X1\n") == ["error:22"]  # no feed yet: refused, not stored
+    assert w.reply(b"$N\n") == ["$N0=G20", "$N1=", "ok"]
+    assert w.reply(b"F600\n") == ["ok"]
+    assert w.reply(b"$N1=G1X1\n") == ["ok"]  # F600 is modal now: runs (moves) and is stored
+    w.status_until(lambda s: s.startswith("<Idle|MPos:25.400,"))  # G20: X1 is an inch
+    w.send(b"\x18")
+    # the reset forgets F: the second block fails now, and says so
+    assert w.until(lambda s: s.startswith(">G1X1:")) == ["", BANNER, ">G20:ok", ">G1X1:error:22"]
+    assert w.reply(b"$G\n")[0].startswith("[GC:G0 G54 G17 G20 ")  # a refused block changes nothing
+    assert w.reply(b"$N1=\n") == ["ok"]  # an empty block clears the slot: nothing reported
+    w.send(b"\x18")
+    assert w.until(lambda s: s.startswith(">")) == ["", BANNER, ">G20:ok"]
+    assert w.reply(b"G21\n") == ["ok"]
+
+
+def test_startup_blocks_wait_for_unlock_and_run_after_homing(wire):
+    # a reset ending in alarm runs no block, nor does $X (system.c: "Prevents stored moves
+    # in startup from causing accidents"); a successful $H runs them before its ok
+    peer, w = wire(settings={22: 1})
+    assert w.reply(b"$N0=G91\n") == ["ok"]
+    assert w.reply(b"$SLP\n") == ["ok"]
+    assert w.line() == "[MSG:Sleeping]"
+    w.send(b"\x18")  # out of sleep: alarm
+    assert w.until(lambda s: s.startswith("[MSG:")) == ["", BANNER, "[MSG:'$H'|'$X' to unlock]"]
+    assert w.reply(b"$X\n") == ["[MSG:Caution: Unlocked]", "ok"]
+    assert w.reply(b"G90\n") == ["ok"]
+    assert w.reply(b"$H\n") == [">G91:ok", "ok"]
+    assert w.reply(b"$G\n")[0].startswith("[GC:G0 G54 G17 G21 G91 ")
