@@ -107,7 +107,7 @@ class GrblPeer(GcodeExecution, SystemCommands):
         self._reset_gen = 0
         self._critical = False
         self._check_mode = False
-        self._reset_after_reply = False  # $C leaving check mode: ok, then a soft reset
+        self._reset_after_reply = False  # $C leaving check mode, $RST: the ok, then a soft reset
         self._stop = threading.Event()
         self._seq = 0
         self._n_words: dict[int, int] = {}
@@ -510,7 +510,7 @@ class GrblPeer(GcodeExecution, SystemCommands):
                 if reply is not None and gen == self._reset_gen:
                     self._reply(reply)
                     if self._reset_after_reply:
-                        self.reset()  # leaving check mode: mc_reset acts after the line's ok
+                        self.reset()  # $C leaving check mode, $RST: mc_reset acts after the ok
             finally:
                 with self._cond:
                     self._executing = False

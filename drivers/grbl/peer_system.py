@@ -103,12 +103,22 @@ class SystemCommands:
         if cmd[0] == "R":
             if not (cmd.startswith("RST=") and len(cmd) == 5 and cmd[4] in "$#*"):
                 return "error:3"
+            # settings_restore: '$' the settings, '#' the offsets kept in EEPROM (G54..G59,
+            # G28, G30; G92 is not), '*' both and the startup blocks
             if cmd[4] in "$*":
                 self.settings = dict(p.DEFAULT_SETTINGS)
                 self.settings.update(settings_from_config(vm.config))
+            if cmd[4] in "#*":
+                with vm.lock:
+                    wo = vm.work_offsets
+                    wo.g5x = {name: (0.0,) * 6 for name in wo.g5x}
+                    wo.g28 = wo.g30 = (0.0,) * 6
+            if cmd[4] == "*":
+                self.startup_lines = [""] * len(self.startup_lines)
             self._reply("[MSG:Restoring defaults]")
-            self.reset()
-            return None
+            # mc_reset only flags the reset: the line's ok comes first, then the banner
+            self._reset_after_reply = True
+            return "ok"
         if cmd[0] == "N":
             if cmd == "N":
                 for i, text in enumerate(self.startup_lines):

@@ -468,3 +468,32 @@ def test_startup_blocks_wait_for_unlock_and_run_after_homing(wire):
     assert w.reply(b"G90\n") == ["ok"]
     assert w.reply(b"$H\n") == [">G91:ok", "ok"]
     assert w.reply(b"$G\n")[0].startswith("[GC:G0 G54 G17 G21 G91 ")
+
+
+# ------------------------------------------------------------------ 10. $RST
+
+
+def test_restore_answers_ok_then_resets(wire):
+    # system.c: [MSG:Restoring defaults], mc_reset() (a flag), the line's ok (STATUS_OK);
+    # then the main loop sees the reset: banner, startup blocks. settings_restore: '$'
+    # the settings, '#' the G54..G59 G28 G30 offsets, '*' those and the startup blocks
+    peer, w = wire()
+    assert w.reply(b"$10=3\n") == ["ok"]
+    assert w.reply(b"G10 L20 P1 X5\n") == ["ok"]
+    assert w.reply(b"G28.1\n") == ["ok"]
+    assert w.reply(b"$N0=G91\n") == ["ok"]
+    w.send(b"$RST=$\n")
+    assert w.until(lambda s: s.startswith(">")) == ["[MSG:Restoring defaults]", "ok", "", BANNER, ">G91:ok"]
+    assert "$10=1" in w.reply(b"$$\n")
+    offsets = w.reply(b"$#\n")
+    assert offsets[0] == "[G54:-5.000,0.000,0.000]"  # '$' keeps the offsets
+    w.send(b"$RST=#\n")
+    assert w.until(lambda s: s.startswith(">")) == ["[MSG:Restoring defaults]", "ok", "", BANNER, ">G91:ok"]
+    offsets = w.reply(b"$#\n")
+    assert offsets[0] == "[G54:0.000,0.000,0.000]" and "[G28:0.000,0.000,0.000]" in offsets
+    assert w.reply(b"$10=3\n") == ["ok"]
+    w.send(b"$RST=*\n")
+    assert w.until(lambda s: s == BANNER) == ["[MSG:Restoring defaults]", "ok", "", BANNER]
+    assert w.reply(b"$N\n") == ["$N0=", "$N1=", "ok"]  # no startup block ran, none is left
+    assert "$10=1" in w.reply(b"$$\n")
+    assert w.reply(b"$RST=x\n") == ["error:3"]
