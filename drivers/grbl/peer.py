@@ -96,6 +96,7 @@ class GrblPeer(GcodeExecution, SystemCommands):
         self._make_interpreter = interpreter_factory or _default_interpreter
         self.interpreter = self._new_interpreter()
         self.startup_lines = ["", ""]  # $N0 $N1, as the main loop keeps them (N_STARTUP_LINE 2)
+        self.build_info = ""  # $I=text (EEPROM)
         self._startup_due = False  # a reset not ending in alarm: run the startup blocks first
         # RX buffer and main loop
         self._rx = bytearray()          # GRBL's serial RX buffer (128 bytes)
@@ -532,7 +533,8 @@ class GrblPeer(GcodeExecution, SystemCommands):
             state = vm.state
         if state in (RunState.ALARM, RunState.JOG, RunState.SLEEP):
             return "error:9"
-        return self._gcode(text, clean, gen)
+        # the parser gets the line as GRBL's main loop keeps it: no spaces, comments or '/'
+        return self._gcode(clean, clean, gen)
 
 
 # ------------------------------------------------------------------ helpers
@@ -566,7 +568,8 @@ def _rapid_override(current: int, bits: set[int]) -> int:
 
 
 def _strip_grbl(text: str) -> str:
-    """What GRBL's main loop keeps of a line: no spaces, comments or controls; upper case."""
+    """What GRBL's main loop keeps of a line: no spaces, comments, controls or '/'; upper case
+    (DEL is kept: gc_execute_line refuses it as a letter, error:1)."""
     out = []
     in_paren = False
     for ch in text:
@@ -578,8 +581,8 @@ def _strip_grbl(text: str) -> str:
             in_paren = True
         elif ch == ";":
             break
-        elif ch <= " " or ch == "\x7f":
-            continue
+        elif ch <= " " or ch == "/":
+            continue  # '/': block delete is not supported, the character is dropped
         else:
             out.append(ch.upper())
     return "".join(out)

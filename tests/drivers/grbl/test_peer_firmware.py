@@ -497,3 +497,39 @@ def test_restore_answers_ok_then_resets(wire):
     assert w.reply(b"$N\n") == ["$N0=", "$N1=", "ok"]  # no startup block ran, none is left
     assert "$10=1" in w.reply(b"$$\n")
     assert w.reply(b"$RST=x\n") == ["error:3"]
+
+
+# ------------------------------------------------------------------ 11. line filter and $ errors
+
+
+def test_block_delete_slash_is_dropped_anywhere(wire):
+    # protocol.c: '/' (block delete, not supported) is thrown away like a space
+    peer, w = wire()
+    assert w.reply(b"G0 X2/\n") == ["ok"]
+    assert w.reply(b"/G0 Y/3\n") == ["ok"]
+    w.status_until(lambda s: s.startswith("<Idle|MPos:2.000,3.000,"))
+    assert w.reply(b"G0 X1 (a/b)\n") == ["ok"]
+    # DEL is not a control character to the main loop: it reaches the parser as a letter
+    assert w.reply(b"G0 X1\x7f\n") == ["error:1"]
+
+
+def test_dollar_command_errors_follow_system_c(wire):
+    peer, w = wire(settings={22: 1})
+    # '$' 'G' 'C' 'X': anything after the letter is an invalid statement
+    for line in (b"$$1\n", b"$G0\n", b"$C1\n", b"$X9\n", b"$#1\n", b"$HX\n", b"$SL\n", b"$Ix\n"):
+        assert w.reply(line) == ["error:3"], line
+    # other letters: read_float for the number (no digit: error:2), then '=' (error:3),
+    # read_float for the value (error:2), then the end of the line (error:3)
+    cases = {b"$A=1": "error:2", b"$=1": "error:2", b"$-=1": "error:2", b"$10": "error:3",
+             b"$10x1": "error:3", b"$10=": "error:2", b"$10=x": "error:2", b"$10=1x": "error:3",
+             b"$10=1.5.1": "error:3", b"$256=1": "error:3", b"$103=1": "error:3", b"$7=1": "error:3",
+             b"$7=-1": "error:4", b"$NA=G20": "error:2", b"$N0G20": "error:3"}
+    for line, want in cases.items():
+        assert w.reply(line + b"\n") == [want], line
+    assert "$10=1" in w.reply(b"$$\n")  # none of them changed a setting
+    # the number is truncated to its integer (uint8_t), the value may end with '.'
+    assert w.reply(b"$10.7=2.\n") == ["ok"]
+    assert "$10=2" in w.reply(b"$$\n")
+    # $I=text stores the build info (uppercase, no spaces, as the main loop keeps it)
+    assert w.reply(b"$I=my mill\n") == ["ok"]
+    assert w.reply(b"$I\n")[0] == "[VER:1.1h.20190830:MYMILL]"
