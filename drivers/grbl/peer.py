@@ -13,6 +13,11 @@
   ``ok`` waits until its block fits in the planner (``vm.planner_free()``);
 * a complete feed hold (``Hold:0``, also ``!`` while Idle) or sleep suspends the main
   loop: lines wait in the RX buffer, unread and unanswered, until ``~`` or Ctrl-X;
+* the safety door byte 0x84 (in any state but alarm and check mode): ``[MSG:Check Door]``,
+  a hold (``Door:2`` while it decelerates, a jog is cancelled), spindle and coolant off,
+  then ``Door:0`` (no door pin: the door reads closed); ``~`` restores spindle and coolant
+  with the firmware's spin-up delays in machine time (``Door:3``) and resumes; the main
+  loop reads no line meanwhile;
 * G-code goes through ``sim.gcode.Interpreter(dialect="grbl")``; what it refuses gets
   the ``error:N`` of its ``GCodeError.grbl_code``; spindle, coolant and offset changes
   wait for the planner to empty, as GRBL's ``protocol_buffer_synchronize`` does;
@@ -30,6 +35,7 @@ opens) and :meth:`GrblPeer.serve_tcp` (returns the bound port). Both can run at 
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from typing import Callable
@@ -48,6 +54,10 @@ _LINE_MEMORY = 1024  # raw bytes of one line kept (comments and spaces included)
 _BYTES_PER_S = 115200 / 10  # serial line speed: 8N1 is 10 bits a byte
 _CRITICAL_ALARMS = (1, 2)  # hard and soft limit: GRBL waits for a reset
 _V_EPS = 1e-9  # mm/s: a machine slower than this stands
+#: config.h: seconds the door resume waits after turning the spindle, then the coolant, on
+SAFETY_DOOR_SPINDLE_DELAY, SAFETY_DOOR_COOLANT_DELAY = 4.0, 1.0
+#: the Door:N substate of each phase of the peer's door (report.c; 1, "still ajar", needs a pin)
+_DOOR_SUBSTATE = {"stopping": 2, "closed": 0, "restoring": 3}
 #: real-time override bytes -> GRBL's exec_motion_override / exec_accessory_override bits
 _MOTION_OVERRIDES = frozenset(range(0x90, 0x98))
 _ACCESSORY_OVERRIDES = frozenset(range(0x99, 0xA1))
@@ -108,6 +118,11 @@ class GrblPeer(GcodeExecution, SystemCommands):
         self._reset_gen = 0
         self._critical = False
         self._check_mode = False
+        #: safety door: None, "stopping" (hold decelerating), "closed" (stopped, spindle and
+        #: coolant off, ready for '~'), "restoring" (after '~', spin-up delays running)
+        self._door: str | None = None
+        self._door_outputs = (0, 0.0, 0)  # spindle and coolant to restore
+        self._door_coolant_at = self._door_resume_at = 0.0  # machine time (vm.time), s
         self._reset_after_reply = False  # $C leaving check mode, $RST: the ok, then a soft reset
         self._stop = threading.Event()
         self._seq = 0
@@ -290,7 +305,8 @@ class GrblPeer(GcodeExecution, SystemCommands):
         reset; bytes wait in the RX buffer. (Read without the machine's lock: a byte's
         path may be decided a moment early or late, as on hardware.)"""
         vm = self.vm
-        return (vm.state == RunState.HOLD and vm.speed <= _V_EPS) or vm.state == RunState.SLEEP
+        return (self._door is not None or (vm.state == RunState.HOLD and vm.speed <= _V_EPS)
+                or vm.state == RunState.SLEEP)
 
     def _take_direct(self) -> bool:
         return (not self._executing and self._line_ready is None and not self._startup_due
@@ -338,13 +354,16 @@ class GrblPeer(GcodeExecution, SystemCommands):
             if b == 0x21:  # '!'
                 # protocol.c: no hold in alarm, check mode, sleep or door; from Idle the
                 # hold is complete at once (Hold:0); a jog is cancelled instead
-                if not self._check_mode and vm.state in (RunState.IDLE, RunState.RUN, RunState.JOG):
+                if (not self._check_mode and self._door is None
+                        and vm.state in (RunState.IDLE, RunState.RUN, RunState.JOG)):
                     vm.feed_hold()
-            elif b == 0x84:  # safety door: this machine has none; hold a running cycle
-                if vm.state == RunState.RUN:
-                    vm.feed_hold()
+            elif b == 0x84:
+                self._open_door()
             elif b == 0x7E:  # '~'
-                self._cycle_start()
+                if self._door is not None:
+                    self._close_door()
+                else:
+                    self._cycle_start()
             elif b == 0x85:
                 vm.cancel_jog()
 
@@ -361,6 +380,66 @@ class GrblPeer(GcodeExecution, SystemCommands):
         with self._cond:
             self._read_on()
 
+    # ------------------------------------------------------------------ safety door
+
+    def _open_door(self) -> None:
+        """0x84 (vm lock held), as protocol_execute_realtime takes EXEC_SAFETY_DOOR."""
+        vm = self.vm
+        if self._check_mode or vm.state == RunState.ALARM:
+            return  # protocol.c: no hold method in alarm or check mode, not even the message
+        self._send("[MSG:Check Door]")
+        if vm.state == RunState.SLEEP:
+            return  # sleep stays sleep
+        if self._door is None:
+            self._door_outputs = self.accessories.outputs()
+            vm.feed_hold()  # Run: decelerate; Idle: held at once; Jog: cancelled; Hold: as is
+        # opened again while restoring: retract again (spindle and coolant off once more)
+        self._door = "stopping"
+        self._door_update()
+
+    def _close_door(self) -> None:
+        """``~`` in the door state (vm lock held): the door reads closed, so once stopped
+        the suspend loop restores the spindle, waits, the coolant, waits, and resumes."""
+        if self._door != "closed":
+            return  # still decelerating (the ajar flag is set): cycle start is ignored
+        direction, rpm, coolant = self._door_outputs
+        now = self.vm.time
+        self._door = "restoring"
+        self._door_coolant_at = now
+        if direction:
+            self._set_door_outputs(direction, rpm, 0)
+            self._door_coolant_at = now + SAFETY_DOOR_SPINDLE_DELAY
+        self._door_resume_at = self._door_coolant_at + (SAFETY_DOOR_COOLANT_DELAY if coolant else 0.0)
+        self._door_update()
+
+    def _door_update(self) -> None:
+        """Move the door on as protocol_exec_rt_suspend does (vm lock held): called before a
+        status report and by the main loop, so what a sender sees is what the firmware
+        would report at that moment."""
+        vm = self.vm
+        if vm.state == RunState.ALARM:
+            self._door = None  # an alarm (a limit while held) takes over until the reset
+        elif self._door == "stopping":
+            if vm.state == RunState.JOG or vm.speed > _V_EPS:
+                return  # the hold (or jog cancel) is not complete
+            self.accessories.stopped = False  # the door routine ends a spindle stop override
+            self._set_door_outputs(0, 0.0, 0)
+            self._door = "closed"  # no door pin: read closed at once (Door:0)
+        elif self._door == "restoring":
+            if vm.time >= self._door_coolant_at:
+                self._set_door_outputs(*self._door_outputs)
+            if vm.time >= self._door_resume_at:
+                self._door = None
+                vm.resume()  # back to Run (blocks left) or Idle
+                with self._cond:
+                    self._read_on()
+
+    def _set_door_outputs(self, direction: int, rpm: float, coolant: int) -> None:
+        acc = self.accessories
+        if (acc.direction, acc.rpm, acc.coolant) != (direction, rpm, coolant):
+            acc.direction, acc.rpm, acc.coolant = direction, rpm, coolant
+            self.cadence.flag_ovr()  # spindle_set_state / coolant_set_state: reported at once
+
     def _apply_overrides(self, motion: set[int], accessory: set[int]) -> None:
         """Apply one pass of override bits as protocol_exec_rt_system does: each bit once,
         in the firmware's order, in uint8 arithmetic, clamped once at the end."""
@@ -375,9 +454,10 @@ class GrblPeer(GcodeExecution, SystemCommands):
             if spindle != vm.spindle_override:
                 vm.set_spindle_override(spindle)
                 self.cadence.flag_ovr()
-            if 0x9E in accessory and vm.state == RunState.HOLD:  # spindle stop: only in a hold
+            # the door state is neither a hold nor one the coolant toggle works in
+            if 0x9E in accessory and vm.state == RunState.HOLD and self._door is None:  # only in a hold
                 self._toggle_spindle_stop()
-            if 0xA0 in accessory and not self._check_mode and vm.state in (
+            if 0xA0 in accessory and not self._check_mode and self._door is None and vm.state in (
                     RunState.IDLE, RunState.RUN, RunState.HOLD, RunState.JOG):
                 # flood toggle: the output and the parser's modal state (M8 / M9)
                 self.accessories.coolant ^= COOLANT_FLOOD
@@ -430,6 +510,7 @@ class GrblPeer(GcodeExecution, SystemCommands):
                 self._reset_gen += 1
                 self._critical = False
                 self._check_mode = False
+                self._door = None
                 self._reset_after_reply = False
                 self._startup_due = False
                 self.cadence = ReportCadence()  # main.c clears sys: WCO, then Ov, at once
@@ -464,7 +545,11 @@ class GrblPeer(GcodeExecution, SystemCommands):
         """The ``<...>`` report GRBL would send now (and advance the WCO/Ov cadence)."""
         vm = self.vm
         with vm.lock:
+            if self._door is not None:
+                self._door_update()
             s = vm.snapshot()
+            if self._door is not None and s.state != RunState.JOG:
+                s = dataclasses.replace(s, state=RunState.DOOR, substate=_DOOR_SUBSTATE[self._door])
             if self._check_mode and s.state in (RunState.IDLE, RunState.RUN):
                 name = "Check"
             elif s.state in (RunState.HOLD, RunState.DOOR):
@@ -479,11 +564,15 @@ class GrblPeer(GcodeExecution, SystemCommands):
 
     def _main_loop(self) -> None:
         while not self._stop.is_set():
+            if self._door is not None:
+                with self.vm.lock:  # the door resumes when its delays are over, polled or not
+                    self._door_update()
             with self._cond:
                 # a line is run only when the main loop is not suspended (a complete hold
                 # ends with '~' or a reset, both of which wake this wait)
                 self._cond.wait_for(lambda: self._stop.is_set() or self._startup_due
-                                    or (self._line_ready is not None and not self._suspended()), 0.5)
+                                    or (self._line_ready is not None and not self._suspended()),
+                                    0.5 if self._door is None else 0.01)
                 if self._stop.is_set():
                     return
                 startup, self._startup_due = self._startup_due, False

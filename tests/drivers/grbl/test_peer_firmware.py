@@ -533,3 +533,81 @@ def test_dollar_command_errors_follow_system_c(wire):
     # $I=text stores the build info (uppercase, no spaces, as the main loop keeps it)
     assert w.reply(b"$I=my mill\n") == ["ok"]
     assert w.reply(b"$I\n")[0] == "[VER:1.1h.20190830:MYMILL]"
+
+
+# ------------------------------------------------------------------ 12. safety door (0x84)
+
+
+def test_safety_door_while_idle_stops_spindle_and_coolant_until_cycle_start(wire):
+    # serial.c sets EXEC_SAFETY_DOOR in any state; protocol.c: [MSG:Check Door], state
+    # DOOR, hold complete at once from Idle; the suspend loop turns spindle and coolant off
+    # and, with no door pin, reads the door closed (Door:0); the main loop reads no line.
+    # '~' then restores the spindle (4 s spin-up), the coolant (1 s) and resumes (Door:3)
+    peer, w = wire(vm=make_vm(max_rate=(600.0,) * 3, accel=(100.0,) * 3), run=False, settings={10: 3})
+    settle_cadence(w)
+    assert w.reply(b"M3 S500 M8\n") == ["ok"]
+    assert w.status().endswith("|FS:0,500|Ov:100,100,100|A:SF>")
+    w.send(b"\x84")
+    assert w.line() == "[MSG:Check Door]"
+    s = w.status()  # spindle_set_state / coolant_set_state report the change at once
+    assert s.startswith("<Door:0|MPos:0.000,0.000,0.000|") and s.endswith("|FS:0,0|Ov:100,100,100>")
+    w.send(b"G0 X1\n")
+    assert w.status_until(lambda s: "|Bf:15,122|" in s).startswith("<Door:0|")
+    w.send(b"!\xa0")  # no feed hold and no coolant toggle in the door state
+    assert w.status().startswith("<Door:0|") and w.status().startswith("<Door:0|")
+    w.send(b"~")
+    s = w.status()
+    assert s.startswith("<Door:3|") and field(s, "FS") == "0,500" and s.endswith("|A:S>")
+    advance(peer, 4.0)
+    s = w.status()
+    assert s.startswith("<Door:3|") and s.endswith("|A:SF>")
+    advance(peer, 1.0)
+    assert w.status().startswith("<Idle|")
+    assert w.line() == "ok"  # the line waiting in the RX buffer is read now
+    advance(peer, 5.0)
+    assert w.status().startswith("<Idle|MPos:1.000,")
+
+
+def test_safety_door_during_motion_holds_then_resumes(wire):
+    peer, w = wire(vm=make_vm(max_rate=(600.0,) * 3, accel=(100.0,) * 3), run=False)
+    assert w.reply(b"G1 X20 F600\n") == ["ok"]
+    advance(peer, 0.5)
+    w.send(b"\x84")
+    assert w.line() == "[MSG:Check Door]"
+    assert w.status().startswith("<Door:2|")  # decelerating: the hold is not complete
+    advance(peer, 0.5)
+    s = w.status()
+    assert s.startswith("<Door:0|") and field(s, "FS") == "0,0"
+    w.send(b"\x84")  # again: the message again, the door stays closed (no pin)
+    assert w.line() == "[MSG:Check Door]"
+    assert w.status().startswith("<Door:0|")
+    w.send(b"~")  # spindle and coolant were off: no delay
+    assert w.status().startswith("<Run|")
+    advance(peer, 10.0)
+    assert w.status().startswith("<Idle|MPos:20.000,")
+
+
+def test_safety_door_cancels_a_jog_and_is_ignored_in_alarm_and_check_mode(wire):
+    peer, w = wire(run=False)
+    assert w.reply(b"$J=G91 X-150 F600\n") == ["ok"]
+    advance(peer, 0.5)
+    w.send(b"\x84")
+    assert w.line() == "[MSG:Check Door]"
+    assert w.status().startswith("<Jog|")  # the jog is cancelled first
+    advance(peer, 5.0)
+    s = w.status()
+    assert s.startswith("<Door:0|") and not s.startswith("<Door:0|MPos:-150.000")
+    w.send(b"\x18")  # a reset leaves the door state
+    w.until(lambda s: s == BANNER)
+    assert w.status().startswith("<Idle|")
+    assert w.reply(b"$C\n") == ["[MSG:Enabled]", "ok"]
+    w.send(b"\x84")
+    assert w.status().startswith("<Check|")  # no message either (status() checks)
+    w.send(b"$C\n")
+    w.until(lambda s: s == BANNER)
+    assert w.reply(b"$SLP\n") == ["ok"]
+    assert w.line() == "[MSG:Sleeping]"
+    w.send(b"\x18")
+    w.until(lambda s: s.startswith("[MSG:"))
+    w.send(b"\x84")
+    assert w.status().startswith("<Alarm|")
