@@ -13,9 +13,16 @@
   ``ok`` waits until its block fits in the planner (``vm.planner_free()``);
 * a complete feed hold (``Hold:0``, also ``!`` while Idle) or sleep suspends the main
   loop: lines wait in the RX buffer, unread and unanswered, until ``~`` or Ctrl-X;
+* the safety door byte 0x84 (in any state but alarm and check mode): ``[MSG:Check Door]``,
+  a hold (``Door:2`` while it decelerates, a jog is cancelled), spindle and coolant off,
+  then ``Door:0`` (no door pin: the door reads closed); ``~`` restores spindle and coolant
+  with the firmware's spin-up delays in machine time (``Door:3``) and resumes; the main
+  loop reads no line meanwhile;
 * G-code goes through ``sim.gcode.Interpreter(dialect="grbl")``; what it refuses gets
   the ``error:N`` of its ``GCodeError.grbl_code``; spindle, coolant and offset changes
   wait for the planner to empty, as GRBL's ``protocol_buffer_synchronize`` does;
+* after a reset not ending in alarm the stored ``$N`` startup blocks run before the next
+  line, each reported as ``>block:ok`` / ``>block:error:N``;
 * ``ALARM:N`` pushed as the machine raises it; a soft or hard limit is critical: the
   peer says ``[MSG:Reset to continue]`` and ignores lines until Ctrl-X.
 
@@ -28,6 +35,7 @@ opens) and :meth:`GrblPeer.serve_tcp` (returns the bound port). Both can run at 
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from typing import Callable
@@ -45,6 +53,10 @@ LINE_BUFFER_SIZE = 80  # GRBL's line buffer: longer lines get error:11
 _LINE_MEMORY = 1024  # raw bytes of one line kept (comments and spaces included)
 _BYTES_PER_S = 115200 / 10  # serial line speed: 8N1 is 10 bits a byte
 _V_EPS = 1e-9  # mm/s: a machine slower than this stands
+#: config.h: seconds the door resume waits after turning the spindle, then the coolant, on
+SAFETY_DOOR_SPINDLE_DELAY, SAFETY_DOOR_COOLANT_DELAY = 4.0, 1.0
+#: the Door:N substate of each phase of the peer's door (report.c; 1, "still ajar", needs a pin)
+_DOOR_SUBSTATE = {"stopping": 2, "closed": 0, "restoring": 3}
 #: real-time override bytes -> GRBL's exec_motion_override / exec_accessory_override bits
 _MOTION_OVERRIDES = frozenset(range(0x90, 0x98))
 _ACCESSORY_OVERRIDES = frozenset(range(0x99, 0xA1))
@@ -92,7 +104,9 @@ class GrblPeer(GcodeExecution, SystemCommands):
         self.line_numbers = line_numbers
         self._make_interpreter = interpreter_factory or _default_interpreter
         self.interpreter = self._new_interpreter()
-        self.startup_lines = ["", ""]
+        self.startup_lines = ["", ""]  # $N0 $N1, as the main loop keeps them (N_STARTUP_LINE 2)
+        self.build_info = ""  # $I=text (EEPROM)
+        self._startup_due = False  # a reset not ending in alarm: run the startup blocks first
         # RX buffer and main loop
         self._rx = bytearray()          # GRBL's serial RX buffer (128 bytes)
         self._line = bytearray()        # the line the main loop is reading
@@ -103,7 +117,12 @@ class GrblPeer(GcodeExecution, SystemCommands):
         self._reset_gen = 0
         self._critical = False
         self._check_mode = False
-        self._reset_after_reply = False  # $C leaving check mode: ok, then a soft reset
+        #: safety door: None, "stopping" (hold decelerating), "closed" (stopped, spindle and
+        #: coolant off, ready for '~'), "restoring" (after '~', spin-up delays running)
+        self._door: str | None = None
+        self._door_outputs = (0, 0.0, 0)  # spindle and coolant to restore
+        self._door_coolant_at = self._door_resume_at = 0.0  # machine time (vm.time), s
+        self._reset_after_reply = False  # $C leaving check mode, $RST: the ok, then a soft reset
         self._stop = threading.Event()
         self._seq = 0
         self._n_words: dict[int, int] = {}
@@ -285,10 +304,12 @@ class GrblPeer(GcodeExecution, SystemCommands):
         reset; bytes wait in the RX buffer. (Read without the machine's lock: a byte's
         path may be decided a moment early or late, as on hardware.)"""
         vm = self.vm
-        return (vm.state == RunState.HOLD and vm.speed <= _V_EPS) or vm.state == RunState.SLEEP
+        return (self._door is not None or (vm.state == RunState.HOLD and vm.speed <= _V_EPS)
+                or vm.state == RunState.SLEEP)
 
     def _take_direct(self) -> bool:
-        return not self._executing and self._line_ready is None and not self._suspended()
+        return (not self._executing and self._line_ready is None and not self._startup_due
+                and not self._suspended())
 
     def _take(self, b: int) -> bool:
         """One byte into GRBL; False when the RX buffer is full.
@@ -335,13 +356,16 @@ class GrblPeer(GcodeExecution, SystemCommands):
             if b == 0x21:  # '!'
                 # protocol.c: no hold in alarm, check mode, sleep or door; from Idle the
                 # hold is complete at once (Hold:0); a jog is cancelled instead
-                if not self._check_mode and vm.state in (RunState.IDLE, RunState.RUN, RunState.JOG):
+                if (not self._check_mode and self._door is None
+                        and vm.state in (RunState.IDLE, RunState.RUN, RunState.JOG)):
                     vm.feed_hold()
-            elif b == 0x84:  # safety door: this machine has none; hold a running cycle
-                if vm.state == RunState.RUN:
-                    vm.feed_hold()
+            elif b == 0x84:
+                self._open_door()
             elif b == 0x7E:  # '~'
-                self._cycle_start()
+                if self._door is not None:
+                    self._close_door()
+                else:
+                    self._cycle_start()
             elif b == 0x85:
                 vm.cancel_jog()
 
@@ -358,6 +382,66 @@ class GrblPeer(GcodeExecution, SystemCommands):
         with self._cond:
             self._read_on()
 
+    # ------------------------------------------------------------------ safety door
+
+    def _open_door(self) -> None:
+        """0x84 (vm lock held), as protocol_execute_realtime takes EXEC_SAFETY_DOOR."""
+        vm = self.vm
+        if self._check_mode or vm.state == RunState.ALARM:
+            return  # protocol.c: no hold method in alarm or check mode, not even the message
+        self._send("[MSG:Check Door]")
+        if vm.state == RunState.SLEEP:
+            return  # sleep stays sleep
+        if self._door is None:
+            self._door_outputs = self.accessories.outputs()
+            vm.feed_hold()  # Run: decelerate; Idle: held at once; Jog: cancelled; Hold: as is
+        # opened again while restoring: retract again (spindle and coolant off once more)
+        self._door = "stopping"
+        self._door_update()
+
+    def _close_door(self) -> None:
+        """``~`` in the door state (vm lock held): the door reads closed, so once stopped
+        the suspend loop restores the spindle, waits, the coolant, waits, and resumes."""
+        if self._door != "closed":
+            return  # still decelerating (the ajar flag is set): cycle start is ignored
+        direction, rpm, coolant = self._door_outputs
+        now = self.vm.time
+        self._door = "restoring"
+        self._door_coolant_at = now
+        if direction:
+            self._set_door_outputs(direction, rpm, 0)
+            self._door_coolant_at = now + SAFETY_DOOR_SPINDLE_DELAY
+        self._door_resume_at = self._door_coolant_at + (SAFETY_DOOR_COOLANT_DELAY if coolant else 0.0)
+        self._door_update()
+
+    def _door_update(self) -> None:
+        """Move the door on as protocol_exec_rt_suspend does (vm lock held): called before a
+        status report and by the main loop, so what a sender sees is what the firmware
+        would report at that moment."""
+        vm = self.vm
+        if vm.state == RunState.ALARM:
+            self._door = None  # an alarm (a limit while held) takes over until the reset
+        elif self._door == "stopping":
+            if vm.state == RunState.JOG or vm.speed > _V_EPS:
+                return  # the hold (or jog cancel) is not complete
+            self.accessories.stopped = False  # the door routine ends a spindle stop override
+            self._set_door_outputs(0, 0.0, 0)
+            self._door = "closed"  # no door pin: read closed at once (Door:0)
+        elif self._door == "restoring":
+            if vm.time >= self._door_coolant_at:
+                self._set_door_outputs(*self._door_outputs)
+            if vm.time >= self._door_resume_at:
+                self._door = None
+                vm.resume()  # back to Run (blocks left) or Idle
+                with self._cond:
+                    self._read_on()
+
+    def _set_door_outputs(self, direction: int, rpm: float, coolant: int) -> None:
+        acc = self.accessories
+        if (acc.direction, acc.rpm, acc.coolant) != (direction, rpm, coolant):
+            acc.direction, acc.rpm, acc.coolant = direction, rpm, coolant
+            self.cadence.flag_ovr()  # spindle_set_state / coolant_set_state: reported at once
+
     def _apply_overrides(self, motion: set[int], accessory: set[int]) -> None:
         """Apply one pass of override bits as protocol_exec_rt_system does: each bit once,
         in the firmware's order, in uint8 arithmetic, clamped once at the end."""
@@ -372,9 +456,10 @@ class GrblPeer(GcodeExecution, SystemCommands):
             if spindle != vm.spindle_override:
                 vm.set_spindle_override(spindle)
                 self.cadence.flag_ovr()
-            if 0x9E in accessory and vm.state == RunState.HOLD:  # spindle stop: only in a hold
+            # the door state is neither a hold nor one the coolant toggle works in
+            if 0x9E in accessory and vm.state == RunState.HOLD and self._door is None:  # only in a hold
                 self._toggle_spindle_stop()
-            if 0xA0 in accessory and not self._check_mode and vm.state in (
+            if 0xA0 in accessory and not self._check_mode and self._door is None and vm.state in (
                     RunState.IDLE, RunState.RUN, RunState.HOLD, RunState.JOG):
                 # flood toggle: the output and the parser's modal state (M8 / M9)
                 self.accessories.coolant ^= COOLANT_FLOOD
@@ -427,7 +512,9 @@ class GrblPeer(GcodeExecution, SystemCommands):
                 self._reset_gen += 1
                 self._critical = False
                 self._check_mode = False
+                self._door = None
                 self._reset_after_reply = False
+                self._startup_due = False
                 self.cadence = ReportCadence()  # main.c clears sys: WCO, then Ov, at once
                 self.accessories = Accessories()  # mc_reset stops spindle and coolant
                 self._cond.notify_all()
@@ -437,6 +524,22 @@ class GrblPeer(GcodeExecution, SystemCommands):
         self._send(BANNER)
         if in_alarm or was_alarm:
             self._send("[MSG:'$H'|'$X' to unlock]")
+        elif any(self.startup_lines):
+            # protocol_main_loop runs them after the banner, before it reads a line
+            with self._cond:
+                self._startup_due = True
+                self._cond.notify_all()
+
+    def _run_startup_blocks(self, gen: int) -> None:
+        """system_execute_startup: each stored block through the G-code path, reported as
+        ``>block:ok`` or ``>block:error:N`` (report_execute_startup_message)."""
+        for block in self.startup_lines:
+            if not block:
+                continue
+            reply = self._gcode(block, block, gen)
+            if reply is None or gen != self._reset_gen:
+                return  # a reset or a limit alarm cut it short
+            self._send(f">{block}:{reply}")
 
     # ------------------------------------------------------------------ status
 
@@ -444,7 +547,11 @@ class GrblPeer(GcodeExecution, SystemCommands):
         """The ``<...>`` report GRBL would send now (and advance the WCO/Ov cadence)."""
         vm = self.vm
         with vm.lock:
+            if self._door is not None:
+                self._door_update()
             s = vm.snapshot()
+            if self._door is not None and s.state != RunState.JOG:
+                s = dataclasses.replace(s, state=RunState.DOOR, substate=_DOOR_SUBSTATE[self._door])
             if self._check_mode and s.state in (RunState.IDLE, RunState.RUN):
                 name = "Check"
             elif s.state in (RunState.HOLD, RunState.DOOR):
@@ -459,33 +566,43 @@ class GrblPeer(GcodeExecution, SystemCommands):
 
     def _main_loop(self) -> None:
         while not self._stop.is_set():
+            if self._door is not None:
+                with self.vm.lock:  # the door resumes when its delays are over, polled or not
+                    self._door_update()
             with self._cond:
                 # a line is run only when the main loop is not suspended (a complete hold
                 # ends with '~' or a reset, both of which wake this wait)
-                self._cond.wait_for(lambda: self._stop.is_set()
-                                    or (self._line_ready is not None and not self._suspended()), 0.5)
+                self._cond.wait_for(lambda: self._stop.is_set() or self._startup_due
+                                    or (self._line_ready is not None and not self._suspended()),
+                                    0.5 if self._door is None else 0.01)
                 if self._stop.is_set():
                     return
-                if self._suspended():
+                startup, self._startup_due = self._startup_due, False
+                if not startup and self._suspended():
                     continue
-                line, self._line_ready = self._line_ready, None
-                overflow, self._line_overflow = self._line_overflow, False
-                if line is None:
-                    continue
+                line, overflow = None, False
+                if not startup:
+                    line, self._line_ready = self._line_ready, None
+                    overflow, self._line_overflow = self._line_overflow, False
+                    if line is None:
+                        continue
                 self._executing = True
                 gen = self._reset_gen
             try:
                 if self._critical:
                     continue  # GRBL waits for a reset after a limit alarm; lines are lost
                 try:
+                    if startup:
+                        self._run_startup_blocks(gen)
+                        continue
                     reply = "error:11" if overflow else self._execute(line, gen)
                 except Exception as exc:  # noqa: BLE001 - an emulator bug must not kill the port
                     self._reply(f"[MSG:dexmon peer error: {type(exc).__name__}: {exc}]")
-                    reply = "error:20"
+                    reply = None if startup else "error:20"  # no line of the sender's to answer
                 if reply is not None and gen == self._reset_gen:
                     self._reply(reply)
                     if self._reset_after_reply:
-                        self.reset()  # leaving check mode: mc_reset acts after the line's ok
+                        self.reset()  # $C leaving check mode, $RST: mc_reset acts after the ok
             finally:
                 with self._cond:
                     self._executing = False
@@ -507,7 +624,8 @@ class GrblPeer(GcodeExecution, SystemCommands):
             state = vm.state
         if state in (RunState.ALARM, RunState.JOG, RunState.SLEEP):
             return "error:9"
-        return self._gcode(text, clean, gen)
+        # the parser gets the line as GRBL's main loop keeps it: no spaces, comments or '/'
+        return self._gcode(clean, clean, gen)
 
 
 # ------------------------------------------------------------------ helpers
@@ -541,7 +659,8 @@ def _rapid_override(current: int, bits: set[int]) -> int:
 
 
 def _strip_grbl(text: str) -> str:
-    """What GRBL's main loop keeps of a line: no spaces, comments or controls; upper case."""
+    """What GRBL's main loop keeps of a line: no spaces, comments, controls or '/'; upper case
+    (DEL is kept: gc_execute_line refuses it as a letter, error:1)."""
     out = []
     in_paren = False
     for ch in text:
@@ -553,8 +672,8 @@ def _strip_grbl(text: str) -> str:
             in_paren = True
         elif ch == ";":
             break
-        elif ch <= " " or ch == "\x7f":
-            continue
+        elif ch <= " " or ch == "/":
+            continue  # '/': block delete is not supported, the character is dropped
         else:
             out.append(ch.upper())
     return "".join(out)

@@ -40,8 +40,8 @@ class SystemCommands:
             if not cmd.startswith("J="):
                 return "error:3"
             return self._jog(cmd[2:])
-        if cmd in ("$", "G", "C", "X") or cmd[:1] in ("$", "G", "C", "X") and len(cmd) > 1 and not cmd[1:2].isdigit():
-            if len(cmd) != 1:
+        if cmd[0] in "$GCX":
+            if len(cmd) != 1:  # system.c: line[2] must end the line
                 return "error:3"
             if cmd == "$":
                 if state in (RunState.RUN, RunState.HOLD):
@@ -80,8 +80,11 @@ class SystemCommands:
         if cmd[0] == "H":
             if not int(self.settings.get(22, 0)):
                 return "error:5"
+            if cmd != "H":
+                return "error:3"  # no HOMING_SINGLE_AXIS_COMMANDS in a stock build
             with vm.lock:
                 vm.unlock()  # homing succeeds at the current position (no switches here)
+            self._run_startup_blocks(gen)  # system.c: after a successful $H, before its ok
             return "ok"
         if cmd[0] == "S":
             if cmd != "SLP":
@@ -94,20 +97,34 @@ class SystemCommands:
             return None
         if cmd[0] == "I":
             if cmd == "I":
-                self._reply(f"[VER:{VERSION}:]")
+                self._reply(f"[VER:{VERSION}:{self.build_info}]")
                 blocks = vm.config.planner_blocks
                 self._reply(f"[OPT:V{'N' if self.line_numbers else ''},{blocks},{p.RX_BUFFER_SIZE}]")
                 return "ok"
-            return "ok" if cmd[1] == "=" else "error:3"
+            if cmd[1] != "=":
+                return "error:3"
+            self.build_info = cmd[2:]  # ENABLE_BUILD_INFO_WRITE_COMMAND: $I=text
+            return "ok"
         if cmd[0] == "R":
             if not (cmd.startswith("RST=") and len(cmd) == 5 and cmd[4] in "$#*"):
                 return "error:3"
+            # settings_restore: '$' the settings, '#' the offsets kept in EEPROM (G54..G59,
+            # G28, G30; G92 is not), '*' both and the startup blocks
             if cmd[4] in "$*":
                 self.settings = dict(p.DEFAULT_SETTINGS)
                 self.settings.update(settings_from_config(vm.config))
+            if cmd[4] in "#*":
+                with vm.lock:
+                    wo = vm.work_offsets
+                    wo.g5x = {name: (0.0,) * 6 for name in wo.g5x}
+                    wo.g28 = wo.g30 = (0.0,) * 6
+            if cmd[4] == "*":
+                self.startup_lines = [""] * len(self.startup_lines)
+                self.build_info = ""
             self._reply("[MSG:Restoring defaults]")
-            self.reset()
-            return None
+            # mc_reset only flags the reset: the line's ok comes first, then the banner
+            self._reset_after_reply = True
+            return "ok"
         if cmd[0] == "N":
             if cmd == "N":
                 for i, text in enumerate(self.startup_lines):
@@ -115,28 +132,40 @@ class SystemCommands:
                 return "ok"
             if state != RunState.IDLE:
                 return "error:8"
-            key, sep, value = cmd[1:].partition("=")
-            if not key.isdigit():
-                return "error:2"
-            if not sep or int(key) >= len(self.startup_lines):
-                return "error:3"
-            self.startup_lines[int(key)] = value
-            return "ok"
-        # $x=val
-        key, sep, value = cmd.partition("=")
-        if not re.fullmatch(r"\d+(\.\d*)?", key):
-            return "error:2" if not key[:1].isalpha() else "error:3"
-        if not sep:
-            return "error:3"
-        try:
-            num = float(value)
-        except ValueError:
+        return self._store(line, gen)
+
+    def _store(self, line: str, gen: int) -> str | None:
+        """``$x=val`` and ``$Nx=line``: the default branch of system_execute_line, with its
+        error codes in its order."""
+        startup = line[1] == "N"
+        read = _read_float(line, 2 if startup else 1)
+        if read is None:
             return "error:2"
-        n = int(float(key))
-        if n not in p.DEFAULT_SETTINGS:
+        parameter, i = read
+        if line[i:i + 1] != "=":
             return "error:3"
+        i += 1
+        if startup:
+            # the block runs (gc_execute_line) and is stored only if it passes
+            block = line[i:]
+            reply = self._gcode(block, block, gen) if block else "ok"
+            if reply == "ok" and 0 <= int(parameter) < len(self.startup_lines):
+                # (stock Grbl does not check the number: $N2= writes past the two blocks
+                # into other EEPROM data; here it is dropped)
+                self.startup_lines[int(parameter)] = block
+            return reply
+        read = _read_float(line, i)
+        if read is None:
+            return "error:2"
+        num, i = read
+        if i != len(line) or parameter > 255:
+            return "error:3"
+        # settings_store_global_setting: the sign first, then the number ((uint8_t) cast)
         if num < 0:
             return "error:4"
+        n = int(parameter)
+        if n not in p.DEFAULT_SETTINGS:
+            return "error:3"
         if n == 0 and num < 3:
             return "error:6"
         if n == 20 and num and not int(self.settings.get(22, 0)):
@@ -235,6 +264,16 @@ class SystemCommands:
             words = "G0 G54 G17 G21 G90 G94 M5 M9 T0 F0 S0"
         return f"[GC:{words}]"
 
+
+
+_FLOAT = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)")
+
+
+def _read_float(line: str, i: int) -> tuple[float, int] | None:
+    """nuts_bolts.c read_float at ``line[i]``: a sign, digits with at most one '.', at least
+    one digit; (value, index after it), or None when there is no number."""
+    m = _FLOAT.match(line, i)
+    return (float(m.group()), m.end()) if m else None
 
 
 def interp_offsets(interp) -> dict[str, tuple[float, ...]]:

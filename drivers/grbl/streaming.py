@@ -6,6 +6,10 @@ one line when GRBL's RX buffer has room for it, ``command`` (send and wait for t
 thread of the controller finishes each :class:`Command` with the ``ok``/``error:N`` that
 acknowledges it. The monitor itself never streams: these serve tests, benchmarks and the
 handshake's queries.
+
+Lines go out without their comments (:func:`wire_text`), as real senders send them: GRBL's
+serial interrupt takes ``!`` ``~`` ``?`` and Ctrl-X out of the byte stream wherever they
+stand, so a ``(careful!)`` sent as written would feed-hold the machine.
 """
 
 from __future__ import annotations
@@ -100,9 +104,10 @@ class Streaming:
         """Send one line under the character-counting protocol and return its :class:`Command`.
 
         Waits (up to ``timeout``) until the unacknowledged bytes plus this line fit in
-        GRBL's RX buffer (``rx_size - 1`` bytes). Does not wait for the ``ok``.
+        GRBL's RX buffer (``rx_size - 1`` bytes). Does not wait for the ``ok``. The line is
+        sent as :func:`wire_text` makes it (no comments; DriverError for a real-time byte).
         """
-        text = line.strip()
+        text = wire_text(line)
         try:
             data = (text + "\n").encode("ascii")
         except UnicodeEncodeError:
@@ -161,7 +166,9 @@ class Streaming:
 
         ``mode`` ``"counting"`` keeps the RX buffer full (sum of unacknowledged line
         lengths ≤ ``rx_size - 1``); ``"send-response"`` sends a line only after the
-        previous one was acknowledged. Blank and comment-only lines and ``%`` are not sent.
+        previous one was acknowledged. Comments are stripped (:func:`wire_text`; a line
+        with a real-time byte outside them raises DriverError); blank and comment-only
+        lines and ``%`` are not sent.
         Refused lines (``error:N``) are recorded and the stream goes on (as UGS does);
         an ``ALARM``, a reset or a lost connection stop it. ``timeout`` bounds the wait
         for each acknowledgement (a motion line's ``ok`` waits for planner room).
@@ -251,11 +258,48 @@ def _held_state(state) -> str | None:
     return f"{state.state.value}:{state.substate}"
 
 
+#: bytes GRBL's serial interrupt acts on wherever they stand (serial.c): inside a line
+#: they would hold, resume, report or reset instead of reaching the line buffer
+_REALTIME_CHARS = "?!~\x18"
+
+
+def strip_comments(raw: str) -> str:
+    """``raw`` without its ``(...)`` and ``;...`` comments, read as GRBL's main loop reads
+    a line: a ``;`` inside parentheses does not end the line, ``(`` runs to the next ``)``
+    or to the end of the line."""
+    out = []
+    in_paren = False
+    for ch in raw:
+        if in_paren:
+            in_paren = ch != ")"
+        elif ch == "(":
+            in_paren = True
+        elif ch == ";":
+            break
+        else:
+            out.append(ch)
+    return "".join(out)
+
+
+def wire_text(line: str) -> str:
+    """The text sent for ``line``: no comments, control characters and runs of whitespace
+    made one space (GRBL drops both, so the line means the same), no space at the ends.
+
+    Raises DriverError when a real-time character (``? ! ~`` Ctrl-X) is left outside the
+    comments, or a line end inside the line: sent, it would act at once or split the line
+    (and the character count with it)."""
+    if "\n" in line.strip("\r\n") or "\r" in line.strip("\r\n"):
+        raise DriverError(f"GRBL: line {line!r} has a line end inside it")
+    text = strip_comments(line.strip("\r\n"))
+    bad = sorted({ch for ch in text if ch in _REALTIME_CHARS})
+    if bad:
+        raise DriverError(f"GRBL: line {line!r} has the real-time character(s) {bad} outside a comment: "
+                          f"GRBL would act on them at once, not as part of the line")
+    return " ".join("".join(" " if ch < " " else ch for ch in text).split())
+
+
 def clean_line(raw: str) -> str:
-    """A program line as it is sent: stripped; "" for blank, comment-only and '%' lines."""
-    text = raw.strip()
-    if not text or text.startswith("%") or text.startswith(";"):
-        return ""
-    if text.startswith("(") and text.endswith(")") and text.count("(") == 1:
-        return ""
-    return text
+    """A program line as it is sent (:func:`wire_text`); "" for blank, comment-only and
+    '%' lines."""
+    text = wire_text(raw)
+    return "" if text.startswith("%") else text

@@ -429,3 +429,186 @@ def test_wco_and_ov_cadence_while_jogging(wire):
     assert w.status().startswith("<Jog|")  # answered after the cancel byte was taken
     advance(peer, 5.0)
     assert w.status().startswith("<Idle|")
+
+
+# ------------------------------------------------------------------ 9. startup blocks ($N)
+
+
+def test_startup_blocks_run_after_every_reset_not_in_alarm(wire):
+    # system.c: $Nx=line runs the block through gc_execute_line before storing it (its
+    # error refuses it); protocol.c runs the stored blocks after a reset or power-up that
+    # does not end in alarm, each reported as '>' block ':' ok|error:N (report.c)
+    peer, w = wire()
+    assert w.reply(b"$n0=g20 (inch)\n") == ["ok"]  # stored as the main loop keeps it
+    assert w.reply(b"$G\n")[0].startswith("[GC:G0 G54 G17 G20 ")  # run when stored
+    assert w.reply(b"$N1=G1X1\n") == ["error:22"]  # no feed yet: refused, not stored
+    assert w.reply(b"$N\n") == ["$N0=G20", "$N1=", "ok"]
+    assert w.reply(b"F600\n") == ["ok"]
+    assert w.reply(b"$N1=G1X1\n") == ["ok"]  # F600 is modal now: runs (moves) and is stored
+    w.status_until(lambda s: s.startswith("<Idle|MPos:25.400,"))  # G20: X1 is an inch
+    w.send(b"\x18")
+    # the reset forgets F: the second block fails now, and says so
+    assert w.until(lambda s: s.startswith(">G1X1:")) == ["", BANNER, ">G20:ok", ">G1X1:error:22"]
+    assert w.reply(b"$G\n")[0].startswith("[GC:G0 G54 G17 G20 ")  # a refused block changes nothing
+    assert w.reply(b"$N1=\n") == ["ok"]  # an empty block clears the slot: nothing reported
+    w.send(b"\x18")
+    assert w.until(lambda s: s.startswith(">")) == ["", BANNER, ">G20:ok"]
+    assert w.reply(b"G21\n") == ["ok"]
+
+
+def test_startup_blocks_wait_for_unlock_and_run_after_homing(wire):
+    # a reset ending in alarm runs no block, nor does $X (system.c: "Prevents stored moves
+    # in startup from causing accidents"); a successful $H runs them before its ok
+    peer, w = wire(settings={22: 1})
+    assert w.reply(b"$N0=G91\n") == ["ok"]
+    assert w.reply(b"$SLP\n") == ["ok"]
+    assert w.line() == "[MSG:Sleeping]"
+    w.send(b"\x18")  # out of sleep: alarm
+    assert w.until(lambda s: s.startswith("[MSG:")) == ["", BANNER, "[MSG:'$H'|'$X' to unlock]"]
+    assert w.reply(b"$X\n") == ["[MSG:Caution: Unlocked]", "ok"]
+    assert w.reply(b"G90\n") == ["ok"]
+    assert w.reply(b"$H\n") == [">G91:ok", "ok"]
+    assert w.reply(b"$G\n")[0].startswith("[GC:G0 G54 G17 G21 G91 ")
+
+
+# ------------------------------------------------------------------ 10. $RST
+
+
+def test_restore_answers_ok_then_resets(wire):
+    # system.c: [MSG:Restoring defaults], mc_reset() (a flag), the line's ok (STATUS_OK);
+    # then the main loop sees the reset: banner, startup blocks. settings_restore: '$'
+    # the settings, '#' the G54..G59 G28 G30 offsets, '*' those and the startup blocks
+    peer, w = wire()
+    assert w.reply(b"$10=3\n") == ["ok"]
+    assert w.reply(b"G10 L20 P1 X5\n") == ["ok"]
+    assert w.reply(b"G28.1\n") == ["ok"]
+    assert w.reply(b"$N0=G91\n") == ["ok"]
+    w.send(b"$RST=$\n")
+    assert w.until(lambda s: s.startswith(">")) == ["[MSG:Restoring defaults]", "ok", "", BANNER, ">G91:ok"]
+    assert "$10=1" in w.reply(b"$$\n")
+    offsets = w.reply(b"$#\n")
+    assert offsets[0] == "[G54:-5.000,0.000,0.000]"  # '$' keeps the offsets
+    w.send(b"$RST=#\n")
+    assert w.until(lambda s: s.startswith(">")) == ["[MSG:Restoring defaults]", "ok", "", BANNER, ">G91:ok"]
+    offsets = w.reply(b"$#\n")
+    assert offsets[0] == "[G54:0.000,0.000,0.000]" and "[G28:0.000,0.000,0.000]" in offsets
+    assert w.reply(b"$10=3\n") == ["ok"]
+    w.send(b"$RST=*\n")
+    assert w.until(lambda s: s == BANNER) == ["[MSG:Restoring defaults]", "ok", "", BANNER]
+    assert w.reply(b"$N\n") == ["$N0=", "$N1=", "ok"]  # no startup block ran, none is left
+    assert "$10=1" in w.reply(b"$$\n")
+    assert w.reply(b"$RST=x\n") == ["error:3"]
+
+
+# ------------------------------------------------------------------ 11. line filter and $ errors
+
+
+def test_block_delete_slash_is_dropped_anywhere(wire):
+    # protocol.c: '/' (block delete, not supported) is thrown away like a space
+    peer, w = wire()
+    assert w.reply(b"G0 X2/\n") == ["ok"]
+    assert w.reply(b"/G0 Y/3\n") == ["ok"]
+    w.status_until(lambda s: s.startswith("<Idle|MPos:2.000,3.000,"))
+    assert w.reply(b"G0 X1 (a/b)\n") == ["ok"]
+    # DEL is not a control character to the main loop: it reaches the parser as a letter
+    assert w.reply(b"G0 X1\x7f\n") == ["error:1"]
+
+
+def test_dollar_command_errors_follow_system_c(wire):
+    peer, w = wire(settings={22: 1})
+    # '$' 'G' 'C' 'X': anything after the letter is an invalid statement
+    for line in (b"$$1\n", b"$G0\n", b"$C1\n", b"$X9\n", b"$#1\n", b"$HX\n", b"$SL\n", b"$Ix\n"):
+        assert w.reply(line) == ["error:3"], line
+    # other letters: read_float for the number (no digit: error:2), then '=' (error:3),
+    # read_float for the value (error:2), then the end of the line (error:3)
+    cases = {b"$A=1": "error:2", b"$=1": "error:2", b"$-=1": "error:2", b"$10": "error:3",
+             b"$10x1": "error:3", b"$10=": "error:2", b"$10=x": "error:2", b"$10=1x": "error:3",
+             b"$10=1.5.1": "error:3", b"$256=1": "error:3", b"$103=1": "error:3", b"$7=1": "error:3",
+             b"$7=-1": "error:4", b"$NA=G20": "error:2", b"$N0G20": "error:3"}
+    for line, want in cases.items():
+        assert w.reply(line + b"\n") == [want], line
+    assert "$10=1" in w.reply(b"$$\n")  # none of them changed a setting
+    # the number is truncated to its integer (uint8_t), the value may end with '.'
+    assert w.reply(b"$10.7=2.\n") == ["ok"]
+    assert "$10=2" in w.reply(b"$$\n")
+    # $I=text stores the build info (uppercase, no spaces, as the main loop keeps it)
+    assert w.reply(b"$I=my mill\n") == ["ok"]
+    assert w.reply(b"$I\n")[0] == "[VER:1.1h.20190830:MYMILL]"
+
+
+# ------------------------------------------------------------------ 12. safety door (0x84)
+
+
+def test_safety_door_while_idle_stops_spindle_and_coolant_until_cycle_start(wire):
+    # serial.c sets EXEC_SAFETY_DOOR in any state; protocol.c: [MSG:Check Door], state
+    # DOOR, hold complete at once from Idle; the suspend loop turns spindle and coolant off
+    # and, with no door pin, reads the door closed (Door:0); the main loop reads no line.
+    # '~' then restores the spindle (4 s spin-up), the coolant (1 s) and resumes (Door:3)
+    peer, w = wire(vm=make_vm(max_rate=(600.0,) * 3, accel=(100.0,) * 3), run=False, settings={10: 3})
+    settle_cadence(w)
+    assert w.reply(b"M3 S500 M8\n") == ["ok"]
+    assert w.status().endswith("|FS:0,500|Ov:100,100,100|A:SF>")
+    w.send(b"\x84")
+    assert w.line() == "[MSG:Check Door]"
+    s = w.status()  # spindle_set_state / coolant_set_state report the change at once
+    assert s.startswith("<Door:0|MPos:0.000,0.000,0.000|") and s.endswith("|FS:0,0|Ov:100,100,100>")
+    w.send(b"G0 X1\n")
+    assert w.status_until(lambda s: "|Bf:15,122|" in s).startswith("<Door:0|")
+    w.send(b"!\xa0")  # no feed hold and no coolant toggle in the door state
+    assert w.status().startswith("<Door:0|") and w.status().startswith("<Door:0|")
+    w.send(b"~")
+    s = w.status()
+    assert s.startswith("<Door:3|") and field(s, "FS") == "0,500" and s.endswith("|A:S>")
+    advance(peer, 4.0)
+    s = w.status()
+    assert s.startswith("<Door:3|") and s.endswith("|A:SF>")
+    advance(peer, 1.0)
+    assert w.status().startswith("<Idle|")
+    assert w.line() == "ok"  # the line waiting in the RX buffer is read now
+    advance(peer, 5.0)
+    assert w.status().startswith("<Idle|MPos:1.000,")
+
+
+def test_safety_door_during_motion_holds_then_resumes(wire):
+    peer, w = wire(vm=make_vm(max_rate=(600.0,) * 3, accel=(100.0,) * 3), run=False)
+    assert w.reply(b"G1 X20 F600\n") == ["ok"]
+    advance(peer, 0.5)
+    w.send(b"\x84")
+    assert w.line() == "[MSG:Check Door]"
+    assert w.status().startswith("<Door:2|")  # decelerating: the hold is not complete
+    advance(peer, 0.5)
+    s = w.status()
+    assert s.startswith("<Door:0|") and field(s, "FS") == "0,0"
+    w.send(b"\x84")  # again: the message again, the door stays closed (no pin)
+    assert w.line() == "[MSG:Check Door]"
+    assert w.status().startswith("<Door:0|")
+    w.send(b"~")  # spindle and coolant were off: no delay
+    assert w.status().startswith("<Run|")
+    advance(peer, 10.0)
+    assert w.status().startswith("<Idle|MPos:20.000,")
+
+
+def test_safety_door_cancels_a_jog_and_is_ignored_in_alarm_and_check_mode(wire):
+    peer, w = wire(run=False)
+    assert w.reply(b"$J=G91 X-150 F600\n") == ["ok"]
+    advance(peer, 0.5)
+    w.send(b"\x84")
+    assert w.line() == "[MSG:Check Door]"
+    assert w.status().startswith("<Jog|")  # the jog is cancelled first
+    advance(peer, 5.0)
+    s = w.status()
+    assert s.startswith("<Door:0|") and not s.startswith("<Door:0|MPos:-150.000")
+    w.send(b"\x18")  # a reset leaves the door state
+    w.until(lambda s: s == BANNER)
+    assert w.status().startswith("<Idle|")
+    assert w.reply(b"$C\n") == ["[MSG:Enabled]", "ok"]
+    w.send(b"\x84")
+    assert w.status().startswith("<Check|")  # no message either (status() checks)
+    w.send(b"$C\n")
+    w.until(lambda s: s == BANNER)
+    assert w.reply(b"$SLP\n") == ["ok"]
+    assert w.line() == "[MSG:Sleeping]"
+    w.send(b"\x18")
+    w.until(lambda s: s.startswith("[MSG:"))
+    w.send(b"\x84")
+    assert w.status().startswith("<Alarm|")
