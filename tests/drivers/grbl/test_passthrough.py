@@ -199,6 +199,11 @@ def test_a_setting_the_sender_changes_is_learned_from_its_ok(rig):
     assert sender.command("$13 = 7") == ["ok"] and sender.command("$999=1") == ["error:3"]
     assert pt.wait_lines(5, 5)
     assert pt.settings[13] == 1 and 999 not in pt.settings
+    # restoring the defaults makes every learned setting unknown until the next $$
+    sender.port.write(b"$RST=$\n")
+    while "Grbl 1.1h" not in sender.read_line():
+        pass
+    assert 13 not in pt.settings and pt.poll().mpos[:2] == pytest.approx((25.4, -12.7))
 
 
 def test_a_limit_alarm_is_polled_as_alarm_though_grbl_answers_no_report(rig):
