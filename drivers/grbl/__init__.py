@@ -1,7 +1,9 @@
 """GRBL 1.1 over serial.
 
-* :mod:`drivers.grbl.protocol` — pure parsers: byte chunks -> lines -> messages ->
-  :class:`~drivers.state.MachineState`; real-time bytes and overrides.
+* :mod:`drivers.grbl.protocol` — pure parsers: byte chunks -> lines -> messages;
+  real-time bytes and overrides.
+* :mod:`drivers.grbl.readings` — what the messages mean in mm: status reports ->
+  :class:`~drivers.state.MachineState`, units, the work offset in force, limits.
 * :mod:`drivers.grbl.driver` — :class:`GrblController` on any pyserial port
   (``grbl://``, ``grbl+pty://``, ``grbl+socket://`` URLs).
 * :mod:`drivers.grbl.peer` — :class:`GrblPeer`, the virtual machine speaking GRBL 1.1 on

@@ -45,6 +45,7 @@ import serial
 
 from drivers.errors import ConnectionLost, DriverError, ProtocolError
 from drivers.grbl import protocol as p
+from drivers.grbl import readings
 from drivers.grbl.streaming import Command, Streaming
 from drivers.state import (MAX_REPORTED_INT, Controller, Gap, LinkKind, MachineState, RunState, check_device,
                            implausible, stale_state)
@@ -133,7 +134,7 @@ class GrblController(Streaming, Controller):
         self._banner_seq = 0
         self._alarm: int | None = None
         self._alarm_seq = 0
-        # a hard/soft limit ALARM code (p.CRITICAL_ALARMS) since the last reset: GRBL answers
+        # a hard/soft limit ALARM code (readings.CRITICAL_ALARMS) since the last reset: GRBL answers
         # no '?' until Ctrl-X, so polls report the alarm from it instead
         self._critical: int | None = None
         self._offset_told = False   # the BAD event of reports with no work offset known yet was sent
@@ -387,7 +388,7 @@ class GrblController(Streaming, Controller):
                 self._alarm = msg.code
                 self._alarm_seq += 1
                 self.alarms.append((t, msg.code))
-                if msg.code in p.CRITICAL_ALARMS:
+                if msg.code in readings.CRITICAL_ALARMS:
                     self._critical = msg.code
                 if self._back_pending:
                     self._alarm_since_back = msg.code
@@ -452,12 +453,12 @@ class GrblController(Streaming, Controller):
         why = None
         self._reported = report.run_state
         # before any report carried WCO: the offset in force from the handshake's $# and $G
-        wco = prev.wco if prev else p.offset_in_force(self.offsets, self.parser_state, self.settings)
+        wco = prev.wco if prev else readings.offset_in_force(self.offsets, self.parser_state, self.settings)
         try:
-            state = p.status_to_state(report, self.settings, wco, t, prev=prev, alarm=self._alarm)
+            state = readings.status_to_state(report, self.settings, wco, t, prev=prev, alarm=self._alarm)
             why = implausible(state)
             no_offset = False
-        except p.OffsetUnknown as exc:
+        except readings.OffsetUnknown as exc:
             why, no_offset = str(exc), True
         except Exception as exc:  # noqa: BLE001 - a report that cannot be converted is a bad one
             why, no_offset = f"cannot convert it ({type(exc).__name__}: {exc})", False
@@ -571,12 +572,12 @@ class GrblController(Streaming, Controller):
 
     def machine_limits(self):
         """The machine's limits from the ``$$`` settings read (see
-        :func:`drivers.grbl.protocol.settings_limits`), or None before ``$$`` was read
+        :func:`drivers.grbl.readings.settings_limits`), or None before ``$$`` was read
         (attached to a busy machine, it is read once the machine is Idle)."""
         with self._cond:
             settings = dict(self.settings)
             codes = self.options.codes if self.options is not None else ""
-        return p.settings_limits(settings, f"GRBL $$ on {self.port}", codes)
+        return readings.settings_limits(settings, f"GRBL $$ on {self.port}", codes)
 
     def poll(self, timeout: float | None = None) -> MachineState:
         """Ask ``?`` and return the report it brings, stamped at arrival; never raises.
@@ -629,11 +630,11 @@ class GrblController(Streaming, Controller):
         return self._not_fresh(RunState.MISSED, why)
 
     def _silent_alarm(self, code: int) -> MachineState:
-        """Alarm ``code`` that GRBL will not report (see :func:`p.critical_alarm_state`)."""
+        """Alarm ``code`` that GRBL will not report (see :func:`readings.critical_alarm_state`)."""
         with self._cond:
             t = max(time.monotonic(), self._last_t)
             self._last_t = t
-            return p.critical_alarm_state(self._state, code, t)
+            return readings.critical_alarm_state(self._state, code, t)
 
     def _not_fresh(self, kind: RunState, why: str) -> MachineState:
         """A ``kind`` (MISSED/DISCONNECTED) state stamped now, at the last known position."""
@@ -777,7 +778,7 @@ def _state_name(state: MachineState) -> str:
 def _inches_by_format(raw: str) -> bool:
     """Whether a status report's text says inches by its format (4 decimals)."""
     try:
-        return p.report_in_inches(p.parse_status(raw))
+        return readings.report_in_inches(p.parse_status(raw))
     except ProtocolError:
         return False
 

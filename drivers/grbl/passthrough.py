@@ -52,6 +52,7 @@ import serial
 
 from drivers.errors import ConnectionLost, DriverError, ProtocolError
 from drivers.grbl import protocol as p
+from drivers.grbl import readings
 from drivers.grbl.driver import read_available, url_params
 from drivers.grbl.endpoints import Endpoint, PtyEndpoint, TcpEndpoint
 from drivers.state import (Controller, Gap, LinkKind, MachineState, RunState, check_device, implausible,
@@ -168,7 +169,7 @@ class Passthrough(Controller):
         self.offsets: dict[str, tuple[float, ...]] = {}
         self.parser_state: p.ParserState | None = None
         # a hard/soft limit ALARM code since the last reset: GRBL answers no "?" until
-        # Ctrl-X, so polls report the alarm from it (see p.critical_alarm_state)
+        # Ctrl-X, so polls report the alarm from it (see readings.critical_alarm_state)
         self._critical: int | None = None
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
@@ -440,7 +441,7 @@ class Passthrough(Controller):
             elif isinstance(msg, p.Alarm):
                 self._alarm = msg.code
                 self.alarms.append((t, msg.code))
-                if msg.code in p.CRITICAL_ALARMS:
+                if msg.code in readings.CRITICAL_ALARMS:
                     self._critical = msg.code
             elif isinstance(msg, p.Setting) and math.isfinite(msg.value):
                 self.settings[msg.number] = msg.value  # a value no number names is not learned
@@ -485,11 +486,11 @@ class Passthrough(Controller):
         its numbers cannot be right (the last plausible state is kept)."""
         prev = self._state
         # before any report carried WCO: the offset in force from the sender's $# and $G
-        wco = prev.wco if prev else p.offset_in_force(self.offsets, self.parser_state, self.settings)
+        wco = prev.wco if prev else readings.offset_in_force(self.offsets, self.parser_state, self.settings)
         try:
-            state = p.status_to_state(report, self.settings, wco, t, prev=prev, alarm=self._alarm)
+            state = readings.status_to_state(report, self.settings, wco, t, prev=prev, alarm=self._alarm)
             why = implausible(state)
-        except p.OffsetUnknown as exc:
+        except readings.OffsetUnknown as exc:
             state, why = None, str(exc)
         except (ArithmeticError, ValueError) as exc:  # numbers no machine has
             state, why = None, f"cannot be converted ({type(exc).__name__}: {exc})"
@@ -568,8 +569,8 @@ class Passthrough(Controller):
 
     def machine_limits(self):
         """The machine's limits from the ``$$`` replies the sender's traffic showed (see
-        :func:`drivers.grbl.protocol.settings_limits`), or None until a sender asked."""
-        return p.settings_limits(dict(self.settings), f"GRBL $$ seen on {self.port}")
+        :func:`drivers.grbl.readings.settings_limits`), or None until a sender asked."""
+        return readings.settings_limits(dict(self.settings), f"GRBL $$ seen on {self.port}")
 
     @property
     def learned_lines(self) -> list[LearnedLine]:
@@ -606,7 +607,7 @@ class Passthrough(Controller):
             state = stale_state(last, RunState.DISCONNECTED, t,
                                 f"machine port {self.port} lost ({self._lost_reason})")
         elif (not fresh or latest is None) and critical is not None:
-            state = p.critical_alarm_state(last, critical, t)
+            state = readings.critical_alarm_state(last, critical, t)
         elif not fresh or latest is None:
             state = stale_state(last, RunState.MISSED, t, f"no status report within {timeout:g} s")
         else:

@@ -41,6 +41,7 @@ import time
 from typing import Callable
 
 from drivers.grbl import protocol as p
+from drivers.grbl import readings
 from drivers.grbl.endpoints import Endpoint, PtyEndpoint, TcpEndpoint
 from drivers.grbl.peer_gcode import GcodeExecution
 from drivers.grbl.peer_report import Accessories, ReportCadence, settings_from_config, status_report
@@ -482,7 +483,7 @@ class GrblPeer(GcodeExecution, SystemCommands):
         if name == "alarm":
             code = int(payload)
             self._send(f"ALARM:{code}")
-            if code in p.CRITICAL_ALARMS:
+            if code in readings.CRITICAL_ALARMS:
                 self._critical = True
                 self.accessories.killed = True  # limits.c calls mc_reset: pins off
                 self._send("[MSG:Reset to continue]")

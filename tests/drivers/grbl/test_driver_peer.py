@@ -133,27 +133,29 @@ def test_attaching_to_work_position_reports_never_takes_them_for_machine_positio
 
 def test_a_work_position_report_with_no_offset_known_is_not_a_position():
     from drivers.grbl import protocol as p
+    from drivers.grbl import readings
 
     rep = p.parse_status("<Run|WPos:5.000,-2.000,1.000|FS:300,0>")
-    with pytest.raises(p.OffsetUnknown, match="WCO"):
-        p.status_to_state(rep, {}, None, 0.0)
-    s = p.status_to_state(rep, {}, (-5.0, 2.0, -1.0, 0, 0, 0), 0.0)
+    with pytest.raises(readings.OffsetUnknown, match="WCO"):
+        readings.status_to_state(rep, {}, None, 0.0)
+    s = readings.status_to_state(rep, {}, (-5.0, 2.0, -1.0, 0, 0, 0), 0.0)
     assert s.mpos[:3] == pytest.approx((0.0, 0.0, 0.0))
     # nor is a machine position whose offset is unknown taken with an offset of zero
-    with pytest.raises(p.OffsetUnknown):
-        p.status_to_state(p.parse_status("<Run|MPos:5.000,-2.000,1.000|FS:300,0>"), {}, None, 0.0)
+    with pytest.raises(readings.OffsetUnknown):
+        readings.status_to_state(p.parse_status("<Run|MPos:5.000,-2.000,1.000|FS:300,0>"), {}, None, 0.0)
 
 
 def test_the_offset_in_force_from_dollar_hash_and_dollar_g():
     from drivers.grbl import protocol as p
+    from drivers.grbl import readings
 
     offsets = {"G54": (1.0, 2.0, 3.0), "G55": (10.0, 20.0, 30.0), "G92": (0.5, 0.0, 0.0), "TLO": (2.0,)}
     gc = p.parse_line("[GC:G0 G55 G17 G21 G90 G94 M5 M9 T0 F0 S0]")
-    assert p.offset_in_force(offsets, gc, {13: 0}) == pytest.approx((10.5, 20.0, 32.0, 0, 0, 0))
+    assert readings.offset_in_force(offsets, gc, {13: 0}) == pytest.approx((10.5, 20.0, 32.0, 0, 0, 0))
     # in inches when $13=1, as Grbl prints $#
-    assert p.offset_in_force(offsets, gc, {13: 1})[:3] == pytest.approx((266.7, 508.0, 812.8))
-    assert p.offset_in_force({"G54": (1.0, 2.0, 3.0)}, gc, {}) is None     # no G55, G92, TLO yet
-    assert p.offset_in_force(offsets, None, {}) is None
+    assert readings.offset_in_force(offsets, gc, {13: 1})[:3] == pytest.approx((266.7, 508.0, 812.8))
+    assert readings.offset_in_force({"G54": (1.0, 2.0, 3.0)}, gc, {}) is None     # no G55, G92, TLO yet
+    assert readings.offset_in_force(offsets, None, {}) is None
 
 
 @pytest.mark.parametrize("mode", ["counting", "send-response"])

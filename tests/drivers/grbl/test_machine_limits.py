@@ -9,6 +9,7 @@ import pytest
 import serial
 
 from drivers.grbl import protocol as p
+from drivers.grbl import readings
 from drivers.grbl.passthrough import Passthrough
 from drivers.grbl.peer import GrblPeer
 from drivers.registry import open_controller
@@ -20,7 +21,7 @@ SLOW = dict(max_rate=(500.0, 400.0, 300.0), accel=(20.0, 15.0, 10.0), junction_d
 
 
 def test_settings_limits_reads_rates_accelerations_deviation_travel_and_flags():
-    got = p.settings_limits({**p.DEFAULT_SETTINGS, 110: 800, 122: 50, 11: 0.05, 132: 80, 20: 1, 13: 1}, "here")
+    got = readings.settings_limits({**p.DEFAULT_SETTINGS, 110: 800, 122: 50, 11: 0.05, 132: 80, 20: 1, 13: 1}, "here")
     assert got == ControllerLimits(max_rate=(800.0, 500.0, 500.0), acceleration=(10.0, 10.0, 50.0),
                                    junction_deviation=0.05, travel=((-200.0, 0.0), (-200.0, 0.0), (-80.0, 0.0)),
                                    soft_limits=True, report_inches=True, source="here")
@@ -28,15 +29,15 @@ def test_settings_limits_reads_rates_accelerations_deviation_travel_and_flags():
                             "junction_deviation": 0.05}
     assert got.travel_limits() == {"X": (-200.0, 0.0), "Y": (-200.0, 0.0), "Z": (-80.0, 0.0)}
     # travel is no limit where the controller does not enforce it ($20=0: no homing needed)
-    assert p.settings_limits(p.DEFAULT_SETTINGS, "").travel_limits() is None
+    assert readings.settings_limits(p.DEFAULT_SETTINGS, "").travel_limits() is None
     # a firmware built with HOMING_FORCE_SET_ORIGIN ([OPT:Z..]) homes an axis whose $23 bit is
     # set to its negative end and sets the origin there: that axis travels [0, $13x]
-    forced = p.settings_limits({**p.DEFAULT_SETTINGS, 23: 5, 20: 1}, "", "VZ")
+    forced = readings.settings_limits({**p.DEFAULT_SETTINGS, 23: 5, 20: 1}, "", "VZ")
     assert forced.travel == ((0.0, 200.0), (-200.0, 0.0), (0.0, 200.0))
-    assert p.settings_limits({**p.DEFAULT_SETTINGS, 23: 5}, "", "V").travel == ((-200.0, 0.0),) * 3
+    assert readings.settings_limits({**p.DEFAULT_SETTINGS, 23: 5}, "", "V").travel == ((-200.0, 0.0),) * 3
     # $$ not read yet: nothing known; a group with a missing or impossible value is unknown
-    assert p.settings_limits({}, "") is None and p.settings_limits({10: 1, 13: 0}, "") is None
-    odd = p.settings_limits({110: 500, 111: math.nan, 112: 500, 120: 10, 121: 10, 122: 0, 11: -1,
+    assert readings.settings_limits({}, "") is None and readings.settings_limits({10: 1, 13: 0}, "") is None
+    odd = readings.settings_limits({110: 500, 111: math.nan, 112: 500, 120: 10, 121: 10, 122: 0, 11: -1,
                              130: 100, 131: 100, 132: 100, 20: 7}, "")
     assert odd.max_rate is None and odd.acceleration is None and odd.junction_deviation is None
     assert odd.timing() == {} and odd.soft_limits is None

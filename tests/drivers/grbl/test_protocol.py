@@ -9,6 +9,7 @@ from hypothesis import given, settings, strategies as st
 
 from drivers.errors import ProtocolError
 from drivers.grbl import protocol as p
+from drivers.grbl import readings
 from drivers.state import MachineState, RunState
 
 #: the work offset a report without WCO is converted with (a driver knows it from an earlier
@@ -175,37 +176,37 @@ def test_malformed_status(text):
 
 def test_status_to_state_wpos_plus_remembered_wco():
     r1 = p.parse_line("<Idle|WPos:5.000,-2.000,1.000|FS:0,0|WCO:-5.000,2.000,-1.000>")
-    s1 = p.status_to_state(r1, {10: 0}, None, 1.0)
+    s1 = readings.status_to_state(r1, {10: 0}, None, 1.0)
     assert s1.mpos[:3] == (0.0, 0.0, 0.0) and s1.wco[:3] == (-5.0, 2.0, -1.0)
     # next report carries no WCO: the remembered one still converts WPos -> MPos
     r2 = p.parse_line("<Run|WPos:6.000,-2.000,1.000|FS:300,1000|Ov:120,100,100|A:C>")
-    s2 = p.status_to_state(r2, {10: 0}, s1.wco, 1.05, prev=s1)
+    s2 = readings.status_to_state(r2, {10: 0}, s1.wco, 1.05, prev=s1)
     assert s2.mpos[:3] == (1.0, 0.0, 0.0)
     assert s2.wpos[:3] == (6.0, -2.0, 1.0)
     assert s2.state is RunState.RUN and s2.feed == 300 and s2.t == 1.05
     assert s2.overrides == (120, 100, 100) and s2.spindle == -1000 and s2.accessories == "C"
     # a report without Ov keeps overrides and accessories of the previous state
     r3 = p.parse_line("<Run|MPos:1.5,0,0|FS:300,1000>")
-    s3 = p.status_to_state(r3, None, s2.wco, 1.1, prev=s2)
+    s3 = readings.status_to_state(r3, None, s2.wco, 1.1, prev=s2)
     assert s3.overrides == (120, 100, 100) and s3.accessories == "C" and s3.spindle == -1000
 
 
 def test_status_to_state_inches_and_alarm():
     r = p.parse_line("<Alarm|MPos:1.000,2.000,0.000|F:10|WCO:0.500,0,0>")
-    s = p.status_to_state(r, {13: 1}, None, 0.0, alarm=2)
+    s = readings.status_to_state(r, {13: 1}, None, 0.0, alarm=2)
     assert s.mpos[:3] == pytest.approx((25.4, 50.8, 0.0))
     assert s.wco[0] == pytest.approx(12.7) and s.feed == pytest.approx(254.0)
     assert s.state is RunState.ALARM and s.alarm == 2
-    idle = p.status_to_state(p.parse_line("<Idle|MPos:0,0,0|FS:0,0>"), None, NO_WCO, 0.0, alarm=2)
+    idle = readings.status_to_state(p.parse_line("<Idle|MPos:0,0,0|FS:0,0>"), None, NO_WCO, 0.0, alarm=2)
     assert idle.alarm is None and isinstance(idle, MachineState)
 
 
 def test_status_to_state_carries_rotary_axes():
     """grblHAL sends 4 to 6 axes: A B C reach the state in degrees, in MPos, WPos and WCO."""
-    s = p.status_to_state(p.parse_line("<Idle|MPos:1.000,2.000,3.000,90.000|FS:0,0>"), {13: 0}, NO_WCO, 0.0)
+    s = readings.status_to_state(p.parse_line("<Idle|MPos:1.000,2.000,3.000,90.000|FS:0,0>"), {13: 0}, NO_WCO, 0.0)
     assert s.mpos == (1.0, 2.0, 3.0, 90.0, 0.0, 0.0)
     r = p.parse_line("<Run|WPos:1.000,2.000,3.000,80.000,-10.000,370.000|FS:100,0|WCO:0,0,0,10.000,5.000,0>")
-    s = p.status_to_state(r, {13: 0}, None, 0.0)
+    s = readings.status_to_state(r, {13: 0}, None, 0.0)
     assert s.mpos == (1.0, 2.0, 3.0, 90.0, -5.0, 370.0) and s.wco[3:] == (10.0, 5.0, 0.0)
 
 
@@ -214,7 +215,7 @@ def test_status_to_state_inches_leave_rotary_axes_in_degrees(settings):
     """grblHAL with $13=1 reports the axes $376 marks rotary in degrees (3 decimals), not
     inches; without $376 read, A B C are taken as rotary."""
     r = p.parse_line("<Idle|MPos:1.0000,2.0000,0.0000,90.000|FS:0,0|WCO:0.5000,0,0,10.000>")
-    s = p.status_to_state(r, settings, NO_WCO, 0.0)
+    s = readings.status_to_state(r, settings, NO_WCO, 0.0)
     assert s.mpos[:3] == pytest.approx((25.4, 50.8, 0.0))
     assert s.mpos[3] == 90.0 and s.wco[3] == 10.0 and s.wco[0] == pytest.approx(12.7)
 
@@ -222,13 +223,13 @@ def test_status_to_state_inches_leave_rotary_axes_in_degrees(settings):
 def test_status_to_state_inches_scale_an_axis_376_calls_linear():
     """$376=0 (grblHAL's old default): the A axis is a length, reported in inches like X."""
     r = p.parse_line("<Idle|MPos:1.0000,0.0000,0.0000,2.0000|FS:0,0>")
-    s = p.status_to_state(r, {13: 1, 376: 0}, NO_WCO, 0.0)
+    s = readings.status_to_state(r, {13: 1, 376: 0}, NO_WCO, 0.0)
     assert s.mpos[3] == pytest.approx(50.8)
 
 
 def test_status_to_state_substate_buffer_pins_line():
     r = p.parse_line("<Hold:0|MPos:0,0,0|Bf:15,128|Ln:77|FS:0,0|Pn:P>")
-    s = p.status_to_state(r, None, NO_WCO, 2.0)
+    s = readings.status_to_state(r, None, NO_WCO, 2.0)
     assert s.state is RunState.HOLD and s.substate == 0
     assert s.buffer == (15, 128) and s.line == 77 and s.pins == "P"
 
@@ -287,7 +288,7 @@ def test_fuzz_parser_structured_noise(parts):
     except ProtocolError:
         return
     if isinstance(msg, p.StatusReport):
-        s = p.status_to_state(msg, {13: 0}, NO_WCO, 0.0)
+        s = readings.status_to_state(msg, {13: 0}, NO_WCO, 0.0)
         assert len(s.mpos) == 6
 
 
@@ -350,15 +351,15 @@ def test_reported_numbers_beyond_sane_ranges_are_protocol_errors(text):
 def test_status_to_state_survives_any_inch_setting(value):
     # a garbage $13 must never break unit scaling: it is ignored, the report format decides
     r = p.parse_line("<Idle|MPos:1.000,2.000,0.000|FS:10,0>")
-    s = p.status_to_state(r, {13: value}, NO_WCO, 0.0)
+    s = readings.status_to_state(r, {13: value}, NO_WCO, 0.0)
     assert s.mpos[:3] == pytest.approx((1.0, 2.0, 0.0)) and s.feed == 10
 
 
 def test_units_follow_the_report_format_until_the_setting_is_known():
     # Grbl 1.1h prints 4 decimals in inches, 3 in mm (N_DECIMAL_COORDVALUE_INCH / _MM)
     inch = p.parse_line("<Idle|MPos:1.0000,0.0000,0.0000|FS:1.0,0>")
-    assert p.status_to_state(inch, None, NO_WCO, 0.0).mpos[0] == pytest.approx(25.4)
-    assert p.status_to_state(inch, {13: 0}, NO_WCO, 0.0).mpos[0] == pytest.approx(1.0)  # the setting wins
+    assert readings.status_to_state(inch, None, NO_WCO, 0.0).mpos[0] == pytest.approx(25.4)
+    assert readings.status_to_state(inch, {13: 0}, NO_WCO, 0.0).mpos[0] == pytest.approx(1.0)  # the setting wins
     mm = p.parse_line("<Idle|MPos:1.000,0.000,0.000|FS:1,0>")
-    assert p.status_to_state(mm, None, NO_WCO, 0.0).mpos[0] == pytest.approx(1.0)
-    assert p.report_in_inches(inch) is True and p.report_in_inches(mm) is False
+    assert readings.status_to_state(mm, None, NO_WCO, 0.0).mpos[0] == pytest.approx(1.0)
+    assert readings.report_in_inches(inch) is True and readings.report_in_inches(mm) is False
