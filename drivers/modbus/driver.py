@@ -502,11 +502,11 @@ class ModbusController(Controller):
     def _write_cell(self, f: Field, hold: bool) -> None:
         where = _where(f.unit, f.table, f.address, 1, (f,))
         broadcast = f.unit == 0
+        value = f.hold_value if hold else f.resume_value  # checked at load: fits the cell
         try:
-            if f.table == "coil":
-                rr = self._client.write_coil(f.address, hold, device_id=f.unit, no_response_expected=broadcast)
+            if f.table == "coil":  # an active-low coil holds on 0
+                rr = self._client.write_coil(f.address, bool(value), device_id=f.unit, no_response_expected=broadcast)
             else:
-                value = f.hold_value if hold else f.resume_value
                 rr = self._client.write_register(f.address, value, device_id=f.unit, no_response_expected=broadcast)
         except ModbusIOException:
             raise ReplyTimeout(f"{self.url}: no reply within {self.timeout:g} s to the feed-hold write ({where})") from None
@@ -566,6 +566,8 @@ def from_url(url: str) -> ModbusController:
     try:
         if "unit" in q:
             unit = int(q["unit"])
+            if not 1 <= unit <= 247:  # 0 is broadcast: no device answers it (see regmap)
+                raise DriverError(f"modbus URL {url!r}: unit={unit}; expected a device id 1..247")
             regmap = replace(regmap, unit=unit, fields={n: replace(f, unit=unit) if f.unit == regmap.unit else f
                                                         for n, f in regmap.fields.items()})
         kw = dict(rate=float(q.get("rate", 20)), timeout=float(q.get("timeout", 0.5)),

@@ -4,7 +4,7 @@ A map file looks like this (see ``maps/generic.toml`` for a complete one)::
 
     [map]
     name = "generic"
-    unit = 1                 # default device id (slave address)
+    unit = 1                 # default device id (slave address), 1..247
     word_order = "big"       # default: most significant word first
     byte_order = "big"       # default: most significant byte first in each word
 
@@ -25,8 +25,10 @@ Field names: axis positions ``x y z a b c`` (mm, deg, machine coordinates); work
 feed when no ``feed`` field is mapped); ``feed`` (mm/min), ``spindle`` (rpm), ``state``
 (code, named through ``[states]``), ``alarm`` (code, 0 = none), ``line``,
 ``feed_override`` ``rapid_override`` ``spindle_override`` (percent), and the optional
-writable ``feed_hold`` (a coil, or a holding register with ``hold_value`` /
-``resume_value``). The machine's limits, for program timing, may be named too and are
+writable ``feed_hold``: a coil (``hold_value`` / ``resume_value`` 1 / 0 by default; 0 / 1
+for an active-low coil) or one int16/uint16 holding register (``hold_value`` /
+``resume_value``, register words 0..65535 that differ); it alone may be on unit 0
+(broadcast), which no device answers. The machine's limits, for program timing, may be named too and are
 read once at connect: ``max_rate_x`` .. ``max_rate_z`` (mm/min), ``accel_x`` ..
 ``accel_z`` (mm/s^2), ``junction_deviation`` (mm).
 
@@ -68,6 +70,12 @@ FIELD_NAMES = (
 LIMIT_FIELDS = (tuple(f"max_rate_{a}" for a in "xyz") + tuple(f"accel_{a}" for a in "xyz")
                 + ("junction_deviation",))
 FIELD_NAMES += LIMIT_FIELDS
+#: keys of the ``[map]`` table and of each ``[fields.NAME]`` table
+MAP_KEYS = frozenset({"name", "source", "unit", "word_order", "byte_order", "description"})
+FIELD_KEYS = frozenset({"table", "address", "type", "scale", "offset", "word_order", "byte_order", "unit",
+                        "hold_value", "resume_value", "description"})
+#: types the feed-hold register may have: it is written with one "write single register"
+HOLD_REGISTER_TYPES = ("int16", "uint16")
 #: Modbus limits per request (registers, bits)
 MAX_REGS_PER_READ = 125
 MAX_BITS_PER_READ = 2000
@@ -300,6 +308,11 @@ def parse_map(doc: dict, path: str = "<map>") -> RegisterMap:
     unknown = set(doc) - {"map", "fields", "states"}
     if unknown:
         raise _err(path, sorted(unknown)[0], "unknown top-level table; expected [map], [fields.*], [states]")
+    # a misspelt default (``wordorder``) would leave every field on the other default and
+    # decode positions wrongly yet as fresh: refuse it, as field tables do
+    extra = set(head) - MAP_KEYS
+    if extra:
+        raise _err(path, f"map.{sorted(extra)[0]}", f"unknown key; expected one of {', '.join(sorted(MAP_KEYS))}")
     name = _get(head, "name", str, path, "map", default=Path(path).stem)
     source = _get(head, "source", str, path, "map", default="")
     unit = _get(head, "unit", int, path, "map", default=1)
@@ -312,8 +325,7 @@ def parse_map(doc: dict, path: str = "<map>") -> RegisterMap:
     if not isinstance(raw_fields, dict) or not raw_fields:
         raise _err(path, "fields", "expected at least one [fields.NAME] table")
     fields: dict[str, Field] = {}
-    allowed_keys = {"table", "address", "type", "scale", "offset", "word_order", "byte_order", "unit",
-                    "hold_value", "resume_value", "description"}
+    allowed_keys = FIELD_KEYS
     for fname, spec in raw_fields.items():
         where = f"fields.{fname}"
         if fname not in FIELD_NAMES:
@@ -338,11 +350,15 @@ def parse_map(doc: dict, path: str = "<map>") -> RegisterMap:
         if address + TYPES[ftype][1] - 1 > 0xFFFF:
             raise _err(path, f"{where}.address", "field runs past register 65535")
         scale = _get(spec, "scale", float, path, where, default=1.0)
+        offset = _get(spec, "offset", float, path, where, default=0.0)
+        # TOML has nan and inf: every reading would then be BAD, blamed on the controller
+        for key, v in (("scale", scale), ("offset", offset)):
+            if not math.isfinite(v):
+                raise _err(path, f"{where}.{key}", f"expected a finite number, got {v!r}")
         if scale == 0:
             raise _err(path, f"{where}.scale", "must not be 0")
         f = Field(
-            name=fname, table=table, address=address, type=ftype, scale=scale,
-            offset=_get(spec, "offset", float, path, where, default=0.0),
+            name=fname, table=table, address=address, type=ftype, scale=scale, offset=offset,
             word_order=_get(spec, "word_order", str, path, where, default=d_word),
             byte_order=_get(spec, "byte_order", str, path, where, default=d_byte),
             unit=_get(spec, "unit", int, path, where, default=unit),
@@ -354,8 +370,12 @@ def parse_map(doc: dict, path: str = "<map>") -> RegisterMap:
                 raise _err(path, f"{where}.{key}", f"expected 'big' or 'little', got {getattr(f, key)!r}")
         if not 0 <= f.unit <= 247:
             raise _err(path, f"{where}.unit", f"expected a device id 0..247, got {f.unit}")
-        if fname == "feed_hold" and table not in ("coil", "holding"):
-            raise _err(path, f"{where}.table", "feed_hold must be a coil or a holding register (writable)")
+        if f.unit == 0 and fname != "feed_hold":
+            # no device answers a broadcast: every poll would time out and read as "link lost"
+            raise _err(path, f"{where}.unit", "unit 0 is broadcast, which no device answers: a field that is "
+                                              "read needs a device id 1..247 (only feed_hold may be broadcast)")
+        if fname == "feed_hold":
+            _check_feed_hold(f, path, where)
         fields[fname] = f
     if not any(a in fields for a in AXES):
         raise _err(path, "fields", "map names no axis position (x, y, z, a, b or c)")
@@ -376,6 +396,27 @@ def parse_map(doc: dict, path: str = "<map>") -> RegisterMap:
     if "state" in fields and not states:
         raise _err(path, "states", "field 'state' is mapped but no [states] table names its codes")
     return RegisterMap(name=name, source=source, fields=fields, states=states, unit=unit, path=path)
+
+
+def _check_feed_hold(f: Field, path: str, where: str) -> None:
+    """The feed-hold cell is written, not read: what is written must fit the cell, and
+    hold and resume must differ, or the mistake shows only when the monitor tries to stop
+    the machine."""
+    if f.table not in ("coil", "holding"):
+        raise _err(path, f"{where}.table", "feed_hold must be a coil or a holding register (writable)")
+    if f.table == "coil":
+        for key in ("hold_value", "resume_value"):
+            if getattr(f, key) not in (0, 1):
+                raise _err(path, f"{where}.{key}", f"a coil is 0 or 1, got {getattr(f, key)}")
+    else:
+        if f.type not in HOLD_REGISTER_TYPES:
+            raise _err(path, f"{where}.type", f"feed_hold is written as one 16-bit register: "
+                                              f"{' or '.join(HOLD_REGISTER_TYPES)}, got {f.type!r}")
+        for key in ("hold_value", "resume_value"):
+            if not 0 <= getattr(f, key) <= 0xFFFF:
+                raise _err(path, f"{where}.{key}", f"expected a register word 0..65535, got {getattr(f, key)}")
+    if f.hold_value == f.resume_value:
+        raise _err(path, f"{where}.resume_value", f"equals hold_value ({f.hold_value}): resuming would hold again")
 
 
 def _check_overlaps(fields: dict[str, Field], path: str) -> None:

@@ -78,7 +78,9 @@ def machine_values(vm: VirtualMachine, regmap: RegisterMap) -> dict[str, float]:
     values["alarm"] = float(st.alarm or 0)
     values["line"] = float(st.line or 0)
     values["feed_override"], values["rapid_override"], values["spindle_override"] = map(float, st.overrides)
-    values["feed_hold"] = 1.0 if st.state == RunState.HOLD else 0.0
+    hold = regmap.feed_hold
+    if hold is not None:  # the cell reads back what was written (an active-low coil: 0 when held)
+        values["feed_hold"] = float(hold.hold_value if st.state == RunState.HOLD else hold.resume_value)
     cfg = vm.config
     for i, a in enumerate("xyz"):
         values[f"max_rate_{a}"], values[f"accel_{a}"] = float(cfg.max_rate[i]), float(cfg.accel[i])
@@ -474,12 +476,10 @@ class ModbusVirtualServer:
         if hold is None or hold.table != table or address != hold.address or len(values) != 1 \
                 or hold.unit not in (0, unit):
             return ExcCodes.ILLEGAL_ADDRESS  # read-only device apart from the feed-hold cell
-        v = values[0]
-        if table == "coil":
-            do_hold = bool(v)
-        elif int(v) == hold.hold_value:
+        v = int(values[0])  # a coil's True/False as 1/0: the map may make 0 the hold
+        if v == hold.hold_value:
             do_hold = True
-        elif int(v) == hold.resume_value:
+        elif v == hold.resume_value:
             do_hold = False
         else:
             return ExcCodes.ILLEGAL_VALUE

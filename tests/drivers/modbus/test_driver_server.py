@@ -175,6 +175,40 @@ def test_map_without_feed_hold_stays_read_only(vm, server):
         c.close()
 
 
+class RecordingServer(ModbusVirtualServer):
+    """The virtual server, keeping every write it receives: (function code, address, values)."""
+
+    def __init__(self, *a, **kw):
+        super().__init__(*a, **kw)
+        self.writes = []
+
+    def _write(self, unit, func_code, address, values):
+        self.writes.append((func_code, address, [int(v) for v in values]))
+        return super()._write(unit, func_code, address, values)
+
+
+def test_active_low_feed_hold_coil_writes_the_maps_values(vm):
+    """hold_value = 0 / resume_value = 1 on a coil were ignored: feed_hold() wrote ON,
+    which such a device takes for resume."""
+    regmap = parse_map({"fields": {"x": {"table": "input", "address": 0, "type": "float32"},
+                                   "feed_hold": {"table": "coil", "address": 0, "hold_value": 0,
+                                                 "resume_value": 1}}}, "active_low.toml")
+    vm.queue(rows(line((-100, 0, 0), 600)))
+    vm.advance(1.0)
+    with RecordingServer(vm, regmap).start() as srv:
+        c = ModbusController(regmap, host="127.0.0.1", port=srv.port, allow_feed_hold=True)
+        c.connect()
+        try:
+            c.feed_hold()
+            held = vm.state
+            vm.advance(2.0)  # to a stop: like GRBL, the machine ignores resume until then
+            c.resume()
+        finally:
+            c.close()
+    assert srv.writes == [(5, 0, [0]), (5, 0, [1])]
+    assert held == RunState.HOLD and vm.state == RunState.RUN
+
+
 def test_iai_map_multi_unit_and_broadcast_pause(vm):
     regmap = load_map("iai_robo_cylinder")
     vm.queue(rows(line((-30, -40, 0), 400)))
@@ -198,6 +232,8 @@ def test_url_errors():
         from_url("modbus+tcp://127.0.0.1:502?rat=5")
     with pytest.raises(DriverError, match="parity"):
         from_url("modbus+rtu:///dev/ttyUSB9?parity=X")
+    with pytest.raises(DriverError, match=r"unit=0; expected a device id 1..247"):
+        from_url("modbus+tcp://127.0.0.1:502?unit=0")  # broadcast: nothing would ever answer a poll
     c = from_url("modbus+rtu:///dev/ttyUSB9?map=iai_robo_cylinder&baud=38400")
     assert c.serial_port == "/dev/ttyUSB9" and c.baud == 38400
     with pytest.raises(ConnectionLost):

@@ -129,3 +129,69 @@ def test_load_map_file_errors(tmp_path):
         load_map(bad)
     with pytest.raises(RegisterMapError, match="cannot read"):
         load_map(tmp_path / "missing.toml")
+
+
+X = {"table": "input", "address": 0, "type": "float32"}
+
+
+@pytest.mark.parametrize("key", ["wordorder", "byte-order", "unitt"])
+def test_unknown_key_in_map_head_is_rejected_naming_file_and_key(tmp_path, key):
+    """A misspelt [map] key was ignored: the map loaded with the default word order and
+    positions decoded wrongly, yet fresh."""
+    p = tmp_path / "typo.toml"
+    p.write_text(f'[map]\nname = "t"\n{key} = "little"\n[fields.x]\ntable = "input"\naddress = 0\ntype = "float32"\n')
+    with pytest.raises(RegisterMapError) as info:
+        load_map(p)
+    msg = str(info.value)
+    assert msg.startswith(f"{p}: map.{key}: unknown key; expected one of ")
+    assert "byte_order" in msg and "word_order" in msg and "unit" in msg
+
+
+@pytest.mark.parametrize(
+    "hold,match",
+    [
+        ({"table": "holding", "address": 10, "type": "uint16", "hold_value": 70000}, r"fields.feed_hold.hold_value: expected a register word 0..65535, got 70000"),
+        ({"table": "holding", "address": 10, "type": "uint16", "hold_value": -1}, r"fields.feed_hold.hold_value: expected a register word 0..65535, got -1"),
+        ({"table": "holding", "address": 10, "type": "uint16", "resume_value": 65536}, r"fields.feed_hold.resume_value: expected a register word"),
+        ({"table": "holding", "address": 10, "type": "uint16", "hold_value": 0, "resume_value": 0}, r"fields.feed_hold.resume_value: equals hold_value"),
+        ({"table": "holding", "address": 10, "type": "uint16", "hold_value": 1, "resume_value": 1}, r"fields.feed_hold.resume_value: equals hold_value"),
+        ({"table": "holding", "address": 10, "type": "float32"}, r"fields.feed_hold.type: .*one 16-bit register: int16 or uint16, got 'float32'"),
+        ({"table": "holding", "address": 10, "type": "uint32"}, r"fields.feed_hold.type: .*one 16-bit register"),
+        ({"table": "coil", "address": 0, "hold_value": 2}, r"fields.feed_hold.hold_value: a coil is 0 or 1, got 2"),
+        ({"table": "coil", "address": 0, "hold_value": 1, "resume_value": 1}, r"fields.feed_hold.resume_value: equals hold_value"),
+    ],
+)
+def test_feed_hold_cell_mistakes_are_rejected_at_load(hold, match):
+    with pytest.raises(RegisterMapError, match=match) as info:
+        parse_map({"fields": {"x": X, "feed_hold": hold}}, "m.toml")
+    assert str(info.value).startswith("m.toml: ")
+
+
+def test_feed_hold_coil_may_be_active_low():
+    m = parse_map({"fields": {"x": X, "feed_hold": {"table": "coil", "address": 0, "hold_value": 0,
+                                                    "resume_value": 1}}}, "m.toml")
+    assert (m.feed_hold.hold_value, m.feed_hold.resume_value) == (0, 1)
+
+
+@pytest.mark.parametrize("key,value", [("scale", math.nan), ("scale", math.inf), ("scale", -math.inf),
+                                       ("offset", math.nan), ("offset", math.inf)])
+def test_non_finite_scale_or_offset_is_rejected(key, value):
+    with pytest.raises(RegisterMapError, match=rf"m.toml: fields.x.{key}: expected a finite number, got {value!r}"):
+        parse_map({"fields": {"x": {**X, key: value}}}, "m.toml")
+
+
+@pytest.mark.parametrize("doc,where", [
+    ({"fields": {"x": {**X, "unit": 0}}}, "fields.x.unit"),
+    ({"map": {"unit": 0}, "fields": {"x": X}}, "fields.x.unit"),
+    ({"fields": {"x": X, "max_rate_x": {"table": "input", "address": 40, "type": "float32", "unit": 0}}},
+     "fields.max_rate_x.unit"),
+])
+def test_a_read_field_on_the_broadcast_unit_is_rejected(doc, where):
+    """Devices never answer unit 0 (broadcast): every poll would time out as 'link lost'."""
+    with pytest.raises(RegisterMapError, match=rf"m.toml: {where}: unit 0 is broadcast.*only feed_hold"):
+        parse_map(doc, "m.toml")
+
+
+def test_feed_hold_may_be_broadcast():
+    m = parse_map({"fields": {"x": X, "feed_hold": {"table": "coil", "address": 0, "unit": 0}}}, "m.toml")
+    assert m.feed_hold.unit == 0 and m.fields["x"].unit == 1
