@@ -21,9 +21,10 @@ raises for what the link or the controller does (the contract in :mod:`drivers.s
   next poll, as the Modbus application protocol intends for busy and acknowledge;
 * an answer whose numbers cannot be right (:func:`~drivers.state.implausible`: NaN,
   inf, beyond any machine, huge integers) gives a BAD state with the raw registers;
-* three timeouts in a row, or a dropped socket, mark the link down: DISCONNECTED states,
-  one reconnect attempt per poll (no growing backoff: a refused connect is cheap), and
-  when the controller answers again a :class:`~drivers.state.Gap`.
+* three timeouts in a row, or a dropped socket (met by a poll or by the feed-hold write),
+  mark the link down: DISCONNECTED states, one reconnect attempt per poll (no growing
+  backoff: a refused connect is cheap), and when the controller answers again a
+  :class:`~drivers.state.Gap`.
 
 Every miss is counted by cause in :attr:`ModbusController.counts`; a cause is told once
 as a NOTE link event when it appears and once when it clears (LOST/BACK for the link,
@@ -354,25 +355,8 @@ class ModbusController(Controller):
         c = self._client
         readers = {"holding": c.read_holding_registers, "input": c.read_input_registers,
                    "coil": c.read_coils, "discrete": c.read_discrete_inputs}
-        try:
-            rr = readers[blk.table](blk.address, count=blk.count, device_id=blk.unit)
-        except ModbusIOException as exc:
-            # pymodbus says "No response received ..." when the timeout ran out; any other
-            # I/O error is an answer that did not decode
-            if "no response" in str(exc).lower():
-                raise _Miss("timeout", f"no reply within {self.timeout:g} s to {where}") from None
-            raise _Miss("garbled", f"{where}: answer does not decode ({exc})") from None
-        except (ConnectionException, OSError) as exc:
-            raise _Dropped(f"{_span(blk.unit, blk.table, blk.address, blk.count)}: {_drop_reason(exc)}") from None
-        except Exception as exc:  # noqa: BLE001 - any other decoding failure is a garbled answer
-            raise _Miss("garbled", f"{where}: answer does not decode ({type(exc).__name__}: {exc})") from None
-        if rr is None or not hasattr(rr, "isError"):
-            raise _Miss("garbled", f"{where}: no answer object ({rr!r})")
-        if rr.isError():
-            code = int(getattr(rr, "exception_code", 0) or 0)
-            cause = {6: "busy", 5: "acknowledge"}.get(code, "exception")
-            raise _Miss(cause, f"{where}: exception code {code} ({EXCEPTION_NAMES.get(code, 'unknown')})",
-                        code)
+        rr = self._request(lambda: readers[blk.table](blk.address, count=blk.count, device_id=blk.unit),
+                           where, _span(blk.unit, blk.table, blk.address, blk.count))
         if blk.table in ("coil", "discrete"):
             words = [1 if b else 0 for b in (rr.bits or [])[:blk.count]]
         else:
@@ -380,6 +364,36 @@ class ModbusController(Controller):
         if len(words) != blk.count:
             raise _Miss("short", f"{where}: answer holds {len(words)} registers of {blk.count}")
         return words
+
+    def _request(self, send, where: str, span: str, answer_expected: bool = True):
+        """One request, ``send()`` (a call of the pymodbus client), and its answer: the
+        reads and the feed-hold write go through here, so both see the link the same way.
+
+        Raises :class:`_Miss` (no usable answer: ``cause`` says why) or :class:`_Dropped`
+        (the socket or port went away); returns the answer object, or None when
+        ``answer_expected`` is False (a broadcast)."""
+        try:
+            rr = send()
+        except ModbusIOException as exc:
+            # pymodbus says "No response received ..." when the timeout ran out; any other
+            # I/O error is an answer that did not decode
+            if "no response" in str(exc).lower():
+                raise _Miss("timeout", f"no reply within {self.timeout:g} s to {where}") from None
+            raise _Miss("garbled", f"{where}: answer does not decode ({exc})") from None
+        except (ConnectionException, OSError) as exc:
+            raise _Dropped(f"{span}: {_drop_reason(exc)}") from None
+        except Exception as exc:  # noqa: BLE001 - any other decoding failure is a garbled answer
+            raise _Miss("garbled", f"{where}: answer does not decode ({type(exc).__name__}: {exc})") from None
+        if not answer_expected:
+            return None
+        if rr is None or not hasattr(rr, "isError"):
+            raise _Miss("garbled", f"{where}: no answer object ({rr!r})")
+        if rr.isError():
+            code = int(getattr(rr, "exception_code", 0) or 0)
+            cause = {6: "busy", 5: "acknowledge"}.get(code, "exception")
+            raise _Miss(cause, f"{where}: exception code {code} ({EXCEPTION_NAMES.get(code, 'unknown')})",
+                        code)
+        return rr
 
     # ------------------------------------------------------------------ link state
     def _reconnect(self) -> bool:
@@ -389,14 +403,21 @@ class ModbusController(Controller):
         return self._open()
 
     def _lose(self, reason: str) -> MachineState:
-        """The link just went down: LOST, and a DISCONNECTED state."""
+        """The link just went down during a poll: LOST, and a DISCONNECTED state."""
+        self._mark_down(reason)
+        return self._disconnected()
+
+    def _mark_down(self, reason: str) -> None:
+        """The link went down (in a poll or in the feed-hold write): the client is
+        closed, LOST is told once, and the polls answer DISCONNECTED and reconnect."""
         self.last_error = reason
         self._drop_client()
+        if self._down is not None:
+            return  # already down: the outage began earlier
         self._trouble.clear()  # the outage says it all now; BACK ends it
         t = time.monotonic()
         self._down = _Outage(t, reason)
         self._link_event(LinkKind.LOST, f"{self.url}: link lost: {reason}; reconnecting at every poll", t=t)
-        return self._disconnected()
 
     def _disconnected(self) -> MachineState:
         down = self._down
@@ -501,22 +522,31 @@ class ModbusController(Controller):
 
     def _write_cell(self, f: Field, hold: bool) -> None:
         where = _where(f.unit, f.table, f.address, 1, (f,))
-        broadcast = f.unit == 0
+        broadcast = f.unit == 0  # no device answers a broadcast
         value = f.hold_value if hold else f.resume_value  # checked at load: fits the cell
+        if f.table == "coil":  # an active-low coil holds on 0
+            def send():
+                return self._client.write_coil(f.address, bool(value), device_id=f.unit,
+                                               no_response_expected=broadcast)
+        else:
+            def send():
+                return self._client.write_register(f.address, value, device_id=f.unit,
+                                                   no_response_expected=broadcast)
         try:
-            if f.table == "coil":  # an active-low coil holds on 0
-                rr = self._client.write_coil(f.address, bool(value), device_id=f.unit, no_response_expected=broadcast)
-            else:
-                rr = self._client.write_register(f.address, value, device_id=f.unit, no_response_expected=broadcast)
-        except ModbusIOException:
-            raise ReplyTimeout(f"{self.url}: no reply within {self.timeout:g} s to the feed-hold write ({where})") from None
-        except (ConnectionException, OSError) as exc:
-            self._drop_client()
+            self._request(send, where, _span(f.unit, f.table, f.address, 1), answer_expected=not broadcast)
+        except _Dropped as exc:
+            # an outage like one met by a poll: LOST now, the polls reconnect, BACK with a gap
+            self._mark_down(f"{exc} (during the feed-hold write)")
             raise ConnectionLost(f"{self.url}: connection lost during the feed-hold write ({where}): {exc}") from None
-        if rr is not None and rr.isError():
-            code = int(getattr(rr, "exception_code", 0))
-            raise ModbusExceptionError(
-                f"{self.url}: feed-hold write to {where}: exception code {code} ({EXCEPTION_NAMES.get(code, 'unknown')})", code)
+        except _Miss as miss:
+            if miss.cause == "timeout":
+                raise ReplyTimeout(f"{self.url}: no reply within {self.timeout:g} s to the feed-hold write "
+                                   f"({where})") from None
+            if miss.code:
+                raise ModbusExceptionError(f"{self.url}: feed-hold write to {miss}", miss.code) from None
+            raise DriverError(f"{self.url}: feed-hold write: {miss}") from None
+        if not broadcast:
+            self._answered()  # the controller answered: a link that was down is back
 
 
 def _drop_reason(exc: Exception) -> str:

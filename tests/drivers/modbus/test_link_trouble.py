@@ -11,7 +11,7 @@ from dataclasses import replace
 
 import pytest
 
-from drivers.errors import DriverError
+from drivers.errors import ConnectionLost, DriverError
 from drivers.modbus.driver import CAUSES, ModbusController, ModbusExceptionError
 from drivers.modbus.regmap import load_map, parse_map
 from drivers.modbus.server import AnswerFaults, ModbusVirtualServer
@@ -216,6 +216,40 @@ def test_server_stopped_and_restarted_on_the_same_port(vm, server):
     assert gap.polls_missed == len(not_fresh) and c.gaps == [gap]
     ts = [s.t for s in before + states]
     assert ts == sorted(ts)
+
+
+def test_link_dropped_during_the_feed_hold_write_is_an_outage(vm, server):
+    """The write that met a dropped link closed the client but recorded no outage: every
+    later poll was MISSED (a driver failure), with no LOST, no reconnect and no gap."""
+    c = client(server, feed_hold=1)
+    try:
+        vm.position[0] = 10.0
+        before = c.poll()
+        server.stop()  # the controller goes away (a power blip) ...
+        with pytest.raises(ConnectionLost, match="during the feed-hold write"):
+            c.feed_hold()  # ... as the monitor tries to stop the machine
+        lost_events = c.link_events()
+        down = [c.poll(), c.poll()]
+        vm.position[0] = 20.0
+        server.restart()
+        polls = [c.poll()]
+        while not polls[-1].fresh:
+            polls.append(c.poll())
+            assert len(polls) < 500
+        back_events = c.link_events()
+    finally:
+        c.close()
+    assert before.fresh
+    assert kinds(lost_events) == [LinkKind.LOST] and "feed-hold write" in lost_events[0].message
+    assert [s.state for s in down] == [RunState.DISCONNECTED] * 2
+    assert all(s.mpos[0] == 10.0 for s in down)  # the last known position
+    assert polls[-1].mpos[0] == 20.0
+    assert all(s.state == RunState.DISCONNECTED for s in polls[:-1])
+    assert c.counts["error"] == 0
+    assert kinds(back_events) == [LinkKind.BACK]
+    gap = back_events[0].gap
+    assert c.gaps == [gap] and gap.polls_missed == 2 + len(polls) - 1 and c.reconnects == 1
+    assert gap.t_lost <= down[0].t and gap.t_back <= polls[-1].t
 
 
 def test_a_failure_inside_the_driver_is_a_missed_poll_not_a_stop(vm, server, monkeypatch):
