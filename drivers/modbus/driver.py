@@ -17,7 +17,7 @@ device) fails it, naming the registers. After that :meth:`ModbusController.poll`
 raises for what the link or the controller does (the contract in :mod:`drivers.state`):
 
 * a timeout, an exception answer (busy 6 and acknowledge 5 included), a short or
-  undecodable answer gives a MISSED state; the same request is simply asked again at the
+  undecodable answer (a bad RTU CRC, an answer to another request) gives a MISSED state; the same request is simply asked again at the
   next poll, as the Modbus application protocol intends for busy and acknowledge;
 * an answer whose numbers cannot be right (:func:`~drivers.state.implausible`: NaN,
   inf, beyond any machine, huge integers) gives a BAD state with the raw registers;
@@ -25,6 +25,12 @@ raises for what the link or the controller does (the contract in :mod:`drivers.s
   mark the link down: DISCONNECTED states, one reconnect attempt per poll (no growing
   backoff: a refused connect is cheap), and when the controller answers again a
   :class:`~drivers.state.Gap`.
+
+Over RTU an answer carries no transaction id, so after a request that got no answer of
+its own (a timeout, a garbled answer) the next request waits until the line is quiet and
+discards what arrives meanwhile (:meth:`ModbusController._clear_line`): a late answer is
+never read as the next request's. An RTU answer with a bad CRC is a garbled answer, told
+as soon as it arrives (pymodbus would wait out the timeout for another).
 
 Every miss is counted by cause in :attr:`ModbusController.counts`; a cause is told once
 as a NOTE link event when it appears and once when it clears (LOST/BACK for the link,
@@ -43,7 +49,7 @@ from urllib.parse import parse_qs, unquote, urlsplit
 
 from pymodbus.client import ModbusSerialClient, ModbusTcpClient
 from pymodbus.exceptions import ConnectionException, ModbusIOException
-from pymodbus.framer import FramerType
+from pymodbus.framer import FramerRTU, FramerType
 
 from drivers.errors import ConnectionLost, DriverError
 from drivers.modbus.regmap import (AXES, Field, ReadBlock, RegisterMap, decode_field, limits_from_values, load_map,
@@ -73,6 +79,13 @@ TIMEOUTS_BEFORE_DOWN = 3
 #: than asked, an answer that does not decode, impossible numbers (BAD), link down, and a
 #: failure inside the driver itself (a bug: told, counted, and the polls go on)
 CAUSES = ("timeout", "busy", "acknowledge", "exception", "short", "garbled", "bad", "disconnected", "error")
+#: RTU: after an answer that went wrong, silence (s) that tells the line is clear again
+#: once bytes were seen: 3.5 characters by the standard, but USB serial adapters hand
+#: bytes over in bursts up to 16 ms apart
+RTU_FRAME_GAP_S = 0.05
+#: function codes of the requests the driver sends, by table (reads) and for the writes
+READ_FUNCTIONS = {"coil": 1, "discrete": 2, "holding": 3, "input": 4}
+WRITE_FUNCTIONS = {"coil": 5, "holding": 6}
 #: integer fields whose value is a code or a count: beyond MAX_REPORTED_INT it is garbage
 _INT_FIELDS = ("state", "alarm", "line", "feed_override", "rapid_override", "spindle_override")
 
@@ -101,6 +114,27 @@ class _Miss(Exception):
 
 class _Dropped(Exception):
     """The socket or serial port went away."""
+
+
+class _BadFrame(Exception):
+    """An RTU answer arrived whole but its CRC does not match (noise on the line)."""
+
+
+class _CheckedRTUFramer(FramerRTU):
+    """pymodbus's RTU framer, but an answer with a bad CRC is told at once.
+
+    pymodbus drops such a frame silently and keeps reading until its timeout runs out,
+    so a garbled answer (noise on an RS-485 line) looked like no answer at all, took the
+    whole timeout, and three in a row marked the link lost. Its ``decode`` returns the
+    bytes used without a frame only for a CRC mismatch (a frame not yet complete uses 0).
+    """
+
+    def decode(self, data: bytes):
+        used, dev_id, tid, frame = super().decode(data)
+        if used and not frame:
+            raise _BadFrame(f"answer with a bad CRC ({len(data)} bytes: {data[:12].hex(' ')}"
+                            f"{' ...' if len(data) > 12 else ''})")
+        return used, dev_id, tid, frame
 
 
 @dataclass
@@ -178,15 +212,24 @@ class ModbusController(Controller):
         self._timeouts = 0                       # consecutive polls without an answer
         self._down: _Outage | None = None
         self._trouble: dict[str, _Trouble] = {}
+        # RTU: (since, silence needed) after a request whose answer did not come or did not
+        # decode: its bytes may still be on the way (see _clear_line)
+        self._line_unsure: tuple[float, float] | None = None
 
     # ------------------------------------------------------------------ lifecycle
     def _make_client(self):
         if self.host is not None:
             return ModbusTcpClient(self.host, port=self.port, timeout=self.timeout, retries=0,
                                    reconnect_delay=0, reconnect_delay_max=0)
-        return ModbusSerialClient(self.serial_port, framer=FramerType.RTU, baudrate=self.baud,
-                                  parity=self.parity, stopbits=self.stopbits, bytesize=self.bytesize,
-                                  timeout=self.timeout, retries=0, reconnect_delay=0, reconnect_delay_max=0)
+        client = ModbusSerialClient(self.serial_port, framer=FramerType.RTU, baudrate=self.baud,
+                                    parity=self.parity, stopbits=self.stopbits, bytesize=self.bytesize,
+                                    timeout=self.timeout, retries=0, reconnect_delay=0, reconnect_delay_max=0)
+        # the client and its transaction manager share one framer (pymodbus 3.16)
+        framer = getattr(client, "framer", None)
+        transaction = getattr(client, "transaction", None)
+        if isinstance(framer, FramerRTU) and getattr(transaction, "framer", None) is framer:
+            client.framer = transaction.framer = _CheckedRTUFramer(framer.decoder)
+        return client
 
     def preflight(self) -> None:
         if self.serial_port is not None:
@@ -356,7 +399,7 @@ class ModbusController(Controller):
         readers = {"holding": c.read_holding_registers, "input": c.read_input_registers,
                    "coil": c.read_coils, "discrete": c.read_discrete_inputs}
         rr = self._request(lambda: readers[blk.table](blk.address, count=blk.count, device_id=blk.unit),
-                           where, _span(blk.unit, blk.table, blk.address, blk.count))
+                           READ_FUNCTIONS[blk.table], where, _span(blk.unit, blk.table, blk.address, blk.count))
         if blk.table in ("coil", "discrete"):
             words = [1 if b else 0 for b in (rr.bits or [])[:blk.count]]
         else:
@@ -365,35 +408,95 @@ class ModbusController(Controller):
             raise _Miss("short", f"{where}: answer holds {len(words)} registers of {blk.count}")
         return words
 
-    def _request(self, send, where: str, span: str, answer_expected: bool = True):
-        """One request, ``send()`` (a call of the pymodbus client), and its answer: the
-        reads and the feed-hold write go through here, so both see the link the same way.
+    def _request(self, send, function: int, where: str, span: str, answer_expected: bool = True):
+        """One request, ``send()`` (a call of the pymodbus client with function code
+        ``function``), and its answer: the reads and the feed-hold write go through here,
+        so both see the link the same way.
 
         Raises :class:`_Miss` (no usable answer: ``cause`` says why) or :class:`_Dropped`
         (the socket or port went away); returns the answer object, or None when
         ``answer_expected`` is False (a broadcast)."""
+        if self.serial_port is not None:
+            self._clear_line(where)
         try:
             rr = send()
         except ModbusIOException as exc:
             # pymodbus says "No response received ..." when the timeout ran out; any other
             # I/O error is an answer that did not decode
             if "no response" in str(exc).lower():
+                self._mark_line_unsure(self.timeout)  # the answer may yet come
                 raise _Miss("timeout", f"no reply within {self.timeout:g} s to {where}") from None
+            self._mark_line_unsure(RTU_FRAME_GAP_S)
             raise _Miss("garbled", f"{where}: answer does not decode ({exc})") from None
+        except _BadFrame as exc:
+            self._mark_line_unsure(RTU_FRAME_GAP_S)  # the rest of a garbled answer may follow
+            raise _Miss("garbled", f"{where}: {exc}") from None
         except (ConnectionException, OSError) as exc:
             raise _Dropped(f"{span}: {_drop_reason(exc)}") from None
         except Exception as exc:  # noqa: BLE001 - any other decoding failure is a garbled answer
+            self._mark_line_unsure(RTU_FRAME_GAP_S)
             raise _Miss("garbled", f"{where}: answer does not decode ({type(exc).__name__}: {exc})") from None
         if not answer_expected:
             return None
         if rr is None or not hasattr(rr, "isError"):
             raise _Miss("garbled", f"{where}: no answer object ({rr!r})")
+        got = int(getattr(rr, "function_code", function)) & 0x7F  # 0x80 marks an exception answer
+        if got != function:
+            # RTU answers carry no transaction id: this one belongs to an earlier request
+            self._mark_line_unsure(RTU_FRAME_GAP_S)
+            raise _Miss("garbled", f"{where}: answer to another request (function {got}, asked {function})")
         if rr.isError():
             code = int(getattr(rr, "exception_code", 0) or 0)
             cause = {6: "busy", 5: "acknowledge"}.get(code, "exception")
             raise _Miss(cause, f"{where}: exception code {code} ({EXCEPTION_NAMES.get(code, 'unknown')})",
                         code)
         return rr
+
+    def _mark_line_unsure(self, silence: float) -> None:
+        """RTU: the last request got no answer that could be its own; before the next one
+        the line must be ``silence`` s quiet (see :meth:`_clear_line`)."""
+        if self.serial_port is not None:
+            self._line_unsure = (time.monotonic(), silence)
+
+    def _clear_line(self, where: str) -> None:
+        """RTU answers carry no transaction id: an answer that comes after its request
+        timed out would be read as the next request's, a fresh-looking state from an
+        earlier instant. So after a request went wrong, discard what arrives until the line
+        is quiet: ``timeout`` s of silence after a timeout (an answer up to twice the
+        timeout late is caught; pymodbus only discards bytes already waiting when it
+        sends), then :data:`RTU_FRAME_GAP_S` after the last byte seen.
+
+        Bounded: after twice the timeout of chatter the request is not sent, a MISSED
+        "garbled" poll, and the line stays unsure."""
+        if self._line_unsure is None:
+            return
+        since, silence = self._line_unsure
+        port = getattr(self._client, "socket", None)
+        if port is None:
+            return  # closed: _open makes a new one; the line is cleared at the next request
+        last, discarded = since, 0
+        give_up = time.monotonic() + 2 * self.timeout
+        old_timeout = port.timeout
+        try:
+            while True:
+                now = time.monotonic()
+                quiet_for = silence - (now - last)
+                if quiet_for <= 0:
+                    break
+                if now >= give_up:
+                    raise _Miss("garbled", f"line not quiet before {where}: {discarded} stray bytes in "
+                                           f"{2 * self.timeout:g} s")
+                port.timeout = min(quiet_for, give_up - now)
+                data = port.read(max(1, port.in_waiting))  # waits for a byte or the silence
+                if data:
+                    discarded += len(data)
+                    last, silence = time.monotonic(), min(silence, RTU_FRAME_GAP_S)
+        except (OSError, ValueError) as exc:  # serial errors are OSErrors (SerialException)
+            raise _Dropped(f"{where}: {_drop_reason(exc)}") from None
+        finally:
+            if self._client is not None and self._client.socket is port:
+                port.timeout = old_timeout
+        self._line_unsure = None
 
     # ------------------------------------------------------------------ link state
     def _reconnect(self) -> bool:
@@ -533,7 +636,8 @@ class ModbusController(Controller):
                 return self._client.write_register(f.address, value, device_id=f.unit,
                                                    no_response_expected=broadcast)
         try:
-            self._request(send, where, _span(f.unit, f.table, f.address, 1), answer_expected=not broadcast)
+            self._request(send, WRITE_FUNCTIONS[f.table], where, _span(f.unit, f.table, f.address, 1),
+                          answer_expected=not broadcast)
         except _Dropped as exc:
             # an outage like one met by a poll: LOST now, the polls reconnect, BACK with a gap
             self._mark_down(f"{exc} (during the feed-hold write)")
