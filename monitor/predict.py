@@ -226,7 +226,33 @@ class Workpiece:
         return self.tools.get(int(number), self.default_tool)
 
 
-def build_workpiece(job: Job, moves: np.ndarray, model: str = "z") -> Workpiece:
+#: the stock model a job may need at most (MB) unless the command says otherwise
+#: (``simulate --memory-limit``): past it numpy would fail mid-allocation, or the OS kill
+#: the process, long after the job was read
+MEMORY_LIMIT_MB = 4096.0
+
+
+def check_stock_memory(job: Job, frame: Frame, model: str = "z", stock_mesh=None,
+                       limit_mb: float = MEMORY_LIMIT_MB,
+                       hint: str = "use a coarser resolution or a smaller stock") -> None:
+    """Refuse (JobError) a stock model on ``frame`` (``model`` "tri-dexel": its three
+    grids on :func:`tri_lattice`) needing more than ``limit_mb``, before anything of it
+    is allocated: every command that builds a job's workpiece says the same."""
+    from sim.tridexel import lattice_shape
+
+    rays = frame.n_rays
+    if model == "tri-dexel":
+        nx, ny, nz = lattice_shape(*tri_lattice(frame, job, stock_mesh), frame.spacing)
+        rays = nx * ny + ny * nz + nz * nx
+    need = DexelGrid.estimate_bytes(rays)
+    if need > limit_mb * 2**20:
+        raise JobError(f"the job's dexel grid needs about {need / 2**20:.0f} MB, over the {limit_mb:.0f} MB "
+                       f"limit ({frame.nu} x {frame.nv} rays {frame.spacing:g} mm apart); {hint}",
+                       str(job.source or "command line"))
+
+
+def build_workpiece(job: Job, moves: np.ndarray, model: str = "z", memory_limit_mb: float = MEMORY_LIMIT_MB,
+                    memory_hint: str | None = None) -> Workpiece:
     """Stock, fixtures and design of ``job`` as dexel models on a frame covering them all.
 
     ``moves``: the program's move table in machine coordinates (the interpreter's): on a
@@ -235,7 +261,9 @@ def build_workpiece(job: Job, moves: np.ndarray, model: str = "z") -> Workpiece:
     the live session follows) or as a tri-dexel model (``"tri-dexel"``,
     :class:`sim.tridexel.TriDexel`, ``simulate`` with ``[stock] model``): its lattice
     (:func:`tri_lattice`, nodes half a spacing inside the stock) covers the frame, and
-    its Z grid's rays are then the frame the design and the checks use."""
+    its Z grid's rays are then the frame the design and the checks use. A model needing
+    more than ``memory_limit_mb`` is refused (:func:`check_stock_memory`, ``memory_hint``
+    saying what to change)."""
     from sim.checks.collisions import Fixture
     from sim.checks.error_map import DesignModel
     from sim.kinematics import head_only
@@ -256,6 +284,8 @@ def build_workpiece(job: Job, moves: np.ndarray, model: str = "z") -> Workpiece:
         fixture_meshes.append(fm)
     margin = reach + 2 * job.resolution
     frame = Frame.top(lo[0] - margin, lo[1] - margin, hi[0] + margin, hi[1] + margin, job.resolution)
+    check_stock_memory(job, frame, model, stock_mesh, memory_limit_mb,
+                       **({"hint": memory_hint} if memory_hint else {}))
     if model == "tri-dexel":
         stock = _tri_stock(frame, job, stock_mesh)
         frame = stock.grids["z"].frame  # the design's and the checks' rays are the model's
