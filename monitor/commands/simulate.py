@@ -329,7 +329,18 @@ def _from_start(moves: np.ndarray, grid, limits_text: str | None) -> np.ndarray:
     return moves if start is None else start_at(moves, start)
 
 
+def check_numbers(args) -> None:
+    """The numeric options ``simulate`` and ``correct`` share: a memory limit of nan or inf
+    would let any grid through to fail in numpy, 0 or less refuse every grid; a
+    ``--max-loop`` of 0 would read as "not given" where a job gives one."""
+    from monitor.options import number
+
+    number(args.memory_limit, "--memory-limit")
+    number(args.max_loop, "--max-loop", whole=True)
+
+
 def run(args) -> int:
+    check_numbers(args)
     if str(args.program).lower().endswith(".toml"):
         return _run_job(args)
     from sim.tools import parse_tool_spec

@@ -42,3 +42,71 @@ def test_simulate_refuses_the_same_job_with_the_same_words(tmp_path, capsys):
     rc = main(["simulate", str(EXAMPLE), "--resolution", "1e-9", "--json"])
     err = one_line_error(capsys, rc)
     assert "dexel grid needs about" in err and "over the 4096 MB limit" in err, err
+
+
+# --- numbers on the command line --------------------------------------------------------
+# argparse's type=float/int takes nan, inf, 0 and negatives: a frame rate of 0 was a
+# ZeroDivisionError in the GIF writer, -1 an OverflowError, nan a ValueError; --frames 0
+# and -3 were taken silently, report --size 0 divided by zero.
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    from tests.monitor.run_helpers import record_run
+
+    path = tmp_path_factory.mktemp("run") / "job.dexrun"
+    record_run(path)
+    return path
+
+
+@pytest.mark.parametrize("option, value, expected", [
+    ("--fps", "0", "--fps: expected a positive number, got 0"),
+    ("--fps", "-1", "--fps: expected a positive number, got -1"),
+    ("--fps", "nan", "--fps: expected a positive number, got nan"),
+    ("--fps", "inf", "--fps: expected a positive number, got inf"),
+    ("--frames", "0", "--frames: expected a positive whole number, got 0"),
+    ("--frames", "-3", "--frames: expected a positive whole number, got -3"),
+])
+def test_replay_animation_numbers_must_mean_something(recorded, tmp_path, capsys, option, value, expected):
+    gif = tmp_path / "o.gif"
+    rc = main(["replay", str(recorded), "--from", "0", "--to", "5", "--gif", str(gif), option, value])
+    assert expected in one_line_error(capsys, rc)
+    assert not gif.exists()
+
+
+@pytest.mark.parametrize("option, value, expected", [
+    ("--size", "0", "--size: expected a picture size of at least 16 pixels, got 0"),
+    ("--size", "-5", "--size: expected a picture size of at least 16 pixels, got -5"),
+    ("--max-findings", "-1", "--max-findings: expected a whole number >= 0, got -1"),
+])
+def test_report_numbers_must_mean_something(recorded, tmp_path, capsys, option, value, expected):
+    out = tmp_path / "r.html"
+    rc = main(["report", str(recorded), "-o", str(out), option, value])
+    assert expected in one_line_error(capsys, rc)
+    assert not out.exists()
+
+
+def test_report_with_no_finding_pictures_is_fine(recorded, tmp_path, capsys):
+    assert main(["report", str(recorded), "-o", str(tmp_path / "r.html"), "--max-findings", "0"]) == 0
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "0", "-1"])
+def test_simulate_memory_limit_must_be_a_positive_number(capsys, value):
+    # nan switched the limit off (every comparison false); -1 refused every grid with
+    # "over the -1 MB limit"
+    rc = main(["simulate", str(EXAMPLE), "--memory-limit", value, "--json"])
+    assert f"--memory-limit: expected a positive number, got {value}" in one_line_error(capsys, rc)
+
+
+@pytest.mark.parametrize("command", ["simulate", "dry-run"])
+def test_max_loop_zero_is_refused_not_the_default(command, tmp_path, capsys):
+    # simulate read 0 as "not given" (the default 100,000 passes) while dry-run refused it
+    extra = ["--json"] if command == "simulate" else ["--quiet", "--run", str(tmp_path / "r.sqlite")]
+    rc = main([command, str(EXAMPLE), "--max-loop", "0", *extra])
+    assert "--max-loop" in one_line_error(capsys, rc)
+
+
+@pytest.mark.parametrize("value", ["inf", "nan", "0"])
+def test_view_fps_must_be_a_finite_positive_number(tmp_path, capsys, value):
+    rc = main(["dry-run", "--frames", str(tmp_path / "f"), "--view-fps", value, "--quiet",
+               "--run", str(tmp_path / "r.sqlite")])
+    assert f"--view-fps: expected a positive number, got {value}" in one_line_error(capsys, rc)
