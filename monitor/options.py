@@ -13,12 +13,19 @@ import math
 
 from sim.errors import InputError
 
+#: the longest side a picture may have, px. A picture is drawn with a few float arrays per
+#: pixel besides its RGB bytes, about PICTURE_BYTES_PER_PX in all (a 2-D replay picture
+#: measured ~10, the 3-D view more): 8192 px a side takes about 2 GB while drawn, as much
+#: as half the 4096 MB grid limit; unbounded, --size 100000 grew until the OS killed dexmon
+MAX_PICTURE_PX = 8192
+PICTURE_BYTES_PER_PX = 32
+
 
 def number(value, option: str, *, whole: bool = False, zero: bool = False, most: float | None = None,
-           why_most: str = ""):
+           unit: str = "", why_most: str = ""):
     """``value`` when it is a finite number > 0 (``zero``: >= 0; ``whole``: an integer)
-    and at most ``most``; None when the option was not given. Otherwise InputError naming
-    ``option``; ``why_most`` says why a value over ``most`` is refused."""
+    and at most ``most`` (in ``unit``); None when the option was not given. Otherwise
+    InputError naming ``option``; ``why_most`` says why a value over ``most`` is refused."""
     if value is None:
         return None
     kind = "whole number" if whole else "number"
@@ -27,16 +34,24 @@ def number(value, option: str, *, whole: bool = False, zero: bool = False, most:
             or (whole and value != int(value)) or not (value >= 0 if zero else value > 0):
         raise InputError(f"expected {expected}, got {_show(value)}", option)
     if most is not None and value > most:
-        raise InputError(f"expected at most {most:g}, got {_show(value)}" + (f" ({why_most})" if why_most else ""),
+        raise InputError(f"expected at most {most:g}{' ' + unit if unit else ''}, got {_show(value)}" + (f" ({why_most})" if why_most else ""),
                          option)
     return int(value) if whole else float(value)
 
 
 def picture_size(value, option: str = "--size", least: int = 16) -> int:
-    """A picture's size in pixels (its long side): a whole number of at least ``least``."""
+    """A picture's size in pixels (its long side): a whole number from ``least`` to
+    :data:`MAX_PICTURE_PX`; over it the message says what the size asked for would take."""
     if isinstance(value, bool) or not isinstance(value, int) or value < least:
         raise InputError(f"expected a picture size of at least {least} pixels, got {_show(value)}", option)
-    return value
+    return number(value, option, whole=True, most=MAX_PICTURE_PX, unit="pixels",
+                  why_most=f"a picture {value} px a side needs about {_memory(value)} to draw, "
+                           f"{MAX_PICTURE_PX} px about {_memory(MAX_PICTURE_PX)}")
+
+
+def _memory(side: int) -> str:
+    need = float(side) ** 2 * PICTURE_BYTES_PER_PX
+    return f"{need / 2**30:,.0f} GB" if need >= 2**30 else f"{need / 2**20:,.0f} MB"
 
 
 def _show(value) -> str:

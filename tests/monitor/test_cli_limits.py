@@ -110,3 +110,27 @@ def test_view_fps_must_be_a_finite_positive_number(tmp_path, capsys, value):
     rc = main(["dry-run", "--frames", str(tmp_path / "f"), "--view-fps", value, "--quiet",
                "--run", str(tmp_path / "r.sqlite")])
     assert f"--view-fps: expected a positive number, got {value}" in one_line_error(capsys, rc)
+
+
+# --- picture sizes ------------------------------------------------------------------------
+# --size had no upper bound: replay --size 100000 grew to 24 GB until the OS killed the
+# process (exit 137, no message)
+
+@pytest.mark.parametrize("command", ["replay", "report"])
+def test_a_picture_size_past_the_cap_is_refused_with_what_it_would_take(recorded, tmp_path, capsys, command):
+    from monitor.options import MAX_PICTURE_PX
+
+    out = tmp_path / ("o.png" if command == "replay" else "r.html")
+    argv = ([command, str(recorded), "--stage", "end", "--png", str(out)] if command == "replay"
+            else [command, str(recorded), "-o", str(out)])
+    rc = main([*argv, "--size", "100000"])
+    err = one_line_error(capsys, rc)
+    assert f"--size: expected at most {MAX_PICTURE_PX} pixels, got 100000" in err
+    assert "GB to draw" in err  # what the size asked for would take
+    assert not out.exists()
+
+
+def test_the_largest_picture_size_is_taken(recorded, tmp_path, capsys):
+    from monitor.options import MAX_PICTURE_PX, picture_size
+
+    assert picture_size(MAX_PICTURE_PX) == MAX_PICTURE_PX
