@@ -654,6 +654,12 @@ class LiveChecks:
         self._tool = np.ascontiguousarray(moves["tool"])
         self._spindle = np.ascontiguousarray(moves["spindle"])
         self._sdir = np.ascontiguousarray(moves["spindle_dir"])
+        # per row, how often the program switched the spindle (running <-> stopped) up to
+        # it: the same count at two rows means the program leaves the spindle as it is
+        # between them (as sim.checks.motion reads a row: stopped when its direction or
+        # speed is 0)
+        stopped = (self._sdir == 0) | (self._spindle <= 0)
+        self._switches = np.concatenate([[0], np.cumsum(stopped[1:] != stopped[:-1])])
         self._rot0 = np.ascontiguousarray(moves["start"][:, 3:])
         self._rot1 = np.ascontiguousarray(moves["end"][:, 3:])
         self._buf = np.zeros(max_pieces, MOVE_DTYPE)
@@ -667,14 +673,17 @@ class LiveChecks:
             self.checker.limits = limits_in_work(self.limits, w)
 
     def cut(self, points: np.ndarray, rows: np.ndarray, spindle_rpm: float | None = None,
-            arrived_row: int | None = None):
+            arrived_row: int | None = None, polled_rows=()):
         """Cut the polyline ``points`` (k+1, 3) mm (work tip), piece ``q`` belonging to
         program row ``rows[q]`` (int, (k,)); return ``(removed mm^3, changed rays int64
         sorted and distinct, findings)``. ``points`` (k+1, 6) adds the work A B C (deg) at
         each point (a rotary job: the pieces turn as the machine did); with 3 columns each
         piece takes its row's programmed angles.
 
-        ``spindle_rpm``: the speed the controller reports (None: take the program's).
+        ``spindle_rpm``: the speed the controller reports (None: take the program's);
+        it holds for the path only where the program leaves the spindle as it is from
+        the rows of the polls at its ends (``polled_rows``, the program rows the
+        controller was at) over every row in between.
         ``arrived_row``: the row of the piece that ended at ``points[0]`` (the last one
         cut before), if known.
 
@@ -683,6 +692,12 @@ class LiveChecks:
         (:func:`arrival_poses`): that row brought the tool there, so whatever its pose
         touches is that row's doing, not the next one's.
         """
+        if spindle_rpm is not None and self._program_switches_spindle(rows, arrived_row, *polled_rows):
+            # the controller's speed is what the polls at the two ends of the path saw; the
+            # program switched the spindle between them (a coarse poll over its M3 and M5,
+            # say), so how it ran there is not what either end saw: each row takes the
+            # program's (else a path from before M3 to after M5 was all "spindle stopped")
+            spindle_rpm = None
         points, rows = arrival_poses(points, rows, arrived_row)
         removed = 0.0
         changed = []
@@ -700,6 +715,16 @@ class LiveChecks:
         # sorted: the trace record takes them as they are (np.unique would hash them first)
         rays = distinct(np.concatenate(changed)).astype(np.int64, copy=False) if changed else np.zeros(0, np.int64)
         return removed, rays, found
+
+    def _program_switches_spindle(self, rows: np.ndarray, *more) -> bool:
+        """Whether the program starts or stops the spindle anywhere from the first to the
+        last of ``rows`` and the rows in ``more`` (None: unknown, left out)."""
+        rows = np.asarray(rows)
+        lo, hi = int(rows.min()), int(rows.max())
+        for r in more:
+            if r is not None and 0 <= r < self._switches.size:
+                lo, hi = min(lo, int(r)), max(hi, int(r))
+        return bool(self._switches[hi] != self._switches[lo])
 
     def _fill(self, pts: np.ndarray, rows: np.ndarray, spindle_rpm) -> np.ndarray:
         """The travelled pieces as move rows in the reusable buffer (a view, k rows)."""

@@ -8,6 +8,7 @@ Each test here was a failure first: a job whose dexel grid needs terabytes crash
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -134,3 +135,43 @@ def test_the_largest_picture_size_is_taken(recorded, tmp_path, capsys):
     from monitor.options import MAX_PICTURE_PX, picture_size
 
     assert picture_size(MAX_PICTURE_PX) == MAX_PICTURE_PX
+
+
+# --- dry-run speed and poll rate ----------------------------------------------------------
+
+@pytest.mark.parametrize("value", ["inf", "nan", "0", "-5"])
+def test_dry_run_speed_must_be_a_finite_positive_number(tmp_path, capsys, value):
+    # inf was taken: the whole program ran between two polls
+    rc = main(["dry-run", "--speed", value, "--quiet", "--run", str(tmp_path / "r.sqlite")])
+    assert f"--speed: expected a positive number, got {value}" in one_line_error(capsys, rc)
+    assert not (tmp_path / "r.sqlite").exists()
+
+
+def test_a_poll_rate_no_loop_can_keep_is_refused(tmp_path, capsys):
+    # poll_hz = 1e9 with --clock sim moved the machine 5 ns a poll: the run never ended
+    job = tmp_path / "job.toml"
+    job.write_text(EXAMPLE.read_text().replace("poll_hz = 50", "poll_hz = 1e9"))
+    for name in ("face.nc", "tools.tbl", "design.stl"):
+        (tmp_path / name).write_bytes((EXAMPLE.parent / name).read_bytes())
+    rc = main(["dry-run", str(job), "--clock", "sim", "--quiet", "--run", str(tmp_path / "r.sqlite")])
+    err = one_line_error(capsys, rc)
+    assert "[controller] poll_hz" in err and "at most 1000 Hz" in err
+
+
+def _findings(capsys, tmp_path, speed: str) -> list[tuple]:
+    rc = main(["dry-run", "--clock", "sim", "--speed", speed, "--json", "--run", str(tmp_path / f"s{speed}.sqlite")])
+    events = [json.loads(x) for x in capsys.readouterr().out.splitlines()]
+    found = sorted((e["kind"], tuple(e["line_range"])) for e in events if e["event"] == "finding")
+    assert rc == (1 if found else 0)
+    return found
+
+
+def test_a_dry_run_polled_once_over_the_whole_program_finds_what_a_slow_one_does(tmp_path, capsys):
+    """At --speed 10000 one poll step (200 s) is longer than the example (46 s). Before:
+    with --clock sim the first poll already came a step late, at the program's end, and
+    the run found nothing; with the wall clock the one jump from before M3 to after M5 was
+    judged by the spindle both polls reported (off) and made the whole program a false
+    spindle_stopped_cutting (lines 11-32)."""
+    slow = _findings(capsys, tmp_path, "50")
+    assert [k for k, _ in slow] == ["gouge", "rapid_into_stock"]
+    assert _findings(capsys, tmp_path, "10000") == slow
