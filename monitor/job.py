@@ -108,6 +108,9 @@ DEFAULT_MACHINE = {"max_rate": (5000.0, 5000.0, 5000.0), "acceleration": (500.0,
                    "junction_deviation": 0.02}
 #: s without a fresh state from the controller before a live run gives up (exit 2)
 DEFAULT_GIVE_UP_S = 600.0
+#: the fastest poll rate a job may ask for (Hz): past it the loop polls faster than it
+#: can follow, and a dry run's simulated clock (speed / poll_hz a poll) barely moves
+MAX_POLL_HZ = 1000.0
 DIALECTS = ("linuxcnc", "grbl")
 MACHINE_UNITS = ("mm", "inch")
 #: the work systems, in the order of the interpreter's offset table (G54 = 0 ... G59.3 = 8)
@@ -497,6 +500,10 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
             job.controller = t["url"]
         if "poll_hz" in t:
             job.poll_hz = ctx.positive(t["poll_hz"], "[controller] poll_hz", "Hz")
+            if job.poll_hz > MAX_POLL_HZ:
+                raise ctx.err("[controller] poll_hz", f"at most {MAX_POLL_HZ:g} Hz (a poll a millisecond: each "
+                              "state's cut and checks take about that long, and controllers answer 50 polls a "
+                              "second or fewer)", t["poll_hz"])
         if "give_up_s" in t:
             job.give_up_s = ctx.positive(t["give_up_s"], "[controller] give_up_s", "s")
 

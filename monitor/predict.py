@@ -226,7 +226,33 @@ class Workpiece:
         return self.tools.get(int(number), self.default_tool)
 
 
-def build_workpiece(job: Job, moves: np.ndarray, model: str = "z") -> Workpiece:
+#: the stock model a job may need at most (MB) unless the command says otherwise
+#: (``simulate --memory-limit``): past it numpy would fail mid-allocation, or the OS kill
+#: the process, long after the job was read
+MEMORY_LIMIT_MB = 4096.0
+
+
+def check_stock_memory(job: Job, frame: Frame, model: str = "z", stock_mesh=None,
+                       limit_mb: float = MEMORY_LIMIT_MB,
+                       hint: str = "use a coarser resolution or a smaller stock") -> None:
+    """Refuse (JobError) a stock model on ``frame`` (``model`` "tri-dexel": its three
+    grids on :func:`tri_lattice`) needing more than ``limit_mb``, before anything of it
+    is allocated: every command that builds a job's workpiece says the same."""
+    from sim.tridexel import lattice_shape
+
+    rays = frame.n_rays
+    if model == "tri-dexel":
+        nx, ny, nz = lattice_shape(*tri_lattice(frame, job, stock_mesh), frame.spacing)
+        rays = nx * ny + ny * nz + nz * nx
+    need = DexelGrid.estimate_bytes(rays)
+    if need > limit_mb * 2**20:
+        raise JobError(f"the job's dexel grid needs about {need / 2**20:.0f} MB, over the {limit_mb:.0f} MB "
+                       f"limit ({frame.nu} x {frame.nv} rays {frame.spacing:g} mm apart); {hint}",
+                       str(job.source or "command line"))
+
+
+def build_workpiece(job: Job, moves: np.ndarray, model: str = "z", memory_limit_mb: float = MEMORY_LIMIT_MB,
+                    memory_hint: str | None = None) -> Workpiece:
     """Stock, fixtures and design of ``job`` as dexel models on a frame covering them all.
 
     ``moves``: the program's move table in machine coordinates (the interpreter's): on a
@@ -235,7 +261,9 @@ def build_workpiece(job: Job, moves: np.ndarray, model: str = "z") -> Workpiece:
     the live session follows) or as a tri-dexel model (``"tri-dexel"``,
     :class:`sim.tridexel.TriDexel`, ``simulate`` with ``[stock] model``): its lattice
     (:func:`tri_lattice`, nodes half a spacing inside the stock) covers the frame, and
-    its Z grid's rays are then the frame the design and the checks use."""
+    its Z grid's rays are then the frame the design and the checks use. A model needing
+    more than ``memory_limit_mb`` is refused (:func:`check_stock_memory`, ``memory_hint``
+    saying what to change)."""
     from sim.checks.collisions import Fixture
     from sim.checks.error_map import DesignModel
     from sim.kinematics import head_only
@@ -256,6 +284,8 @@ def build_workpiece(job: Job, moves: np.ndarray, model: str = "z") -> Workpiece:
         fixture_meshes.append(fm)
     margin = reach + 2 * job.resolution
     frame = Frame.top(lo[0] - margin, lo[1] - margin, hi[0] + margin, hi[1] + margin, job.resolution)
+    check_stock_memory(job, frame, model, stock_mesh, memory_limit_mb,
+                       **({"hint": memory_hint} if memory_hint else {}))
     if model == "tri-dexel":
         stock = _tri_stock(frame, job, stock_mesh)
         frame = stock.grids["z"].frame  # the design's and the checks' rays are the model's
@@ -624,6 +654,12 @@ class LiveChecks:
         self._tool = np.ascontiguousarray(moves["tool"])
         self._spindle = np.ascontiguousarray(moves["spindle"])
         self._sdir = np.ascontiguousarray(moves["spindle_dir"])
+        # per row, how often the program switched the spindle (running <-> stopped) up to
+        # it: the same count at two rows means the program leaves the spindle as it is
+        # between them (as sim.checks.motion reads a row: stopped when its direction or
+        # speed is 0)
+        stopped = (self._sdir == 0) | (self._spindle <= 0)
+        self._switches = np.concatenate([[0], np.cumsum(stopped[1:] != stopped[:-1])])
         self._rot0 = np.ascontiguousarray(moves["start"][:, 3:])
         self._rot1 = np.ascontiguousarray(moves["end"][:, 3:])
         self._buf = np.zeros(max_pieces, MOVE_DTYPE)
@@ -637,14 +673,17 @@ class LiveChecks:
             self.checker.limits = limits_in_work(self.limits, w)
 
     def cut(self, points: np.ndarray, rows: np.ndarray, spindle_rpm: float | None = None,
-            arrived_row: int | None = None):
+            arrived_row: int | None = None, polled_rows=()):
         """Cut the polyline ``points`` (k+1, 3) mm (work tip), piece ``q`` belonging to
         program row ``rows[q]`` (int, (k,)); return ``(removed mm^3, changed rays int64
         sorted and distinct, findings)``. ``points`` (k+1, 6) adds the work A B C (deg) at
         each point (a rotary job: the pieces turn as the machine did); with 3 columns each
         piece takes its row's programmed angles.
 
-        ``spindle_rpm``: the speed the controller reports (None: take the program's).
+        ``spindle_rpm``: the speed the controller reports (None: take the program's);
+        it holds for the path only where the program leaves the spindle as it is from
+        the rows of the polls at its ends (``polled_rows``, the program rows the
+        controller was at) over every row in between.
         ``arrived_row``: the row of the piece that ended at ``points[0]`` (the last one
         cut before), if known.
 
@@ -653,6 +692,12 @@ class LiveChecks:
         (:func:`arrival_poses`): that row brought the tool there, so whatever its pose
         touches is that row's doing, not the next one's.
         """
+        if spindle_rpm is not None and self._program_switches_spindle(rows, arrived_row, *polled_rows):
+            # the controller's speed is what the polls at the two ends of the path saw; the
+            # program switched the spindle between them (a coarse poll over its M3 and M5,
+            # say), so how it ran there is not what either end saw: each row takes the
+            # program's (else a path from before M3 to after M5 was all "spindle stopped")
+            spindle_rpm = None
         points, rows = arrival_poses(points, rows, arrived_row)
         removed = 0.0
         changed = []
@@ -670,6 +715,16 @@ class LiveChecks:
         # sorted: the trace record takes them as they are (np.unique would hash them first)
         rays = distinct(np.concatenate(changed)).astype(np.int64, copy=False) if changed else np.zeros(0, np.int64)
         return removed, rays, found
+
+    def _program_switches_spindle(self, rows: np.ndarray, *more) -> bool:
+        """Whether the program starts or stops the spindle anywhere from the first to the
+        last of ``rows`` and the rows in ``more`` (None: unknown, left out)."""
+        rows = np.asarray(rows)
+        lo, hi = int(rows.min()), int(rows.max())
+        for r in more:
+            if r is not None and 0 <= r < self._switches.size:
+                lo, hi = min(lo, int(r)), max(hi, int(r))
+        return bool(self._switches[hi] != self._switches[lo])
 
     def _fill(self, pts: np.ndarray, rows: np.ndarray, spindle_rpm) -> np.ndarray:
         """The travelled pieces as move rows in the reusable buffer (a view, k rows)."""

@@ -564,7 +564,8 @@ class Session:
         rpm = _spindle_rpm(state)
         if rpm == 0.0 and self.last is not None and _spindle_rpm(self.last) != 0.0:
             rpm = None
-        removed, rays, found = self.live_checks.cut(pts, rows, rpm, arrived_row=self._prev_row)
+        polled = (self.last_sync.row if self.last_sync is not None else None, s.row)
+        removed, rays, found = self.live_checks.cut(pts, rows, rpm, arrived_row=self._prev_row, polled_rows=polled)
         self._prev_row = int(rows[-1])
         if self.view is not None and rays.size:
             self._changed = rays if self._changed is None else distinct(np.concatenate([self._changed, rays]))

@@ -186,7 +186,8 @@ class VirtualController(Controller):
         if not self._connected or self.vm is None:
             raise ConnectionLost(f"{self.url}: not connected")
         vm = self.vm
-        if not self._started:
+        first = not self._started
+        if first:
             with vm.lock:
                 self._started = True
         if self._runner is not None and self._runner.error is not None:
@@ -194,7 +195,12 @@ class VirtualController(Controller):
         if self.clock == "sim":
             with vm.lock:
                 self._tick(vm)
-                vm.advance(self.speed / self.rate)
+                # a poll reports the step since the one before; the first has none and sees
+                # the machine as it stands at connect, as the wall clock's first poll does
+                # (a step of speed / rate longer than the program ended it before the
+                # monitor saw it start: nothing was cut or checked)
+                if not first:
+                    vm.advance(self.speed / self.rate)
         with vm.lock:
             sim_t, t = vm.time, self._now()
         if self.faults.disconnected(sim_t):

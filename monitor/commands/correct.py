@@ -257,6 +257,9 @@ def run(args) -> int:
     from sim.correct.path import check_fixed_rows, correct_moves
     from sim.correct.rewrite import rewrite_program
 
+    from monitor.commands.simulate import check_numbers
+
+    check_numbers(args)
     _positive(args.min_segment, "--min-segment")
     if not 1 <= args.refine <= 8:
         raise InputError(f"must be a whole number from 1 to 8, got {args.refine}", where="--refine")

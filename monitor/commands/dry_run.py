@@ -93,11 +93,10 @@ def virtual_moves(job, moves):
 
 
 def run(args) -> int:
-    from monitor.job import JobError
+    from monitor.options import number
     from monitor.session import load_moves
 
-    if not (args.speed and args.speed > 0):
-        raise JobError(f"expected a positive number, got {args.speed}", "--speed")
+    number(args.speed, "--speed")  # inf would run the whole program between two polls
     job = job_from_args(args, args.job or example_base(args))
     require(job, "program", "stock", "tools")
     moves, _ = load_moves(job)

@@ -387,9 +387,9 @@ def _view_options(args):
     want_window, frames = bool(getattr(args, "view", False)), getattr(args, "frames", None)
     if not want_window and not frames:
         return None
-    fps = getattr(args, "view_fps", DEFAULT_VIEW_FPS)
-    if fps is None or not fps > 0:
-        raise InputError(f"expected a positive number of frames per second, got {fps}", "--view-fps")
+    from monitor.options import number
+
+    fps = number(getattr(args, "view_fps", DEFAULT_VIEW_FPS), "--view-fps")
     if want_window:
         from monitor.render.view3d import has_display
 

@@ -113,10 +113,20 @@ def _fmt_time(s: float) -> str:
     return f"{int(m)}:{sec:05.2f}" if m else f"{sec:.2f} s"
 
 
+def check_numbers(args) -> None:
+    """Refuse numbers no picture or animation can use, before the run file is read."""
+    from monitor.options import number, picture_size
+
+    picture_size(args.size)
+    number(args.fps, "--fps")
+    number(args.frames, "--frames", whole=True)
+
+
 def run(args) -> int:
     from monitor.render.shaded import save_png
     from monitor.trace_io import RunView
 
+    check_numbers(args)
     out = sys.stdout
     status = 0
     with RunView(args.run) as view:
@@ -125,8 +135,6 @@ def run(args) -> int:
             else view.trace
         first, last = (view.first_stage, view.last_stage) if tr is not None else (0, 0)
         did = False
-        if args.size < 16:
-            raise InputError(f"expected a picture size of at least 16 pixels, got {args.size}", "--size")
         tool = None
         if args.tool:
             from sim.tools import parse_tool_spec

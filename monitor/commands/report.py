@@ -415,7 +415,11 @@ def build_report(view, size: int = 480, max_findings: int = 50, design=None, too
 
 def run(args) -> int:
     from monitor.commands.replay import say_damage
+    from monitor.options import number, picture_size
     from monitor.trace_io import RunView
+
+    picture_size(args.size)
+    number(args.max_findings, "--max-findings", whole=True, zero=True)  # 0: no pictures of findings
 
     out = Path(args.output)
     if out.suffix.lower() not in (".html", ".htm"):

@@ -329,7 +329,18 @@ def _from_start(moves: np.ndarray, grid, limits_text: str | None) -> np.ndarray:
     return moves if start is None else start_at(moves, start)
 
 
+def check_numbers(args) -> None:
+    """The numeric options ``simulate`` and ``correct`` share: a memory limit of nan or inf
+    would let any grid through to fail in numpy, 0 or less refuse every grid; a
+    ``--max-loop`` of 0 would read as "not given" where a job gives one."""
+    from monitor.options import number
+
+    number(args.memory_limit, "--memory-limit")
+    number(args.max_loop, "--max-loop", whole=True)
+
+
 def run(args) -> int:
+    check_numbers(args)
     if str(args.program).lower().endswith(".toml"):
         return _run_job(args)
     from sim.tools import parse_tool_spec
@@ -421,11 +432,8 @@ def _run_job(args) -> int:
     # from where the machine starts, as a dry run does (monitor.start)
     machine_moves = start_at(program.moves, job_start(job, program.moves))
     moves = work_moves(machine_moves, reference_wco(job))
-    est = stock_bytes_estimate(job, job.stock_model)
-    if est > args.memory_limit * 2**20:
-        raise InputError(f"the job's dexel grid needs about {est / 2**20:.0f} MB, over the "
-                         f"{args.memory_limit:.0f} MB limit; use a coarser --resolution", where="--resolution")
-    wp = build_workpiece(job, machine_moves, model=job.stock_model)
+    wp = build_workpiece(job, machine_moves, model=job.stock_model, memory_limit_mb=args.memory_limit,
+                         memory_hint="use a coarser --resolution or raise --memory-limit")
     checker = None
     if not args.no_checks:
         from sim.checks.checker import Checker
@@ -469,19 +477,6 @@ def _setup_findings(moves, grid, tool, tools, checker, inch: bool) -> list:
         moves = placed_on_part(moves, checker.kinematics, checker.origin, checker.tool_lengths)
     return setup_findings(moves, material_box(grid), reach, design_box(design) if design is not None else None,
                           inch=inch)
-
-
-def stock_bytes_estimate(job, model: str = "z") -> int:
-    """Bytes of the job's stock grid (its stock box at its resolution; ``model``
-    "tri-dexel": its three grids), 0 when unknown."""
-    from sim.grid import DexelGrid
-
-    b = job.stock.bounds() if job.stock is not None else None
-    if b is None:
-        return 0
-    nx, ny, nz = (int((h - lo) / job.resolution) + 1 for lo, h in zip(*b))
-    n = nx * ny if model != "tri-dexel" else nx * ny + ny * nz + nz * nx
-    return DexelGrid.estimate_bytes(n)
 
 
 def move_start_times(moves: np.ndarray, machine=None) -> np.ndarray:

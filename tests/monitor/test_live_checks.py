@@ -335,6 +335,25 @@ def test_a_stopped_spindle_at_one_poll_does_not_blame_the_whole_gap(example):
     assert [f["line"] for f in s.findings if f["kind"] == "spindle_stopped_cutting"] == [13]
 
 
+def test_a_spindle_off_at_both_polls_is_not_judged_across_the_m3_and_m5_between_them(example):
+    """One poll before the program's M3, the next after its M5 (a dry run at --speed 10000:
+    the whole program between two polls). Both saw the spindle off, as the program has it
+    there; in between the program ran it, and nothing was seen of that. Before: the whole
+    facing was one false spindle_stopped_cutting (lines 11-32)."""
+    job, moves, program = example
+    job = dataclasses.replace(job, work_offset=(0.0, 0.0, 0.0), design=None, fixtures=[])
+    s = Session(job, moves, program=program)
+    mw = s.moves
+    on = (mw["spindle"] > 0) & (mw["spindle_dir"] != 0)
+    before, after = int(np.nonzero(on)[0][0]) - 1, int(np.nonzero(on)[0][-1]) + 1
+    assert not on[before] and not on[after], "the program must start and stop its spindle"
+    s.step(_state(0.0, mw["end"][before, :3], spindle=0.0, state=RunState.IDLE))
+    s.step(_state(50.0, mw["end"][after, :3], spindle=0.0, state=RunState.IDLE))
+    assert s.stage >= 1  # the whole program was cut
+    assert not [f for f in s.findings if f["kind"] == "spindle_stopped_cutting"], s.findings
+    assert {f["kind"] for f in s.findings} >= {"rapid_into_stock"}  # still judged on its path
+
+
 WARM_UP_SCRIPT = """
 import json, sys, tempfile
 from pathlib import Path
