@@ -107,7 +107,15 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
                 resume_after: float | None = None, web_waits: bool = False) -> int:
     """Open the run file, connect, follow ``controller`` to the end; return the exit status.
     ``resume_after`` (s, dry runs): dexmon resumes the machine that long after its feed hold.
-    ``web_waits`` (dry runs): with ``--web`` the machine starts when a page has opened."""
+    ``web_waits`` (dry runs): with ``--web`` the machine starts when a page has opened.
+    SIGTERM and SIGHUP end the run as Ctrl-C does (:mod:`monitor.interrupt`)."""
+    from monitor.interrupt import interrupt_on_signals
+
+    with interrupt_on_signals():
+        return _run_session(args, job, controller, done, default_run_dir, resume_after, web_waits)
+
+
+def _run_session(args, job: Job, controller, done, default_run_dir, resume_after, web_waits) -> int:
     from rich.console import Console
 
     from monitor.alerts import RESUME_HOW, Alerter
@@ -157,39 +165,41 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
             session.warm_up()
         _connect(controller)
         connected = True
-        say_limits = _take_limits(session, controller, console, as_json)
-        note = _stock_model_note(job)
-        if as_json:
-            _jsonl({"event": "start", "run": str(run_path), "program": str(job.program),
-                    "controller": getattr(controller, "url", ""), "machine": _limits_record(session.in_force),
-                    "stock_model": LIVE_STOCK_MODEL})
-            if note is not None:
-                _jsonl({"event": "note", "kind": "stock_model", "text": note})
-        elif not quiet:
-            console.print(f"run file: {run_path}", soft_wrap=True)
-            if note is not None:
-                console.print(f"[yellow]note:[/yellow] {_escape(note)}", soft_wrap=True)
-        say_limits(session.in_force)
-        _announce_endpoints(controller, console, as_json)
-        # a setup that cannot be meant is said before the machine's first move is judged
-        session.check_setup(inch=bool(getattr(program, "inch", False)),
-                            reports_wco=getattr(controller, "reports_wco", True))
-        # the setup made many long-lived objects (move table rows, meshes, tools): keep
-        # the collector from walking them again during the run (no gen-2 pauses per poll)
-        gc.collect()
-        gc.freeze()
-        # the run-file writer and driver threads share the GIL with the loop: hand it back
-        # within REALTIME_SWITCH_S, not the default 5 ms, so a poll never waits that long
+        # from here on an interrupt (Ctrl-C, SIGTERM, SIGHUP) ends the run cleanly: the
+        # machine's link closed, the summary said, the run file closed
         switch = sys.getswitchinterval()
-        sys.setswitchinterval(REALTIME_SWITCH_S)
-        notify = _notifier(console, as_json, writer)
         try:
+            say_limits = _take_limits(session, controller, console, as_json)
+            note = _stock_model_note(job)
+            if as_json:
+                _jsonl({"event": "start", "run": str(run_path), "program": str(job.program),
+                        "controller": getattr(controller, "url", ""), "machine": _limits_record(session.in_force),
+                        "stock_model": LIVE_STOCK_MODEL})
+                if note is not None:
+                    _jsonl({"event": "note", "kind": "stock_model", "text": note})
+            elif not quiet:
+                console.print(f"run file: {run_path}", soft_wrap=True)
+                if note is not None:
+                    console.print(f"[yellow]note:[/yellow] {_escape(note)}", soft_wrap=True)
+            say_limits(session.in_force)
+            _announce_endpoints(controller, console, as_json)
+            # a setup that cannot be meant is said before the machine's first move is judged
+            session.check_setup(inch=bool(getattr(program, "inch", False)),
+                                reports_wco=getattr(controller, "reports_wco", True))
+            # the setup made many long-lived objects (move table rows, meshes, tools): keep
+            # the collector from walking them again during the run (no gen-2 pauses per poll)
+            gc.collect()
+            gc.freeze()
+            # the run-file writer and driver threads share the GIL with the loop: hand it back
+            # within REALTIME_SWITCH_S, not the default 5 ms, so a poll never waits that long
+            sys.setswitchinterval(REALTIME_SWITCH_S)
+            notify = _notifier(console, as_json, writer)
             with status:
                 _follow(session, controller, 1.0 / job.poll_hz, status, done, feed, notify, job.give_up_s,
                         resume_after)
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM / SIGHUP (monitor.interrupt)
             session.end_reason = "interrupted"
-            err_console.print("interrupted; the run file keeps everything so far")
+            _say_interrupted(err_console, exc)
         finally:
             sys.setswitchinterval(switch)
             gc.unfreeze()
@@ -234,6 +244,18 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
     if gave_up:
         return 2
     return 1 if summary["findings"] else 0
+
+
+def _say_interrupted(err_console, exc: BaseException) -> None:
+    """The one line an interrupted run says (the signal named unless it was Ctrl-C)."""
+    from monitor.interrupt import signal_name
+
+    name = signal_name(exc)
+    try:
+        err_console.print(f"interrupted{'' if name == 'SIGINT' else f' ({name})'}; "
+                          "the run file keeps everything so far")
+    except OSError:  # SIGHUP: the terminal may be gone; the summary and the run file matter more
+        pass
 
 
 def _machine_limits(controller):
