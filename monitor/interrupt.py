@@ -44,6 +44,47 @@ def _raise(signum, frame):
     raise Interrupted(signum)
 
 
+class Deferred:
+    """What :func:`deferred_interrupts` hands its body: ``event`` is set by the first
+    signal, ``signum`` is that signal's number (None: none came)."""
+
+    def __init__(self):
+        self.event = threading.Event()
+        self.signum: int | None = None
+
+
+@contextmanager
+def deferred_interrupts():
+    """Within: SIGINT and :data:`SIGNALS` set ``event`` of the :class:`Deferred` yielded
+    instead of raising, so a loop stopping on it ends between two of its steps, never
+    inside one (a finding alerted but not yet counted, a stage cut but not recorded); on
+    leaving, :class:`Interrupted` is raised for that signal. A second signal raises at
+    once (a loop stuck waiting must still stop). Only on the main thread; a signal the
+    process ignores stays ignored."""
+    d = Deferred()
+    if threading.current_thread() is not threading.main_thread():
+        yield d
+        return
+
+    def later(signum, frame):
+        if d.signum is not None:
+            raise Interrupted(signum)
+        d.signum = signum
+        d.event.set()
+
+    before = {}
+    for s in (signal.SIGINT, *SIGNALS):
+        if signal.getsignal(s) is not signal.SIG_IGN:
+            before[s] = signal.signal(s, later)
+    try:
+        yield d
+    finally:
+        for s, handler in before.items():
+            signal.signal(s, handler if handler is not None else signal.SIG_DFL)
+    if d.signum is not None:
+        raise Interrupted(d.signum)
+
+
 @contextmanager
 def interrupt_on_signals():
     """Within: :data:`SIGNALS` raise :class:`Interrupted` on the main thread (elsewhere

@@ -8,7 +8,8 @@ predicts findings over the look-ahead horizon and alerts each once (terminal, JS
 bell, and feed hold only when the job enables it). Everything goes to a run file (by
 default a new one under ./runs/, whose path is printed first). The run ends when the
 machine stands idle at the end of the program's last motion (or in alarm). Exit 0 clean,
-1 findings, 2 error.
+1 findings, 2 error; interrupted (Ctrl-C, SIGTERM, SIGHUP: the run ends cleanly, its summary
+says ``ended: interrupted``) 128 + the signal's number: 130, 143, 129.
 
 Link trouble is said as it happens, one line each (JSON: ``{"event": "link", "kind":
 "lost"|"back"|"reset"|"bad"|"note", "message": ...}``), and each gap once it is over
@@ -118,6 +119,8 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
 def _run_session(args, job: Job, controller, done, default_run_dir, resume_after, web_waits) -> int:
     from rich.console import Console
 
+    from monitor.interrupt import exit_status, signal_name
+
     from monitor.alerts import RESUME_HOW, Alerter
     from monitor.runfile import RunWriter, default_run_path
     from monitor.session import Session, load_moves
@@ -168,6 +171,7 @@ def _run_session(args, job: Job, controller, done, default_run_dir, resume_after
         # from here on an interrupt (Ctrl-C, SIGTERM, SIGHUP) ends the run cleanly: the
         # machine's link closed, the summary said, the run file closed
         switch = sys.getswitchinterval()
+        interrupted = None
         try:
             say_limits = _take_limits(session, controller, console, as_json)
             note = _stock_model_note(job)
@@ -199,6 +203,7 @@ def _run_session(args, job: Job, controller, done, default_run_dir, resume_after
                         resume_after)
         except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM / SIGHUP (monitor.interrupt)
             session.end_reason = "interrupted"
+            interrupted = exc
             _say_interrupted(err_console, exc)
         finally:
             sys.setswitchinterval(switch)
@@ -215,6 +220,8 @@ def _run_session(args, job: Job, controller, done, default_run_dir, resume_after
         summary = session.finish()
         summary["run"] = str(run_path)
         summary["ended"] = session.end_reason
+        if interrupted is not None:
+            summary["signal"] = signal_name(interrupted)
         if gave_up:  # one line, never wrapped
             print(f"dexmon live: {session.end_reason}", file=sys.stderr, flush=True)
         if feed is not None:
@@ -243,6 +250,9 @@ def _run_session(args, job: Job, controller, done, default_run_dir, resume_after
         _serve_sender(controller, console or err_console)
     if gave_up:
         return 2
+    if interrupted is not None:
+        # not 0 (clean) nor 1 (findings): the job was not followed to its end, whatever it found
+        return exit_status(interrupted)
     return 1 if summary["findings"] else 0
 
 
@@ -504,7 +514,12 @@ def _follow(session, controller, period: float, status, done, feed, notify=None,
 
     kw = {"status": status, "done": done, "notify": notify, "give_up_s": give_up_s, "resume_after": resume_after}
     if feed is None or not feed.view.is_window:
-        run_controller(session, controller, period, **kw)
+        from monitor.interrupt import deferred_interrupts
+
+        # an interrupt stops the loop between two states (then raised here), never inside a
+        # step: a finding alerted is counted, a stage cut is recorded
+        with deferred_interrupts() as interrupt:
+            run_controller(session, controller, period, stop=interrupt.event, **kw)
         return
     stop = threading.Event()
     failed: list[BaseException] = []
@@ -515,6 +530,7 @@ def _follow(session, controller, period: float, status, done, feed, notify=None,
         except BaseException as exc:  # noqa: BLE001 - re-raised on the main thread
             failed.append(exc)
 
+    # the window's thread takes the interrupt; the loop's thread ends between two states
     worker = threading.Thread(target=loop, name="dexmon session", daemon=True)
     worker.start()
     try:

@@ -1,6 +1,7 @@
 """A run stopped from outside -- Ctrl-C (SIGINT), ``kill`` (SIGTERM), the terminal closing
 (SIGHUP) -- ends as Ctrl-C does: "interrupted" said, the summary printed with ``ended:
-interrupted``, the run file closed (its summary and row counts written)."""
+interrupted``, the run file closed (its summary and row counts written), and an exit status
+that is neither clean (0) nor findings (1): 128 + the signal's number."""
 
 from __future__ import annotations
 
@@ -52,9 +53,23 @@ def test_sigterm_and_sighup_end_the_run_as_ctrl_c_does(sig, tmp_path):
     run = tmp_path / "run.sqlite"
     code, out, err = interrupted_dry_run(run, getattr(signal, sig))
     assert code >= 0, f"died of the signal ({code}): no summary, run file not closed"
+    assert code == 128 + getattr(signal, sig)
     assert "interrupted" in err and "the run file keeps everything so far" in err, err
     assert "Traceback" not in err
     assert out[-1]["event"] == "summary" and out[-1]["ended"] == "interrupted", out[-1]
     meta = RunReader(run).meta()
     assert json.loads(meta["summary"])["stages"] == out[-1]["stages"]
     assert "rows" in meta  # the writer closed the file
+
+
+def test_an_interrupted_run_is_not_read_as_clean(tmp_path):
+    """Ctrl-C before any finding: the job was not checked to its end, so a script must not
+    read it as clean (exit 0); with findings it is not 'findings' (1) either."""
+    code, out, err = interrupted_dry_run(tmp_path / "early.sqlite", signal.SIGINT)
+    assert out[-1]["findings"] == 0 and out[-1]["ended"] == "interrupted"
+    assert code == 130, (code, err)
+    # sent as the finding is said: the summary still counts every finding the run said
+    code, out, err = interrupted_dry_run(tmp_path / "late.sqlite", signal.SIGINT, after="finding")
+    said = [x for x in out if x["event"] == "finding"]
+    assert said and out[-1]["findings"] == len(said) and out[-1]["ended"] == "interrupted"
+    assert code == 130, (code, err)
