@@ -24,20 +24,21 @@ def parse_resume(spec: str) -> tuple[Path, str]:
 def resume_grid(spec: str) -> tuple[DexelGrid, int]:
     """The model rebuilt at ``RUN:STAGE`` and the stage number it is at."""
     from monitor.commands.replay import parse_stage
-    from monitor.runreader import RunReader
-    from monitor.trace_io import load_trace
+    from monitor.trace_io import RunView
 
     path, stage_text = parse_resume(spec)
     if not path.is_file():
         raise InputError("no such run file", f"--resume {path}")
-    with RunReader(path) as reader:
-        trace = load_trace(reader)
-        damage = reader.damage_line()
+    # the stages replay shows: 'end' is the same model here and there, also for a run cut short
+    with RunView(path) as view:
+        trace = view.trace
+        first, last, short = view.first_stage, view.last_stage, view.cut_short
+        damage = view.damage_line
     if trace.z is None:
         raise InputError("the run has no z-trace, so its model cannot be rebuilt", f"--resume {path}")
-    stage = parse_stage(stage_text, trace.last_stage, trace.z.first_stage, "--resume")
-    if stage > trace.last_stage:
-        why = f" ({damage})" if damage else ""
-        raise InputError(f"stage {stage} is beyond the run's last recorded stage {trace.last_stage}{why}",
-                         f"--resume {spec}")
+    stage = parse_stage(stage_text, last, first, "--resume")
+    if stage > last:
+        why = [x for x in (damage, short and f"the run was {short}") if x]
+        raise InputError(f"stage {stage} is beyond the run's last recorded stage {last}"
+                         + (f" ({'; '.join(why)})" if why else ""), f"--resume {spec}")
     return trace.grid_at(stage), stage

@@ -33,7 +33,10 @@ shape; reading validates the header (no object fields, sizes that add up) and us
 Durability: WAL journal, ``synchronous=NORMAL``. Appends go through a queue to one writer
 thread that owns the connection and commits at least every ``commit_interval`` seconds,
 so a ``kill -9`` loses at most that much and the file still opens; the session's hot loop
-never waits on the disk.
+never waits on the disk. The session hands its trace chunks on at least as often
+(``monitor.session.TRACE_CHUNK_S``), and each chunk's ``stage_to`` says up to which stage
+the model is rebuilt: a reader ends a run whose cuts go further (cut short) there
+(``monitor.trace_io.RunView.cut_short``).
 """
 
 from __future__ import annotations

@@ -59,8 +59,12 @@ from sim.gcode.moves import MoveKind
 
 #: progress jumps larger than this (program s) re-anchor the look-ahead on the live model
 JUMP_S = 2.0
-#: a trace chunk is written every this many stages
+#: a trace chunk is written every this many stages, and at least every TRACE_CHUNK_S
 TRACE_CHUNK_STAGES = 50
+#: wall s: the trace that rebuilds the model keeps up with the cuts the run file commits
+#: (RunWriter's commit_interval, 0.25 s), so a crash leaves at most this much of the run
+#: recorded but not rebuildable (replay then ends where the trace does)
+TRACE_CHUNK_S = 0.25
 
 
 def rotary_scale(job: Job) -> float:
@@ -131,11 +135,14 @@ class Session:
     program_text : recorded in the run file
     assume_done_before_start : when the run starts mid-program, cut the rows before the
         start into the live model (they ran before the monitor was started)
+    trace_clock : () -> s, what times the trace chunks written to ``run`` (at least every
+        :data:`TRACE_CHUNK_S`); the wall clock, tests give their own
     """
 
     def __init__(self, job: Job, moves: np.ndarray, seconds: np.ndarray | None = None, run=None,
                  alerter=None, program_text: str = "", assume_done_before_start: bool = True,
-                 workpiece: Workpiece | None = None, program=None, controller_limits=None):
+                 workpiece: Workpiece | None = None, program=None, controller_limits=None,
+                 trace_clock=time.monotonic):
         self.job = job
         self.moves_machine = moves
         #: offset (machine - work) of the job's work system in the interpreter, (6,) mm
@@ -197,6 +204,9 @@ class Session:
         self._predicted_to = 0            # rows before it were predicted (before this step's anchor)
         self._trace = None
         self._trace_from = 0
+        #: times the trace chunks (s; tests give their own) and when the last was written
+        self.trace_clock = trace_clock
+        self._trace_at = 0.0
         self._fill_horizon = False
         self.view = None                 # a monitor.render.feed.ViewFeed, or None
         self.line_source = None          # a monitor.linesync.StreamedLines, or None
@@ -435,6 +445,7 @@ class Session:
         self.live_checks.set_wco(wco)
         fresh = self._offset_check.see(state, tip) if self._offset_check is not None else []
         cut, info.removed = self._cut_live(tip, s, state)
+        self._trace_due()
         if restart is not None:
             # from the live model with the path since the last state cut in: taken before,
             # the rows the machine has just run were not in it, and the row it is on (a
@@ -689,6 +700,7 @@ class Session:
             self._trace = Trace(self.live, stage=0, auto_maintain=False, keep_history=False)
             self._trace.ready_for_records()
             self.run.append_trace_chunk(0, 0, self._trace.take_chunk())
+            self._trace_at = self.trace_clock()
         except Exception:  # the trace is a replay aid; the monitor runs without it
             self._trace = None
 
@@ -697,15 +709,30 @@ class Session:
             return
         try:
             self._trace.record(self.live, rays=rays, stage=self.stage)
-            if self.stage - self._trace_from >= TRACE_CHUNK_STAGES:
-                self.flush_trace()
         except Exception:
             self._trace = None
 
+    def _trace_due(self) -> None:
+        """Write the trace chunk when it is due: every TRACE_CHUNK_STAGES stages, and
+        TRACE_CHUNK_S after the last one whenever stages were cut since (cutting or not: a
+        chunk's ``stage_to`` tells the reader the model is rebuilt up to there, air cuts
+        and a machine standing in a hold included)."""
+        if self._trace is None or self.stage == self._trace_from:
+            return
+        if (self.stage - self._trace_from >= TRACE_CHUNK_STAGES
+                or self.trace_clock() - self._trace_at >= TRACE_CHUNK_S):
+            try:
+                self.flush_trace()
+            except Exception:  # the trace is a replay aid (a run-file error is the writer's to say)
+                self._trace = None
+
     def flush_trace(self) -> None:
+        """Hand the trace recorded since the last chunk to the run file as stages
+        ``_trace_from + 1 .. stage`` (an empty chunk when those stages removed nothing)."""
         if self._trace is not None and self.run is not None and self.stage > self._trace_from:
             self.run.append_trace_chunk(self._trace_from + 1, self.stage, self._trace.take_chunk())
             self._trace_from = self.stage
+            self._trace_at = self.trace_clock()
 
     def check_setup(self, inch: bool = False, reports_wco: bool = True, t: float | None = None) -> list[dict]:
         """Alert what cannot be the setup the user meant, before any cutting is judged

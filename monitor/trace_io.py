@@ -20,14 +20,20 @@ from sim.errors import InputError
 from sim.trace import Trace
 
 
-def store_trace_chunk(writer, trace: Trace, stage_from: int | None = None) -> bool:
-    """Append ``trace.take_chunk()`` to ``writer`` (a ``RunWriter``); False when nothing new."""
+def store_trace_chunk(writer, trace: Trace, stage_from: int | None = None, stage_to: int | None = None) -> bool:
+    """Append ``trace.take_chunk()`` to ``writer`` (a ``RunWriter``); False when nothing new.
+
+    A chunk's ``stage_to`` says the model is rebuilt up to that stage (readers end the run
+    there when its cuts go further): by default the last stage the chunk holds; ``stage_to``
+    (as a session writes it) also covers later stages that removed nothing, and writes the
+    chunk even when it is empty."""
     chunk = trace.take_chunk()
-    if not chunk:
+    if not chunk and stage_to is None:
         return False
     stages = chunk.get("z/stage", chunk.get("t/stage", np.zeros(0, np.int64)))
     lo = int(stages[0]) if stages.size else (int(stage_from) if stage_from is not None else 0)
     hi = int(stages[-1]) if stages.size else lo
+    hi = hi if stage_to is None else max(hi, int(stage_to))
     writer.append_trace_chunk(lo if stage_from is None else int(stage_from), hi, chunk)
     return True
 
@@ -40,11 +46,19 @@ _DECODE_ERRORS = (ValueError, IndexError, KeyError, TypeError, OverflowError, Me
 def load_trace(run) -> Trace:
     """The trace of a run file (path or ``RunReader``) up to its first damaged or missing
     chunk; InputError if it recorded none, RunFileError if none is readable."""
+    return _load_trace(run)[0]
+
+
+def _load_trace(run) -> tuple[Trace, int]:
+    """:func:`load_trace` and the last stage its chunks rebuild: their last ``stage_to``
+    (stages after the last trace block that removed nothing are the same model), or the
+    trace's last stage when it was cut short inside a chunk or damaged."""
     from monitor.runreader import RunReader
 
     reader = run if hasattr(run, "trace_chunks") else RunReader(run)
     before = len(reader.damage)
-    chunks = [arrays for _, _, arrays in reader.trace_chunks()]
+    rows = reader.trace_chunks()
+    chunks = [arrays for _, _, arrays in rows]
     stopped = any(d.startswith(("trace", "table trace")) for d in reader.damage[before:])
     if not chunks:
         if stopped:
@@ -57,7 +71,10 @@ def load_trace(run) -> Trace:
         raise reader.damaged(f"its trace does not decode ({type(exc).__name__}: {str(exc)[:80]})") from exc
     if stopped and trace.z is not None:
         trace.z.truncated = True
-    return trace
+    last = trace.last_stage
+    if not trace.truncated:
+        last = max(last, max(int(b) for _, b, _ in rows))
+    return trace, last
 
 
 class RunView:
@@ -98,8 +115,12 @@ class RunView:
             return text
 
     @cached_property
+    def _trace_and_end(self) -> tuple[Trace, int]:
+        return _load_trace(self.reader)
+
+    @property
     def trace(self) -> Trace:
-        return load_trace(self.reader)
+        return self._trace_and_end[0]
 
     @property
     def frame(self):
@@ -127,27 +148,47 @@ class RunView:
     # Stages, one definition for the whole run: stage n is the model after the n-th
     # recorded cut (the session's stage counter, the ``cuts`` table), stage 0 the stock
     # when the monitor started. Cuts that removed nothing leave no trace block, so the
-    # trace may end before the last cut: the model stays the same up to it.
+    # trace may end before the last cut: the model stays the same up to it, as far as the
+    # trace chunks' ``stage_to`` says. A run whose cuts go past that (killed, the disk
+    # full, damaged) is cut short: it ends at the last stage the trace rebuilds, never at
+    # a stage it would show with an older model.
     @property
     def first_stage(self) -> int:
         return int((self.trace.z or self.trace.t).first_stage)
 
     @property
     def last_stage(self) -> int:
-        """The last stage of the run (its last recorded cut; a run cut short: its last
-        stage the trace holds)."""
-        last = self.trace.last_stage
+        """The last stage of the run the model is rebuilt at (every recorded cut, unless
+        the run was cut short: see :attr:`cut_short`)."""
+        return int(self._trace_and_end[1])
+
+    @property
+    def recorded_stage(self) -> int:
+        """The last stage the run recorded (its last readable cut), whether or not the trace
+        rebuilds it."""
         tab = self.stage_table
-        if tab.size and not self.trace.truncated:
-            last = max(last, int(tab["stage"].max()))
-        return int(last)
+        return max(self.last_stage, int(tab["stage"].max()) if tab.size else 0)
+
+    @property
+    def cut_short(self) -> str | None:
+        """None, or what replay and report say of a run cut short: ``"cut short: recorded up
+        to stage N, the model rebuilds up to stage K"`` (its cuts went past its trace), or
+        ``"cut short: the model rebuilds up to stage K"`` (its trace ends damaged)."""
+        last, recorded = self.last_stage, self.recorded_stage
+        if recorded > last:
+            return f"cut short: recorded up to stage {recorded}, the model rebuilds up to stage {last}"
+        if self.trace.truncated:
+            return f"cut short: the model rebuilds up to stage {last}"
+        return None
 
     def check_stage(self, stage: int, where: str = "--stage") -> int:
         """``stage`` if the run has it, else InputError naming the valid range."""
         first, last = self.first_stage, self.last_stage
         if not first <= stage <= last:
+            short = self.cut_short
+            end = "the last stage the model rebuilds" if short else "after the last recorded cut"
             raise InputError(f"stage must be {first}..{last} ({first}: the stock before the first cut, "
-                             f"{last}: after the last recorded cut), got {stage}", where)
+                             f"{last}: {end}), got {stage}" + (f"; the run was {short}" if short else ""), where)
         return int(stage)
 
     @cached_property

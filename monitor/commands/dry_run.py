@@ -8,7 +8,8 @@ The program runs on an in-process virtual machine (no soft limits: the job's [li
 are what the monitor checks) and the monitor follows it exactly as it follows a real
 machine: same sync, cutting, look-ahead, alerts and run file. With ``--feed-hold`` dexmon
 holds the virtual machine on a finding and resumes it itself after a few seconds (it has
-no cycle-start button). Exit 0 clean, 1 findings, 2 error.
+no cycle-start button). Exit 0 clean, 1 findings, 2 error, 128 + the signal's number when
+interrupted (130 Ctrl-C, 143 SIGTERM, 129 SIGHUP).
 
 The machine starts where the job's machine would (``[machine] start``, default the top of
 the Z travel above the program's first point: :mod:`monitor.start`), so a dry run and

@@ -8,7 +8,8 @@ predicts findings over the look-ahead horizon and alerts each once (terminal, JS
 bell, and feed hold only when the job enables it). Everything goes to a run file (by
 default a new one under ./runs/, whose path is printed first). The run ends when the
 machine stands idle at the end of the program's last motion (or in alarm). Exit 0 clean,
-1 findings, 2 error.
+1 findings, 2 error; interrupted (Ctrl-C, SIGTERM, SIGHUP: the run ends cleanly, its summary
+says ``ended: interrupted``) 128 + the signal's number: 130, 143, 129.
 
 Link trouble is said as it happens, one line each (JSON: ``{"event": "link", "kind":
 "lost"|"back"|"reset"|"bad"|"note", "message": ...}``), and each gap once it is over
@@ -107,8 +108,18 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
                 resume_after: float | None = None, web_waits: bool = False) -> int:
     """Open the run file, connect, follow ``controller`` to the end; return the exit status.
     ``resume_after`` (s, dry runs): dexmon resumes the machine that long after its feed hold.
-    ``web_waits`` (dry runs): with ``--web`` the machine starts when a page has opened."""
+    ``web_waits`` (dry runs): with ``--web`` the machine starts when a page has opened.
+    SIGTERM and SIGHUP end the run as Ctrl-C does (:mod:`monitor.interrupt`)."""
+    from monitor.interrupt import interrupt_on_signals
+
+    with interrupt_on_signals():
+        return _run_session(args, job, controller, done, default_run_dir, resume_after, web_waits)
+
+
+def _run_session(args, job: Job, controller, done, default_run_dir, resume_after, web_waits) -> int:
     from rich.console import Console
+
+    from monitor.interrupt import exit_status, signal_name
 
     from monitor.alerts import RESUME_HOW, Alerter
     from monitor.runfile import RunWriter, default_run_path
@@ -157,39 +168,43 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
             session.warm_up()
         _connect(controller)
         connected = True
-        say_limits = _take_limits(session, controller, console, as_json)
-        note = _stock_model_note(job)
-        if as_json:
-            _jsonl({"event": "start", "run": str(run_path), "program": str(job.program),
-                    "controller": getattr(controller, "url", ""), "machine": _limits_record(session.in_force),
-                    "stock_model": LIVE_STOCK_MODEL})
-            if note is not None:
-                _jsonl({"event": "note", "kind": "stock_model", "text": note})
-        elif not quiet:
-            console.print(f"run file: {run_path}", soft_wrap=True)
-            if note is not None:
-                console.print(f"[yellow]note:[/yellow] {_escape(note)}", soft_wrap=True)
-        say_limits(session.in_force)
-        _announce_endpoints(controller, console, as_json)
-        # a setup that cannot be meant is said before the machine's first move is judged
-        session.check_setup(inch=bool(getattr(program, "inch", False)),
-                            reports_wco=getattr(controller, "reports_wco", True))
-        # the setup made many long-lived objects (move table rows, meshes, tools): keep
-        # the collector from walking them again during the run (no gen-2 pauses per poll)
-        gc.collect()
-        gc.freeze()
-        # the run-file writer and driver threads share the GIL with the loop: hand it back
-        # within REALTIME_SWITCH_S, not the default 5 ms, so a poll never waits that long
+        # from here on an interrupt (Ctrl-C, SIGTERM, SIGHUP) ends the run cleanly: the
+        # machine's link closed, the summary said, the run file closed
         switch = sys.getswitchinterval()
-        sys.setswitchinterval(REALTIME_SWITCH_S)
-        notify = _notifier(console, as_json, writer)
+        interrupted = None
         try:
+            say_limits = _take_limits(session, controller, console, as_json)
+            note = _stock_model_note(job)
+            if as_json:
+                _jsonl({"event": "start", "run": str(run_path), "program": str(job.program),
+                        "controller": getattr(controller, "url", ""), "machine": _limits_record(session.in_force),
+                        "stock_model": LIVE_STOCK_MODEL})
+                if note is not None:
+                    _jsonl({"event": "note", "kind": "stock_model", "text": note})
+            elif not quiet:
+                console.print(f"run file: {run_path}", soft_wrap=True)
+                if note is not None:
+                    console.print(f"[yellow]note:[/yellow] {_escape(note)}", soft_wrap=True)
+            say_limits(session.in_force)
+            _announce_endpoints(controller, console, as_json)
+            # a setup that cannot be meant is said before the machine's first move is judged
+            session.check_setup(inch=bool(getattr(program, "inch", False)),
+                                reports_wco=getattr(controller, "reports_wco", True))
+            # the setup made many long-lived objects (move table rows, meshes, tools): keep
+            # the collector from walking them again during the run (no gen-2 pauses per poll)
+            gc.collect()
+            gc.freeze()
+            # the run-file writer and driver threads share the GIL with the loop: hand it back
+            # within REALTIME_SWITCH_S, not the default 5 ms, so a poll never waits that long
+            sys.setswitchinterval(REALTIME_SWITCH_S)
+            notify = _notifier(console, as_json, writer)
             with status:
                 _follow(session, controller, 1.0 / job.poll_hz, status, done, feed, notify, job.give_up_s,
                         resume_after)
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as exc:  # Ctrl-C, or SIGTERM / SIGHUP (monitor.interrupt)
             session.end_reason = "interrupted"
-            err_console.print("interrupted; the run file keeps everything so far")
+            interrupted = exc
+            _say_interrupted(err_console, exc)
         finally:
             sys.setswitchinterval(switch)
             gc.unfreeze()
@@ -205,6 +220,8 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
         summary = session.finish()
         summary["run"] = str(run_path)
         summary["ended"] = session.end_reason
+        if interrupted is not None:
+            summary["signal"] = signal_name(interrupted)
         if gave_up:  # one line, never wrapped
             print(f"dexmon live: {session.end_reason}", file=sys.stderr, flush=True)
         if feed is not None:
@@ -233,7 +250,22 @@ def run_session(args, job: Job, controller, done=None, default_run_dir: str | Pa
         _serve_sender(controller, console or err_console)
     if gave_up:
         return 2
+    if interrupted is not None:
+        # not 0 (clean) nor 1 (findings): the job was not followed to its end, whatever it found
+        return exit_status(interrupted)
     return 1 if summary["findings"] else 0
+
+
+def _say_interrupted(err_console, exc: BaseException) -> None:
+    """The one line an interrupted run says (the signal named unless it was Ctrl-C)."""
+    from monitor.interrupt import signal_name
+
+    name = signal_name(exc)
+    try:
+        err_console.print(f"interrupted{'' if name == 'SIGINT' else f' ({name})'}; "
+                          "the run file keeps everything so far")
+    except OSError:  # SIGHUP: the terminal may be gone; the summary and the run file matter more
+        pass
 
 
 def _machine_limits(controller):
@@ -482,7 +514,12 @@ def _follow(session, controller, period: float, status, done, feed, notify=None,
 
     kw = {"status": status, "done": done, "notify": notify, "give_up_s": give_up_s, "resume_after": resume_after}
     if feed is None or not feed.view.is_window:
-        run_controller(session, controller, period, **kw)
+        from monitor.interrupt import deferred_interrupts
+
+        # an interrupt stops the loop between two states (then raised here), never inside a
+        # step: a finding alerted is counted, a stage cut is recorded
+        with deferred_interrupts() as interrupt:
+            run_controller(session, controller, period, stop=interrupt.event, **kw)
         return
     stop = threading.Event()
     failed: list[BaseException] = []
@@ -493,6 +530,7 @@ def _follow(session, controller, period: float, status, done, feed, notify=None,
         except BaseException as exc:  # noqa: BLE001 - re-raised on the main thread
             failed.append(exc)
 
+    # the window's thread takes the interrupt; the loop's thread ends between two states
     worker = threading.Thread(target=loop, name="dexmon session", daemon=True)
     worker.start()
     try:

@@ -197,25 +197,29 @@ def run(args) -> int:
             did = True
         if not did:
             summary = {"event": "summary", "run": str(args.run), "first_stage": first, "last_stage": last,
-                       "truncated": tr.truncated, "findings": len(view.findings),
+                       "truncated": view.cut_short is not None, "recorded_stage": view.recorded_stage,
+                       "findings": len(view.findings),
                        "rays": tr.frame.n_rays, "spacing_mm": tr.frame.spacing,
                        "z_trace_changes": tr.z.n_changes if tr.z else 0,
                        "time_trace_changes": tr.t.n_changes if tr.t else 0}
             _say(args, out, summary,
-                 f"{args.run}: stages {first}..{last}{' (cut short)' if tr.truncated else ''}, "
+                 f"{args.run}: stages {first}..{last}{' (cut short)' if view.cut_short else ''}, "
                  f"{len(view.findings)} findings, {tr.frame.nu}x{tr.frame.nv} rays at {tr.frame.spacing} mm")
-        say_damage("replay", view, f"it replays up to stage {last}" if tr is not None and tr.truncated else None)
+        say_damage("replay", view, tr is not None)
     return status
 
 
-def say_damage(command: str, view, cut_short: str | None = None) -> None:
+def say_damage(command: str, view, traced: bool = True) -> None:
     """One line on stderr when the run file was damaged (what was skipped), cut short
-    (``cut_short``: up to where it replays), or written without checksums."""
+    (``view.cut_short``: recorded up to where, rebuilt up to where), or written without
+    checksums. ``traced``: the command read the trace (else whether the run was cut short
+    is not known, and not said)."""
     damage = view.damage_line
+    short = view.cut_short if traced else None
     if damage:
-        print(f"dexmon {command}: warning: {damage}", file=sys.stderr)
-    elif cut_short:
-        print(f"dexmon {command}: note: {view.path} was cut short; {cut_short}", file=sys.stderr)
+        print(f"dexmon {command}: warning: {damage}" + (f"; {short}" if short else ""), file=sys.stderr)
+    elif short:
+        print(f"dexmon {command}: note: {view.path} was {short}", file=sys.stderr)
     elif not view.reader.checked:
         print(f"dexmon {command}: note: {view.path} has no checksums (written by an older dexmon): "
               "damage in it would go unnoticed", file=sys.stderr)

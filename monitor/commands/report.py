@@ -49,19 +49,20 @@ def _img_tag(img: np.ndarray, alt: str) -> str:
     return f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{png_base64(img)}">'
 
 
-def finding_stage(view, f: dict) -> int:
+def finding_stage(view, f: dict, rebuilt: bool = True) -> int:
     """The live stage where a finding is seen whole: the cut after the last cut of any of
     its lines (the poll that found the machine past them, so the picture shows all of it),
-    else the stage it happened at, else the run's end."""
+    else the stage it happened at, else the run's end. ``rebuilt``: at most the last stage
+    the model is rebuilt at (a run cut short may have recorded it later)."""
     tab = view.stage_table
     lines = set(f.get("lines") or ()) | ({int(f["line"])} if f.get("line") is not None else set())
-    if tab.size and lines:
-        hit = np.nonzero(np.isin(tab["line"], sorted(lines)))[0]
-        if hit.size:
-            return min(int(tab["stage"][min(hit[-1] + 1, tab.size - 1)]), view.last_stage)
-    if isinstance(f.get("stage"), int) and view.first_stage <= f["stage"] <= view.last_stage:
-        return int(f["stage"])
-    return view.last_stage
+    stage = view.last_stage
+    hit = np.nonzero(np.isin(tab["line"], sorted(lines)))[0] if tab.size and lines else ()
+    if len(hit):
+        stage = int(tab["stage"][min(hit[-1] + 1, tab.size - 1)])
+    elif isinstance(f.get("stage"), int) and view.first_stage <= f["stage"] <= view.recorded_stage:
+        stage = int(f["stage"])
+    return min(stage, view.last_stage) if rebuilt else stage
 
 
 def cycle_time(view) -> dict:
@@ -209,10 +210,14 @@ def listing_around(view, lines, context: int = 4) -> str:
     return "<pre class='listing'>" + "\n".join(out) + "</pre>"
 
 
-def finding_section(pics, f: dict, stage: int, size: int) -> list[str]:
+def finding_section(pics, f: dict, stage: int, size: int, cut_short: bool = False) -> list[str]:
     """HTML pictures of one finding at ``stage``: a close 3-D view of the model with its
-    deviation map round the finding and a section through it (model, design, stock)."""
+    deviation map round the finding and a section through it (model, design, stock).
+    ``cut_short``: the run's model ends before the finding's lines were cut (``stage`` is
+    its last), and the caption says so."""
     parts = []
+    when = ("the last stage the model rebuilds: the run was cut short before its lines were"
+            if cut_short else "its lines cut")
     pos = np.asarray(f["position"][:3], np.float64)
     from monitor.render.live import finding_label
 
@@ -222,7 +227,7 @@ def finding_section(pics, f: dict, stage: int, size: int) -> list[str]:
         # without the tool: at the moment after its lines it stands over what it did
         img = view3d.stage_png(pics, stage, window_size=(size, size), focus=pos, half_mm=10.0, show_tool=False)
         parts.append(f"<figure>{_img_tag(img, 'close 3-D view of ' + f.get('kind', 'finding'))}"
-                     f"<figcaption>3-D view round the finding at stage {stage} (its lines cut)</figcaption></figure>")
+                     f"<figcaption>3-D view round the finding at stage {stage} ({when})</figcaption></figure>")
     except ImportError:  # pyvista missing: the section and the listing still say it
         pass
     across = section_axis(pics.view, f)
@@ -355,7 +360,7 @@ def build_report(view, size: int = 480, max_findings: int = 50, design=None, too
         "<h2>Summary</h2><table>",
     ]
     rows = [("program", view.meta.get("program_path", "")),
-            ("stages", f"{first} .. {last}" + (" (run cut short)" if tr.truncated else "")),
+            ("stages", f"{first} .. {last}" + (f" (run {view.cut_short})" if view.cut_short else "")),
             ("dexel grid", f"{frame.nu} x {frame.nv} rays at {frame.spacing:g} mm"),
             ("removed volume", f"{removed_total:.3f} mm³"),
             ("findings", str(len(findings))),
@@ -399,7 +404,8 @@ def build_report(view, size: int = 480, max_findings: int = 50, design=None, too
         parts.append(f"<div class='finding'><p class='bad'>{e(format_finding(f))}{e(when)}</p>{listed}")
         parts.append("<div class='f'>")
         if n < max_findings and isinstance(f.get("position"), list) and len(f["position"]) >= 3:
-            parts += finding_section(pics, f, finding_stage(view, f), size)
+            stage = finding_stage(view, f)
+            parts += finding_section(pics, f, stage, size, cut_short=finding_stage(view, f, rebuilt=False) > stage)
         parts.append(listing_around(view, lines or [f.get("line")]))
         parts.append("</div></div>")
     parts.append("<h2>Removal per move</h2><table><tr><th>move</th><th>line</th><th>removed (mm³)</th></tr>")
@@ -408,8 +414,9 @@ def build_report(view, size: int = 480, max_findings: int = 50, design=None, too
         line = int(moves["line"][m - 1]) if moves is not None and 1 <= m <= len(moves) else ""
         parts.append(f"<tr><td>{m}</td><td>{line}</td><td>{v:.3f}</td></tr>")
     parts.append("</table></body></html>")
-    if view.damage_line:
-        parts[parts.index("<!-- damage -->")] = f"<p class='bad'>{e(view.damage_line)}</p>"
+    said = [x for x in (view.damage_line, view.cut_short and f"The run was {view.cut_short}.") if x]
+    if said:
+        parts[parts.index("<!-- damage -->")] = "".join(f"<p class='bad'>{e(x)}</p>" for x in said)
     return "\n".join(parts)
 
 
@@ -431,8 +438,7 @@ def run(args) -> int:
             tool = parse_tool_spec(args.tool)
         text = build_report(view, args.size, args.max_findings, design=args.design, tool=tool)
         n = len(view.findings)
-        say_damage("report", view, "the report shows it up to its last intact stage"
-                   if view.trace.truncated else None)
+        say_damage("report", view)
     out.write_text(text, encoding="utf-8")
     if getattr(args, "json", False):
         print(json.dumps({"event": "report", "path": str(out), "findings": n}), file=sys.stdout)

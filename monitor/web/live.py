@@ -105,10 +105,10 @@ class LiveFeed:
             self._stage_view.close()
         # opened again on each click: the file grows as the machine runs
         self._stage_view = view = RunView(run.path)
-        held = view.trace.last_stage
+        held = view.last_stage
         if stage > held:
             return (f"happened at stage {stage}, which the run file does not hold yet (it holds stages up "
-                    f"to {held}; the model is written every few dozen stages): click it again in a moment")
+                    f"to {held}; the model is written about every quarter second): click it again in a moment")
         model = RunModel(view)
         heights = np.array(model.heights(stage), np.float32)
         return heights, model.at(stage).tip, model.row(stage), stage

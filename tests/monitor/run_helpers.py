@@ -100,6 +100,8 @@ def record_run(path, chunk_every: int = 5, stop_after: int | None = None, writer
         stage += 1
         w.append_cut(stage, {"p0": PATH[-1], "p1": PATH[-1] + [0, 0, 5]}, t=stage * 0.1, move_id=len(moves),
                      line=int(moves["line"][-1]))
+    if air_cuts:  # as a session's last chunk: the model is rebuilt up to its last stage
+        store_trace_chunk(w, trace, stage_from=stage - air_cuts + 1, stage_to=stage)
     w.append_finding({"kind": "gouge", "line": 13, "lines": [13, 14], "stage": 4,
                       "position": [15.0, 16.0, 6.5], "depth": 0.4, "message": "gouge 0.400 mm deep"})
     w.append_finding({"kind": "rapid_into_stock", "line": 10, "lines": [10], "stage": 1,
@@ -139,5 +141,5 @@ def record_program(run, program, design, stock, tool_spec: str = "ball:6", resol
         end = moves["end"][b - 1, :3]
         w.append_cut(stage, {"points": np.stack([moves["start"][a, :3], end])}, t=0.01 * b, move_id=b,
                      line=int(moves["line"][b - 1]))
-        store_trace_chunk(w, trace)
+        store_trace_chunk(w, trace, stage_to=stage)
     w.close()
