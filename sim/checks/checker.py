@@ -251,7 +251,8 @@ class Checker:
             # after the cut: only the rays each move changed can have lost material
             _, core = engagement.run(moves, cut=zres, grid=zgrid)
             for tool, rows in self._tool_of_rows(moves):
-                out += motion.plunges(moves[rows], core[rows], tool, self.max_ramp_deg, move_ids=ids[rows])
+                out += motion.plunges(moves[rows], core[rows], tool, self.max_ramp_deg, move_ids=ids[rows],
+                                      entry_deg=engagement.entry_deg[rows])
         removed = res.removed
         turned = collisions.turned_rows(moves, self.kinematics, self.origin)
         if turned.any():  # cusps of earlier instances shaved by a later pass are no contact
