@@ -33,8 +33,8 @@ def rapid_into_stock(moves: np.ndarray, removed, move_ids=None, min_volume: floa
 
     Position: with ``cut`` (the :class:`~sim.cut.CutResult` of ``moves``) and ``grid``
     (the model after the cut), the point where the rapid first entered material - of the
-    rays it changed, the material top it met (new top + depth of cut) that comes first
-    along the move - since a machinist looks there; else the move's end.
+    rays it changed, the material top it met (:func:`top_met`) that comes first along the
+    move - since a machinist looks there; else the move's end.
     """
     moves = np.asarray(moves)
     ids = move_ids_of(moves, move_ids)
@@ -71,22 +71,43 @@ def instance_slivers(cut, rows: np.ndarray, floor: float) -> np.ndarray:
     return out
 
 
+def top_met(cut, grid, k: int, lowest: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(rays, top)``: the rays move ``k`` of a batch changed and each one's material top
+    (s along the ray, mm) as it was when the move began.
+
+    ``cut`` is the batch's :class:`~sim.cut.CutResult` (depths kept), ``grid`` the model
+    after the whole batch: later moves of the batch may have cut the same rays deeper, so
+    the top now is not what move ``k`` met. Each move's depth on a ray is its top before
+    minus its top after, so the top before move ``k`` is the top now plus the depths of
+    ``k`` and of every later move on that ray. A ray emptied by then has no top: there the
+    material began at most ``k``'s depth above ``lowest`` (s of the move's lowest tip)."""
+    ptr = cut.changed_ptr
+    lo, hi = ptr[k], ptr[k + 1]
+    rays = cut.changed_rays[lo:hi]
+    if not cut.changed_depth.size:
+        return rays, grid.top().reshape(-1)[rays].astype(np.float64)
+    later = cut.changed_rays[lo:]
+    depth = np.asarray(cut.changed_depth[lo:], np.float64)
+    # rays are sorted within each move: find each later entry among move k's rays
+    at = np.minimum(np.searchsorted(rays, later), rays.size - 1)
+    mine = rays[at] == later
+    below = np.bincount(at[mine], weights=depth[mine], minlength=rays.size)
+    top = grid.top().reshape(-1)[rays].astype(np.float64)
+    return rays, np.where(np.isfinite(top), top + below, lowest + depth[:hi - lo])
+
+
 def _entry_point(moves, k, cut, grid):
     """World point (3,) where move ``k`` first met material, or None (see rapid_into_stock)."""
-    lo, hi = cut.changed_ptr[k], cut.changed_ptr[k + 1]
-    if hi <= lo:
+    if cut.changed_ptr[k + 1] <= cut.changed_ptr[k]:
         return None
-    rays = cut.changed_rays[lo:hi]
-    depth = np.asarray(cut.changed_depth[lo:hi], np.float64) if cut.changed_depth.size else 0.0
     f = grid.frame
-    top = grid.top().reshape(-1)[rays].astype(np.float64)
-    i, j = rays % f.nu, rays // f.nu
     start = np.array(moves["start"][k, :3], np.float64)
     start[2] -= moves["tool_length"][k]
     end = _tip(moves, k)
-    # emptied rays: the material began at most ``depth`` above the move's lowest tip
-    top = np.where(np.isfinite(top), top, min(start[2], end[2]))
-    pts = f.to_world(np.stack([i * f.spacing, j * f.spacing, top + depth], axis=1))
+    lowest = start if start[2] < end[2] else end
+    rays, top = top_met(cut, grid, k, float(f.to_local(lowest[None])[0, 2]))
+    i, j = rays % f.nu, rays // f.nu
+    pts = f.to_world(np.stack([i * f.spacing, j * f.spacing, top], axis=1))
     d = end - start
     n = np.linalg.norm(d)
     if n == 0:

@@ -131,3 +131,17 @@ def test_predict_finds_the_same_without_touching_the_live_model():
     _, found = ch.cut_and_check(m)
     assert kinds(found) == kinds(predicted)
     assert found[0].volume == pytest.approx(predicted[0].volume)
+
+
+def test_a_rapid_is_placed_on_the_material_it_met_not_what_later_moves_left():
+    # line 30: G0 at Z-0.5 across the stock's edge (its top at Z20): it meets the edge X0 at
+    # the top; lines 60/70 later cut the same rays 5 mm deep in the same batch
+    m = table([(R, (-10, 15, 30), (-10, 15, 19.5)), (R, (-10, 15, 19.5), (10, 15, 19.5)),
+               (R, (10, 15, 19.5), (10, 15, 30)), (R, (10, 15, 30), (-10, 15, 30)),
+               (F, (-10, 15, 30), (-10, 15, 15)), (F, (-10, 15, 15), (30, 15, 15)), (R, (30, 15, 15), (30, 15, 30))])
+    ch = Checker(stock(), parse_tool_spec("flat:6:L=20"))
+    _, found = ch.cut_and_check(m)
+    (f,) = [f for f in found if f.kind == "rapid_into_stock"]
+    # (its volume on 0.5 mm rays: the slot and half disc X0..13, 0.5 mm deep, 37 mm^3)
+    assert f.line == 20 and f.volume == pytest.approx(6 * 10 * 0.5 + 9 * np.pi / 2 * 0.5, rel=0.1)
+    assert f.position == pytest.approx((0.0, 15.0, 20.0))
