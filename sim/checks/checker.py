@@ -246,20 +246,22 @@ class Checker:
         zres, zgrid = z_part(res), z_part(grid)
         if self.max_depth_of_cut is not None:
             doc = motion.depth_of_cut_of(zres)
-            out += motion.depth_of_cut(moves, doc, self.max_depth_of_cut, ids)
+            out += motion.depth_of_cut(moves, doc, self.max_depth_of_cut, ids, cut=zres, grid=zgrid)
         if engagement is not None:
             # after the cut: only the rays each move changed can have lost material
             _, core = engagement.run(moves, cut=zres, grid=zgrid)
             for tool, rows in self._tool_of_rows(moves):
-                out += motion.plunges(moves[rows], core[rows], tool, self.max_ramp_deg, move_ids=ids[rows],
-                                      entry_deg=engagement.entry_deg[rows])
+                out += motion.plunges(moves, core, tool, self.max_ramp_deg, move_ids=ids, rows=rows,
+                                      entry_deg=engagement.entry_deg, entry_at=engagement.entry_at, cut=zres,
+                                      grid=zgrid, near=engagement.core)
         removed = res.removed
         turned = collisions.turned_rows(moves, self.kinematics, self.origin)
         if turned.any():  # cusps of earlier instances shaved by a later pass are no contact
             step = self.tol.instance_fraction * zgrid.frame.spacing
             removed = np.where(collisions.instance_slivers(zres, turned, step), 0.0, removed)
         out += collisions.rapid_into_stock(moves, removed, ids, self.min_volume, cut=zres, grid=zgrid)
-        out += motion.spindle_stopped_cutting(moves, removed, ids, self.min_volume, carry=spindle_off)
+        out += motion.spindle_stopped_cutting(moves, removed, ids, self.min_volume, carry=spindle_off, cut=zres,
+                                              grid=zgrid)
         if pre:
             out += self._replay_contacts(snapshot, moves, ids, pre, touched)
         else:
@@ -331,7 +333,7 @@ class Checker:
                         mine = touched[kind] = self._cutter(scratch.grid.copy())
                     vol = mine.cut_moves(moves[k:k + 1], record_changes=False, body=body).removed
                 out += collisions.body_findings(moves[k:k + 1], kind, vol, ids[k:k + 1], self.min_volume,
-                                                present=present)
+                                                present=present, cutter=scratch, body=body)
         for mine in touched.values():  # the rest of the batch's flutes
             mine.cut_moves(moves[done:], move_ids=ids[done:].astype(np.int32), record_changes=False)
         return out

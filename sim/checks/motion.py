@@ -16,6 +16,7 @@ import numpy as np
 from sim import dexel_store as ds
 from sim.checks.arrays import distinct
 from sim.checks.findings import Finding
+from sim.checks.where import deepest_cut, first_contact, line_entry, tip_at
 from sim.errors import InputError
 from sim.gcode.moves import MoveKind, Plane
 
@@ -265,7 +266,7 @@ def spindle_off_from(moves: np.ndarray, move_ids=None, carry=None):
 
 
 def spindle_stopped_cutting(moves: np.ndarray, removed, move_ids=None, min_volume: float = 1e-6,
-                            carry=None) -> list[Finding]:
+                            carry=None, cut=None, grid=None) -> list[Finding]:
     """Moves that removed (or would remove) material with the spindle stopped.
 
     ``removed``: float64 (n,) mm^3 per row (from ``Cutter.cut_moves`` or
@@ -273,7 +274,9 @@ def spindle_stopped_cutting(moves: np.ndarray, removed, move_ids=None, min_volum
     span of rows run with the spindle stopped (``detail["cause"]``, from the row where it
     stopped; ``carry``: the span the previous batch ended in, see
     :func:`spindle_off_from`), so that :func:`merge_findings` makes one finding of a
-    program that never starts the spindle, not one per move.
+    program that never starts the spindle, not one per move. Position: with ``cut`` (the
+    batch's CutResult) and ``grid`` (the model after it), where the move first met
+    material (:func:`sim.checks.where.first_contact`); else the move's end.
     """
     moves = np.asarray(moves)
     ids = move_ids_of(moves, move_ids)
@@ -285,14 +288,20 @@ def spindle_stopped_cutting(moves: np.ndarray, removed, move_ids=None, min_volum
     span = spindle_off_from(moves, ids, carry)
     out = []
     for k in bad:
-        tip = np.array(moves["end"][k, :3], np.float64)
-        tip[2] -= moves["tool_length"][k]
+        tip = _met_at(moves, k, first_contact, cut, grid)
         first_id, first_line = (int(v) for v in span[k])
         since = f"spindle off from line {first_line}" if first_line > 0 else "spindle off from the start"
         out.append(Finding(kind="spindle_stopped_cutting", line=int(moves["line"][k]), stage=int(ids[k]),
                            position=tuple(tip), volume=float(removed[k]),
                            detail={"cause": since, "off_from_move": first_id}))
     return out
+
+
+def _met_at(moves, k, where, cut, grid) -> np.ndarray:
+    """``where(moves, k, cut, grid)`` (a :mod:`sim.checks.where` point) when the cut is
+    known and the move changed a ray, else row ``k``'s end tip."""
+    met = where(moves, k, cut, grid) if cut is not None and grid is not None else None
+    return tip_at(moves, k) if met is None else met
 
 
 # --- depth of cut and plunges -------------------------------------------------------------
@@ -649,8 +658,10 @@ class Engagement:
         self.slack = 1e-6
         self._buf = None
         #: per row of the last :meth:`run`: the descent (deg below horizontal) of the path
-        #: where it first cut under the tool centre, NaN where it did not (:func:`entry_angles`)
+        #: where it first cut under the tool centre, NaN where it did not, and for arcs the
+        #: tip there ((n, 3) mm, NaN for lines and elsewhere) (:func:`entry_angles`)
         self.entry_deg = np.zeros(0)
+        self.entry_at = np.zeros((0, 3))
 
     def run(self, moves: np.ndarray, cut=None, grid=None):
         """Advance through ``moves``; returns ``(doc, core_depth)``, float64 (n,) mm each.
@@ -666,6 +677,7 @@ class Engagement:
         doc = np.zeros(n)
         core = np.zeros(n)
         self.entry_deg = np.full(n, np.nan)
+        self.entry_at = np.full((n, 3), np.nan)
         p0, p1, row = path_polyline(moves, self.chord, which="tip")
         if row.size == 0:
             return doc, core
@@ -677,7 +689,7 @@ class Engagement:
         if cut is None:
             _engage(self.top, x0, y0, f.spacing, f.nu, f.nv, pf, row, piece_ptr, self.shape, self.R, self.slack,
                     self.env_d, self.env_h, self.core, doc, core, entry_q, entry_top)
-            self.entry_deg = entry_angles(moves, p0, p1, piece_ptr, core, entry_q, entry_top)
+            self.entry_deg, self.entry_at = entry_angles(moves, p0, p1, piece_ptr, core, entry_q, entry_top)
             return doc, core
         chg_ptr = np.asarray(cut.changed_ptr, np.int64)
         chg_rays = np.asarray(cut.changed_rays, np.int64)
@@ -695,7 +707,7 @@ class Engagement:
                         entry_top)
         if resync:
             _resync_top(grid.S, chg_rays, self.top, self._buf[0])
-        self.entry_deg = entry_angles(moves, p0, p1, piece_ptr, core, entry_q, entry_top)
+        self.entry_deg, self.entry_at = entry_angles(moves, p0, p1, piece_ptr, core, entry_q, entry_top)
         return doc, core
 
 
@@ -724,9 +736,10 @@ def arc_tangents(arcs: np.ndarray, t: np.ndarray) -> np.ndarray:
     return d
 
 
-def entry_angles(moves, p0, p1, piece_ptr, core, entry_q, entry_top) -> np.ndarray:
+def entry_angles(moves, p0, p1, piece_ptr, core, entry_q, entry_top) -> tuple[np.ndarray, np.ndarray]:
     """Per row, the descent (deg below horizontal) of the tip's path where it enters
-    material under the tool centre; NaN where it cut nothing there.
+    material under the tool centre, NaN where it cut nothing there; and for arcs the tip
+    at that point ((n, 3) mm, NaN for lines).
 
     A line has one direction. An arc turns: its chord says nothing of how it enters (a
     full-turn helix has none, a dive and climb back a level one), so it is the tangent
@@ -735,6 +748,7 @@ def entry_angles(moves, p0, p1, piece_ptr, core, entry_q, entry_top) -> np.ndarr
     for a helix, the circle's own slope for an arc in a vertical plane."""
     n = len(moves)
     out = np.full(n, np.nan)
+    at = np.full((n, 3), np.nan)
     count = np.diff(piece_ptr)
     line = np.flatnonzero((count == 1) & (core > 0.0))
     out[line] = descent_deg(p1[piece_ptr[line]] - p0[piece_ptr[line]])
@@ -748,7 +762,8 @@ def entry_angles(moves, p0, p1, piece_ptr, core, entry_q, entry_top) -> np.ndarr
         within = np.clip(np.divide(z0 - entry_top[arc], drop, out=np.zeros(arc.size), where=drop > 0), 0.0, 1.0)
         t = (q - piece_ptr[arc] + within) / count[arc]
         out[arc] = descent_deg(arc_tangents(moves[arc], t))
-    return out
+        at[arc] = p0[q] + within[:, None] * (p1[q] - p0[q])
+    return out, at
 
 
 def depth_of_cut_of(cut) -> np.ndarray:
@@ -770,10 +785,12 @@ def depth_of_cut_of(cut) -> np.ndarray:
     return doc
 
 
-def depth_of_cut(moves: np.ndarray, doc, limit: float, move_ids=None) -> list[Finding]:
+def depth_of_cut(moves: np.ndarray, doc, limit: float, move_ids=None, cut=None, grid=None) -> list[Finding]:
     """Moves whose axial depth of cut ``doc`` (float64 (n,) mm) is over ``limit`` mm: one
     finding per run of consecutive offending moves, at the deepest (what
-    :func:`merge_findings` makes of one finding per move)."""
+    :func:`merge_findings` makes of one finding per move). Position: with ``cut`` (the
+    batch's CutResult) and ``grid`` (the model after it), the floor of the deepest cut of
+    the deepest move (:func:`sim.checks.where.deepest_cut`); else that move's end."""
     moves = np.asarray(moves)
     ids = move_ids_of(moves, move_ids)
     doc = np.asarray(doc, np.float64)
@@ -782,8 +799,7 @@ def depth_of_cut(moves: np.ndarray, doc, limit: float, move_ids=None) -> list[Fi
     for run in _runs_of(ids[bad]):
         ks = bad[run]
         k = int(ks[int(np.argmax(doc[ks]))])
-        tip = np.array(moves["end"][k, :3], np.float64)
-        tip[2] -= moves["tool_length"][k]
+        tip = _met_at(moves, k, deepest_cut, cut, grid)
         lines = distinct(moves["line"][ks]).tolist()
         msg = f"depth of cut {float(doc[k]):.3f} mm over the {limit:g} mm limit at line {int(moves['line'][k])}"
         if ks.size > 1:
@@ -796,13 +812,19 @@ def depth_of_cut(moves: np.ndarray, doc, limit: float, move_ids=None) -> list[Fi
 
 
 def plunges(moves: np.ndarray, core_depth, tool, max_ramp_deg: float = 10.0, min_depth: float = 0.01,
-            move_ids=None, entry_deg=None) -> list[Finding]:
+            move_ids=None, entry_deg=None, entry_at=None, cut=None, grid=None, near: float = 0.0,
+            rows=None) -> list[Finding]:
     """Entries into material steeper than ``max_ramp_deg`` (degrees below horizontal)
     that cut under the tool centre (``core_depth`` > ``min_depth`` mm), for a tool that
     does not cut at its centre (``tool.center_cutting`` False); none otherwise.
     ``entry_deg`` (n,): each row's descent where it entered material
     (:attr:`Engagement.entry_deg` of the run that measured ``core_depth``); where it is
-    not given or NaN, the move's chord (right for lines only)."""
+    not given or NaN, the move's chord (right for lines only). Position: where the tip
+    entered material: an arc's ``entry_at`` ((n, 3), :attr:`Engagement.entry_at`); a
+    line's, with ``cut`` (the batch's CutResult) and ``grid`` (the model after it), at the
+    highest top it met within ``near`` mm of its path (:func:`sim.checks.where.line_entry`);
+    else the move's end. ``rows``: the rows of ``moves`` to check (default all; those
+    ``tool`` cut)."""
     if getattr(tool, "center_cutting", True):
         return []
     moves = np.asarray(moves)
@@ -812,10 +834,13 @@ def plunges(moves: np.ndarray, core_depth, tool, max_ramp_deg: float = 10.0, min
     chord = descent_deg(e - s)
     angle = chord if entry_deg is None else np.where(np.isnan(entry_deg), chord, entry_deg)
     bad = np.nonzero((np.asarray(core_depth) > min_depth) & (angle > max_ramp_deg) & is_motion(moves))[0]
+    if rows is not None:
+        bad = bad[np.isin(bad, rows)]
     out = []
     for k in bad:
-        tip = e[k].copy()
-        tip[2] -= moves["tool_length"][k]
+        tip = entry_at[k] if entry_at is not None else np.full(3, np.nan)
+        if not np.isfinite(tip).all():
+            tip = _met_at(moves, k, lambda m, k_, c, g: line_entry(m, k_, c, g, near), cut, grid)
         out.append(Finding(kind="non_center_cutting_plunge", line=int(moves["line"][k]), stage=int(ids[k]),
                            position=tuple(tip), depth=float(core_depth[k]),
                            message=(f"plunge at {angle[k]:.0f} deg into material with a tool that does not "

@@ -136,7 +136,7 @@ def _plunges(program, spec="flat:6:L=20:nocenter", checker=True):
         return [f for f in found if f.kind == "non_center_cutting_plunge"]
     eng = motion.Engagement(fr, np.zeros(fr.shape), tool)
     _, core = eng.run(moves)
-    return motion.plunges(moves, core, tool, entry_deg=eng.entry_deg)
+    return motion.plunges(moves, core, tool, entry_deg=eng.entry_deg, entry_at=eng.entry_at)
 
 
 HELIX = ("G21 G90 G17\nM3 S10000\nG0 X25 Y15 Z5\nG1 Z0.1 F200\nG3 X25 Y15 I-5 J0 Z-0.5\n"
@@ -165,5 +165,8 @@ def test_a_full_turn_helix_ramp_is_no_plunge(checker):
 def test_an_arc_diving_into_the_stock_is_a_plunge_at_its_entry_tangent(checker):
     (f,) = _plunges(DIP, checker=checker)
     assert f.line == 5 and f.detail["angle_deg"] == pytest.approx(ENTRY_DEG, abs=0.2)
+    # placed where it entered: on the top, 10 - sqrt(99) mm past its start
+    assert f.position == pytest.approx((20 - math.sqrt(99.0), 15.0, 0.0), abs=0.005)
     (f,) = _plunges(QUARTER, checker=checker)  # not the 45 deg of its chord
     assert f.line == 5 and f.detail["angle_deg"] == pytest.approx(ENTRY_DEG, abs=0.2)
+
