@@ -109,7 +109,7 @@ class Checker:
         self._tool_nums = np.zeros(1, np.int64)  # move id -> tool number
         self._feed = np.zeros(1, bool)  # move id -> a feed (G1) row
         self._move_t0 = None  # move id - 1 -> machine time at its start (s), when told
-        self._spindle_off = None  # (move id, line) the last batch ended with the spindle off since
+        self._spindle_off = None  # the spindle at the last batch's end (motion.spindle_off_from)
         self._fixture_left: dict = {}  # fixture index -> {part: what it has not touched yet}
         self._touched: dict = {}  # contact kind -> Cutter on the model less what that body touched
         self._bodies: dict = {}
@@ -198,7 +198,7 @@ class Checker:
                                   fixture_left=self._fixture_left, touched=self._touched)
         span = motion.spindle_off_from(moves, ids, self._spindle_off)
         if len(moves):
-            self._spindle_off = tuple(int(v) for v in span[-1]) if span[-1, 0] else None
+            self._spindle_off = tuple(int(v) for v in span[-1])
         res, batch = found
         self.findings.extend(batch)
         return res, batch
@@ -226,8 +226,8 @@ class Checker:
 
     def _check_batch(self, grid, cutter, moves, ids, error_map, engagement, design_rays, top_bound,
                      spindle_off=None, fixture_left=None, touched=None):
-        """Cut and check one batch. ``spindle_off``: the stopped-spindle span the batch
-        starts in; ``fixture_left``: {fixture index: {part: untouched fixture}} and
+        """Cut and check one batch. ``spindle_off``: the spindle as the batch starts
+        (the last pair :func:`motion.spindle_off_from` gave the batch before); ``fixture_left``: {fixture index: {part: untouched fixture}} and
         ``touched``: {contact kind: cutter on the model less what that body touched}, kept
         across batches (fresh ones: volumes of this batch only)."""
         touched = {} if touched is None else touched

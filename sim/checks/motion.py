@@ -247,20 +247,25 @@ def _stopped(moves: np.ndarray) -> np.ndarray:
 
 
 def spindle_off_from(moves: np.ndarray, move_ids=None, carry=None):
-    """Per row, ``(move id, line)`` of the first row of the stopped-spindle span it is in,
-    as an int64 (n, 2) array (0, 0 where the spindle runs). ``carry``: the span the
-    previous batch ended in (None: the spindle ran, or no batch before)."""
+    """Per row, int64 (n, 2): for a row run with the spindle stopped, ``(move id, line)``:
+    the first row of its stopped span and the line of the last row run with the spindle
+    on before it (0: none, it was never started) - the M5 (or S0) lies after that line, and
+    the table has no row of its own for it; for a row run with the spindle on, ``(0, its
+    line)``. ``carry``: the last row's pair of the previous batch (None: no batch before)."""
     moves = np.asarray(moves)
     ids = move_ids_of(moves, move_ids)
     stopped = _stopped(moves)
     out = np.zeros((len(moves), 2), np.int64)
-    cur = carry
+    cur = carry if carry is not None and carry[0] else None
+    last_on = int(carry[1]) if carry is not None else 0
     for k in range(len(moves)):  # spans are few; rows are walked once
         if not stopped[k]:
             cur = None
+            last_on = int(moves["line"][k])
+            out[k] = (0, last_on)
             continue
         if cur is None:
-            cur = (int(ids[k]), int(moves["line"][k]))
+            cur = (int(ids[k]), last_on)
         out[k] = cur
     return out
 
@@ -271,9 +276,9 @@ def spindle_stopped_cutting(moves: np.ndarray, removed, move_ids=None, min_volum
 
     ``removed``: float64 (n,) mm^3 per row (from ``Cutter.cut_moves`` or
     ``probe_moves``). Rapids are left to the rapid check. Every hit names its cause, the
-    span of rows run with the spindle stopped (``detail["cause"]``, from the row where it
-    stopped; ``carry``: the span the previous batch ended in, see
-    :func:`spindle_off_from`), so that :func:`merge_findings` makes one finding of a
+    span of rows run with the spindle stopped (``detail["cause"]``: after which line it
+    stopped, or that it never started; ``carry``: the last row's pair of the previous
+    batch, see :func:`spindle_off_from`), so that :func:`merge_findings` makes one finding of a
     program that never starts the spindle, not one per move. Position: with ``cut`` (the
     batch's CutResult) and ``grid`` (the model after it), where the move first met
     material (:func:`sim.checks.where.first_contact`); else the move's end.
@@ -289,8 +294,8 @@ def spindle_stopped_cutting(moves: np.ndarray, removed, move_ids=None, min_volum
     out = []
     for k in bad:
         tip = _met_at(moves, k, first_contact, cut, grid)
-        first_id, first_line = (int(v) for v in span[k])
-        since = f"spindle off from line {first_line}" if first_line > 0 else "spindle off from the start"
+        first_id, on_line = (int(v) for v in span[k])
+        since = f"spindle off after line {on_line}" if on_line > 0 else "spindle off: never started"
         out.append(Finding(kind="spindle_stopped_cutting", line=int(moves["line"][k]), stage=int(ids[k]),
                            position=tuple(tip), volume=float(removed[k]),
                            detail={"cause": since, "off_from_move": first_id}))

@@ -170,3 +170,17 @@ def test_an_arc_diving_into_the_stock_is_a_plunge_at_its_entry_tangent(checker):
     (f,) = _plunges(QUARTER, checker=checker)  # not the 45 deg of its chord
     assert f.line == 5 and f.detail["angle_deg"] == pytest.approx(ENTRY_DEG, abs=0.2)
 
+
+def test_spindle_stopped_names_where_it_stopped_or_that_it_never_started():
+    m = polyline([(0, 0, 5), (0, 0, 1), (10, 0, 1), (10, 0, -1), (20, 0, -1)])
+    m["spindle_dir"][2:] = 0  # M5 between line 20 (the last move it ran for) and line 30
+    (f,) = motion.spindle_stopped_cutting(m, np.array([0.0, 0.0, 0.0, 4.0]))
+    assert f.line == 40 and f.detail["cause"] == "spindle off after line 20"
+    m["spindle_dir"][:] = 0  # never started
+    (f,) = motion.spindle_stopped_cutting(m, np.array([0.0, 0.0, 0.0, 4.0]))
+    assert f.detail["cause"] == "spindle off: never started"
+    # the same across batches: the carry holds the last line it ran for
+    m["spindle_dir"][:2] = 1
+    carry = tuple(motion.spindle_off_from(m[:3])[-1])
+    (f,) = motion.spindle_stopped_cutting(m[3:], np.array([4.0]), move_ids=[4], carry=carry)
+    assert f.detail["cause"] == "spindle off after line 20" and f.detail["off_from_move"] == 3
