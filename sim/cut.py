@@ -600,8 +600,31 @@ class Cutter:
         res.changed_depth = log.depth
         return res
 
+    def probe_where(self, moves: np.ndarray, body: Tool | Body | None = None):
+        """Where ``body`` swept along ``moves`` would meet material: ``(res, scratch, top)``,
+        the :class:`CutResult` (changes recorded, in ``scratch``'s rays) of cutting a
+        scratch copy ``scratch`` of the rays the moves can reach (a window of the grid),
+        and ``top`` (float64, the scratch's rays) its material tops before that cut; None
+        when the moves reach no ray. The grid is not changed."""
+        body = body if body is not None else self.tool
+        scratch = self._reach_window(moves, body)
+        if scratch is None:
+            return None
+        top = scratch.top().reshape(-1).astype(np.float64)
+        res = self._child(scratch).cut_moves(moves, record_changes=True, body=body)
+        return res, scratch, top
+
     def _probe_scratch(self, moves, body) -> np.ndarray:
         """Probe by cutting a scratch copy of the rays the moves can reach (length units)."""
+        scratch = self._reach_window(moves, body)
+        if scratch is None:
+            return np.zeros(1)
+        return self._child(scratch)._cut_with(moves, body)
+
+    def _reach_window(self, moves, body) -> DexelGrid | None:
+        """A scratch copy of the rays ``moves`` (one row, or rows of one turning part) can
+        reach with ``body``: a window of the grid, the whole grid for a turning part; None
+        when they reach no ray."""
         f = self.grid.frame
         start = tip_positions(moves, "start")
         end = tip_positions(moves, "end")
@@ -613,7 +636,7 @@ class Cutter:
             pts = pts[np.isfinite(pts).all(axis=1)]
         if self._rotary and self._rotary.turning_rows(moves, np.ones(len(moves), bool)) is not None:
             # a turning part: the tool reaches wherever the rotation takes it; the whole grid
-            return self._child(self.grid.copy())._cut_with(moves, body)
+            return self.grid.copy()
         prof = body.profile
         reach = float(prof[:, 1].max()) + float(prof[-1, 0])
         local = f.to_local(pts)
@@ -622,11 +645,8 @@ class Cutter:
         i0, j0 = max(lo[0], 0), max(lo[1], 0)
         i1, j1 = min(hi[0], f.nu), min(hi[1], f.nv)
         if i1 <= i0 or j1 <= j0:
-            return np.zeros(1)
-        scratch = self.grid.window(i0, i1, j0, j1)
-        sub = self._child(scratch)
-        res = sub._cut_with(moves, body)
-        return res
+            return None
+        return self.grid.window(i0, i1, j0, j1)
 
     def _cut_with(self, moves, body) -> np.ndarray:
         removed = np.zeros(len(moves))

@@ -109,7 +109,7 @@ class Checker:
         self._tool_nums = np.zeros(1, np.int64)  # move id -> tool number
         self._feed = np.zeros(1, bool)  # move id -> a feed (G1) row
         self._move_t0 = None  # move id - 1 -> machine time at its start (s), when told
-        self._spindle_off = None  # (move id, line) the last batch ended with the spindle off since
+        self._spindle_off = None  # the spindle at the last batch's end (motion.spindle_off_from)
         self._fixture_left: dict = {}  # fixture index -> {part: what it has not touched yet}
         self._touched: dict = {}  # contact kind -> Cutter on the model less what that body touched
         self._bodies: dict = {}
@@ -198,7 +198,7 @@ class Checker:
                                   fixture_left=self._fixture_left, touched=self._touched)
         span = motion.spindle_off_from(moves, ids, self._spindle_off)
         if len(moves):
-            self._spindle_off = tuple(int(v) for v in span[-1]) if span[-1, 0] else None
+            self._spindle_off = tuple(int(v) for v in span[-1])
         res, batch = found
         self.findings.extend(batch)
         return res, batch
@@ -226,8 +226,8 @@ class Checker:
 
     def _check_batch(self, grid, cutter, moves, ids, error_map, engagement, design_rays, top_bound,
                      spindle_off=None, fixture_left=None, touched=None):
-        """Cut and check one batch. ``spindle_off``: the stopped-spindle span the batch
-        starts in; ``fixture_left``: {fixture index: {part: untouched fixture}} and
+        """Cut and check one batch. ``spindle_off``: the spindle as the batch starts
+        (the last pair :func:`motion.spindle_off_from` gave the batch before); ``fixture_left``: {fixture index: {part: untouched fixture}} and
         ``touched``: {contact kind: cutter on the model less what that body touched}, kept
         across batches (fresh ones: volumes of this batch only)."""
         touched = {} if touched is None else touched
@@ -246,19 +246,22 @@ class Checker:
         zres, zgrid = z_part(res), z_part(grid)
         if self.max_depth_of_cut is not None:
             doc = motion.depth_of_cut_of(zres)
-            out += motion.depth_of_cut(moves, doc, self.max_depth_of_cut, ids)
+            out += motion.depth_of_cut(moves, doc, self.max_depth_of_cut, ids, cut=zres, grid=zgrid)
         if engagement is not None:
             # after the cut: only the rays each move changed can have lost material
             _, core = engagement.run(moves, cut=zres, grid=zgrid)
             for tool, rows in self._tool_of_rows(moves):
-                out += motion.plunges(moves[rows], core[rows], tool, self.max_ramp_deg, move_ids=ids[rows])
+                out += motion.plunges(moves, core, tool, self.max_ramp_deg, move_ids=ids, rows=rows,
+                                      entry_deg=engagement.entry_deg, entry_at=engagement.entry_at, cut=zres,
+                                      grid=zgrid, near=engagement.core)
         removed = res.removed
         turned = collisions.turned_rows(moves, self.kinematics, self.origin)
         if turned.any():  # cusps of earlier instances shaved by a later pass are no contact
             step = self.tol.instance_fraction * zgrid.frame.spacing
             removed = np.where(collisions.instance_slivers(zres, turned, step), 0.0, removed)
         out += collisions.rapid_into_stock(moves, removed, ids, self.min_volume, cut=zres, grid=zgrid)
-        out += motion.spindle_stopped_cutting(moves, removed, ids, self.min_volume, carry=spindle_off)
+        out += motion.spindle_stopped_cutting(moves, removed, ids, self.min_volume, carry=spindle_off, cut=zres,
+                                              grid=zgrid)
         if pre:
             out += self._replay_contacts(snapshot, moves, ids, pre, touched)
         else:
@@ -330,7 +333,7 @@ class Checker:
                         mine = touched[kind] = self._cutter(scratch.grid.copy())
                     vol = mine.cut_moves(moves[k:k + 1], record_changes=False, body=body).removed
                 out += collisions.body_findings(moves[k:k + 1], kind, vol, ids[k:k + 1], self.min_volume,
-                                                present=present)
+                                                present=present, cutter=scratch, body=body)
         for mine in touched.values():  # the rest of the batch's flutes
             mine.cut_moves(moves[done:], move_ids=ids[done:].astype(np.int32), record_changes=False)
         return out

@@ -12,6 +12,7 @@ import numpy as np
 
 from sim.checks.findings import Finding
 from sim.checks.motion import is_arc, is_motion, move_ids_of
+from sim.checks.where import contact_point, first_contact, tip_at
 from sim.errors import InputError
 from sim.gcode.moves import MoveKind
 from sim.grid import DexelGrid
@@ -21,20 +22,15 @@ from sim.tools import DEFAULT_SHANK_LENGTH, Body, Tool
 BODY_KINDS = {"shank": "shank_contact", "holder": "holder_contact", "above_flutes": "above_flute_contact"}
 
 
-def _tip(moves, k):
-    tip = np.array(moves["end"][k, :3], np.float64)
-    tip[2] -= moves["tool_length"][k]
-    return tip
-
-
 def rapid_into_stock(moves: np.ndarray, removed, move_ids=None, min_volume: float = 1e-6,
                      cut=None, grid=None) -> list[Finding]:
     """Rapid rows that removed (or would remove) more than ``min_volume`` mm^3.
 
     Position: with ``cut`` (the :class:`~sim.cut.CutResult` of ``moves``) and ``grid``
     (the model after the cut), the point where the rapid first entered material - of the
-    rays it changed, the material top it met (new top + depth of cut) that comes first
-    along the move - since a machinist looks there; else the move's end.
+    rays it changed, the material top it met that comes first along the move
+    (:func:`sim.checks.where.first_contact`) - since a machinist looks there; else the
+    move's end.
     """
     moves = np.asarray(moves)
     ids = move_ids_of(moves, move_ids)
@@ -42,9 +38,9 @@ def rapid_into_stock(moves: np.ndarray, removed, move_ids=None, min_volume: floa
     bad = np.nonzero((moves["kind"] == int(MoveKind.RAPID)) & (removed > min_volume))[0]
     out = []
     for k in bad:
-        pos = _tip(moves, k)
+        pos = tip_at(moves, k)
         if cut is not None and grid is not None and cut.changed_rays.size:
-            entry = _entry_point(moves, k, cut, grid)
+            entry = first_contact(moves, k, cut, grid)
             if entry is not None:
                 pos = entry
         out.append(Finding(kind="rapid_into_stock", line=int(moves["line"][k]), stage=int(ids[k]),
@@ -69,33 +65,6 @@ def instance_slivers(cut, rows: np.ndarray, floor: float) -> np.ndarray:
         lo, hi = ptr[k], ptr[k + 1]
         out[k] = hi > lo and float(cut.changed_depth[lo:hi].max()) <= floor
     return out
-
-
-def _entry_point(moves, k, cut, grid):
-    """World point (3,) where move ``k`` first met material, or None (see rapid_into_stock)."""
-    lo, hi = cut.changed_ptr[k], cut.changed_ptr[k + 1]
-    if hi <= lo:
-        return None
-    rays = cut.changed_rays[lo:hi]
-    depth = np.asarray(cut.changed_depth[lo:hi], np.float64) if cut.changed_depth.size else 0.0
-    f = grid.frame
-    top = grid.top().reshape(-1)[rays].astype(np.float64)
-    i, j = rays % f.nu, rays // f.nu
-    start = np.array(moves["start"][k, :3], np.float64)
-    start[2] -= moves["tool_length"][k]
-    end = _tip(moves, k)
-    # emptied rays: the material began at most ``depth`` above the move's lowest tip
-    top = np.where(np.isfinite(top), top, min(start[2], end[2]))
-    pts = f.to_world(np.stack([i * f.spacing, j * f.spacing, top + depth], axis=1))
-    d = end - start
-    n = np.linalg.norm(d)
-    if n == 0:
-        return pts[int(np.argmax(pts[:, 2]))]
-    rel = pts - start
-    along = rel @ (d / n)
-    across = np.linalg.norm(rel - along[:, None] * (d / n), axis=1)
-    # first along the move; among rays as far along (a grid row), the one nearest its line
-    return pts[int(np.lexsort((across, np.round(along / (0.5 * f.spacing))))[0])]
 
 
 def above_flute_body(tool: Tool, length: float = DEFAULT_SHANK_LENGTH) -> Body | None:
@@ -135,16 +104,24 @@ def contact_bodies(tool: Tool, clearance: float = CONTACT_CLEARANCE) -> list[tup
 
 
 def body_findings(moves: np.ndarray, kind: str, volumes, move_ids=None, min_volume: float = 1e-6,
-                  what: str = "", present=None) -> list[Finding]:
+                  what: str = "", present=None, cutter=None, body=None) -> list[Finding]:
     """One finding per motion row whose body met more than ``min_volume`` mm^3
-    (``present``, default ``volumes``); its volume is ``volumes`` (what it met first)."""
+    (``present``, default ``volumes``); its volume is ``volumes`` (what it met first).
+    Its position: with ``cutter`` (on the material ``present`` was measured on) and
+    ``body``, where the body first met that material along the move
+    (:func:`sim.checks.where.contact_point`); else the move's end."""
     moves = np.asarray(moves)
     ids = move_ids_of(moves, move_ids)
     volumes = np.asarray(volumes, np.float64)
     present = volumes if present is None else np.asarray(present, np.float64)
     bad = np.nonzero((present > min_volume) & is_motion(moves))[0]
     label = what or kind.replace("_", " ")
-    return [Finding(kind=kind, line=int(moves["line"][k]), stage=int(ids[k]), position=tuple(_tip(moves, k)),
+
+    def where(k):
+        met = contact_point(cutter, moves, k, body) if cutter is not None else None
+        return tip_at(moves, k) if met is None else met
+
+    return [Finding(kind=kind, line=int(moves["line"][k]), stage=int(ids[k]), position=tuple(where(k)),
                     volume=float(volumes[k]),
                     message=f"{label} at line {int(moves['line'][k])}: {float(volumes[k]):.3f} mm^3",
                     detail={"group": what} if what else {})
@@ -292,7 +269,9 @@ class Fixture:
                     grid = left[name] = self.grid.copy()
                 vol = self._cutter(grid, tool).cut_moves(moves[rows], record_changes=False, body=body).removed
             for f in body_findings(moves[rows], "fixture_collision", vol, ids[rows], min_volume,
-                                   what=f"{name} in fixture {self.name}", present=present):
+                                   what=f"{name} in fixture {self.name}", present=present,
+                                   cutter=self._cutter(self.grid, tool) if (present > min_volume).any() else None,
+                                   body=body):
                 out.append(f)
         return out
 

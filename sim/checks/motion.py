@@ -16,6 +16,7 @@ import numpy as np
 from sim import dexel_store as ds
 from sim.checks.arrays import distinct
 from sim.checks.findings import Finding
+from sim.checks.where import deepest_cut, first_contact, line_entry, tip_at
 from sim.errors import InputError
 from sim.gcode.moves import MoveKind, Plane
 
@@ -54,6 +55,24 @@ def move_ids_of(moves: np.ndarray, move_ids=None) -> np.ndarray:
 
 # --- geometry of the path -------------------------------------------------------------
 
+def _arc_sweep(row) -> float:
+    """Signed angle (rad, + counter-clockwise) an arc row turns through, turns included."""
+    start, end, c = row["start"], row["end"], row["center"]
+    a, b, _ = _PLANE_AXES.get(int(row["plane"]), (0, 1, 2))
+    t0 = math.atan2(start[b] - c[b], start[a] - c[a])
+    t1 = math.atan2(end[b] - c[b], end[a] - c[a])
+    turns = max(int(row["turns"]), 1)
+    if int(row["kind"]) == MoveKind.ARC_CCW:
+        sweep = (t1 - t0) % (2 * math.pi)
+        if sweep <= 1e-12:
+            sweep = 2 * math.pi
+        return sweep + 2 * math.pi * (turns - 1)
+    sweep = (t0 - t1) % (2 * math.pi)
+    if sweep <= 1e-12:
+        sweep = 2 * math.pi
+    return -(sweep + 2 * math.pi * (turns - 1))
+
+
 def arc_points(row, chord: float, which: str = "tip") -> np.ndarray:
     """Points along one arc row (float64 (k, 3) mm, start and end included), spaced so
     the chords stay within ``chord`` mm of the arc; helices interpolate the normal axis.
@@ -68,18 +87,7 @@ def arc_points(row, chord: float, which: str = "tip") -> np.ndarray:
     r0 = math.hypot(start[a] - c[a], start[b] - c[b])
     r1 = math.hypot(end[a] - c[a], end[b] - c[b])
     t0 = math.atan2(start[b] - c[b], start[a] - c[a])
-    t1 = math.atan2(end[b] - c[b], end[a] - c[a])
-    turns = max(int(row["turns"]), 1)
-    if int(row["kind"]) == MoveKind.ARC_CCW:
-        sweep = (t1 - t0) % (2 * math.pi)
-        if sweep <= 1e-12:
-            sweep = 2 * math.pi
-        sweep += 2 * math.pi * (turns - 1)
-    else:
-        sweep = (t0 - t1) % (2 * math.pi)
-        if sweep <= 1e-12:
-            sweep = 2 * math.pi
-        sweep = -(sweep + 2 * math.pi * (turns - 1))
+    sweep = _arc_sweep(row)
     r = max(r0, r1, 1e-9)
     step = 2.0 * math.acos(max(-1.0, min(1.0, 1.0 - chord / r))) if chord < r else math.pi / 2
     k = max(int(math.ceil(abs(sweep) / max(step, 1e-6))), 1)
@@ -239,34 +247,41 @@ def _stopped(moves: np.ndarray) -> np.ndarray:
 
 
 def spindle_off_from(moves: np.ndarray, move_ids=None, carry=None):
-    """Per row, ``(move id, line)`` of the first row of the stopped-spindle span it is in,
-    as an int64 (n, 2) array (0, 0 where the spindle runs). ``carry``: the span the
-    previous batch ended in (None: the spindle ran, or no batch before)."""
+    """Per row, int64 (n, 2): for a row run with the spindle stopped, ``(move id, line)``:
+    the first row of its stopped span and the line of the last row run with the spindle
+    on before it (0: none, it was never started) - the M5 (or S0) lies after that line, and
+    the table has no row of its own for it; for a row run with the spindle on, ``(0, its
+    line)``. ``carry``: the last row's pair of the previous batch (None: no batch before)."""
     moves = np.asarray(moves)
     ids = move_ids_of(moves, move_ids)
     stopped = _stopped(moves)
     out = np.zeros((len(moves), 2), np.int64)
-    cur = carry
+    cur = carry if carry is not None and carry[0] else None
+    last_on = int(carry[1]) if carry is not None else 0
     for k in range(len(moves)):  # spans are few; rows are walked once
         if not stopped[k]:
             cur = None
+            last_on = int(moves["line"][k])
+            out[k] = (0, last_on)
             continue
         if cur is None:
-            cur = (int(ids[k]), int(moves["line"][k]))
+            cur = (int(ids[k]), last_on)
         out[k] = cur
     return out
 
 
 def spindle_stopped_cutting(moves: np.ndarray, removed, move_ids=None, min_volume: float = 1e-6,
-                            carry=None) -> list[Finding]:
+                            carry=None, cut=None, grid=None) -> list[Finding]:
     """Moves that removed (or would remove) material with the spindle stopped.
 
     ``removed``: float64 (n,) mm^3 per row (from ``Cutter.cut_moves`` or
     ``probe_moves``). Rapids are left to the rapid check. Every hit names its cause, the
-    span of rows run with the spindle stopped (``detail["cause"]``, from the row where it
-    stopped; ``carry``: the span the previous batch ended in, see
-    :func:`spindle_off_from`), so that :func:`merge_findings` makes one finding of a
-    program that never starts the spindle, not one per move.
+    span of rows run with the spindle stopped (``detail["cause"]``: after which line it
+    stopped, or that it never started; ``carry``: the last row's pair of the previous
+    batch, see :func:`spindle_off_from`), so that :func:`merge_findings` makes one finding of a
+    program that never starts the spindle, not one per move. Position: with ``cut`` (the
+    batch's CutResult) and ``grid`` (the model after it), where the move first met
+    material (:func:`sim.checks.where.first_contact`); else the move's end.
     """
     moves = np.asarray(moves)
     ids = move_ids_of(moves, move_ids)
@@ -278,14 +293,20 @@ def spindle_stopped_cutting(moves: np.ndarray, removed, move_ids=None, min_volum
     span = spindle_off_from(moves, ids, carry)
     out = []
     for k in bad:
-        tip = np.array(moves["end"][k, :3], np.float64)
-        tip[2] -= moves["tool_length"][k]
-        first_id, first_line = (int(v) for v in span[k])
-        since = f"spindle off from line {first_line}" if first_line > 0 else "spindle off from the start"
+        tip = _met_at(moves, k, first_contact, cut, grid)
+        first_id, on_line = (int(v) for v in span[k])
+        since = f"spindle off after line {on_line}" if on_line > 0 else "spindle off: never started"
         out.append(Finding(kind="spindle_stopped_cutting", line=int(moves["line"][k]), stage=int(ids[k]),
                            position=tuple(tip), volume=float(removed[k]),
                            detail={"cause": since, "off_from_move": first_id}))
     return out
+
+
+def _met_at(moves, k, where, cut, grid) -> np.ndarray:
+    """``where(moves, k, cut, grid)`` (a :mod:`sim.checks.where` point) when the cut is
+    known and the move changed a ray, else row ``k``'s end tip."""
+    met = where(moves, k, cut, grid) if cut is not None and grid is not None else None
+    return tip_at(moves, k) if met is None else met
 
 
 # --- depth of cut and plunges -------------------------------------------------------------
@@ -433,13 +454,53 @@ def _cut_run(top, r0, n, rx0, ry, sp, shape, z0, ux, uy, m, sin_t, ell, R, R2, s
     return dk, ck
 
 
+@nb.njit(cache=True, inline="always")
+def _piece_box(x0, y0, sp, nu, nv, pf, q, R):
+    """``(i0, i1, j0, j1)``: the grid columns and rows under piece ``q`` widened by ``R``."""
+    ax, ay = pf[q, 0], pf[q, 1]
+    bx = ax + pf[q, 3] * pf[q, 7]
+    by = ay + pf[q, 4] * pf[q, 7]
+    i0 = max(int(np.ceil((min(ax, bx) - R - x0) / sp)), 0)
+    i1 = min(int(np.floor((max(ax, bx) + R - x0) / sp)), nu - 1)
+    j0 = max(int(np.ceil((min(ay, by) - R - y0) / sp)), 0)
+    j1 = min(int(np.floor((max(ay, by) + R - y0) / sp)), nv - 1)
+    return i0, i1, j0, j1
+
+
+@nb.njit(cache=True, inline="always")
+def _enters(v, d2, t_old, core2):
+    """A piece whose tool bottom ``v`` over a ray ``d2`` (squared) from its axis path
+    cuts that ray's material (top ``t_old``, NaN empty) under the tool centre."""
+    return d2 <= core2 and v < t_old
+
+
 @nb.njit(cache=True, error_model="numpy")
-def _engage(top, x0, y0, sp, nu, nv, pf, row, shape, R, slack, env_d, env_h, core, doc, core_depth):
+def _entry_top(top, x0, y0, sp, nu, nv, pf, q, shape, R, R2, slack, inv_dstep, env_h, h_min, monotone, core2):
+    """The highest material top (mm) that piece ``q`` cuts under the tool centre (where it
+    enters material), NaN when it cuts none there; ``top`` is not changed."""
+    i0, i1, j0, j1 = _piece_box(x0, y0, sp, nu, nv, pf, q, R)
+    hi = np.nan
+    for j in range(j0, j1 + 1):
+        for i in range(i0, i1 + 1):
+            r = j * nu + i
+            v, d2 = _bottom(shape, x0 + i * sp - pf[q, 0], y0 + j * sp - pf[q, 1], pf[q, 2], pf[q, 3], pf[q, 4],
+                            pf[q, 5], pf[q, 6], pf[q, 7], R, R2, slack, inv_dstep, env_h, h_min, monotone)
+            if _enters(v, d2, top[r], core2) and not top[r] <= hi:
+                hi = top[r]
+    return hi
+
+
+@nb.njit(cache=True, error_model="numpy")
+def _engage(top, x0, y0, sp, nu, nv, pf, row, piece_ptr, shape, R, slack, env_d, env_h, core, doc, core_depth,
+            entry_q, entry_top):
     """Walk the pieces in order on the top-surface heights ``top`` (nv*nu float64, NaN =
     no material), lowering it under the tool and recording per row the largest material
     thickness cut at any ray (``doc``) and at rays within ``core`` of the axis path
     (``core_depth``). Every ray under each piece's box is looked at (used without a cut
-    result). ``pf``: piece frames (:func:`_piece_frames`)."""
+    result). ``pf``: piece frames (:func:`_piece_frames`). For an arc (more than one
+    piece, ``piece_ptr`` as in :func:`_engage_changed`) the first piece that cuts under
+    the tool centre and the highest top it cuts there are ``entry_q[k]``/``entry_top[k]``
+    (-1 / NaN on entry: where the arc enters material)."""
     inv_dstep = 1.0 / (env_d[1] - env_d[0])
     h_min = env_h.min()
     monotone = np.all(env_h[1:] >= env_h[:-1])
@@ -447,18 +508,18 @@ def _engage(top, x0, y0, sp, nu, nv, pf, row, shape, R, slack, env_d, env_h, cor
     core2 = core * core
     for q in range(pf.shape[0]):
         k = row[q]
-        ax, ay = pf[q, 0], pf[q, 1]
-        bx = ax + pf[q, 3] * pf[q, 7]
-        by = ay + pf[q, 4] * pf[q, 7]
-        i0 = max(int(np.ceil((min(ax, bx) - R - x0) / sp)), 0)
-        i1 = min(int(np.floor((max(ax, bx) + R - x0) / sp)), nu - 1)
-        j0 = max(int(np.ceil((min(ay, by) - R - y0) / sp)), 0)
-        j1 = min(int(np.floor((max(ay, by) + R - y0) / sp)), nv - 1)
+        if entry_q[k] < 0 and piece_ptr[k + 1] - piece_ptr[k] > 1:
+            t_in = _entry_top(top, x0, y0, sp, nu, nv, pf, q, shape, R, R2, slack, inv_dstep, env_h, h_min,
+                              monotone, core2)
+            if not np.isnan(t_in):
+                entry_q[k] = q
+                entry_top[k] = t_in
+        i0, i1, j0, j1 = _piece_box(x0, y0, sp, nu, nv, pf, q, R)
         for j in range(j0, j1 + 1):
             if i1 < i0:
                 break
             r0 = j * nu + i0
-            dk, ck = _cut_run(top, r0, i1 - i0 + 1, x0 + i0 * sp - ax, y0 + j * sp - ay, sp,
+            dk, ck = _cut_run(top, r0, i1 - i0 + 1, x0 + i0 * sp - pf[q, 0], y0 + j * sp - pf[q, 1], sp,
                               shape, pf[q, 2], pf[q, 3], pf[q, 4], pf[q, 5], pf[q, 6], pf[q, 7], R, R2,
                               slack, inv_dstep, env_h, h_min, monotone, core2)
             doc[k] = max(doc[k], dk)
@@ -468,10 +529,11 @@ def _engage(top, x0, y0, sp, nu, nv, pf, row, shape, R, slack, env_d, env_h, cor
 @nb.njit(cache=True, error_model="numpy")
 def _engage_changed(top, x0, y0, sp, nu, nv, pf, piece_ptr, shape, R, slack, env_d, env_h, core, chg_ptr,
                     chg_rays,
-                    best_buf, dmin_buf, doc, core_depth):
+                    best_buf, dmin_buf, doc, core_depth, entry_q, entry_top):
     """Like :func:`_engage`, but row ``k`` looks only at the rays its real cut changed,
     ``chg_rays[chg_ptr[k]:chg_ptr[k + 1]]`` (sorted; a ray the tool did not change lost
-    nothing), and a row's cut at a ray is measured against the lowest of all its pieces.
+    nothing), and a row's cut at a ray is measured against the lowest of all its pieces
+    (an arc's entry, ``entry_q``/``entry_top``, as :func:`_engage` finds it).
 
     ``piece_ptr`` (n_rows + 1,): row ``k``'s pieces are ``piece_ptr[k]:piece_ptr[k + 1]``.
     ``best_buf`` / ``dmin_buf`` (n_rays,) float64 scratch, NaN on entry and on return.
@@ -515,12 +577,10 @@ def _engage_changed(top, x0, y0, sp, nu, nv, pf, piece_ptr, shape, R, slack, env
             dmin_buf[r] = np.inf
         for q in range(qa, qb):
             ax, ay = pf[q, 0], pf[q, 1]
-            bx = ax + pf[q, 3] * pf[q, 7]
-            by = ay + pf[q, 4] * pf[q, 7]
-            i0 = max(int(np.ceil((min(ax, bx) - R - x0) / sp)), 0)
-            i1 = min(int(np.floor((max(ax, bx) + R - x0) / sp)), nu - 1)
-            j0 = max(int(np.ceil((min(ay, by) - R - y0) / sp)), 0)
-            j1 = min(int(np.floor((max(ay, by) + R - y0) / sp)), nv - 1)
+            i0, i1, j0, j1 = _piece_box(x0, y0, sp, nu, nv, pf, q, R)
+            # the heights are this row's before it: the first piece cutting under the
+            # centre is where the arc enters material
+            entering = entry_q[k] < 0 or entry_q[k] == q
             for j in range(j0, j1 + 1):
                 for i in range(i0, i1 + 1):
                     r = j * nu + i
@@ -533,6 +593,9 @@ def _engage_changed(top, x0, y0, sp, nu, nv, pf, piece_ptr, shape, R, slack, env
                         best_buf[r] = v
                     if d2 < dmin_buf[r]:
                         dmin_buf[r] = d2
+                    if entering and _enters(v, d2, top[r], core2) and not top[r] <= entry_top[k]:
+                        entry_q[k] = q
+                        entry_top[k] = top[r]
         for m in range(ca, cb):
             r = chg_rays[m]
             best = best_buf[r]
@@ -599,6 +662,11 @@ class Engagement:
         # rays on the tool's boundary: the cutter's rounding may reach them where ours does not
         self.slack = 1e-6
         self._buf = None
+        #: per row of the last :meth:`run`: the descent (deg below horizontal) of the path
+        #: where it first cut under the tool centre, NaN where it did not, and for arcs the
+        #: tip there ((n, 3) mm, NaN for lines and elsewhere) (:func:`entry_angles`)
+        self.entry_deg = np.zeros(0)
+        self.entry_at = np.zeros((0, 3))
 
     def run(self, moves: np.ndarray, cut=None, grid=None):
         """Advance through ``moves``; returns ``(doc, core_depth)``, float64 (n,) mm each.
@@ -613,21 +681,25 @@ class Engagement:
         n = len(moves)
         doc = np.zeros(n)
         core = np.zeros(n)
+        self.entry_deg = np.full(n, np.nan)
+        self.entry_at = np.full((n, 3), np.nan)
         p0, p1, row = path_polyline(moves, self.chord, which="tip")
         if row.size == 0:
             return doc, core
         f = self.frame
         x0, y0 = float(f.origin[0]), float(f.origin[1])
         pf = _piece_frames(np.ascontiguousarray(p0), np.ascontiguousarray(p1))
+        piece_ptr = np.searchsorted(row, np.arange(n + 1)).astype(np.int64)
+        entry_q, entry_top = np.full(n, -1, np.int64), np.full(n, np.nan)
         if cut is None:
-            _engage(self.top, x0, y0, f.spacing, f.nu, f.nv, pf, row, self.shape, self.R, self.slack, self.env_d,
-                    self.env_h, self.core, doc, core)
+            _engage(self.top, x0, y0, f.spacing, f.nu, f.nv, pf, row, piece_ptr, self.shape, self.R, self.slack,
+                    self.env_d, self.env_h, self.core, doc, core, entry_q, entry_top)
+            self.entry_deg, self.entry_at = entry_angles(moves, p0, p1, piece_ptr, core, entry_q, entry_top)
             return doc, core
         chg_ptr = np.asarray(cut.changed_ptr, np.int64)
         chg_rays = np.asarray(cut.changed_rays, np.int64)
         if chg_ptr.size != n + 1:
             raise InputError(f"cut result covers {chg_ptr.size - 1} moves, expected {n} with changes recorded")
-        piece_ptr = np.searchsorted(row, np.arange(n + 1)).astype(np.int64)
         arcs = bool(np.any(np.diff(piece_ptr) > 1))
         # ball and flat lines follow the cutter's own closed forms; sampled envelopes
         # and arc chords only approximate it, so those take the model's heights after
@@ -636,10 +708,67 @@ class Engagement:
             self._buf = (np.full(f.n_rays, np.nan), np.full(f.n_rays, np.nan))
         buf = self._buf if self._buf is not None else (np.zeros(0), np.zeros(0))
         _engage_changed(self.top, x0, y0, f.spacing, f.nu, f.nv, pf, piece_ptr, self.shape, self.R, self.slack,
-                        self.env_d, self.env_h, self.core, chg_ptr, chg_rays, buf[0], buf[1], doc, core)
+                        self.env_d, self.env_h, self.core, chg_ptr, chg_rays, buf[0], buf[1], doc, core, entry_q,
+                        entry_top)
         if resync:
             _resync_top(grid.S, chg_rays, self.top, self._buf[0])
+        self.entry_deg, self.entry_at = entry_angles(moves, p0, p1, piece_ptr, core, entry_q, entry_top)
         return doc, core
+
+
+def descent_deg(d: np.ndarray) -> np.ndarray:
+    """Angle (deg) below horizontal of directions ``d`` (k, 3): 90 straight down."""
+    return np.degrees(np.arctan2(-d[:, 2], np.hypot(d[:, 0], d[:, 1])))
+
+
+def arc_tangents(arcs: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """d(position)/dt (k, 3) mm of arc rows ``arcs`` (k,) at parameters ``t`` (k,) in [0, 1],
+    the path :func:`arc_points` follows: the angle and the radius (a spiral's) evenly in t,
+    the normal axis linearly."""
+    axes = np.array([_PLANE_AXES.get(int(p), (0, 1, 2)) for p in arcs["plane"]], np.int64).reshape(-1, 3)
+    rows = np.arange(len(arcs))
+    s, e, c = arcs["start"][:, :3], arcs["end"][:, :3], arcs["center"]
+    a, b, nrm = axes[:, 0], axes[:, 1], axes[:, 2]
+    r0 = np.hypot(s[rows, a] - c[rows, a], s[rows, b] - c[rows, b])
+    r1 = np.hypot(e[rows, a] - c[rows, a], e[rows, b] - c[rows, b])
+    sweep = np.array([_arc_sweep(row) for row in arcs])
+    ang = np.arctan2(s[rows, b] - c[rows, b], s[rows, a] - c[rows, a]) + sweep * t
+    rad = r0 + (r1 - r0) * t
+    d = np.zeros((len(arcs), 3))
+    d[rows, a] = (r1 - r0) * np.cos(ang) - rad * sweep * np.sin(ang)
+    d[rows, b] = (r1 - r0) * np.sin(ang) + rad * sweep * np.cos(ang)
+    d[rows, nrm] = e[rows, nrm] - s[rows, nrm]
+    return d
+
+
+def entry_angles(moves, p0, p1, piece_ptr, core, entry_q, entry_top) -> tuple[np.ndarray, np.ndarray]:
+    """Per row, the descent (deg below horizontal) of the tip's path where it enters
+    material under the tool centre, NaN where it cut nothing there; and for arcs the tip
+    at that point ((n, 3) mm, NaN for lines).
+
+    A line has one direction. An arc turns: its chord says nothing of how it enters (a
+    full-turn helix has none, a dive and climb back a level one), so it is the tangent
+    of the arc at the point where the piece ``entry_q`` that first cut under the centre
+    crosses the top it cut there (``entry_top``, mm): the helix's pitch over its length
+    for a helix, the circle's own slope for an arc in a vertical plane."""
+    n = len(moves)
+    out = np.full(n, np.nan)
+    at = np.full((n, 3), np.nan)
+    count = np.diff(piece_ptr)
+    line = np.flatnonzero((count == 1) & (core > 0.0))
+    out[line] = descent_deg(p1[piece_ptr[line]] - p0[piece_ptr[line]])
+    arc = np.flatnonzero((count > 1) & (entry_q >= 0))
+    if arc.size:
+        q = entry_q[arc]
+        z0, z1 = p0[q, 2], p1[q, 2]
+        # the crossing of the entered top on the piece, by its tip's height (the start for a
+        # piece that does not go down: it entered sideways)
+        drop = z0 - z1
+        within = np.clip(np.divide(z0 - entry_top[arc], drop, out=np.zeros(arc.size), where=drop > 0), 0.0, 1.0)
+        t = (q - piece_ptr[arc] + within) / count[arc]
+        out[arc] = descent_deg(arc_tangents(moves[arc], t))
+        at[arc] = p0[q] + within[:, None] * (p1[q] - p0[q])
+    return out, at
 
 
 def depth_of_cut_of(cut) -> np.ndarray:
@@ -661,10 +790,12 @@ def depth_of_cut_of(cut) -> np.ndarray:
     return doc
 
 
-def depth_of_cut(moves: np.ndarray, doc, limit: float, move_ids=None) -> list[Finding]:
+def depth_of_cut(moves: np.ndarray, doc, limit: float, move_ids=None, cut=None, grid=None) -> list[Finding]:
     """Moves whose axial depth of cut ``doc`` (float64 (n,) mm) is over ``limit`` mm: one
     finding per run of consecutive offending moves, at the deepest (what
-    :func:`merge_findings` makes of one finding per move)."""
+    :func:`merge_findings` makes of one finding per move). Position: with ``cut`` (the
+    batch's CutResult) and ``grid`` (the model after it), the floor of the deepest cut of
+    the deepest move (:func:`sim.checks.where.deepest_cut`); else that move's end."""
     moves = np.asarray(moves)
     ids = move_ids_of(moves, move_ids)
     doc = np.asarray(doc, np.float64)
@@ -673,8 +804,7 @@ def depth_of_cut(moves: np.ndarray, doc, limit: float, move_ids=None) -> list[Fi
     for run in _runs_of(ids[bad]):
         ks = bad[run]
         k = int(ks[int(np.argmax(doc[ks]))])
-        tip = np.array(moves["end"][k, :3], np.float64)
-        tip[2] -= moves["tool_length"][k]
+        tip = _met_at(moves, k, deepest_cut, cut, grid)
         lines = distinct(moves["line"][ks]).tolist()
         msg = f"depth of cut {float(doc[k]):.3f} mm over the {limit:g} mm limit at line {int(moves['line'][k])}"
         if ks.size > 1:
@@ -687,25 +817,35 @@ def depth_of_cut(moves: np.ndarray, doc, limit: float, move_ids=None) -> list[Fi
 
 
 def plunges(moves: np.ndarray, core_depth, tool, max_ramp_deg: float = 10.0, min_depth: float = 0.01,
-            move_ids=None) -> list[Finding]:
+            move_ids=None, entry_deg=None, entry_at=None, cut=None, grid=None, near: float = 0.0,
+            rows=None) -> list[Finding]:
     """Entries into material steeper than ``max_ramp_deg`` (degrees below horizontal)
     that cut under the tool centre (``core_depth`` > ``min_depth`` mm), for a tool that
-    does not cut at its centre (``tool.center_cutting`` False); none otherwise."""
+    does not cut at its centre (``tool.center_cutting`` False); none otherwise.
+    ``entry_deg`` (n,): each row's descent where it entered material
+    (:attr:`Engagement.entry_deg` of the run that measured ``core_depth``); where it is
+    not given or NaN, the move's chord (right for lines only). Position: where the tip
+    entered material: an arc's ``entry_at`` ((n, 3), :attr:`Engagement.entry_at`); a
+    line's, with ``cut`` (the batch's CutResult) and ``grid`` (the model after it), at the
+    highest top it met within ``near`` mm of its path (:func:`sim.checks.where.line_entry`);
+    else the move's end. ``rows``: the rows of ``moves`` to check (default all; those
+    ``tool`` cut)."""
     if getattr(tool, "center_cutting", True):
         return []
     moves = np.asarray(moves)
     ids = move_ids_of(moves, move_ids)
     s = np.array(moves["start"][:, :3], np.float64)
     e = np.array(moves["end"][:, :3], np.float64)
-    drop = s[:, 2] - e[:, 2]
-    run = np.hypot(e[:, 0] - s[:, 0], e[:, 1] - s[:, 1])
-    angle = np.degrees(np.arctan2(drop, run))
-    bad = np.nonzero((np.asarray(core_depth) > min_depth) & (drop > 0) & (angle > max_ramp_deg)
-                     & is_motion(moves))[0]
+    chord = descent_deg(e - s)
+    angle = chord if entry_deg is None else np.where(np.isnan(entry_deg), chord, entry_deg)
+    bad = np.nonzero((np.asarray(core_depth) > min_depth) & (angle > max_ramp_deg) & is_motion(moves))[0]
+    if rows is not None:
+        bad = bad[np.isin(bad, rows)]
     out = []
     for k in bad:
-        tip = e[k].copy()
-        tip[2] -= moves["tool_length"][k]
+        tip = entry_at[k] if entry_at is not None else np.full(3, np.nan)
+        if not np.isfinite(tip).all():
+            tip = _met_at(moves, k, lambda m, k_, c, g: line_entry(m, k_, c, g, near), cut, grid)
         out.append(Finding(kind="non_center_cutting_plunge", line=int(moves["line"][k]), stage=int(ids[k]),
                            position=tuple(tip), depth=float(core_depth[k]),
                            message=(f"plunge at {angle[k]:.0f} deg into material with a tool that does not "

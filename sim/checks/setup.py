@@ -14,7 +14,9 @@ from __future__ import annotations
 import numpy as np
 
 from sim.checks.findings import Finding
-from sim.gcode.moves import INCH, MoveKind
+from sim.gcode.arcs import arc_rows_geometry
+from sim.gcode.linearize import arc_points
+from sim.gcode.moves import INCH, MoveKind, tip_positions
 
 _CUTTING = (MoveKind.FEED, MoveKind.ARC_CW, MoveKind.ARC_CCW)
 
@@ -35,22 +37,42 @@ def material_box(grid) -> tuple[np.ndarray, np.ndarray] | None:
     return lo, hi
 
 
+def path_boxes(moves: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(lo (k, 3), hi (k, 3))`` mm: the box of the tool tip's path on each row of
+    ``moves[rows]``: its start and end, and for an arc the points where it reaches furthest
+    along its plane's axes (the quarter angles its sweep passes). The tip, not the
+    controlled point: G43's length is taken off Z, so a long tool's path is where it cuts."""
+    sel = moves[rows]
+    a, b = sel["start"][:, :3].copy(), sel["end"][:, :3].copy()
+    a[:, 2] -= sel["tool_length"]
+    b[:, 2] -= sel["tool_length"]
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    arc = np.flatnonzero(np.isin(sel["kind"], (MoveKind.ARC_CW, MoveKind.ARC_CCW)))
+    if arc.size:
+        _, a0, sweep, _ = arc_rows_geometry(sel[arc])
+        # t (in 0..1) at which each arc passes angle 0, 90, 180 and 270 deg: the first time
+        # its angle a0 + t * sweep comes round to it
+        quarter = np.arange(4) * (np.pi / 2)
+        t = np.mod((quarter[None, :] - a0[:, None]) * np.sign(sweep)[:, None], 2 * np.pi) / np.abs(sweep)[:, None]
+        src, which = np.nonzero(t <= 1.0)
+        if src.size:
+            pts = arc_points(sel[arc], t[src, which], src)[:, :3]
+            pts[:, 2] -= sel["tool_length"][arc[src]]
+            np.minimum.at(lo, arc[src], pts)
+            np.maximum.at(hi, arc[src], pts)
+    return lo, hi
+
+
 def cutting_boxes(moves: np.ndarray, reach: float, scale: float = 1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Boxes the tool can touch on the program's cutting rows (feeds and arcs).
 
-    Returns ``(rows (k,), lo (k, 3), hi (k, 3))`` mm: each row's tip segment, its arc's
-    whole circle for arcs, widened by ``reach`` (the largest tool radius) in X and Y and
+    Returns ``(rows (k,), lo (k, 3), hi (k, 3))`` mm: each row's tip path
+    (:func:`path_boxes`), widened by ``reach`` (the largest tool radius) in X and Y and
     open upwards (the tool stands above its tip). ``scale`` multiplies the program's
     coordinates first (25.4: the program read as inches)."""
     rows = np.flatnonzero(np.isin(moves["kind"], _CUTTING))
-    a, b = moves["start"][rows, :3] * scale, moves["end"][rows, :3] * scale
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    arc = np.isin(moves["kind"][rows], (MoveKind.ARC_CW, MoveKind.ARC_CCW))
-    if arc.any():
-        c = moves["center"][rows[arc], :3] * scale
-        r = np.linalg.norm(a[arc] - c, axis=1)[:, None]
-        lo[arc] = np.minimum(lo[arc], c - r)
-        hi[arc] = np.maximum(hi[arc], c + r)
+    lo, hi = path_boxes(moves, rows)
+    lo, hi = lo * scale, hi * scale
     lo[:, :2] -= reach
     hi[:, :2] += reach
     hi[:, 2] = np.inf
@@ -83,7 +105,8 @@ def setup_findings(moves: np.ndarray, stock_box, reach: float, design_box=None,
     s_lo, s_hi = (np.asarray(v, np.float64) for v in stock_box)
     rows, lo, hi = cutting_boxes(moves, reach)
     if rows.size and not _overlaps(lo, hi, s_lo, s_hi).any():
-        p_lo, p_hi = moves["end"][rows, :3].min(axis=0), moves["end"][rows, :3].max(axis=0)
+        p_lo, p_hi = path_boxes(moves, rows)
+        p_lo, p_hi = p_lo.min(axis=0), p_hi.max(axis=0)
         hint = "check the work offset / work system the stock is in, the stock's position and its units"
         if inch:
             hint = ("the program is in inches (G20) and dexmon reads it in mm; is the stock given in mm? "
@@ -91,7 +114,7 @@ def setup_findings(moves: np.ndarray, stock_box, reach: float, design_box=None,
         elif _overlaps(*cutting_boxes(moves, reach, INCH)[1:], s_lo, s_hi).any():
             hint = "the stock would be cut if the program were in inches (G20 missing?); " + hint
         first = int(moves["line"][rows[0]])
-        out.append(Finding("setup", line=first, lines=(first,), position=tuple(moves["end"][rows[0], :3]),
+        out.append(Finding("setup", line=first, lines=(first,), position=tuple(tip_positions(moves[rows[:1]])[0]),
                            message=f"setup: the program's cutting moves never reach the stock (they span "
                                    f"{_span(p_lo, p_hi)} mm; the stock {_span(s_lo, s_hi)} mm): {hint}",
                            detail={"check": "path_misses_stock"}))

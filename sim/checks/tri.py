@@ -112,6 +112,12 @@ class TriModelCutter:
         where any grid says the body meets material)."""
         return one_volume(self.tri.probe_moves(moves, body), self.floor) if len(moves) else np.zeros(0)
 
+    def probe_where(self, moves, body=None):
+        """Where ``body`` would meet material, seen from above: the Z grid's
+        ``Cutter.probe_where`` (None where only the X and Y grids see it: a finding's
+        position then falls back to its move's end)."""
+        return self.tri.cutters["z"].probe_where(moves, body)
+
 
 # --- the design on the lattice ---------------------------------------------------------------
 

@@ -15,7 +15,7 @@ from sim import dexel_store as ds
 from sim.sweep_kernels.batch import (DONE, REACH_PAD, STOP_CHANGES, STOP_POOL, STOP_TRACE, _save,
                                      _stadium_span, overlap_length)
 from sim.sweep_kernels.log import _log_change, finish_move
-from sim.sweep_kernels.shapes import (CODE_BALL, CODE_BULL, CODE_CONE, CODE_FLAT, _hstar, _rows_any,
+from sim.sweep_kernels.shapes import (CODE_BALL, CODE_BULL, CODE_CONE, CODE_FLAT, RIM, _hstar, _rows_any,
                                       _rows_ball, _rows_bull, _rows_cone, _rows_flat)
 from sim.sweep_kernels.trace_sink import (TS_BLK0, TS_NEED_F, TS_NEED_GEN, TS_NEXT_DUE, TS_NF, TS_NG, TS_NGL,
                                           TS_NR, TS_OPEN, _close_block, _close_far_only, _close_traced_move,
@@ -180,9 +180,12 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
         xmax = max(x0, x0 + dx)
         ymin = min(y0, y0 + dy)
         ymax = max(y0, y0 + dy)
-        jlo = max(band0, int(math.ceil((ymin - Rc - gy0) / sp)))
+        # the reach widened by the rim margin the shapes allow (shapes.RIM), so that a ray
+        # on the rim is looked at whatever the rounding of its row's range
+        reach = Rc + RIM
+        jlo = max(band0, int(math.ceil((ymin - reach - gy0) / sp)))
         jhi = min(nv, band1) - 1
-        jhi = min(jhi, int(math.floor((ymax + Rc - gy0) / sp)))
+        jhi = min(jhi, int(math.floor((ymax + reach - gy0) / sp)))
         if jhi < jlo:
             continue
         skip_behind = False
@@ -208,8 +211,8 @@ def cut_linear_batch(S, gx0, gy0, sp, nu, nv, P0, P1, seg_move, seg_id, tp, eps,
             ilo = 0
             ihi = -1
             clear = rows_clear and zmin + _hstar(code, R, tp[2], tp[3], dym) >= top_bound + 1e-9
-            if dym <= Rc and not clear:
-                w = math.sqrt(Rc * Rc - dym * dym)
+            if dym <= reach and not clear:
+                w = math.sqrt(max(Rc * Rc - dym * dym, 0.0)) + RIM
                 ilo = max(0, int(math.ceil((xmin - w - gx0) / sp)))
                 ihi = min(nu - 1, int(math.floor((xmax + w - gx0) / sp)))
                 if skip_behind:

@@ -33,6 +33,23 @@ CODE_CONE = 3
 # ``tp``, a body's float64 parameters for the exact linear kernel:
 # [code, R, rc, cot_half_angle, h_off (bottom above the tip), h_top, Rc (largest radius)]
 
+#: mm: a ray this close outside a body's rim counts as on it. The tool is closed (a ray on
+#: its rim is cut), and a pose two moves share must reach the same rays from both: the end
+#: of one move and the start of the next are the same point, but each move measures a ray
+#: in its own frame (along and across itself), where rounding moves a ray exactly on the
+#: rim (a helix ending on the grid, 3 mm from a ray) in or out by ~1e-15 mm. Without the
+#: margin a retract straight up from where a helix ended found that rim ray still standing
+#: and reported a rapid into stock. Far below any tolerance, far above the rounding.
+RIM = 1e-9
+
+
+@nb.njit(cache=True, inline="always")
+def within_rim(qc, s_lo, s_hi, Rc):
+    """Whether a ray reaches the body: across the move within ``Rc`` (``qc = Rc^2 -
+    e^2``) and along it within its reach ``s_lo <= s_hi`` (mm along the move), each with
+    the :data:`RIM` margin."""
+    return (qc >= -2.0 * Rc * RIM) & (s_lo <= s_hi + RIM)
+
 
 @nb.njit(cache=True, inline="always")
 def _hstar(code, R, rc, cot, d):
@@ -70,11 +87,11 @@ def linear_interval(tp, x0, y0, z0, dz, ell, ux, uy, rx, ry):
     a = rx * ux + ry * uy      # along the move
     e = -rx * uy + ry * ux     # across it
     q = Rc * Rc - e * e
-    if q < 0.0:
+    if not within_rim(q, 0.0, 0.0, Rc):
         return 1.0, 0.0
-    rho_c = math.sqrt(q)
+    rho_c = math.sqrt(max(q, 0.0))
     if ell <= 0.0:
-        if a * a > q:
+        if not within_rim(q - a * a, 0.0, 0.0, Rc):
             return 1.0, 0.0
         z_lo = z0 if dz > 0.0 else z0 + dz
         z_hi = z0 + dz if dz > 0.0 else z0
@@ -85,7 +102,7 @@ def linear_interval(tp, x0, y0, z0, dz, ell, ux, uy, rx, ry):
     s_hi = a + rho_c
     if s_hi > ell:
         s_hi = ell
-    if s_lo > s_hi:
+    if not within_rim(q, s_lo, s_hi, Rc):
         return 1.0, 0.0
     m = dz / ell
     za = z0 + m * s_lo
@@ -189,7 +206,7 @@ def _rows_ball(R, Rc, h_off, h_top, z0, m, sin_t, ell, ux, uy, rx0, ry0, sp, nu,
             w = a - s
             v = np.float32(z0 + m * s + h_off + R - math.sqrt(max(rho * rho - w * w, 0.0)))
             t = np.float32(z0 + h_top + max(m * s_lo, m * s_hi))
-            ok = (qc >= 0.0) & (s_lo <= s_hi) & (v < t)
+            ok = within_rim(qc, s_lo, s_hi, Rc) & (v < t)
             lo_r[q] = v
             hi_r[q] = t
             c = cn_r[q]
@@ -229,7 +246,7 @@ def _rows_flat(Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo, nrow
             s_hi = min(a + rho_c, ell)
             v = np.float32(z0 + h_off + min(m * s_lo, m * s_hi))
             t = np.float32(z0 + h_top + max(m * s_lo, m * s_hi))
-            ok = (qc >= 0.0) & (s_lo <= s_hi) & (v < t)
+            ok = within_rim(qc, s_lo, s_hi, Rc) & (v < t)
             lo_r[q] = v
             hi_r[q] = t
             c = cn_r[q]
@@ -306,7 +323,7 @@ def _rows_cone(cot, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo,
             rho_c = math.sqrt(max(qc, 0.0))
             for q in range(q_b - q_a):
                 v, t, ok = _cone_ray(a0 + (k_a + q) * da, e_q, e2, qc, rho_c, gs, at_start, at_end, cot, z0, m,
-                                     ell, h_off, h_top)
+                                     ell, h_off, h_top, Rc)
                 lo_r[q] = v
                 hi_r[q] = t
                 c = cn_r[q]
@@ -317,7 +334,7 @@ def _rows_cone(cot, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo,
                 e2 = e * e
                 qc = Rc2 - e2
                 v, t, ok = _cone_ray(a0 + (k_a + q) * da, e, e2, qc, math.sqrt(max(qc, 0.0)), gs, at_start, at_end,
-                                     cot, z0, m, ell, h_off, h_top)
+                                     cot, z0, m, ell, h_off, h_top, Rc)
                 lo_r[q] = v
                 hi_r[q] = t
                 c = cn_r[q]
@@ -325,7 +342,7 @@ def _rows_cone(cot, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jlo,
 
 
 @nb.njit(cache=True, inline="always")
-def _cone_ray(a, e, e2, qc, rho_c, gs, at_start, at_end, cot, z0, m, ell, h_off, h_top):
+def _cone_ray(a, e, e2, qc, rho_c, gs, at_start, at_end, cot, z0, m, ell, h_off, h_top, Rc):
     """Interval ``(lo, hi)`` (float32) of the cone's sweep on one ray of
     :func:`_rows_cone` (``qc = Rc^2 - e^2``, ``rho_c`` its root) and whether the ray is
     within reach."""
@@ -336,7 +353,7 @@ def _cone_ray(a, e, e2, qc, rho_c, gs, at_start, at_end, cot, z0, m, ell, h_off,
     w = a - s
     v = np.float32(z0 + m * s + h_off + math.sqrt(e2 + w * w) * cot)
     t = np.float32(z0 + h_top + max(m * s_lo, m * s_hi))
-    return v, t, (qc >= 0.0) & (s_lo <= s_hi) & (v < t)
+    return v, t, within_rim(qc, s_lo, s_hi, Rc) & (v < t)
 
 
 @nb.njit(cache=True, inline="always")
@@ -529,7 +546,7 @@ def _rows_bull(R, rc, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jl
             rho_c = math.sqrt(max(qc, 0.0))
             for q in range(q_b - q_a):
                 v, top, ok = _bull_ray(a_0 + (k_a + q) * da, e2, qc, rho_c, w_k[q], sg, a0, rc, rc2, z0, m,
-                                       ell, h_off, h_top)
+                                       ell, h_off, h_top, Rc)
                 lo_r[q] = v
                 hi_r[q] = top
                 c = cn_r[q]
@@ -539,7 +556,7 @@ def _rows_bull(R, rc, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jl
                 e2 = (e_0 + (k_a + q) * de) ** 2
                 qc = Rc2 - e2
                 v, top, ok = _bull_ray(a_0 + (k_a + q) * da, e2, qc, math.sqrt(max(qc, 0.0)), w_k[q], sg, a0,
-                                       rc, rc2, z0, m, ell, h_off, h_top)
+                                       rc, rc2, z0, m, ell, h_off, h_top, Rc)
                 lo_r[q] = v
                 hi_r[q] = top
                 c = cn_r[q]
@@ -547,7 +564,7 @@ def _rows_bull(R, rc, Rc, h_off, h_top, z0, m, ell, ux, uy, rx0, ry0, sp, nu, jl
 
 
 @nb.njit(cache=True, inline="always")
-def _bull_ray(a, e2, qc, rho_c, w_star, sg, a0, rc, rc2, z0, m, ell, h_off, h_top):
+def _bull_ray(a, e2, qc, rho_c, w_star, sg, a0, rc, rc2, z0, m, ell, h_off, h_top, Rc):
     """Interval ``(lo, hi)`` (float32) of the bull-nose sweep on one ray of
     :func:`_rows_bull` (``qc = Rc^2 - e^2``, ``rho_c`` its root, ``w_star`` the ray's
     ``w``) and whether the ray is within reach."""
@@ -558,7 +575,7 @@ def _bull_ray(a, e2, qc, rho_c, w_star, sg, a0, rc, rc2, z0, m, ell, h_off, h_to
     t = max(math.sqrt(e2 + w * w) - a0, 0.0)
     v = np.float32(z0 + m * s + h_off + rc - math.sqrt(max(rc2 - t * t, 0.0)))
     top = np.float32(z0 + h_top + max(m * s_lo, m * s_hi))
-    return v, top, (qc >= 0.0) & (s_lo <= s_hi) & (v < top)
+    return v, top, within_rim(qc, s_lo, s_hi, Rc) & (v < top)
 
 
 @nb.njit(cache=True)

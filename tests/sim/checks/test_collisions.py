@@ -131,3 +131,63 @@ def test_predict_finds_the_same_without_touching_the_live_model():
     _, found = ch.cut_and_check(m)
     assert kinds(found) == kinds(predicted)
     assert found[0].volume == pytest.approx(predicted[0].volume)
+
+
+def test_a_rapid_is_placed_on_the_material_it_met_not_what_later_moves_left():
+    # line 30: G0 at Z-0.5 across the stock's edge (its top at Z20): it meets the edge X0 at
+    # the top; lines 60/70 later cut the same rays 5 mm deep in the same batch
+    m = table([(R, (-10, 15, 30), (-10, 15, 19.5)), (R, (-10, 15, 19.5), (10, 15, 19.5)),
+               (R, (10, 15, 19.5), (10, 15, 30)), (R, (10, 15, 30), (-10, 15, 30)),
+               (F, (-10, 15, 30), (-10, 15, 15)), (F, (-10, 15, 15), (30, 15, 15)), (R, (30, 15, 15), (30, 15, 30))])
+    ch = Checker(stock(), parse_tool_spec("flat:6:L=20"))
+    _, found = ch.cut_and_check(m)
+    (f,) = [f for f in found if f.kind == "rapid_into_stock"]
+    # (its volume on 0.5 mm rays: the slot and half disc X0..13, 0.5 mm deep, 37 mm^3)
+    assert f.line == 20 and f.volume == pytest.approx(6 * 10 * 0.5 + 9 * np.pi / 2 * 0.5, rel=0.1)
+    assert f.position == pytest.approx((0.0, 15.0, 20.0))
+
+
+# --- a finding's position is where the tool met what it should not, not the move's end -----
+
+def test_a_body_contact_is_placed_where_the_body_first_met_the_stock():
+    # 8 mm deep from outside the stock (X0) to X30: the body above 5 mm flutes meets the
+    # stock's edge at X0 on its top (Z20), not at the move's end 10 mm further in
+    m = table([(R, (-10, 20, 30), (-10, 20, 12)), (F, (-10, 20, 12), (30, 20, 12)), (R, (30, 20, 12), (30, 20, 30))])
+    _, _, found = run(m, spec="flat:6:L=5:S=6:SL=30:H=30", fixtures=[])
+    (f,) = [f for f in found if f.kind == "shank_contact"]
+    assert f.line == 20 and f.position == pytest.approx((0.0, 20.0, 20.0))
+
+
+def test_a_fixture_collision_is_placed_on_the_fixture():
+    # the jaw X62..70 is 35 high: a ball 0.01 below its top crosses it from X40 to X90
+    m = table([(R, (40, 20, 40), (40, 20, 34.99)), (R, (40, 20, 34.99), (90, 20, 34.99))])
+    _, _, found = run(m, spec="ball:6:L=10", limits={})
+    (f,) = [f for f in found if f.kind == "fixture_collision"]
+    assert f.line == 20 and f.position == pytest.approx((62.0, 20.0, 35.0))
+
+
+def test_spindle_stopped_is_placed_where_the_tool_met_the_stock():
+    m = table([(R, (-10, 20, 30), (-10, 20, 19)), (F, (-10, 20, 19), (30, 20, 19))], spindle=0.0)
+    _, _, found = run(m, fixtures=[])
+    (f,) = [f for f in found if f.kind == "spindle_stopped_cutting"]
+    assert f.position == pytest.approx((0.0, 20.0, 20.0))
+
+
+def test_depth_of_cut_is_placed_at_the_floor_of_the_deepest_cut():
+    from sim.gcode import interpret
+
+    # a G18 arc of radius ~54 from X-5 to X45 at Z25 whose bottom (X20) is 0.999 mm below
+    # the top (Z20): deepest under X20 on the path (Y20), not at its end (X45, Z25)
+    arc = "G21 G90 G18\nM3 S10000\nG0 Z30\nG0 X-5 Y20\nG0 Z25\nG2 X45 Z25 I25 K49.0833333 F500\nG0 Z30\nM2\n"
+    _, _, found = run(interpret(arc).moves, spec="flat:6:L=10", max_depth_of_cut=0.9, fixtures=[])
+    (f,) = [f for f in found if f.kind == "depth_of_cut" and f.line == 6]  # (the program starts in the stock)
+    assert f.depth == pytest.approx(0.999, abs=0.01)
+    assert f.position == pytest.approx((20.0, 20.0, 19.001), abs=0.5 * SPACING + 0.01)
+
+
+def test_a_plunge_is_placed_where_the_tip_entered_the_stock():
+    # a line from (10, 20, 21) to (11, 20, 11) crosses the top (Z20) at X10.1
+    m = table([(R, (10, 20, 30), (10, 20, 21)), (F, (10, 20, 21), (11, 20, 11)), (R, (11, 20, 11), (11, 20, 30))])
+    _, _, found = run(m, spec="flat:6:L=20:nocenter", fixtures=[])
+    (f,) = found
+    assert f.kind == "non_center_cutting_plunge" and f.position == pytest.approx((10.1, 20.0, 20.0))

@@ -117,3 +117,70 @@ def test_engagement_needs_a_top_view_frame():
     fr = Frame(np.zeros(3), (1, 0, 0), (0, 1, 0), 1.0, 4, 4)
     with pytest.raises(InputError, match="top-view"):
         motion.Engagement(fr, np.zeros((4, 4)), parse_tool_spec("flat:6"))
+
+
+# --- the entry angle of an arc: along its tangent where it enters material ------------------
+
+def _plunges(program, spec="flat:6:L=20:nocenter", checker=True):
+    """Plunge findings of ``program`` (G-code) cut into the box X0..60 Y0..30 Z-20..0: through
+    the Checker (the engagement after the real cut) or a standalone Engagement."""
+    from sim.checks import Checker
+    from sim.gcode import interpret
+    from sim.solids import box_grid
+
+    moves = interpret(program).moves
+    tool = parse_tool_spec(spec)
+    fr = Frame.top(0, 0, 60, 30, 0.2)
+    if checker:
+        _, found = Checker(box_grid(fr, (0, 0, -20), (60, 30, 0)), tool).cut_and_check(moves)
+        return [f for f in found if f.kind == "non_center_cutting_plunge"]
+    eng = motion.Engagement(fr, np.zeros(fr.shape), tool)
+    _, core = eng.run(moves)
+    return motion.plunges(moves, core, tool, entry_deg=eng.entry_deg, entry_at=eng.entry_at)
+
+
+HELIX = ("G21 G90 G17\nM3 S10000\nG0 X25 Y15 Z5\nG1 Z0.1 F200\nG3 X25 Y15 I-5 J0 Z-0.5\n"
+         "G3 X25 Y15 I-5 J0 Z-1.0\nG3 X25 Y15 I-5 J0 Z-1.0\nG0 Z5\nM2\n")
+# G18 half circle of radius 10 about (X20, Z1): straight down at X10, 9 mm below the top at X20;
+# it enters the top (Z0) 1 mm below its centre, where its tangent is atan(sqrt(99)) = 84.26 deg
+DIP = "G21 G90 G18\nM3 S10000\nG0 X10 Y15 Z5\nG1 Z1 F200\nG2 X30 Z1 I10 K0\nG0 Z10\nM2\n"
+QUARTER = "G21 G90 G18\nM3 S10000\nG0 X10 Y15 Z5\nG1 Z1 F200\nG2 X20 Z-9 I10 K0\nG1 X35\nG0 Z10\nM2\n"
+ENTRY_DEG = math.degrees(math.atan(math.sqrt(99.0)))
+
+
+@pytest.mark.parametrize("checker", [True, False])
+def test_a_full_turn_helix_ramp_is_no_plunge(checker):
+    # 0.6 then 0.5 mm a turn on a 5 mm radius: 1.1 deg down, though each turn ends where
+    # it started (its chord is vertical)
+    assert _plunges(HELIX, checker=checker) == []
+    # the first turn (0.6 mm) on a 0.6 mm radius: 9.0 deg, still a ramp; on 0.4 mm: 13.4 deg
+    steep = HELIX.replace("I-5 J0", "I-0.6 J0")
+    assert _plunges(steep, checker=checker) == []
+    f = _plunges(steep.replace("I-0.6 J0", "I-0.4 J0"), checker=checker)[0]
+    assert f.line == 5
+    assert f.detail["angle_deg"] == pytest.approx(math.degrees(math.atan(0.6 / (0.8 * math.pi))), abs=0.05)
+
+
+@pytest.mark.parametrize("checker", [True, False])
+def test_an_arc_diving_into_the_stock_is_a_plunge_at_its_entry_tangent(checker):
+    (f,) = _plunges(DIP, checker=checker)
+    assert f.line == 5 and f.detail["angle_deg"] == pytest.approx(ENTRY_DEG, abs=0.2)
+    # placed where it entered: on the top, 10 - sqrt(99) mm past its start
+    assert f.position == pytest.approx((20 - math.sqrt(99.0), 15.0, 0.0), abs=0.005)
+    (f,) = _plunges(QUARTER, checker=checker)  # not the 45 deg of its chord
+    assert f.line == 5 and f.detail["angle_deg"] == pytest.approx(ENTRY_DEG, abs=0.2)
+
+
+def test_spindle_stopped_names_where_it_stopped_or_that_it_never_started():
+    m = polyline([(0, 0, 5), (0, 0, 1), (10, 0, 1), (10, 0, -1), (20, 0, -1)])
+    m["spindle_dir"][2:] = 0  # M5 between line 20 (the last move it ran for) and line 30
+    (f,) = motion.spindle_stopped_cutting(m, np.array([0.0, 0.0, 0.0, 4.0]))
+    assert f.line == 40 and f.detail["cause"] == "spindle off after line 20"
+    m["spindle_dir"][:] = 0  # never started
+    (f,) = motion.spindle_stopped_cutting(m, np.array([0.0, 0.0, 0.0, 4.0]))
+    assert f.detail["cause"] == "spindle off: never started"
+    # the same across batches: the carry holds the last line it ran for
+    m["spindle_dir"][:2] = 1
+    carry = tuple(motion.spindle_off_from(m[:3])[-1])
+    (f,) = motion.spindle_stopped_cutting(m[3:], np.array([4.0]), move_ids=[4], carry=carry)
+    assert f.detail["cause"] == "spindle off after line 20" and f.detail["off_from_move"] == 3

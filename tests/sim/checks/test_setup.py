@@ -84,3 +84,24 @@ def test_simulate_reports_a_stock_the_path_never_touches(tmp_path, capsys):
     assert code == 1 and [f["kind"] for f in out["findings"]] == ["setup"]
     prog.write_text(SLOT)
     assert main(["simulate", str(prog), "--stock", "box:-5,0,-20,65,40,0", "--tool", "flat:6:L=20", "--json"]) == 0
+
+
+def test_a_long_tool_that_cuts_the_stock_is_no_setup_finding():
+    # G43 moves the controlled point up by the tool length: the tip at Z-2 cuts the stock
+    # (0..-20) whatever the length; the controlled point (Z98) is not what meets it
+    long_tool = SLOT.replace("G0 Z5\n", "G43.1 Z100\nG0 Z5\n", 1)
+    moves = interpret(long_tool).moves
+    assert moves["tool_length"].max() == 100.0
+    assert setup_findings(moves, boxes(), 3.0) == []
+    (f,) = setup_findings(interpret(long_tool.replace("Y10", "Y100")).moves, boxes(), 3.0)
+    assert "Z-2..5" in f.message and f.position == (0.0, 100.0, -2.0)   # the tip's
+
+
+def test_the_span_holds_the_moves_starts_and_an_arcs_bulge():
+    # a CCW half circle about (10, 20) from (10, 10) to (10, 30) bulges out to X20; the
+    # stock is far away
+    lim = "G21 G90 G17\nG0 X10 Y10 Z-5\nG3 X10 Y30 I0 J10 F500\nG0 Z0\nM2\n"
+    (f,) = setup_findings(interpret(lim).moves, boxes(((100, 100, -20), (200, 200, 0))), 3.0)
+    assert "they span X10..20 Y10..30 Z-5..-5 mm" in f.message
+    rows, lo, hi = cutting_boxes(interpret(lim).moves, 0.0)
+    assert lo[0] == pytest.approx([10, 10, -5]) and hi[0][:2] == pytest.approx([20, 30])
