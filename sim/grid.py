@@ -135,6 +135,15 @@ class DexelGrid:
         ds.top_all(self.S, out)
         return out.reshape(self.frame.shape)
 
+    def top_of(self, rays) -> np.ndarray:
+        """Top (largest ``s``) of the material on each of the flat ray indices ``rays``,
+        float64 (k,); NaN where empty. What :meth:`top` says of those rays, without
+        reading every ray."""
+        rays = np.ascontiguousarray(rays, np.int64)
+        out = np.empty(rays.size, np.float64)
+        ds.tops_of(self.S, rays, out)
+        return out
+
     def max_top(self) -> float:
         """The largest top over all rays, mm (``-inf`` when every ray is empty), without
         a per-ray array (:meth:`top` of 10M rays is 36 MB)."""
