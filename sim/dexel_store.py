@@ -342,13 +342,6 @@ def ray_top(S, r):
 
 
 @nb.njit(cache=True)
-def tops_of(S, rays, out):
-    """Fill ``out`` (k,) float64 with the top of each ray in ``rays`` (NaN where empty)."""
-    for q in range(rays.size):
-        out[q] = ray_top(S, rays[q])
-
-
-@nb.njit(cache=True)
 def top_all(S, out):
     """Fill ``out`` (n_rays,) float32 with each ray's top (NaN where empty)."""
     for r in range(S[0].size):

@@ -139,9 +139,15 @@ class DexelGrid:
         """Top (largest ``s``) of the material on each of the flat ray indices ``rays``,
         float64 (k,); NaN where empty. What :meth:`top` says of those rays, without
         reading every ray."""
-        rays = np.ascontiguousarray(rays, np.int64)
-        out = np.empty(rays.size, np.float64)
-        ds.tops_of(self.S, rays, out)
+        # numpy on the store's arrays (as dexel_store.get_seg lays them out: a ray's first
+        # segment in near/far, the rest in the pool from first[r]), no kernel to compile
+        # mid-run
+        rays = np.asarray(rays, np.int64).reshape(-1)
+        cnt, far, first, pool_far = self.S[0], self.S[2], self.S[5], self.S[8]
+        c = cnt[rays]
+        out = np.where(c > 0, far[rays].astype(np.float64), np.nan)
+        many = np.flatnonzero(c > 1)
+        out[many] = pool_far[first[rays[many]] + c[many] - 2]
         return out
 
     def max_top(self) -> float:
