@@ -135,6 +135,21 @@ class DexelGrid:
         ds.top_all(self.S, out)
         return out.reshape(self.frame.shape)
 
+    def top_of(self, rays) -> np.ndarray:
+        """Top (largest ``s``) of the material on each of the flat ray indices ``rays``,
+        float64 (k,); NaN where empty. What :meth:`top` says of those rays, without
+        reading every ray."""
+        # numpy on the store's arrays (as dexel_store.get_seg lays them out: a ray's first
+        # segment in near/far, the rest in the pool from first[r]), no kernel to compile
+        # mid-run
+        rays = np.asarray(rays, np.int64).reshape(-1)
+        cnt, far, first, pool_far = self.S[0], self.S[2], self.S[5], self.S[8]
+        c = cnt[rays]
+        out = np.where(c > 0, far[rays].astype(np.float64), np.nan)
+        many = np.flatnonzero(c > 1)
+        out[many] = pool_far[first[rays[many]] + c[many] - 2]
+        return out
+
     def max_top(self) -> float:
         """The largest top over all rays, mm (``-inf`` when every ray is empty), without
         a per-ray array (:meth:`top` of 10M rays is 36 MB)."""

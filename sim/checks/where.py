@@ -22,9 +22,10 @@ def tip_at(moves: np.ndarray, k: int, which: str = "end") -> np.ndarray:
     return tip
 
 
-def top_met(cut, grid, k: int, lowest: float) -> tuple[np.ndarray, np.ndarray]:
-    """``(rays, top)``: the rays move ``k`` of a batch changed and each one's material top
-    (s along the ray, mm) as it was when the move began.
+def top_met(cut, grid, k: int, lowest: float, at=None) -> tuple[np.ndarray, np.ndarray]:
+    """``(rays, top)``: the rays move ``k`` of a batch changed (``at``: only those at these
+    positions of its list) and each one's material top (s along the ray, mm) as it was
+    when the move began.
 
     ``cut`` is the batch's CutResult (depths kept), ``grid`` the model after the whole
     batch: later moves of the batch may have cut the same rays deeper, so the top now is
@@ -34,22 +35,30 @@ def top_met(cut, grid, k: int, lowest: float) -> tuple[np.ndarray, np.ndarray]:
     began at most ``k``'s depth above ``lowest`` (s of the move's lowest tip)."""
     ptr = cut.changed_ptr
     lo, hi = ptr[k], ptr[k + 1]
-    rays = cut.changed_rays[lo:hi]
+    at = np.arange(hi - lo) if at is None else np.asarray(at, np.int64)
+    rays = cut.changed_rays[lo:hi][at]
     if not cut.changed_depth.size:
-        return rays, grid.top().reshape(-1)[rays].astype(np.float64)
+        return rays, grid.top_of(rays)
     later = cut.changed_rays[lo:]
     depth = np.asarray(cut.changed_depth[lo:], np.float64)
-    # rays are sorted within each move: find each later entry among move k's rays
-    at = np.minimum(np.searchsorted(rays, later), rays.size - 1)
-    mine = rays[at] == later
-    below = np.bincount(at[mine], weights=depth[mine], minlength=rays.size)
-    top = grid.top().reshape(-1)[rays].astype(np.float64)
-    return rays, np.where(np.isfinite(top), top + below, lowest + depth[:hi - lo])
+    # rays are sorted within each move (so the subset is): find each later entry among them
+    q = np.minimum(np.searchsorted(rays, later), rays.size - 1)
+    mine = rays[q] == later
+    below = np.bincount(q[mine], weights=depth[mine], minlength=rays.size)
+    top = grid.top_of(rays)
+    return rays, np.where(np.isfinite(top), top + below, lowest + depth[at])
 
 
-def _lowest_s(moves, k, frame) -> float:
-    start, end = tip_at(moves, k, "start"), tip_at(moves, k, "end")
-    return float(frame.to_local((start if start[2] < end[2] else end)[None])[0, 2])
+def _is_top(frame) -> bool:
+    """:attr:`Frame.is_top` without its tolerance (this runs per depth-of-cut finding of
+    every batch): the rays along +Z with u = +X, from Z0."""
+    return frame.direction[2] == 1.0 and frame.u[0] == 1.0 and frame.origin[2] == 0.0
+
+
+def _lowest_s(moves, k) -> float:
+    """s of row ``k``'s lowest tip on a top-view grid (:attr:`Frame.is_top`: s is Z)."""
+    z = moves["tool_length"][k]
+    return float(min(moves["start"][k, 2], moves["end"][k, 2]) - z)
 
 
 def first_contact(moves: np.ndarray, k: int, cut, grid, top=None) -> np.ndarray | None:
@@ -62,7 +71,7 @@ def first_contact(moves: np.ndarray, k: int, cut, grid, top=None) -> np.ndarray 
         return None
     f = grid.frame
     if top is None:
-        rays, met = top_met(cut, grid, k, _lowest_s(moves, k, f))
+        rays, met = top_met(cut, grid, k, _lowest_s(moves, k))
     else:
         rays = cut.changed_rays[lo:hi]
         met = top[rays]
@@ -83,17 +92,19 @@ def deepest_cut(moves: np.ndarray, k: int, cut, grid) -> np.ndarray | None:
     """World point (3,) of the deepest cut move ``k`` made (the floor it left on the ray
     it took the most material off from the top), or None when it changed no ray."""
     lo, hi = cut.changed_ptr[k], cut.changed_ptr[k + 1]
-    if hi <= lo or not cut.changed_depth.size or not grid.frame.is_top:
-        return None
     f = grid.frame
-    rays, met = top_met(cut, grid, k, _lowest_s(moves, k, f))
+    if hi <= lo or not cut.changed_depth.size or not _is_top(f):
+        return None
     depth = np.asarray(cut.changed_depth[lo:hi], np.float64)
-    pts = f.to_world(np.stack([rays % f.nu * f.spacing, rays // f.nu * f.spacing, met - depth], axis=1))
     # a flat end cuts a whole disc (a slot a whole band) as deep: of the deepest rays,
     # the one in their middle, under the tool rather than on its rim
     deepest = np.flatnonzero(depth >= depth.max() - DEPTH_TIE)
-    mid = pts[deepest, :2].mean(axis=0)
-    return pts[deepest[int(np.argmin(np.linalg.norm(pts[deepest, :2] - mid, axis=1)))]]
+    rays = cut.changed_rays[lo:hi][deepest]
+    ij = np.stack([rays % f.nu, rays // f.nu], axis=1).astype(np.float64)
+    w = int(deepest[int(np.argmin(((ij - ij.mean(axis=0)) ** 2).sum(axis=1)))])
+    (r,), (met,) = top_met(cut, grid, k, _lowest_s(moves, k), at=[w])
+    # a top-view frame: u = +X, v = +Y, s = Z
+    return f.origin + np.array([r % f.nu * f.spacing, r // f.nu * f.spacing, met - depth[w]])
 
 
 def contact_point(cutter, moves: np.ndarray, k: int, body=None) -> np.ndarray | None:
@@ -117,7 +128,7 @@ def line_entry(moves: np.ndarray, k: int, cut, grid, near: float) -> np.ndarray 
     if hi <= lo or not grid.frame.is_top:
         return None
     f = grid.frame
-    rays, met = top_met(cut, grid, k, _lowest_s(moves, k, f))
+    rays, met = top_met(cut, grid, k, _lowest_s(moves, k))
     xy = f.to_world(np.stack([rays % f.nu * f.spacing, rays // f.nu * f.spacing, met], axis=1))
     start, end = tip_at(moves, k, "start"), tip_at(moves, k, "end")
     d = (end - start)[:2]

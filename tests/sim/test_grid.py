@@ -81,6 +81,11 @@ def test_top_and_volume_of_a_stepped_model():
     assert g.max_top() == 3.25 == np.nanmax(g.top())
     empty = DexelGrid(f)
     assert np.all(np.isnan(empty.top())) and empty.volume() == 0.0 and empty.max_top() == -np.inf
+    # top_of: the same tops for chosen rays (one in the pool, a lowered one, an emptied one)
+    g.subtract(3, 1, -5, 5, move_id=6)
+    rays = np.array([0, 2, 5, 7, 11])
+    np.testing.assert_array_equal(g.top_of(rays), g.top().reshape(-1)[rays].astype(np.float64))
+    assert np.isnan(g.top_of([7])[0]) and g.top_of([5])[0] == 0.5
 
 
 def test_window_is_an_independent_copy_in_its_own_frame():
