@@ -766,13 +766,9 @@ class Interpreter:
             canned_cycle(self, motion, words, cols, used)
             return
         if g53:
-            target = list(self.pos)
-            f = self.factor
-            for i, a in enumerate(AXES):
-                if a in words:
-                    target[i] = words[a] * (f if i < 3 else 1.0)
-                    used.add(a)
-            end = target
+            end = list(self.pos)
+            for i, v in nonmodal.axis_words(words, self.factor, used):
+                end[i] = v
         else:
             if motion in (20, 30):
                 end = None

@@ -45,11 +45,8 @@ def non_modal(it, code: int, col: int, words, cols, used) -> None:
         if not any(a in words for a in AXES):
             raise LineError("G92 needs at least one axis word", col, 26)
         g = it.g5x[it.coord]
-        for i, a in enumerate(AXES):
-            if a in words:
-                v = words[a] * (f if i < 3 else 1.0)
-                it.g92[i] = it.pos[i] - g[i] - it.tlo[i] - v
-                used.add(a)
+        for i, v in axis_words(words, f, used):
+            it.g92[i] = it.pos[i] - g[i] - it.tlo[i] - v
         it.g92_saved = list(it.g92)
         it.g92_enabled = True
     elif code == 921:
@@ -91,14 +88,8 @@ def g10(it, col: int, words, cols, used) -> None:
             if words["R"] != 0.0:
                 raise LineError("coordinate system rotation (G10 L2 R) is not supported", cols["R"], 20)
         g = it.g5x[k]
-        for i, a in enumerate(AXES):
-            if a in words:
-                v = words[a] * (f if i < 3 else 1.0)
-                used.add(a)
-                if L == 2:
-                    g[i] = v
-                else:
-                    g[i] = it.pos[i] - it.g92[i] - it.tlo[i] - v
+        for i, v in axis_words(words, f, used):
+            g[i] = v if L == 2 else it.pos[i] - it.g92[i] - it.tlo[i] - v
         return
     # tool table edits
     if P < 1 and L != 1 or P < 0:
@@ -114,16 +105,22 @@ def g10(it, col: int, words, cols, used) -> None:
     for k in ("I", "J", "Q"):
         if k in words:
             used.add(k)
+    for i, v in axis_words(words, f, used):
+        if L == 1:
+            offsets[AXES[i]] = v
+        elif L == 10:
+            offsets[AXES[i]] = it.pos[i] - it.g5x[it.coord][i] - it.g92[i] - v
+        else:   # L11: as if in G59.3
+            offsets[AXES[i]] = it.pos[i] - it.g5x[8][i] - v
+    it.tool_table[P] = replace(entry, diameter=diameter, z_offset=offsets.get("Z", 0.0), offsets=offsets)
+
+
+def axis_words(words, factor: float, used: set) -> list[tuple[int, float]]:
+    """(axis index, value) of the line's axis words, X Y Z in mm (times ``factor``, the
+    program units), A B C in degrees; marks them ``used``."""
+    out = []
     for i, a in enumerate(AXES):
         if a in words:
-            v = words[a] * (f if i < 3 else 1.0)
+            out.append((i, words[a] * (factor if i < 3 else 1.0)))
             used.add(a)
-            if L == 1:
-                offsets[a] = v
-            elif L == 10:
-                g = it.g5x[it.coord]
-                offsets[a] = it.pos[i] - g[i] - it.g92[i] - v
-            else:
-                g = it.g5x[8]
-                offsets[a] = it.pos[i] - g[i] - v
-    it.tool_table[P] = replace(entry, diameter=diameter, z_offset=offsets.get("Z", 0.0), offsets=offsets)
+    return out
