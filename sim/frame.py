@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -68,9 +69,10 @@ class Frame:
     def n_rays(self) -> int:
         return self.nu * self.nv
 
-    @property
+    @cached_property
     def is_top(self) -> bool:
-        """True when rays run along +Z with u = +X (the 3-axis fast paths apply)."""
+        """True when rays run along +Z with u = +X (the 3-axis fast paths apply). Kept once
+        worked out: per-finding code asks it in every batch (a frame never changes)."""
         return bool(
             np.allclose(self.direction, (0, 0, 1)) and np.allclose(self.u, (1, 0, 0))
             and abs(self.origin[2]) == 0.0

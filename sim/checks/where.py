@@ -49,12 +49,6 @@ def top_met(cut, grid, k: int, lowest: float, at=None) -> tuple[np.ndarray, np.n
     return rays, np.where(np.isfinite(top), top + below, lowest + depth[at])
 
 
-def _is_top(frame) -> bool:
-    """:attr:`Frame.is_top` without its tolerance (this runs per depth-of-cut finding of
-    every batch): the rays along +Z with u = +X, from Z0."""
-    return frame.direction[2] == 1.0 and frame.u[0] == 1.0 and frame.origin[2] == 0.0
-
-
 def _lowest_s(moves, k) -> float:
     """s of row ``k``'s lowest tip on a top-view grid (:attr:`Frame.is_top`: s is Z)."""
     z = moves["tool_length"][k]
@@ -93,7 +87,7 @@ def deepest_cut(moves: np.ndarray, k: int, cut, grid) -> np.ndarray | None:
     it took the most material off from the top), or None when it changed no ray."""
     lo, hi = cut.changed_ptr[k], cut.changed_ptr[k + 1]
     f = grid.frame
-    if hi <= lo or not cut.changed_depth.size or not _is_top(f):
+    if hi <= lo or not cut.changed_depth.size or not f.is_top:
         return None
     depth = np.asarray(cut.changed_depth[lo:hi], np.float64)
     # a flat end cuts a whole disc (a slot a whole band) as deep: of the deepest rays,
