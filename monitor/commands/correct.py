@@ -25,13 +25,13 @@ Exit status: 0 the written program is gouge-free, 1 it still gouges, 2 bad input
 from __future__ import annotations
 
 import json
-import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from monitor.options import number
 from sim.errors import InputError
 
 HELP = "correct a gouging program against its design (Huang & Oliver's guide vector); writes a new program"
@@ -128,7 +128,7 @@ def _program_setup(args) -> Setup:
         if tool is None:
             raise InputError("the tool table has no tool with a diameter; give --tool", where=args.tool_table)
     grid = S.build_stock(args.stock, resolution, args.memory_limit)
-    t_l = _positive(args.tolerance, "--tolerance")
+    t_l = number(args.tolerance, "--tolerance")
     tol = Tolerance(gouge=t_l or DEFAULT.gouge)
     design = DesignModel(grid.frame, args.design)
     sub_dirs = S.subroutine_dirs(args)
@@ -159,7 +159,7 @@ def _job_setup(args) -> Setup:
     if not path.is_file():
         raise InputError("no such job file", where=str(path))
     job = S.apply_job_flags(load_job(path), args)
-    t_l = _positive(args.tolerance, "--tolerance")
+    t_l = number(args.tolerance, "--tolerance")
     if t_l:
         job.tolerance = dataclasses.replace(job.tolerance, gouge=t_l)
     return setup_from_job(job, args.max_loop, bool(args.block_delete), S.subroutine_dirs(args), where=str(path),
@@ -239,14 +239,6 @@ def _linearized(moves: np.ndarray, chord: float | None) -> np.ndarray:
     return linearize(moves, chord)
 
 
-def _positive(value, name):
-    if value is None:
-        return None
-    if not (math.isfinite(value) and value > 0):
-        raise InputError(f"must be a positive length in mm, got {value:g}", where=name)
-    return float(value)
-
-
 def default_output(program: Path) -> Path:
     """``part.nc`` -> ``part.corrected.nc`` beside it."""
     return program.with_name(f"{program.stem}.corrected{program.suffix or '.nc'}")
@@ -260,11 +252,11 @@ def run(args) -> int:
     from monitor.commands.simulate import check_numbers
 
     check_numbers(args)
-    _positive(args.min_segment, "--min-segment")
+    number(args.min_segment, "--min-segment")
     if not 1 <= args.refine <= 8:
         raise InputError(f"must be a whole number from 1 to 8, got {args.refine}", where="--refine")
     if args.linearize is not None:
-        _positive(args.linearize, "--linearize")
+        number(args.linearize, "--linearize")
     setup = _job_setup(args) if str(args.program).lower().endswith(".toml") else _program_setup(args)
     out_path = Path(args.output) if args.output else default_output(setup.program_path)
     if not out_path.parent.is_dir():

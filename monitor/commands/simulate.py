@@ -400,10 +400,10 @@ def _run_job(args) -> int:
     import dataclasses
 
     from monitor.job import load_job, parse_solid_spec, require
+    from monitor.options import number
     from monitor.predict import MIN_VOLUME, build_workpiece, limits_in_work, reference_wco, work_moves
     from monitor.start import job_start, start_at
     from sim.checks.motion import parse_limits
-    from sim.checks.report import _positive
     from sim.tooltable import read_tool_table
 
     path = Path(args.program)
@@ -416,8 +416,8 @@ def _run_job(args) -> int:
         job.fixtures = [parse_solid_spec(f, "--fixture") for f in args.fixture]
     if args.limits:
         job.limits = parse_limits(args.limits)
-    t_l = _positive(args.tolerance, "--tolerance")
-    t_h = _positive(args.undercut_tolerance, "--undercut-tolerance")
+    t_l = number(args.tolerance, "--tolerance")
+    t_h = number(args.undercut_tolerance, "--undercut-tolerance")
     if t_l or t_h:
         job.tolerance = dataclasses.replace(job.tolerance, gouge=t_l or job.tolerance.gouge,
                                             undercut=t_h or job.tolerance.undercut)
@@ -443,7 +443,7 @@ def _run_job(args) -> int:
         wco = job.work_offset if job.work_offset is not None else tuple(reference_wco(job)[:3])
         checker = Checker(wp.stock, wp.default_tool, design=wp.design, fixtures=wp.fixtures,
                           limits=limits_in_work(job.limits, wco), tol=job.tolerance, tools=wp.tools,
-                          max_depth_of_cut=_positive(args.max_depth_of_cut, "--max-depth-of-cut"),
+                          max_depth_of_cut=number(args.max_depth_of_cut, "--max-depth-of-cut"),
                           min_volume=MIN_VOLUME, undercut_from_path=not (job.undercut_given or t_h),
                           kinematics=wp.kinematics, origin=wp.origin, tool_lengths=wp.tool_lengths)
     out = {"job": str(path)}
