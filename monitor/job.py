@@ -111,6 +111,9 @@ DEFAULT_GIVE_UP_S = 600.0
 #: the fastest poll rate a job may ask for (Hz): past it the loop polls faster than it
 #: can follow, and a dry run's simulated clock (speed / poll_hz a poll) barely moves
 MAX_POLL_HZ = 1000.0
+#: the slowest (Hz): the monitor knows where the tool is only at a poll, and at 5000 mm/min
+#: a tool goes 83 mm in a second; slower, a feed hold would come too late to matter
+MIN_POLL_HZ = 1.0
 DIALECTS = ("linuxcnc", "grbl")
 MACHINE_UNITS = ("mm", "inch")
 #: the work systems, in the order of the interpreter's offset table (G54 = 0 ... G59.3 = 8)
@@ -500,6 +503,10 @@ def parse_job_text(text: str, name: str = "job.toml", base: Path | None = None) 
             job.controller = t["url"]
         if "poll_hz" in t:
             job.poll_hz = ctx.positive(t["poll_hz"], "[controller] poll_hz", "Hz")
+            if job.poll_hz < MIN_POLL_HZ:
+                raise ctx.err("[controller] poll_hz", f"at least {MIN_POLL_HZ:g} Hz (the monitor sees the tool only "
+                              "when it polls: at 5000 mm/min the tool goes 83 mm in a second, and a feed hold "
+                              "comes a poll late)", t["poll_hz"])
             if job.poll_hz > MAX_POLL_HZ:
                 raise ctx.err("[controller] poll_hz", f"at most {MAX_POLL_HZ:g} Hz (a poll a millisecond: each "
                               "state's cut and checks take about that long, and controllers answer 50 polls a "

@@ -117,8 +117,9 @@ class VirtualController(Controller):
                  config: MachineConfig | None = None, faults=None, url: str = "", interpreter: dict | None = None):
         if clock not in ("wall", "sim"):
             raise DriverError(f"virtual controller: clock={clock!r}; expected 'wall' or 'sim'")
-        if not speed > 0 or not rate > 0:
-            raise DriverError(f"virtual controller: speed and rate must be > 0 (got speed={speed}, rate={rate})")
+        if not (0 < speed < math.inf and 0 < rate < math.inf):
+            raise DriverError(f"virtual controller: speed and rate must be finite numbers > 0 "
+                              f"(got speed={speed}, rate={rate})")
         self.moves, self.name = load_moves(program, **(interpreter or {}))
         self.speed = float(speed)
         self.rate = float(rate)

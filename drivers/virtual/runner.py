@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import threading
 import time
 from typing import Callable
@@ -27,8 +29,8 @@ class RealTimeRunner:
 
     def __init__(self, vm: VirtualMachine, speed: float = 1.0, tick: float = 0.004,
                  on_tick: Callable[[VirtualMachine], None] | None = None):
-        if not speed > 0:
-            raise ValueError(f"speed must be > 0, got {speed}")
+        if not 0 < speed < math.inf:
+            raise ValueError(f"speed must be a finite number > 0, got {speed}")
         self.vm = vm
         self.speed = float(speed)
         self.tick = float(tick)

@@ -15,6 +15,7 @@ import sys
 import threading
 
 from drivers.errors import DriverError
+from monitor.options import number
 
 HELP = "expose the virtual controller as a GRBL device and/or Modbus server"
 
@@ -74,8 +75,7 @@ def run(args) -> int:
 
     if not args.grbl and not args.modbus:
         raise DriverError("serve-virtual: nothing to serve; give --grbl pty|tcp:PORT and/or --modbus tcp:PORT")
-    if not args.speed > 0:
-        raise DriverError(f"--speed {args.speed}: expected a number > 0")
+    number(args.speed, "--speed")  # inf advanced the machine by inf (0 x inf: nan) seconds a tick
     grbl = _endpoint(args.grbl, "--grbl", True) if args.grbl else None
     modbus = _endpoint(args.modbus, "--modbus", False) if args.modbus else None
     rates = _floats(args.max_rate, "--max-rate")

@@ -158,6 +158,18 @@ def test_a_poll_rate_no_loop_can_keep_is_refused(tmp_path, capsys):
     assert "[controller] poll_hz" in err and "at most 1000 Hz" in err
 
 
+def test_a_poll_rate_too_slow_to_watch_the_tool_is_refused(tmp_path, capsys):
+    # poll_hz = 0.001 was taken: a read every 17 minutes, the tool 80 m further at 5000
+    # mm/min between two, and a feed hold up to 17 minutes late
+    job = tmp_path / "job.toml"
+    job.write_text(EXAMPLE.read_text().replace("poll_hz = 50", "poll_hz = 0.001"))
+    for name in ("face.nc", "tools.tbl", "design.stl"):
+        (tmp_path / name).write_bytes((EXAMPLE.parent / name).read_bytes())
+    rc = main(["dry-run", str(job), "--clock", "sim", "--quiet", "--run", str(tmp_path / "r.sqlite")])
+    err = one_line_error(capsys, rc)
+    assert "[controller] poll_hz" in err and "at least 1 Hz" in err
+
+
 def _findings(capsys, tmp_path, speed: str) -> list[tuple]:
     rc = main(["dry-run", "--clock", "sim", "--speed", speed, "--json", "--run", str(tmp_path / f"s{speed}.sqlite")])
     events = [json.loads(x) for x in capsys.readouterr().out.splitlines()]

@@ -123,6 +123,9 @@ def test_grbl_and_modbus_together(job):
         (["serve-virtual", "--modbus", "udp:502"], "--modbus 'udp:502': expected 'tcp:PORT'"),
         (["serve-virtual", "--grbl", "serial"], "expected 'pty' or 'tcp:PORT'"),
         (["serve-virtual", "--modbus", "tcp:0", "--speed", "0"], "--speed"),
+        # inf was taken: the runner advanced the machine by inf (or 0 x inf = nan) seconds
+        (["serve-virtual", "--modbus", "tcp:0", "--speed", "inf"], "--speed: expected a positive number, got inf"),
+        (["serve-virtual", "--modbus", "tcp:0", "--speed", "nan"], "--speed: expected a positive number, got nan"),
         (["serve-virtual", "--modbus", "tcp:0", "--max-rate", "fast"], "--max-rate 'fast'"),
         (["serve-virtual", "--modbus", "tcp:0", "--map", "/nonexistent/map.toml"], "/nonexistent/map.toml: cannot read register map"),
         (["serve-virtual", "--modbus", "tcp:0", "--faults", "boom=1"], "bad item 'boom=1'"),

@@ -111,6 +111,10 @@ def test_open_controller_url(tmp_path):
         open_controller("virtual://?clock=moon")
     with pytest.raises(FaultSpecError, match="bad item"):
         open_controller("virtual://?faults=explode:1")
+    # speed=inf was taken: each tick advanced the machine by inf (or 0 x inf = nan) seconds
+    for bad in ("speed=inf", "speed=nan", "rate=inf", "speed=0"):
+        with pytest.raises(DriverError, match="finite numbers > 0"):
+            open_controller(f"virtual://?{bad}")
 
 
 def test_fault_plan_parse_and_determinism():
