@@ -656,7 +656,7 @@ class LiveChecks:
         self._sdir = np.ascontiguousarray(moves["spindle_dir"])
         # per row, how often the program switched the spindle (running <-> stopped) up to
         # it: the same count at two rows means the program leaves the spindle as it is
-        # between them (as sim.checks.motion reads a row: stopped when its direction or
+        # between them (as sim.checks.spindle reads a row: stopped when its direction or
         # speed is 0)
         stopped = (self._sdir == 0) | (self._spindle <= 0)
         self._switches = np.concatenate([[0], np.cumsum(stopped[1:] != stopped[:-1])])

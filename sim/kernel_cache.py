@@ -29,7 +29,7 @@ KERNEL_SOURCES = (
     "sim/bands.py",
     "sim/boolean.py",
     "sim/checks/design_kernels.py",
-    "sim/checks/motion.py",
+    "sim/checks/engagement_kernels.py",
     "sim/correct/kernels.py",
     "sim/dexel_store.py",
     "sim/gcode/timing.py",

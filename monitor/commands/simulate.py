@@ -317,7 +317,7 @@ def _from_start(moves: np.ndarray, grid, limits_text: str | None) -> np.ndarray:
     starting at the default start position (:func:`monitor.start.start_point`): the top
     of ``--limits`` Z, else above the stock's material and the program."""
     from monitor.start import start_at, start_point
-    from sim.checks.motion import parse_limits
+    from sim.checks.travel import parse_limits
     from sim.checks.setup import material_box
 
     from sim.checks.tri import z_part
@@ -403,7 +403,7 @@ def _run_job(args) -> int:
     from monitor.options import number
     from monitor.predict import MIN_VOLUME, build_workpiece, limits_in_work, reference_wco, work_moves
     from monitor.start import job_start, start_at
-    from sim.checks.motion import parse_limits
+    from sim.checks.travel import parse_limits
     from sim.tooltable import read_tool_table
 
     path = Path(args.program)

@@ -3,9 +3,11 @@ collision checks machinists ask for).
 
 The monitor calls :class:`Checker`: ``cut_and_check(moves)`` while cutting (incremental),
 ``predict(moves)`` for look-ahead on a scratch window, ``assess_model()`` after a run.
-The pieces are usable alone: :mod:`.findings`, :mod:`.motion` (travel limits, spindle,
-depth of cut, plunges), :mod:`.collisions` (rapids, shank/holder/above-flute contact,
-fixtures), :mod:`.error_map` (design model, signed errors, colours).
+The pieces are usable alone: :mod:`.findings`, :mod:`.travel` (travel limits),
+:mod:`.spindle` (cutting with the spindle stopped), :mod:`.engagement` (depth of cut,
+plunges), :mod:`.collisions` (rapids, shank/holder/above-flute contact, fixtures),
+:mod:`.error_map` (design model, signed errors, colours); :mod:`.motion` holds the path
+geometry they share.
 """
 
 from sim.checks.findings import KINDS, Finding, findings_json, merge_findings

@@ -18,3 +18,12 @@ def distinct(a: np.ndarray) -> np.ndarray:
     keep[0] = True
     np.not_equal(a[1:], a[:-1], out=keep[1:])
     return a[keep]
+
+
+def runs_of(ids: np.ndarray) -> list[slice]:
+    """Slices of ``ids`` split where the ids stop being consecutive."""
+    if ids.size == 0:
+        return []
+    d = np.diff(ids)
+    cuts = [0, *(np.nonzero((d < 0) | (d > 1))[0] + 1).tolist(), int(ids.size)]
+    return [slice(a, b) for a, b in zip(cuts[:-1], cuts[1:])]

@@ -8,8 +8,11 @@ import numpy as np
 
 from sim.checks import collisions, motion
 from sim.checks.arrays import distinct
+from sim.checks.engagement import Engagement, depth_of_cut, depth_of_cut_of, plunges
 from sim.checks.error_map import DesignModel, ErrorMap
 from sim.checks.findings import Finding, merge_findings
+from sim.checks.spindle import spindle_off_from, spindle_stopped_cutting
+from sim.checks.travel import travel_limits
 from sim.checks.tri import TriErrorMap, TriModelCutter, is_tri, top_bound, tri_designs, z_part
 from sim.cut import CutResult, Cutter
 from sim.errors import InputError
@@ -98,7 +101,7 @@ class Checker:
         # the depth of cut comes from the cut's own log (CutResult.changed_depth); the
         # engagement's height map is kept only for plunges of non-centre-cutting tools
         needs_engagement = any(not t.center_cutting for t in [tool, *self.tools.values()])
-        self.engagement = (motion.Engagement(self.frame, z_part(stock).top(), tool, chord=tol.chord)
+        self.engagement = (Engagement(self.frame, z_part(stock).top(), tool, chord=tol.chord)
                            if needs_engagement and self.frame.is_top else None)
         self.undercut_from_path = bool(undercut_from_path)
         self.exact_excess_while_cutting = bool(exact_excess_while_cutting)
@@ -109,7 +112,7 @@ class Checker:
         self._tool_nums = np.zeros(1, np.int64)  # move id -> tool number
         self._feed = np.zeros(1, bool)  # move id -> a feed (G1) row
         self._move_t0 = None  # move id - 1 -> machine time at its start (s), when told
-        self._spindle_off = None  # the spindle at the last batch's end (motion.spindle_off_from)
+        self._spindle_off = None  # the spindle at the last batch's end (spindle_off_from)
         self._fixture_left: dict = {}  # fixture index -> {part: what it has not touched yet}
         self._touched: dict = {}  # contact kind -> Cutter on the model less what that body touched
         self._bodies: dict = {}
@@ -196,7 +199,7 @@ class Checker:
         found = self._check_batch(self.grid, self.cutter, moves, ids, self.error_map, self.engagement,
                                   design_rays=None, top_bound=self._top_bound, spindle_off=self._spindle_off,
                                   fixture_left=self._fixture_left, touched=self._touched)
-        span = motion.spindle_off_from(moves, ids, self._spindle_off)
+        span = spindle_off_from(moves, ids, self._spindle_off)
         if len(moves):
             self._spindle_off = tuple(int(v) for v in span[-1])
         res, batch = found
@@ -227,14 +230,14 @@ class Checker:
     def _check_batch(self, grid, cutter, moves, ids, error_map, engagement, design_rays, top_bound,
                      spindle_off=None, fixture_left=None, touched=None):
         """Cut and check one batch. ``spindle_off``: the spindle as the batch starts
-        (the last pair :func:`motion.spindle_off_from` gave the batch before); ``fixture_left``: {fixture index: {part: untouched fixture}} and
+        (the last pair :func:`spindle_off_from` gave the batch before); ``fixture_left``: {fixture index: {part: untouched fixture}} and
         ``touched``: {contact kind: cutter on the model less what that body touched}, kept
         across batches (fresh ones: volumes of this batch only)."""
         touched = {} if touched is None else touched
         out: list[Finding] = []
         fixture_left = {} if fixture_left is None else fixture_left
         if self.limits:
-            out += motion.travel_limits(moves, self.limits, ids)
+            out += travel_limits(moves, self.limits, ids)
         for k, fx in enumerate(self.fixtures):
             for tool, rows in self._tool_of_rows(moves):
                 out += fx.check(moves[rows], tool, ids[rows], self.min_volume, left=fixture_left.setdefault(k, {}))
@@ -245,23 +248,23 @@ class Checker:
         # a tri-dexel model's top view (depth of cut, plunges, where a rapid entered): its Z grid
         zres, zgrid = z_part(res), z_part(grid)
         if self.max_depth_of_cut is not None:
-            doc = motion.depth_of_cut_of(zres)
-            out += motion.depth_of_cut(moves, doc, self.max_depth_of_cut, ids, cut=zres, grid=zgrid)
+            doc = depth_of_cut_of(zres)
+            out += depth_of_cut(moves, doc, self.max_depth_of_cut, ids, cut=zres, grid=zgrid)
         if engagement is not None:
             # after the cut: only the rays each move changed can have lost material
             _, core = engagement.run(moves, cut=zres, grid=zgrid)
             for tool, rows in self._tool_of_rows(moves):
-                out += motion.plunges(moves, core, tool, self.max_ramp_deg, move_ids=ids, rows=rows,
-                                      entry_deg=engagement.entry_deg, entry_at=engagement.entry_at, cut=zres,
-                                      grid=zgrid, near=engagement.core)
+                out += plunges(moves, core, tool, self.max_ramp_deg, move_ids=ids, rows=rows,
+                               entry_deg=engagement.entry_deg, entry_at=engagement.entry_at, cut=zres,
+                               grid=zgrid, near=engagement.core)
         removed = res.removed
         turned = collisions.turned_rows(moves, self.kinematics, self.origin)
         if turned.any():  # cusps of earlier instances shaved by a later pass are no contact
             step = self.tol.instance_fraction * zgrid.frame.spacing
             removed = np.where(collisions.instance_slivers(zres, turned, step), 0.0, removed)
         out += collisions.rapid_into_stock(moves, removed, ids, self.min_volume, cut=zres, grid=zgrid)
-        out += motion.spindle_stopped_cutting(moves, removed, ids, self.min_volume, carry=spindle_off, cut=zres,
-                                              grid=zgrid)
+        out += spindle_stopped_cutting(moves, removed, ids, self.min_volume, carry=spindle_off, cut=zres,
+                                       grid=zgrid)
         if pre:
             out += self._replay_contacts(snapshot, moves, ids, pre, touched)
         else:
@@ -364,7 +367,7 @@ class Checker:
             reach = max([self.tool.diameter] + [b.max_radius for _, b in self._contact_bodies(self.tool)]
                         + [t.diameter for t in self.tools.values()]) + 2 * f.spacing
             if pts.shape[0] == 0:
-                return merge_findings(motion.travel_limits(moves, self.limits, ids) if self.limits else [])
+                return merge_findings(travel_limits(moves, self.limits, ids) if self.limits else [])
             i0 = int(np.floor((pts[:, 0].min() - reach - f.origin[0]) / f.spacing))
             i1 = int(np.ceil((pts[:, 0].max() + reach - f.origin[0]) / f.spacing)) + 1
             j0 = int(np.floor((pts[:, 1].min() - reach - f.origin[1]) / f.spacing))
@@ -372,7 +375,7 @@ class Checker:
             i0, j0 = max(i0, 0), max(j0, 0)
             i1, j1 = min(i1, f.nu), min(j1, f.nv)
             if i1 <= i0 or j1 <= j0:  # entirely off the stock: only the machine checks apply
-                out = motion.travel_limits(moves, self.limits, ids) if self.limits else []
+                out = travel_limits(moves, self.limits, ids) if self.limits else []
                 for fx in self.fixtures:
                     out += fx.check(moves, self.tool, ids, self.min_volume)
                 return merge_findings(out)
@@ -387,7 +390,7 @@ class Checker:
         emap = self._new_error_map(sf) if self.design is not None else None
         eng = None
         if self.engagement is not None and sf.is_top:
-            eng = motion.Engagement(sf, z_part(scratch).top(), self.tool, chord=self.tol.chord)
+            eng = Engagement(sf, z_part(scratch).top(), self.tool, chord=self.tol.chord)
         _, found = self._check_batch(scratch, cutter, moves, ids, emap, eng,
                                      design_rays=to_full if isinstance(emap, ErrorMap) else None,
                                      top_bound=self._top_bound)

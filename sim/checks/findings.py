@@ -178,6 +178,11 @@ def describe(f: Finding) -> str:
     return f"{what} at {where} ({pos})" + (": " + ", ".join(sizes) if sizes else "")
 
 
+def line_span(lines) -> str:
+    """``"line 12"`` or ``"lines 12-40"``: the first and last of a run's sorted lines, for a message."""
+    return f"line {lines[0]}" if len(lines) == 1 else f"lines {lines[0]}-{lines[-1]}"
+
+
 def _worse(a: Finding, b: Finding) -> Finding:
     """The one of two hits that stands for both (deeper, else bigger, else first)."""
     da = -math.inf if math.isnan(a.depth) else a.depth

@@ -40,7 +40,7 @@ def checker_from_args(args, grid, tool, tools=None):
     """A :class:`~sim.checks.Checker` for the options in ``args``."""
     from sim.checks.checker import Checker
     from sim.checks.collisions import Fixture
-    from sim.checks.motion import parse_limits
+    from sim.checks.travel import parse_limits
     from sim.checks.tri import z_part
 
     t_l = _positive(getattr(args, "tolerance", None), "--tolerance")

@@ -136,3 +136,10 @@ def line_entry(moves: np.ndarray, k: int, cut, grid, near: float) -> np.ndarray 
     drop = start[2] - end[2]
     s = min(max((start[2] - top) / drop, 0.0), 1.0) if drop > 0 else 0.0
     return start + s * (end - start)
+
+
+def met_at(moves, k, where, cut, grid) -> np.ndarray:
+    """``where(moves, k, cut, grid)`` (one of the points above) when the cut is known and
+    the move changed a ray, else row ``k``'s end tip."""
+    met = where(moves, k, cut, grid) if cut is not None and grid is not None else None
+    return tip_at(moves, k) if met is None else met

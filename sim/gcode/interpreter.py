@@ -14,55 +14,27 @@ from __future__ import annotations
 import math
 import numpy as np
 
-from sim.gcode import arcs, comp, mcodes, nonmodal, splines
+from sim.gcode import comp, mcodes, nonmodal
 from sim.gcode.errors import GCodeError, LineError
 from sim.gcode.expr import evaluate
-from sim.gcode.lathe import lathe_message
 from sim.gcode.limits import DEFAULT_LIMITS, MAX_LINEAR_MM, MAX_ROTARY_DEG, Limits
-from sim.gcode.mcodes import M_GROUP
+from sim.gcode.modal_groups import CYCLES, group_codes
+from sim.gcode.motion import run_motion
 from sim.gcode.moves import COOLANT_FLOOD, COOLANT_MIST, INCH, MOVE_DTYPE, MoveKind
 from sim.gcode.params import LineParameters, Parameters
 from sim.gcode.parser import AXES, Block, dialect_parts, is_deleted, parse_line
 from sim.gcode.cycles import CycleMemory
-from sim.gcode.probe import straight_probe
 from sim.gcode.state import ModalState
 from sim.gcode.tool_length import CANON_MOTIONS, Pockets, refresh_after_tool_change, set_tool_length
 
 NAN3 = (math.nan, math.nan, math.nan)
 
-# modal group of each G code (in tenths); 0 = non-modal
-G_GROUP = {
-    0: 1, 10: 1, 20: 1, 30: 1, 382: 1, 383: 1, 384: 1, 385: 1, 730: 1, 800: 1, 810: 1, 820: 1,
-    830: 1, 850: 1, 860: 1, 890: 1, 740: 1, 840: 1, 870: 1, 880: 1, 50: 1, 51: 1, 330: 1, 331: 1,
-    170: 2, 180: 2, 190: 2,
-    900: 3, 910: 3,
-    901: 4, 911: 4,
-    930: 5, 940: 5, 950: 5,
-    200: 6, 210: 6,
-    400: 7, 410: 7, 411: 7, 420: 7, 421: 7,
-    430: 8, 431: 8, 432: 8, 490: 8,
-    980: 10, 990: 10,
-    540: 12, 550: 12, 560: 12, 570: 12, 580: 12, 590: 12, 591: 12, 592: 12, 593: 12,
-    610: 13, 611: 13, 640: 13,
-    970: 14,
-    40: 0, 100: 0, 280: 0, 281: 0, 300: 0, 301: 0, 530: 0, 920: 0,
-    921: 16, 922: 16, 923: 16,   # LinuxCNC's own group, run after G10/G28/G30/G92 (GRBL: group 0)
-}
-GRBL_G = {0, 10, 20, 30, 382, 383, 384, 385, 40, 100, 170, 180, 190, 200, 210, 280, 281, 300, 301,
-          400, 431, 490, 530, 540, 550, 560, 570, 580, 590, 610, 800, 900, 910, 911, 920, 921, 930, 940}
-GRBL_M = {0, 1, 2, 30, 3, 4, 5, 8, 9, 56}
-CYCLES = {730, 740, 810, 820, 830, 840, 850, 860, 870, 880, 890}
-MOTION_AXES = {0, 10, 20, 30, 50, 51, 382, 383, 384, 385} | CYCLES
 G0_AXIS_USERS = {100, 280, 300, 920}
 PLANE_AXES = {170: (0, 1, 2), 180: (2, 0, 1), 190: (1, 2, 0)}  # first, second, normal axis
 PLANE_CODE = {170: 0, 180: 1, 190: 2}
 PLANE_OFFSET_WORDS = {170: ("I", "J", "K"), 180: ("K", "I", "J"), 190: ("J", "K", "I")}
 COORD_INDEX = {540: 0, 550: 1, 560: 2, 570: 3, 580: 4, 590: 5, 591: 6, 592: 7, 593: 8}
 _AXIS_BOUND = (MAX_LINEAR_MM,) * 3 + (MAX_ROTARY_DEG,) * 3
-
-
-def _code10(v: float) -> int:
-    return int(round(v * 10.0))
 
 
 class Interpreter:
@@ -433,38 +405,7 @@ class Interpreter:
         grbl = self.grbl
 
         # ---- classify G and M words into modal groups
-        gmodes: dict[int, tuple[int, int]] = {}
-        for v, col in glist:
-            c = _code10(v)
-            if abs(v * 10.0 - c) > 1e-6 or c not in G_GROUP:
-                if grbl:
-                    raise LineError(f"G{v:g} is not a GRBL command", col, 23 if (c // 10 * 10) in GRBL_G and c % 10 else 20)
-                raise LineError(lathe_message(c) or f"unknown G code G{v:g}", col)
-            if grbl and c not in GRBL_G:
-                raise LineError(f"GRBL does not support G{v:g}", col, 20)
-            grp = 0 if grbl and G_GROUP[c] == 16 else G_GROUP[c]
-            if grp in gmodes and not grbl and 800 in (c, gmodes[grp][0]):
-                if c != 800:
-                    gmodes[grp] = (c, col)   # LinuxCNC: G80 gives way to another motion code
-                continue
-            if grp in gmodes:
-                raise LineError(f"G{v:g} and G{gmodes[grp][0] / 10:g} are in the same modal group", col, 21)
-            gmodes[grp] = (c, col)
-        mmodes: dict[int, tuple[int, int]] = {}
-        for v, col in mlist:
-            c = int(round(v))
-            if abs(v - c) > 1e-6 or c not in M_GROUP:
-                if grbl:
-                    raise LineError(f"M{v:g} is not a GRBL command", col, 23 if abs(v - c) > 1e-6 else 20)
-                raise LineError(mcodes.unknown_message(v), col)
-            if grbl and c not in GRBL_M:
-                raise LineError(f"GRBL does not support M{c}", col, 20)
-            grp = M_GROUP[c]
-            if grp in mmodes:  # M7 M8 too: rs274 2.9 and GRBL 1.1 refuse both on one line
-                raise LineError(f"M{c} and M{mmodes[grp][0]} are in the same modal group", col, 21)
-            mmodes[grp] = (c, col)
-        if len(mlist) > 4:
-            raise LineError("more than four M words on one line", mlist[4][1])
+        gmodes, mmodes = group_codes(glist, mlist, grbl)
 
         used = {"N"}
         has_axes = any(a in words for a in AXES) or "@" in words or "^" in words
@@ -641,7 +582,7 @@ class Interpreter:
             if motion != 50:
                 self.last_spline_ctrl = None
         if motion is not None and motion != 800 and (has_axes or explicit_motion):
-            self._motion(motion, bool(explicit_motion), words, cols, used, g53, has_axes)
+            run_motion(self, motion, bool(explicit_motion), words, cols, used, g53, has_axes)
         # ---- 12. stops
         stop = mmodes.get(4)
         if stop:
@@ -753,72 +694,6 @@ class Interpreter:
         start = list(self.pos)
         self.emit(kind, start, end, feed=feed, inverse=inverse)
         self.pos = list(end)
-
-    def _motion(self, motion, explicit, words, cols, used, g53, has_axes) -> None:
-        first_axis_col = min([cols[a] for a in AXES + "@^" if a in cols] or [1])
-        if motion in (0, 10, 330, 331):
-            self.arc_not_allowed = False
-        if motion in CYCLES:
-            from sim.gcode.cycles import canned_cycle
-
-            if self.comp != 400:
-                raise LineError("canned cycles cannot be used with cutter compensation on", first_axis_col)
-            canned_cycle(self, motion, words, cols, used)
-            return
-        if g53:
-            end = list(self.pos)
-            for i, v in nonmodal.axis_words(words, self.factor, used):
-                end[i] = v
-        else:
-            if motion in (20, 30):
-                end = None
-            else:
-                end = self.to_machine(self._axis_values(words, cols, used))
-        if motion == 0:
-            if self.comp_engine is not None:
-                self.comp_engine.straight(self.work_of(end), rapid=True, col=first_axis_col)
-                return
-            self._rapid_to(end)
-        elif motion == 10:
-            if self.comp_engine is not None:
-                self.comp_engine.straight(self.work_of(end), rapid=False, col=first_axis_col, words=words)
-                return
-            length = math.dist(self.pos[:3], end[:3]) or abs(max((abs(end[i] - self.pos[i]) for i in range(3, 6)), default=0.0))
-            feed, inv = self._feed_rate(first_axis_col, words, length)
-            self._line_to(end, MoveKind.FEED, feed, inv)
-        elif motion in (20, 30):
-            arcs.arc_motion(self, motion == 20, explicit, words, cols, used, has_axes)
-        elif motion in (50, 51):
-            splines.spline(self, motion, end, words, cols, used, first_axis_col)
-        elif motion in (330, 331):
-            if self.comp_engine is not None:  # LinuxCNC compensates G33/G33.1 as plain feeds, unsynchronised
-                used.update(k for k in ("K", "I") if k in words)
-                self.comp_engine.straight(self.work_of(end), rapid=False, col=first_axis_col, words=words,
-                                          entry_allowed=False)
-                return
-            self._synced(motion, end, words, cols, used, first_axis_col)
-        elif not self.grbl:  # probe G38.x as rs274 simulates it
-            comp.refuse_while_on(self, "probe", first_axis_col)
-            straight_probe(self, motion, end, words, first_axis_col)
-        else:  # GRBL: the table assumes the probe travels to the target
-            feed, inv = self._feed_rate(first_axis_col, words, math.dist(self.pos[:3], end[:3]))
-            self._line_to(end, MoveKind.PROBE, feed, inv)
-
-    def _synced(self, motion, end, words, cols, used, col) -> None:
-        """G33 spindle-synchronised motion / G33.1 rigid tapping (in, then back out).
-
-        The feed is pitch K (per revolution) times the spindle speed.
-        """
-        if "K" not in words:
-            raise LineError(f"G{motion / 10:g} needs a K word (distance per revolution)", col)
-        used.add("K")
-        if self.spindle <= 0:
-            raise LineError(f"G{motion / 10:g} needs the spindle turning (S > 0)", col)
-        feed = words["K"] * self.factor * self.spindle
-        start = list(self.pos)
-        self._line_to(end, MoveKind.FEED, feed, 0.0)
-        if motion == 331:
-            self._line_to(start, MoveKind.FEED, feed, 0.0)
 
     def work_of(self, machine) -> list:
         off = self.offsets()

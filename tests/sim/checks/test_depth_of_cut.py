@@ -4,7 +4,7 @@ analytic depths and against the engagement walking every ray under the tool."""
 import numpy as np
 import pytest
 
-from sim.checks import Checker, merge_findings, motion
+from sim.checks import Checker, engagement, merge_findings, motion
 from sim.cut import Cutter
 from sim.frame import Frame
 from sim.gcode.moves import MoveKind, Plane
@@ -42,8 +42,8 @@ def test_changed_rays_give_the_depths_of_the_full_walk(spec):
     tool = parse_tool_spec(spec)
     m = wavy_path(np.random.default_rng(2))
     g = stock()
-    full = motion.Engagement(g.frame, g.top(), tool, chord=0.001)
-    changed = motion.Engagement(g.frame, g.top(), tool, chord=0.001)
+    full = engagement.Engagement(g.frame, g.top(), tool, chord=0.001)
+    changed = engagement.Engagement(g.frame, g.top(), tool, chord=0.001)
     cutter = Cutter(g, tool)
     for a in range(0, len(m), 25):  # batches, as the live session feeds them
         part = m[a:a + 25]
@@ -93,10 +93,10 @@ def test_runs_of_offending_moves_are_what_merging_single_findings_gives():
     m = polyline([(0, 0, 0)] + [(k, 0, 0) for k in range(1, 11)])
     doc = np.array([1, 6, 7, 6.5, 1, 9, 1, 6, 6, 1], float)
     ids = np.arange(101, 111)
-    runs = motion.depth_of_cut(m, doc, 5.0, ids)
+    runs = engagement.depth_of_cut(m, doc, 5.0, ids)
     singles = []
     for k in np.nonzero(doc > 5.0)[0]:
-        singles += motion.depth_of_cut(m[k:k + 1], doc[k:k + 1], 5.0, ids[k:k + 1])
+        singles += engagement.depth_of_cut(m[k:k + 1], doc[k:k + 1], 5.0, ids[k:k + 1])
     merged = merge_findings(singles)
     key = [(f.lines, f.stages, f.line, f.worst_line, f.stage, f.depth, f.position) for f in runs]
     assert key == [(f.lines, f.stages, f.line, f.worst_line, f.stage, f.depth, f.position) for f in merged]
@@ -155,7 +155,7 @@ def test_depth_of_cut_from_the_cut_log_equals_the_full_walk(spec):
     tool = parse_tool_spec(spec)
     m = wavy_path(np.random.default_rng(3), n=40)
     g = stock()
-    full = motion.Engagement(g.frame, g.top(), tool, chord=0.001)
+    full = engagement.Engagement(g.frame, g.top(), tool, chord=0.001)
     heights = g.top().reshape(-1).astype(np.float64)
     cutter = Cutter(g, tool)
     for a in range(0, len(m), 30):
@@ -167,7 +167,7 @@ def test_depth_of_cut_from_the_cut_log_equals_the_full_walk(spec):
         else:
             d_full, _ = full.run(part)
             want = d_full[line]
-        doc = motion.depth_of_cut_of(cutter.cut_moves(part))
+        doc = engagement.depth_of_cut_of(cutter.cut_moves(part))
         assert doc.shape == (len(part),) and doc.dtype == np.float64
         # float32 faces; sampling misses the true lowest point by up to ~1 um
         tol = 1e-5 if spec != "bull:6:1" else 2e-3
@@ -189,7 +189,7 @@ def test_depth_of_cut_below_an_overhang_is_the_length_taken_off():
             g.subtract(i, j, 4.0, 10.0 if abs(j * 0.25 - 20.0) <= 1.2 else 6.0, move_id=99)
     tslot = Tool.custom([[0, 3], [1.5, 3], [1.5, 1], [20, 1]])
     m = polyline([(5, 20, 3.5), (35, 20, 3.5)])  # disc 3.5..5 mm: takes 3.5..4 off each ray
-    doc = motion.depth_of_cut_of(Cutter(g, tslot).cut_moves(m))
+    doc = engagement.depth_of_cut_of(Cutter(g, tslot).cut_moves(m))
     assert doc[0] == pytest.approx(0.5, abs=1e-5)
     assert np.nanmax(g.top()) == pytest.approx(10.0)
 
@@ -197,8 +197,8 @@ def test_depth_of_cut_below_an_overhang_is_the_length_taken_off():
 def test_depth_of_cut_of_a_cut_without_changes_is_zero_and_checks_its_input():
     g = stock(0.25)
     res = Cutter(g, parse_tool_spec("flat:6")).cut_moves(polyline([(5, 20, 12), (35, 20, 12)]))
-    assert np.array_equal(motion.depth_of_cut_of(res), [0.0])
+    assert np.array_equal(engagement.depth_of_cut_of(res), [0.0])
     res = Cutter(g, parse_tool_spec("flat:6")).cut_moves(polyline([(5, 20, 9), (35, 20, 9)]))
     res.changed_depth = res.changed_depth[:-1]
     with pytest.raises(Exception, match="depths"):
-        motion.depth_of_cut_of(res)
+        engagement.depth_of_cut_of(res)
