@@ -7,6 +7,7 @@ stage), the way a session writes them, so the test does not depend on a dry run'
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,7 @@ import pytest
 from tests.monitor.render.imagecheck import check_image, hue_shares
 from tests.monitor.run_helpers import record_program
 
-PARTS = Path(__file__).resolve().parents[3].parent / "shared" / "corpus" / "parts"
+PARTS = Path(os.environ.get("DEXMON_SHARED", Path(__file__).resolve().parents[3].parent / "shared")) / "corpus" / "parts"
 pytestmark = pytest.mark.skipif(not PARTS.is_dir(), reason="../shared/corpus/parts is not present")
 
 #: part: (program, design, stock box x0,y0,z0,x1,y1,z1 mm)
