@@ -65,7 +65,7 @@ def example_base(args):
 
 def virtual_controller(moves, speed: float, rate: float, clock: str = "wall"):
     from drivers.virtual.controller import VirtualController
-    from drivers.virtual.machine import MachineConfig
+    from drivers.virtual.machine_config import MachineConfig
 
     # A B C as brisk as its fastest linear axis (deg/min, deg/s^2): what the timing takes
     # for rotaries the controller does not state (sim.gcode.timing.six_axes)

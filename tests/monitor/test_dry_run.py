@@ -113,7 +113,8 @@ def test_feed_hold_stops_the_machine_before_the_gouge(example):
 
 
 def _fast_vm(moves):
-    from drivers.virtual.machine import MachineConfig, VirtualMachine
+    from drivers.virtual.machine import VirtualMachine
+    from drivers.virtual.machine_config import MachineConfig
     from monitor.commands.dry_run import VIRTUAL_ACCEL, VIRTUAL_MAX_RATE
 
     cfg = MachineConfig(max_rate=VIRTUAL_MAX_RATE, accel=VIRTUAL_ACCEL, soft_limits=False)

@@ -69,7 +69,8 @@ class CountingSender:
 def machine():
     """The GRBL peer on a pty, its virtual machine where the program starts."""
     from drivers.grbl.peer import GrblPeer
-    from drivers.virtual.machine import MachineConfig, VirtualMachine
+    from drivers.virtual.machine import VirtualMachine
+    from drivers.virtual.machine_config import MachineConfig
     from monitor.commands.dry_run import VIRTUAL_ACCEL, VIRTUAL_MAX_RATE
 
     job = load_job(EXAMPLE_JOB)
