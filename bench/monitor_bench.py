@@ -39,7 +39,7 @@ def wavy_design(moves, path: Path, spacing: float = 0.5, below: float = 0.1) -> 
     program simulated at ``spacing`` mm on the bench stock), written to ``path``."""
     import trimesh
 
-    from monitor.predict import work_moves
+    from monitor.work_coords import work_moves
     from sim.cut import Cutter
     from sim.frame import Frame
     from sim.solids import box_grid

@@ -25,7 +25,7 @@ connect when Idle, else at the next Idle) retime the path between two steps
 
 Two frames. The *model* frame is the job's work system (G54 unless the job says), in
 which stock, fixtures and design sit and the program's rows are placed by their machine
-tips (``monitor.predict.work_moves`` with the job's reference offset): a G55 station of a
+tips (``monitor.work_coords.work_moves`` with the job's reference offset): a G55 station of a
 multi-fixture program lands at its offset relative to G54. The *sync* frame is each row's
 own work coordinates, what the controller reports as work position (``mpos - WCO``): the
 program is found by matching that against the rows (:attr:`Session.sync_path`).
@@ -51,8 +51,9 @@ from monitor.alerts import Alerter
 from monitor.gaps import GapLedger
 from monitor.job import Job
 from monitor.machine import in_force
-from monitor.predict import (LiveChecks, Lookahead, Workpiece, build_workpiece, finding_record, lead_time,
-                             limits_in_work, reference_wco, row_shifts, work_moves)
+from monitor.predict import LiveChecks, Lookahead, finding_record, lead_time
+from monitor.work_coords import limits_in_work, reference_wco, row_shifts, work_moves
+from monitor.workpiece import Workpiece, build_workpiece
 from monitor.sync import ProgramPath, ProgramSync, SyncResult, row_seconds
 from sim.checks.arrays import distinct
 from sim.gcode.moves import MoveKind

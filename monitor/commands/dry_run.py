@@ -81,7 +81,7 @@ def virtual_moves(job, moves):
     the job's ``work_offset``, as the job says the real machine is set up."""
     import numpy as np
 
-    from monitor.predict import reference_wco
+    from monitor.work_coords import reference_wco
 
     if job.work_offset is None or job.var_file is not None:
         return moves

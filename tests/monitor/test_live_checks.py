@@ -22,8 +22,9 @@ from drivers.state import MachineState, RunState
 from monitor.alerts import Alerter
 from monitor.commands.dry_run import EXAMPLE_JOB, virtual_controller
 from monitor.job import load_job
-from monitor.predict import (LiveChecks, Lookahead, build_workpiece, finding_to_machine, limits_in_work,
-                             work_moves)
+from monitor.predict import LiveChecks, Lookahead
+from monitor.work_coords import finding_to_machine, limits_in_work, work_moves
+from monitor.workpiece import build_workpiece
 from monitor.runfile import RunWriter
 from monitor.runreader import RunReader
 from monitor.loop import run_controller
