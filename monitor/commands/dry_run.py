@@ -95,7 +95,7 @@ def virtual_moves(job, moves):
 
 def run(args) -> int:
     from monitor.options import number
-    from monitor.session import load_moves
+    from monitor.program_moves import load_moves
 
     number(args.speed, "--speed")  # inf would run the whole program between two polls
     job = job_from_args(args, args.job or example_base(args))

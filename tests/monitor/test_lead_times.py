@@ -26,7 +26,8 @@ from monitor.commands.dry_run import EXAMPLE_JOB
 from monitor.commands.live import run_session
 from monitor.job import load_job, parse_job_text
 from monitor.machine import in_force
-from monitor.session import Session, load_moves
+from monitor.program_moves import load_moves
+from monitor.session import Session
 
 GOUGE_LINE, RAPID_LINE = 22, 36
 #: the slow machine: GRBL's rates of a small hobby mill

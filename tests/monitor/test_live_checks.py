@@ -28,7 +28,8 @@ from monitor.workpiece import build_workpiece
 from monitor.runfile import RunWriter
 from monitor.runreader import RunReader
 from monitor.loop import run_controller
-from monitor.session import Session, load_moves
+from monitor.program_moves import load_moves
+from monitor.session import Session
 from monitor.sync import ProgramPath
 from sim.checks.findings import Finding
 from sim.gcode.moves import MoveKind, empty_moves, work_end
@@ -364,7 +365,8 @@ from monitor.commands.dry_run import EXAMPLE_JOB, virtual_controller
 from monitor.job import load_job
 from monitor.runfile import RunWriter
 from monitor.loop import run_controller
-from monitor.session import Session, load_moves
+from monitor.program_moves import load_moves
+from monitor.session import Session
 
 def signatures():
     out = {}

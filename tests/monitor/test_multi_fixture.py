@@ -20,7 +20,8 @@ from monitor.predict import Lookahead
 from monitor.work_coords import reference_wco, row_shifts, work_moves
 from monitor.workpiece import build_workpiece
 from monitor.loop import run_controller
-from monitor.session import Session, load_moves
+from monitor.program_moves import load_moves
+from monitor.session import Session
 
 DATA = Path(__file__).resolve().parent.parent / "data" / "fixtures2"
 TWO = DATA / "two_station.toml"

@@ -21,7 +21,7 @@ from monitor.commands.dry_run import EXAMPLE_JOB
 from monitor.job import load_job
 from monitor.linesync import StreamedLines, normalise
 from monitor.runreader import RunReader
-from monitor.session import load_moves
+from monitor.program_moves import load_moves
 from monitor.sync import ProgramPath, ProgramSync
 from sim.gcode.moves import MoveKind, empty_moves
 from tests.monitor.test_dry_run import check_planted

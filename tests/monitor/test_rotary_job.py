@@ -14,7 +14,8 @@ import pytest
 from drivers.state import MachineState, RunState
 from monitor.cli import main
 from monitor.job import JobError, load_job
-from monitor.session import Session, load_moves
+from monitor.program_moves import load_moves
+from monitor.session import Session
 
 JOB = Path(__file__).resolve().parents[2] / "monitor" / "examples" / "rotary_job" / "job.toml"
 FAULT_LINE = 35
