@@ -31,7 +31,8 @@ import time
 from _poll_latency import XStepper, poll_summary, watch_x
 from drivers.grbl.driver import from_url
 from drivers.grbl.peer import GrblPeer
-from drivers.virtual.machine import MachineConfig, VirtualMachine
+from drivers.virtual.machine import VirtualMachine
+from drivers.virtual.machine_config import MachineConfig
 
 
 def main(argv=None) -> dict:

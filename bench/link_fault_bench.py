@@ -61,7 +61,7 @@ def main() -> None:
     a = ap.parse_args()
     from monitor.commands.dry_run import EXAMPLE_JOB
     from monitor.job import load_job
-    from monitor.session import load_moves
+    from monitor.program_moves import load_moves
 
     job = load_job(EXAMPLE_JOB)
     moves, program = load_moves(job)

@@ -31,7 +31,8 @@ from drivers.modbus.driver import ModbusController
 from drivers.modbus.regmap import load_map
 from drivers.modbus.server import ModbusVirtualServer
 from drivers.state import LinkKind
-from drivers.virtual.machine import MachineConfig, VirtualMachine
+from drivers.virtual.machine import VirtualMachine
+from drivers.virtual.machine_config import MachineConfig
 
 
 def main(argv=None) -> dict:

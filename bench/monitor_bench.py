@@ -39,7 +39,7 @@ def wavy_design(moves, path: Path, spacing: float = 0.5, below: float = 0.1) -> 
     program simulated at ``spacing`` mm on the bench stock), written to ``path``."""
     import trimesh
 
-    from monitor.predict import work_moves
+    from monitor.work_coords import work_moves
     from sim.cut import Cutter
     from sim.frame import Frame
     from sim.solids import box_grid
@@ -67,7 +67,8 @@ def latency(resolution: float, seconds: float, design: bool = False) -> dict:
     from monitor.alerts import Alerter
     from monitor.job import Job, Solid, ToolDef
     from monitor.runfile import RunWriter
-    from monitor.session import Session, load_moves
+    from monitor.program_moves import load_moves
+    from monitor.session import Session
 
     program = SHARED / "bench" / "wavy_finish.nc"
     if not program.is_file():
@@ -142,7 +143,8 @@ def dry_run_speed() -> dict:
     from monitor.commands.dry_run import EXAMPLE_JOB, virtual_controller
     from monitor.job import load_job
     from monitor.loop import run_controller
-    from monitor.session import Session, load_moves
+    from monitor.program_moves import load_moves
+    from monitor.session import Session
 
     job = load_job(EXAMPLE_JOB)
     moves, prog = load_moves(job)

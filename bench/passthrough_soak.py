@@ -31,7 +31,8 @@ import time
 
 from drivers.grbl.passthrough import Passthrough
 from drivers.grbl.peer import GrblPeer
-from drivers.virtual.machine import MachineConfig, VirtualMachine
+from drivers.virtual.machine import VirtualMachine
+from drivers.virtual.machine_config import MachineConfig
 
 RX_BUFFER = 127  # GRBL's serial RX buffer less one, as character-counting senders use it
 

@@ -34,7 +34,7 @@ Durability: WAL journal, ``synchronous=NORMAL``. Appends go through a queue to o
 thread that owns the connection and commits at least every ``commit_interval`` seconds,
 so a ``kill -9`` loses at most that much and the file still opens; the session's hot loop
 never waits on the disk. The session hands its trace chunks on at least as often
-(``monitor.session.TRACE_CHUNK_S``), and each chunk's ``stage_to`` says up to which stage
+(``monitor.live_trace.TRACE_CHUNK_S``), and each chunk's ``stage_to`` says up to which stage
 the model is rebuilt: a reader ends a run whose cuts go further (cut short) there
 (``monitor.trace_io.RunView.cut_short``).
 """

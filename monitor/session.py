@@ -5,7 +5,8 @@ tool actually travelled since the last state into the live stock *and check it*,
 ahead over the horizon on a scratch model, both through :class:`sim.checks.Checker`
 (:mod:`monitor.predict`), alert new findings with their lead time (:mod:`monitor.alerts`;
 a predicted finding that then happens is one alert, updated to "happened") and append to
-the run file (:mod:`monitor.runfile`).
+the run file (:mod:`monitor.runfile`), with the trace that rebuilds the live model
+(:mod:`monitor.live_trace`). The program comes as a move table (:mod:`monitor.program_moves`).
 
 Link trouble: a state that is not fresh (``drivers.state.NOT_FRESH``: missed, bad,
 disconnected; or fresh with numbers :func:`drivers.state.implausible` refuses, taken as
@@ -16,16 +17,16 @@ one but found again by a search of the program, the rows the program ran meanwhi
 cut as programmed (unchecked) when both ends sit on the program, and a gap record says
 what happened (:attr:`Session.gaps`, the run file's ``link_events``, the summary).
 
-Program time (and so lead times) comes from ``Program.cycle_time`` (GRBL-like planner)
-with the machine limits in force (:mod:`monitor.machine`: the job's ``[machine]`` field by
-field over the controller's over defaults), falling back to length / feed only if it
-fails. Limits the controller states after the session was built (GRBL reads ``$$`` at
-connect when Idle, else at the next Idle) retime the path between two steps
-(:meth:`Session.use_controller_limits`).
+Program time (and so lead times) comes from ``Program.cycle_time`` (GRBL-like planner,
+:func:`monitor.program_moves.program_seconds`) with the machine limits in force
+(:mod:`monitor.machine`: the job's ``[machine]`` field by field over the controller's over
+defaults), falling back to length / feed only if it fails. Limits the controller states
+after the session was built (GRBL reads ``$$`` at connect when Idle, else at the next
+Idle) retime the path between two steps (:meth:`Session.use_controller_limits`).
 
 Two frames. The *model* frame is the job's work system (G54 unless the job says), in
 which stock, fixtures and design sit and the program's rows are placed by their machine
-tips (``monitor.predict.work_moves`` with the job's reference offset): a G55 station of a
+tips (``monitor.work_coords.work_moves`` with the job's reference offset): a G55 station of a
 multi-fixture program lands at its offset relative to G54. The *sync* frame is each row's
 own work coordinates, what the controller reports as work position (``mpos - WCO``): the
 program is found by matching that against the rows (:attr:`Session.sync_path`).
@@ -50,21 +51,18 @@ from drivers.state import LinkEvent, MachineState, RunState, implausible, stale_
 from monitor.alerts import Alerter
 from monitor.gaps import GapLedger
 from monitor.job import Job
+from monitor.live_trace import LiveTrace
 from monitor.machine import in_force
-from monitor.predict import (LiveChecks, Lookahead, Workpiece, build_workpiece, finding_record, lead_time,
-                             limits_in_work, reference_wco, row_shifts, work_moves)
-from monitor.sync import ProgramPath, ProgramSync, SyncResult, row_seconds
+from monitor.program_moves import program_seconds
+from monitor.predict import LiveChecks, Lookahead, finding_record, lead_time
+from monitor.work_coords import limits_in_work, reference_wco, row_shifts, work_moves
+from monitor.workpiece import Workpiece, build_workpiece
+from monitor.sync import ProgramPath, ProgramSync, SyncResult
 from sim.checks.arrays import distinct
 from sim.gcode.moves import MoveKind
 
 #: progress jumps larger than this (program s) re-anchor the look-ahead on the live model
 JUMP_S = 2.0
-#: a trace chunk is written every this many stages, and at least every TRACE_CHUNK_S
-TRACE_CHUNK_STAGES = 50
-#: wall s: the trace that rebuilds the model keeps up with the cuts the run file commits
-#: (RunWriter's commit_interval, 0.25 s), so a crash leaves at most this much of the run
-#: recorded but not rebuildable (replay then ends where the trace does)
-TRACE_CHUNK_S = 0.25
 
 
 def rotary_scale(job: Job) -> float:
@@ -90,37 +88,6 @@ class StepInfo:
     overtaken: tuple | None = None
 
 
-def load_moves(job: Job) -> tuple[np.ndarray, object]:
-    """The job's program as a move table (MOVE_DTYPE), via the G-code interpreter, and the
-    program; both start where the machine starts (:mod:`monitor.start`), not at machine zero."""
-    from monitor.start import job_start, start_at
-    from sim.gcode import Limits, load_program
-
-    program = load_program(job.program, dialect=job.program_dialect, tool_table=job.tool_table, var_file=job.var_file,
-                           machine_units=job.machine_units, limits=Limits(max_loop=job.max_loop),
-                           block_delete=job.block_delete,
-                           subroutine_path=[str(d) for d in job.subroutine_path] or None)
-    moves = np.asarray(program.moves)
-    start = job_start(job, moves)
-    if start is not None:
-        program.moves = moves = start_at(moves, start)  # its cycle time runs from there too
-    return moves, program
-
-
-def program_seconds(program, moves: np.ndarray, machine=None) -> np.ndarray:
-    """Per-row program seconds, float64 (n,): ``program.cycle_time(machine)`` (GRBL-like
-    trapezoids and junction deviation) when it works, else length / feed."""
-    if program is not None:
-        try:
-            got = program.cycle_time(machine)
-            secs = np.asarray(got[1] if isinstance(got, tuple) else got, np.float64)
-            if secs.shape == (len(moves),) and np.all(np.isfinite(secs)):
-                return secs
-        except Exception:  # an interpreter without timing, or a table it cannot plan
-            pass
-    return row_seconds(work_moves(moves))
-
-
 class Session:
     """Follows a machine through a program; call :meth:`step` with every state.
 
@@ -128,15 +95,15 @@ class Session:
     ----------
     job : Job
     moves : MOVE_DTYPE (n,) the program's move table (as the interpreter made it)
-    seconds : float64 (n,) program time per row (default: :func:`program_seconds` of
-        ``program`` with the job's machine limits)
+    seconds : float64 (n,) program time per row (default:
+        :func:`monitor.program_moves.program_seconds` of ``program`` with the job's machine limits)
     run : monitor.runfile.RunWriter or None
     alerter : monitor.alerts.Alerter or None (None: a silent one, still alerting once)
     program_text : recorded in the run file
     assume_done_before_start : when the run starts mid-program, cut the rows before the
         start into the live model (they ran before the monitor was started)
     trace_clock : () -> s, what times the trace chunks written to ``run`` (at least every
-        :data:`TRACE_CHUNK_S`); the wall clock, tests give their own
+        :data:`monitor.live_trace.TRACE_CHUNK_S`); the wall clock, tests give their own
     """
 
     def __init__(self, job: Job, moves: np.ndarray, seconds: np.ndarray | None = None, run=None,
@@ -202,11 +169,8 @@ class Session:
         self._prev_tip: np.ndarray | None = None
         self._prev_row: int | None = None   # program row of the last piece cut live
         self._predicted_to = 0            # rows before it were predicted (before this step's anchor)
-        self._trace = None
-        self._trace_from = 0
-        #: times the trace chunks (s; tests give their own) and when the last was written
-        self.trace_clock = trace_clock
-        self._trace_at = 0.0
+        #: the trace that rebuilds the live model, written to ``run`` (None without a run)
+        self._live_trace: LiveTrace | None = None
         self._fill_horizon = False
         self.view = None                 # a monitor.render.feed.ViewFeed, or None
         self.line_source = None          # a monitor.linesync.StreamedLines, or None
@@ -225,7 +189,7 @@ class Session:
             run.put_array("moves", moves)
             run.put_array("row_seconds", secs)
             run.put_meta("machine", self.in_force.to_json())
-            self._start_trace()
+            self._live_trace = LiveTrace(run, self.live, trace_clock)
 
     def warm_up(self, rows: int = 12) -> float:
         """Run every kernel the loop uses once on a scratch copy, so that JIT compilation
@@ -241,7 +205,7 @@ class Session:
             return 0.0
         scratch = self.live.copy()
         trace = None
-        if self._trace is not None:
+        if self._live_trace is not None and self._live_trace.trace is not None:
             try:
                 from sim.trace import Trace
 
@@ -445,7 +409,8 @@ class Session:
         self.live_checks.set_wco(wco)
         fresh = self._offset_check.see(state, tip) if self._offset_check is not None else []
         cut, info.removed = self._cut_live(tip, s, state)
-        self._trace_due()
+        if self._live_trace is not None:
+            self._live_trace.due(self.stage)
         if restart is not None:
             # from the live model with the path since the last state cut in: taken before,
             # the rows the machine has just run were not in it, and the row it is on (a
@@ -538,7 +503,7 @@ class Session:
             pts = np.concatenate([pieces["start"][:1, :3], pieces["end"][:, :3]])
             self.run.append_cut(self.stage, {"points": pts}, t=state.t, move_id=r1 + 1, line=int(s.line))
             if rays.size:
-                self._record_trace(rays)
+                self._live_trace.record(self.live, rays, self.stage)
         return list(range(r0, r0 + len(pieces)))
 
     def _start(self, s: SyncResult, state: MachineState) -> None:
@@ -583,7 +548,7 @@ class Session:
         if self.run is not None:
             self.run.append_cut(self.stage, {"points": pts}, t=state.t, move_id=s.row + 1, line=s.line)
             if removed > 0 and rays.size:
-                self._record_trace(rays)
+                self._live_trace.record(self.live, rays, self.stage)
         out = [finding_record(f, 0.0, state.t, predicted=False, stage=self.stage, path=self.path, moves=self.moves)
                for f in found]
         for rec, f in zip(out, found):
@@ -688,52 +653,6 @@ class Session:
         self.findings += fresh
         return fresh
 
-    # -- trace (optional hook: sim.trace)
-    def _start_trace(self) -> None:
-        try:
-            from sim.trace import Trace
-        except ImportError:
-            return
-        try:
-            # the trace only encodes the stages for the run file: it keeps no history (no
-            # keyframes, columns of one chunk), so no poll pays for growing or indexing it
-            self._trace = Trace(self.live, stage=0, auto_maintain=False, keep_history=False)
-            self._trace.ready_for_records()
-            self.run.append_trace_chunk(0, 0, self._trace.take_chunk())
-            self._trace_at = self.trace_clock()
-        except Exception:  # the trace is a replay aid; the monitor runs without it
-            self._trace = None
-
-    def _record_trace(self, rays: np.ndarray) -> None:
-        if self._trace is None:
-            return
-        try:
-            self._trace.record(self.live, rays=rays, stage=self.stage)
-        except Exception:
-            self._trace = None
-
-    def _trace_due(self) -> None:
-        """Write the trace chunk when it is due: every TRACE_CHUNK_STAGES stages, and
-        TRACE_CHUNK_S after the last one whenever stages were cut since (cutting or not: a
-        chunk's ``stage_to`` tells the reader the model is rebuilt up to there, air cuts
-        and a machine standing in a hold included)."""
-        if self._trace is None or self.stage == self._trace_from:
-            return
-        if (self.stage - self._trace_from >= TRACE_CHUNK_STAGES
-                or self.trace_clock() - self._trace_at >= TRACE_CHUNK_S):
-            try:
-                self.flush_trace()
-            except Exception:  # the trace is a replay aid (a run-file error is the writer's to say)
-                self._trace = None
-
-    def flush_trace(self) -> None:
-        """Hand the trace recorded since the last chunk to the run file as stages
-        ``_trace_from + 1 .. stage`` (an empty chunk when those stages removed nothing)."""
-        if self._trace is not None and self.run is not None and self.stage > self._trace_from:
-            self.run.append_trace_chunk(self._trace_from + 1, self.stage, self._trace.take_chunk())
-            self._trace_from = self.stage
-            self._trace_at = self.trace_clock()
-
     def check_setup(self, inch: bool = False, reports_wco: bool = True, t: float | None = None) -> list[dict]:
         """Alert what cannot be the setup the user meant, before any cutting is judged
         (:mod:`monitor.setup_check`): a stock the path never reaches, a design outside the
@@ -750,7 +669,8 @@ class Session:
 
     def finish(self) -> dict:
         """Flush what is pending; return a summary dict."""
-        self.flush_trace()
+        if self._live_trace is not None:
+            self._live_trace.flush(self.stage)
         summary = {"event": "summary", "findings": len(self.findings), "stages": self.stage,
                    "kinds": sorted({f["kind"] for f in self.findings}),
                    "progress_s": None if self.last_sync is None else round(self.last_sync.progress, 3),

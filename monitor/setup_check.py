@@ -65,7 +65,7 @@ def placed_on_part(moves, kinematics, origin, tool_lengths):
 
 def setup_records(wp, moves: np.ndarray, inch: bool, t: float | None = None) -> list[dict]:
     """The ``setup`` finding records of a session's workpiece ``wp``
-    (:class:`monitor.predict.Workpiece`) and program ``moves`` (the model frame, tips, mm):
+    (:class:`monitor.workpiece.Workpiece`) and program ``moves`` (the model frame, tips, mm):
     :func:`sim.checks.setup.setup_findings` with the stock's material box, the largest tool
     radius and the design's box. ``inch``: the program is written in inches (G20)."""
     from sim.checks.setup import design_box, material_box, setup_findings

@@ -79,7 +79,7 @@ def start_point(moves: np.ndarray, given=None, z_top: float | None = None, mater
     if z_top is not None:
         out[2] = float(z_top) + shift[2]
         return out
-    from monitor.predict import work_moves
+    from monitor.work_coords import work_moves
 
     motion = moves[np.isin(moves["kind"], _MOTION)]
     tips = work_moves(motion, np.concatenate([np.asarray(reference, np.float64).reshape(3), np.zeros(3)]))
@@ -94,7 +94,7 @@ def start_point(moves: np.ndarray, given=None, z_top: float | None = None, mater
 def job_start(job, moves: np.ndarray) -> np.ndarray | None:
     """:func:`start_point` of a :class:`monitor.job.Job`: its ``[machine] start``, its Z
     travel, its stock's and fixtures' tops, its work offset and .var file."""
-    from monitor.predict import reference_wco
+    from monitor.work_coords import reference_wco
 
     ref = reference_wco(job)[:3]
     zero = ref if job.work_offset is None else np.asarray(job.work_offset, np.float64)
@@ -108,9 +108,9 @@ def job_start(job, moves: np.ndarray) -> np.ndarray | None:
 def material_top(job) -> float | None:
     """The highest Z of the job's stock and fixtures (work frame, mm); None without them.
     An STL is loaded for its bounds."""
-    from monitor.predict import _bounds
+    from monitor.workpiece import solid_bounds
 
     solids = ([job.stock] if job.stock is not None else []) + list(job.fixtures)
     if not solids:
         return None
-    return max(float(_bounds(s, "[stock]" if s is job.stock else "[[fixtures]]")[1][2]) for s in solids)
+    return max(float(solid_bounds(s, "[stock]" if s is job.stock else "[[fixtures]]")[1][2]) for s in solids)

@@ -198,7 +198,7 @@ class RunView:
         ``reference_wco`` place each row in its own work system, as they were recorded."""
         if "moves" not in self.reader.array_names():
             return None
-        from monitor.predict import work_moves
+        from monitor.work_coords import work_moves
         from monitor.runfile import RunFileError
 
         try:

@@ -193,7 +193,7 @@ class Cutter:
     added back), and the tips the kinematics puts on the part are shifted back by
     ``origin[:3]`` into the grid's frame. tool_lengths: {tool number: mm} the G43 length
     of each tool, for a move table of tips (whose ``tool_length`` column is 0, as
-    ``monitor.predict.work_moves`` makes them): a head that turns the tool swings its tip
+    ``monitor.work_coords.work_moves`` makes them): a head that turns the tool swings its tip
     on the pivot-to-tip distance, which holds the tool length (default None: each row's
     ``tool_length``). Tools it does not name use their rows' column.
     """

@@ -157,7 +157,7 @@ def setting_text(n: int, v: float) -> str:
 
 
 def settings_from_config(cfg) -> dict[int, float]:
-    """``$n`` settings a :class:`~drivers.virtual.machine.MachineConfig` implies.
+    """``$n`` settings a :class:`~drivers.virtual.machine_config.MachineConfig` implies.
 
     ``$20`` (soft limits) is 1 only for a machine with soft limits on and a travel to check
     them against: stock Grbl reports ``$20=0``."""

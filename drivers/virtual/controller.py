@@ -33,7 +33,8 @@ import numpy as np
 from drivers.errors import ConnectionLost, DriverError
 from drivers.state import Controller, Gap, LinkKind, MachineState, RunState, implausible, stale_state
 from drivers.virtual.faults import REPLY_BAD, REPLY_DROP, REPLY_GARBLE, REPLY_LATE, FaultInjector, FaultPlan
-from drivers.virtual.machine import MachineConfig, MachineLocked, VirtualMachine
+from drivers.virtual.machine import MachineLocked, VirtualMachine
+from drivers.virtual.machine_config import MachineConfig
 from drivers.virtual.runner import RealTimeRunner
 from sim.gcode.moves import MOVE_DTYPE
 

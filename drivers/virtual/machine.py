@@ -1,6 +1,7 @@
 """A simulated CNC machine that executes move-table rows in simulated time, as GRBL 1.1 does.
 
-The model follows GRBL's planner and stepper:
+The model follows GRBL's planner and stepper (its formulas in :mod:`drivers.virtual.motion_math`,
+its settings :class:`~drivers.virtual.machine_config.MachineConfig`):
 
 * every motion row becomes one planner block (arcs become GRBL's chord segments, one
   block each, so an arc fills the planner as on the real firmware);
@@ -32,13 +33,13 @@ from typing import Callable
 
 import numpy as np
 
-from drivers.state import ControllerLimits, MachineState, RunState
-from sim.gcode.moves import COOLANT_FLOOD, COOLANT_MIST, MOVE_DTYPE, MoveKind, Plane
+from drivers.state import MachineState, RunState
+from drivers.virtual.machine_config import MachineConfig
+from drivers.virtual.motion_math import arc_points, junction_speed_sqr, limit_by_axis
+from sim.gcode.moves import COOLANT_FLOOD, COOLANT_MIST, MOVE_DTYPE, MoveKind
 
 #: GRBL's MINIMUM_FEED_RATE (mm/min): no block is planned slower than this
 MIN_FEED_MM_MIN = 1.0
-#: GRBL's ARC_ANGULAR_TRAVEL_EPSILON (rad)
-ARC_ANGLE_EPS = 5e-7
 #: lengths below this (mm) are no motion; speeds below this (mm/s) are standstill
 _LEN_EPS = 1e-9
 _V_EPS = 1e-9
@@ -46,8 +47,6 @@ _V_EPS = 1e-9
 #: GRBL alarm codes used here
 ALARM_SOFT_LIMIT = 2
 ALARM_ABORT_CYCLE = 3
-
-_HUGE_SPEED_SQR = 1e30
 
 
 class PlannerFull(Exception):
@@ -60,117 +59,6 @@ class MachineLocked(Exception):
 
 class TravelExceeded(ValueError):
     """A jog target lies outside the machine's travel (GRBL answers ``error:15``)."""
-
-
-def _vec6(values, name: str) -> tuple[float, ...]:
-    out = [float(v) for v in values]
-    if not 1 <= len(out) <= 6:
-        raise ValueError(f"{name}: expected 1 to 6 values (X Y Z A B C), got {len(out)}")
-    return tuple(out)
-
-
-@dataclass(frozen=True)
-class MachineConfig:
-    """What the machine can do, in GRBL's terms.
-
-    Attributes
-    ----------
-    max_rate : tuple of float, per axis X Y Z [A B C], mm/min (GRBL $110-$112)
-    accel : tuple of float, per axis, mm/s^2 (GRBL $120-$122)
-    junction_deviation : float, mm (GRBL $11)
-    arc_tolerance : float, mm (GRBL $12): chord error of arc segments
-    travel_min, travel_max : tuple of float per axis, mm, or None for no soft limits.
-        GRBL homes to the positive end, so its travel is ``[-$13x, 0]``.
-    planner_blocks : int, free planner blocks (GRBL 1.1: 15, 14 with line numbers)
-    soft_limits : bool (GRBL $20)
-    """
-
-    max_rate: tuple[float, ...] = (500.0, 500.0, 500.0)
-    accel: tuple[float, ...] = (10.0, 10.0, 10.0)
-    junction_deviation: float = 0.01
-    arc_tolerance: float = 0.002
-    travel_min: tuple[float, ...] | None = (-200.0, -200.0, -200.0)
-    travel_max: tuple[float, ...] | None = (0.0, 0.0, 0.0)
-    planner_blocks: int = 15
-    soft_limits: bool = True
-
-    def __post_init__(self):
-        object.__setattr__(self, "max_rate", _vec6(self.max_rate, "max_rate"))
-        object.__setattr__(self, "accel", _vec6(self.accel, "accel"))
-        if len(self.accel) != len(self.max_rate):
-            raise ValueError("accel and max_rate must name the same axes")
-        if any(v <= 0 for v in self.max_rate + self.accel):
-            raise ValueError("max_rate and accel must be > 0")
-        if self.junction_deviation < 0 or self.arc_tolerance <= 0:
-            raise ValueError("junction_deviation must be >= 0 and arc_tolerance > 0")
-        if self.planner_blocks < 1:
-            raise ValueError("planner_blocks must be >= 1")
-        for name in ("travel_min", "travel_max"):
-            v = getattr(self, name)
-            if v is not None:
-                object.__setattr__(self, name, _vec6(v, name))
-
-    @property
-    def n_axes(self) -> int:
-        return len(self.max_rate)
-
-    def axis_arrays(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per-axis max rate (mm/s) and acceleration (mm/s^2), shape (6,); axes beyond
-        the configured ones get +inf (they never limit) ."""
-        rate = np.full(6, np.inf)
-        acc = np.full(6, np.inf)
-        rate[: self.n_axes] = np.asarray(self.max_rate) / 60.0
-        acc[: self.n_axes] = np.asarray(self.accel)
-        return rate, acc
-
-    def limits(self, source: str) -> ControllerLimits:
-        """These limits as a controller states them (X Y Z)."""
-        travel = None
-        if self.travel_min is not None and self.travel_max is not None:
-            travel = tuple((float(lo), float(hi)) for lo, hi in zip(self.travel_min[:3], self.travel_max[:3]))
-        return ControllerLimits(max_rate=tuple(float(v) for v in self.max_rate[:3]),
-                                acceleration=tuple(float(v) for v in self.accel[:3]),
-                                junction_deviation=float(self.junction_deviation) or None, travel=travel,
-                                soft_limits=bool(self.soft_limits), report_inches=False, source=source)
-
-    def out_of_travel(self, target: np.ndarray) -> bool:
-        """True when ``target`` (shape (6,), mm) is outside the soft limits."""
-        if not self.soft_limits:
-            return False
-        eps = 1e-6
-        if self.travel_min is not None:
-            lo = np.asarray(self.travel_min)
-            if np.any(target[: len(lo)] < lo - eps):
-                return True
-        if self.travel_max is not None:
-            hi = np.asarray(self.travel_max)
-            if np.any(target[: len(hi)] > hi + eps):
-                return True
-        return False
-
-
-def limit_by_axis(limits: np.ndarray, unit: np.ndarray) -> float:
-    """GRBL ``limit_value_by_axis_maximum``: the largest value along ``unit`` whose
-    per-axis components stay within ``limits`` (both shape (6,))."""
-    nz = np.abs(unit) > 1e-12
-    if not nz.any():
-        return float("inf")
-    return float(np.min(limits[nz] / np.abs(unit[nz])))
-
-
-def junction_speed_sqr(prev_unit: np.ndarray, unit: np.ndarray, accel: np.ndarray, deviation: float) -> float:
-    """Maximum speed squared (mm^2/s^2) through the corner between two unit vectors,
-    GRBL 1.1's junction-deviation formula. ``accel`` is per-axis mm/s^2, shape (6,)."""
-    cos_theta = -float(np.dot(prev_unit, unit))
-    if cos_theta > 0.999999:  # full reversal
-        return 0.0
-    if cos_theta < -0.999999:  # straight on
-        return _HUGE_SPEED_SQR
-    jvec = unit - prev_unit
-    jvec = jvec / np.linalg.norm(jvec)
-    a = limit_by_axis(accel, jvec)
-    sin_half = math.sqrt(0.5 * (1.0 - cos_theta))
-    return max(0.0, a * deviation * sin_half / (1.0 - sin_half))
 
 
 @dataclass
@@ -835,41 +723,3 @@ class VirtualMachine:
     def _emit(self, name: str, payload) -> None:
         if self.on_event is not None:
             self.on_event(name, payload)
-
-
-def arc_points(start: np.ndarray, end: np.ndarray, center: np.ndarray, plane: int, clockwise: bool,
-               turns: int, tolerance: float) -> np.ndarray:
-    """End points of the chord segments of an arc (GRBL ``mc_arc``), shape (n, 6), mm;
-    the chord error stays within ``tolerance`` (mm).
-
-    ``start``/``end`` shape (6,) machine coords; ``center`` shape (3,) (X Y Z). The axis
-    normal to ``plane`` and the A B C axes move linearly (helix). The last point is
-    exactly ``end``.
-    """
-    ax0, ax1, lin = {Plane.XY: (0, 1, 2), Plane.XZ: (2, 0, 1), Plane.YZ: (1, 2, 0)}[Plane(plane)]
-    c0, c1 = float(center[ax0]), float(center[ax1])
-    r0, r1 = start[ax0] - c0, start[ax1] - c1
-    rt0, rt1 = end[ax0] - c0, end[ax1] - c1
-    radius = math.hypot(r0, r1)
-    travel = math.atan2(r0 * rt1 - r1 * rt0, r0 * rt0 + r1 * rt1)
-    if clockwise:
-        if travel >= -ARC_ANGLE_EPS:
-            travel -= 2 * math.pi
-    elif travel <= ARC_ANGLE_EPS:
-        travel += 2 * math.pi
-    extra = (turns - 1) * 2 * math.pi
-    travel += -extra if clockwise else extra
-    if radius <= _LEN_EPS:
-        return end[None, :].copy()
-    denom = math.sqrt(tolerance * (2 * radius - tolerance)) if 2 * radius > tolerance else radius
-    # GRBL floors this count, which lets the chord error exceed $12 by ~1 %; ceil keeps it within
-    n = int(math.ceil(abs(0.5 * travel * radius) / denom))
-    n = max(n, 1)
-    k = np.arange(1, n + 1) / n
-    ang = travel * k
-    pts = start[None, :] + (end - start)[None, :] * k[:, None]  # linear axes
-    cos_a, sin_a = np.cos(ang), np.sin(ang)
-    pts[:, ax0] = c0 + r0 * cos_a - r1 * sin_a
-    pts[:, ax1] = c1 + r0 * sin_a + r1 * cos_a
-    pts[-1] = end
-    return pts

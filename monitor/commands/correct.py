@@ -172,7 +172,9 @@ def setup_from_job(job, max_loop=None, block_delete: bool = False, sub_dirs=(), 
     design, tolerance, start position and work frame, as ``simulate`` reads them)."""
     from monitor.commands import simulate as S
     from monitor.job import require
-    from monitor.predict import MIN_VOLUME, build_workpiece, reference_wco, work_moves
+    from monitor.predict import MIN_VOLUME
+    from monitor.work_coords import reference_wco, work_moves
+    from monitor.workpiece import build_workpiece
     from monitor.start import job_start, start_at
     from sim.tooltable import read_tool_table
 

@@ -65,7 +65,7 @@ def example_base(args):
 
 def virtual_controller(moves, speed: float, rate: float, clock: str = "wall"):
     from drivers.virtual.controller import VirtualController
-    from drivers.virtual.machine import MachineConfig
+    from drivers.virtual.machine_config import MachineConfig
 
     # A B C as brisk as its fastest linear axis (deg/min, deg/s^2): what the timing takes
     # for rotaries the controller does not state (sim.gcode.timing.six_axes)
@@ -81,7 +81,7 @@ def virtual_moves(job, moves):
     the job's ``work_offset``, as the job says the real machine is set up."""
     import numpy as np
 
-    from monitor.predict import reference_wco
+    from monitor.work_coords import reference_wco
 
     if job.work_offset is None or job.var_file is not None:
         return moves
@@ -95,7 +95,7 @@ def virtual_moves(job, moves):
 
 def run(args) -> int:
     from monitor.options import number
-    from monitor.session import load_moves
+    from monitor.program_moves import load_moves
 
     number(args.speed, "--speed")  # inf would run the whole program between two polls
     job = job_from_args(args, args.job or example_base(args))

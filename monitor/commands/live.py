@@ -123,7 +123,8 @@ def _run_session(args, job: Job, controller, done, default_run_dir, resume_after
 
     from monitor.alerts import RESUME_HOW, Alerter
     from monitor.runfile import RunWriter, default_run_path
-    from monitor.session import Session, load_moves
+    from monitor.program_moves import load_moves
+    from monitor.session import Session
     from monitor.status import StatusLine
 
     view_opts = _view_options(args)  # before anything is opened: a bad --view is one line

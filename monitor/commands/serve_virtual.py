@@ -70,7 +70,8 @@ def _say(text: str) -> None:
 
 def run(args) -> int:
     from drivers.virtual.faults import FaultInjector
-    from drivers.virtual.machine import MachineConfig, VirtualMachine
+    from drivers.virtual.machine import VirtualMachine
+    from drivers.virtual.machine_config import MachineConfig
     from drivers.virtual.runner import RealTimeRunner
 
     if not args.grbl and not args.modbus:

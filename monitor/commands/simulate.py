@@ -401,7 +401,9 @@ def _run_job(args) -> int:
 
     from monitor.job import load_job, parse_solid_spec, require
     from monitor.options import number
-    from monitor.predict import MIN_VOLUME, build_workpiece, limits_in_work, reference_wco, work_moves
+    from monitor.predict import MIN_VOLUME
+    from monitor.work_coords import limits_in_work, reference_wco, work_moves
+    from monitor.workpiece import build_workpiece
     from monitor.start import job_start, start_at
     from sim.checks.travel import parse_limits
     from sim.tooltable import read_tool_table

@@ -96,7 +96,7 @@ def run_tools(view, job=None) -> tuple[dict, object]:
     moves = view.moves
     if job is not None:
         try:
-            from monitor.predict import build_tools
+            from monitor.workpiece import build_tools
 
             numbers = np.unique(moves["tool"]) if moves is not None and len(moves) else []
             return build_tools(job, numbers)

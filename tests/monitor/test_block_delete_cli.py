@@ -34,7 +34,7 @@ def test_moves_runs_slash_lines_unless_block_delete(prog, capsys):
 
 def test_job_key_and_flag(prog, tmp_path):
     from monitor.job import add_job_arguments, job_from_args
-    from monitor.session import load_moves
+    from monitor.program_moves import load_moves
 
     job_file = tmp_path / "job.toml"
     job_file.write_text(f'[program]\npath = "{prog.name}"\n')

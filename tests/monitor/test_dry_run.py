@@ -20,7 +20,8 @@ from monitor.job import load_job
 from monitor.runfile import RunWriter
 from monitor.runreader import RunReader
 from monitor.loop import run_controller
-from monitor.session import Session, load_moves
+from monitor.program_moves import load_moves
+from monitor.session import Session
 
 GOUGE_LINE, RAPID_LINE = 22, 36
 
@@ -113,7 +114,8 @@ def test_feed_hold_stops_the_machine_before_the_gouge(example):
 
 
 def _fast_vm(moves):
-    from drivers.virtual.machine import MachineConfig, VirtualMachine
+    from drivers.virtual.machine import VirtualMachine
+    from drivers.virtual.machine_config import MachineConfig
     from monitor.commands.dry_run import VIRTUAL_ACCEL, VIRTUAL_MAX_RATE
 
     cfg = MachineConfig(max_rate=VIRTUAL_MAX_RATE, accel=VIRTUAL_ACCEL, soft_limits=False)

@@ -18,7 +18,8 @@ from monitor.job import load_job
 from monitor.loop import BEHIND_NOTICE_S, run_controller
 from monitor.runfile import RunWriter
 from monitor.runreader import RunReader
-from monitor.session import Session, load_moves
+from monitor.program_moves import load_moves
+from monitor.session import Session
 
 POLL_HZ = 50.0
 

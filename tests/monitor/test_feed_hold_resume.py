@@ -13,7 +13,7 @@ from monitor.commands.dry_run import EXAMPLE_JOB, VIRTUAL_MACHINE, virtual_contr
 from monitor.commands.live import run_session
 from monitor.job import load_job
 from monitor.runreader import RunReader
-from monitor.session import load_moves
+from monitor.program_moves import load_moves
 
 #: polls the test leaves the machine held before it resumes it (as a machinist would, later)
 HELD_POLLS = 10

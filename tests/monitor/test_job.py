@@ -199,8 +199,8 @@ def test_lead_times_come_from_the_planned_cycle_time():
     from pathlib import Path
 
     from monitor.commands.dry_run import EXAMPLE_JOB
-    from monitor.predict import work_moves
-    from monitor.session import load_moves, program_seconds
+    from monitor.work_coords import work_moves
+    from monitor.program_moves import load_moves, program_seconds
     from monitor.sync import row_seconds
 
     job = load_job(Path(EXAMPLE_JOB))

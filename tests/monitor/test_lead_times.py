@@ -20,12 +20,14 @@ import pytest
 from drivers.grbl.peer import GrblPeer
 from drivers.state import ControllerLimits
 from drivers.virtual.controller import ProgramFeeder
-from drivers.virtual.machine import MachineConfig, VirtualMachine
+from drivers.virtual.machine import VirtualMachine
+from drivers.virtual.machine_config import MachineConfig
 from monitor.commands.dry_run import EXAMPLE_JOB
 from monitor.commands.live import run_session
 from monitor.job import load_job, parse_job_text
 from monitor.machine import in_force
-from monitor.session import Session, load_moves
+from monitor.program_moves import load_moves
+from monitor.session import Session
 
 GOUGE_LINE, RAPID_LINE = 22, 36
 #: the slow machine: GRBL's rates of a small hobby mill

@@ -22,7 +22,8 @@ from monitor.runfile import RunWriter
 from monitor.runreader import RunReader
 from monitor.loop import run_controller
 from monitor.gaps import GAP_POLLS
-from monitor.session import Session, load_moves
+from monitor.program_moves import load_moves
+from monitor.session import Session
 
 
 @pytest.fixture(scope="module")

@@ -22,12 +22,14 @@ from drivers.state import MachineState, RunState
 from monitor.alerts import Alerter
 from monitor.commands.dry_run import EXAMPLE_JOB, virtual_controller
 from monitor.job import load_job
-from monitor.predict import (LiveChecks, Lookahead, build_workpiece, finding_to_machine, limits_in_work,
-                             work_moves)
+from monitor.predict import LiveChecks, Lookahead
+from monitor.work_coords import finding_to_machine, limits_in_work, work_moves
+from monitor.workpiece import build_workpiece
 from monitor.runfile import RunWriter
 from monitor.runreader import RunReader
 from monitor.loop import run_controller
-from monitor.session import Session, load_moves
+from monitor.program_moves import load_moves
+from monitor.session import Session
 from monitor.sync import ProgramPath
 from sim.checks.findings import Finding
 from sim.gcode.moves import MoveKind, empty_moves, work_end
@@ -363,7 +365,8 @@ from monitor.commands.dry_run import EXAMPLE_JOB, virtual_controller
 from monitor.job import load_job
 from monitor.runfile import RunWriter
 from monitor.loop import run_controller
-from monitor.session import Session, load_moves
+from monitor.program_moves import load_moves
+from monitor.session import Session
 
 def signatures():
     out = {}

@@ -22,7 +22,8 @@ from monitor.job import load_job
 from monitor.loop import run_controller
 from monitor.runfile import RunWriter
 from monitor.runreader import RunReader
-from monitor.session import Session, load_moves
+from monitor.program_moves import load_moves
+from monitor.session import Session
 from monitor.trace_io import load_trace
 
 
@@ -77,7 +78,7 @@ def test_findings_model_and_trace_are_those_of_the_exact_error_map(example, tmp_
         assert np.array_equal(fast_trace.grid_at(stage).top(), exact_trace.grid_at(stage).top(), equal_nan=True)
     assert np.array_equal(exact_trace.grid_at(last).top(), b, equal_nan=True)
     # the session's trace handed every chunk on to the run file and kept none of it
-    assert fast._trace.z.n_changes == 0 and fast._trace.z._keyframes == []
+    assert fast._live_trace.trace.z.n_changes == 0 and fast._live_trace.trace.z._keyframes == []
     # the gouge side of both error maps is the same (the look-ahead's found the planted
     # dip on line 22 too)
     for checks in ("live_checks", "lookahead"):

@@ -22,7 +22,8 @@ from monitor.job import load_job
 from monitor.runfile import RunWriter
 from monitor.runreader import RunReader
 from monitor.loop import run_controller
-from monitor.session import Session, load_moves
+from monitor.program_moves import load_moves
+from monitor.session import Session
 
 PROGRAM = EXAMPLE_JOB.parent / "face.nc"
 

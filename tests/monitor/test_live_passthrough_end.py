@@ -9,7 +9,7 @@ import json
 from monitor.commands.dry_run import EXAMPLE_JOB, VIRTUAL_MACHINE, virtual_controller
 from monitor.commands.live import run_session
 from monitor.job import load_job
-from monitor.session import load_moves
+from monitor.program_moves import load_moves
 
 
 def _serving_controller(moves, capsys, calls):

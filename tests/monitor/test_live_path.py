@@ -26,7 +26,8 @@ import pytest
 from drivers.state import MachineState, RunState
 from monitor.job import load_job
 from monitor.predict import LiveChecks, arrival_poses
-from monitor.session import Session, hold_still_axes, load_moves
+from monitor.program_moves import load_moves
+from monitor.session import Session, hold_still_axes
 
 DATA = Path(__file__).resolve().parent.parent / "data" / "fixtures2"
 TWO = DATA / "two_station.toml"

@@ -16,9 +16,12 @@ from monitor.alerts import Alerter
 from monitor.cli import main
 from monitor.commands.dry_run import EXAMPLE_JOB
 from monitor.job import JobError, add_job_arguments, job_from_args, load_job, parse_job_text
-from monitor.predict import Lookahead, build_workpiece, reference_wco, row_shifts, work_moves
+from monitor.predict import Lookahead
+from monitor.work_coords import reference_wco, row_shifts, work_moves
+from monitor.workpiece import build_workpiece
 from monitor.loop import run_controller
-from monitor.session import Session, load_moves
+from monitor.program_moves import load_moves
+from monitor.session import Session
 
 DATA = Path(__file__).resolve().parent.parent / "data" / "fixtures2"
 TWO = DATA / "two_station.toml"

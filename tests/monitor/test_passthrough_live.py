@@ -21,7 +21,7 @@ from monitor.commands.dry_run import EXAMPLE_JOB
 from monitor.job import load_job
 from monitor.linesync import StreamedLines, normalise
 from monitor.runreader import RunReader
-from monitor.session import load_moves
+from monitor.program_moves import load_moves
 from monitor.sync import ProgramPath, ProgramSync
 from sim.gcode.moves import MoveKind, empty_moves
 from tests.monitor.test_dry_run import check_planted
@@ -69,7 +69,8 @@ class CountingSender:
 def machine():
     """The GRBL peer on a pty, its virtual machine where the program starts."""
     from drivers.grbl.peer import GrblPeer
-    from drivers.virtual.machine import MachineConfig, VirtualMachine
+    from drivers.virtual.machine import VirtualMachine
+    from drivers.virtual.machine_config import MachineConfig
     from monitor.commands.dry_run import VIRTUAL_ACCEL, VIRTUAL_MAX_RATE
 
     job = load_job(EXAMPLE_JOB)

@@ -14,7 +14,8 @@ import pytest
 from drivers.state import MachineState, RunState
 from monitor.cli import main
 from monitor.job import JobError, load_job
-from monitor.session import Session, load_moves
+from monitor.program_moves import load_moves
+from monitor.session import Session
 
 JOB = Path(__file__).resolve().parents[2] / "monitor" / "examples" / "rotary_job" / "job.toml"
 FAULT_LINE = 35
@@ -236,7 +237,7 @@ def test_a_tilted_head_places_the_tip_one_tool_length_from_the_gauge_point(tmp_p
 def test_head_tool_lengths_one_per_tilted_tool_or_a_clear_error():
     """The G43 length each tool is tilted with (the work tables hold tips); a tool
     tilted with two lengths is refused, naming both lines."""
-    from monitor.predict import head_tool_lengths
+    from monitor.workpiece import head_tool_lengths
     from sim.gcode.program import interpret
     from sim.kinematics import HeadHead
 

@@ -22,7 +22,9 @@ from monitor.cli import main
 from monitor.commands.dry_run import EXAMPLE_JOB, virtual_controller
 from monitor.job import load_job
 from monitor.runfile import RunWriter
-from monitor.session import TRACE_CHUNK_S, TRACE_CHUNK_STAGES, Session, load_moves
+from monitor.live_trace import TRACE_CHUNK_S, TRACE_CHUNK_STAGES
+from monitor.program_moves import load_moves
+from monitor.session import Session
 from monitor.trace_io import RunView
 from sim.trace import same_model
 

@@ -344,7 +344,8 @@ def test_no_work_offset_check_for_a_controller_that_does_not_report_it():
 
     from monitor.commands.dry_run import EXAMPLE_JOB
     from monitor.job import load_job
-    from monitor.session import Session, load_moves
+    from monitor.program_moves import load_moves
+    from monitor.session import Session
 
     job = dataclasses.replace(load_job(EXAMPLE_JOB), work_offset=(-190.0, -100.0, -50.0))
     moves, _ = load_moves(job)

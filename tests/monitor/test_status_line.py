@@ -17,7 +17,8 @@ from monitor.commands.dry_run import EXAMPLE_JOB, VIRTUAL_MACHINE, virtual_contr
 from monitor.commands.live import run_session
 from monitor.job import load_job
 from monitor.loop import run_controller
-from monitor.session import Session, load_moves
+from monitor.program_moves import load_moves
+from monitor.session import Session
 from monitor.status import StatusLine, next_finding, progress_line, status_text
 from monitor.sync import SyncResult
 from tests.monitor.test_falling_behind import FreeRunning, StepClock

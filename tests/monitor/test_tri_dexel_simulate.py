@@ -200,7 +200,7 @@ def test_a_jobs_box_stock_is_the_box_on_all_three_grids(tmp_path):
     """The job's tri-dexel box stock is what TriDexel.box gives for it, on a lattice
     covering the job's frame: each grid holds the box's volume (20 x 10 x 5 mm, whole
     spacings) and its segments, face ids included, on the rays both lattices share."""
-    from monitor.predict import build_workpiece
+    from monitor.workpiece import build_workpiece
     from sim.gcode.program import interpret
     from sim.tridexel import TriDexel
 

@@ -15,7 +15,8 @@ from drivers.grbl.peer import GrblPeer
 from drivers.registry import open_controller
 from drivers.state import LinkKind, RunState, implausible
 from tests.drivers.thread_errors import thread_errors
-from drivers.virtual.machine import MachineConfig, VirtualMachine
+from drivers.virtual.machine import VirtualMachine
+from drivers.virtual.machine_config import MachineConfig
 
 FAST = dict(max_rate=(3000.0, 3000.0, 3000.0), accel=(200.0, 200.0, 200.0))
 HUGE = str(2**64 + 1).encode()

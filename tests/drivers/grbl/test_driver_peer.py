@@ -14,7 +14,8 @@ from drivers.grbl.streaming import GrblError
 from drivers.grbl.peer import GrblPeer
 from drivers.registry import open_controller
 from drivers.state import RunState
-from drivers.virtual.machine import MachineConfig, VirtualMachine
+from drivers.virtual.machine import VirtualMachine
+from drivers.virtual.machine_config import MachineConfig
 
 FAST = dict(max_rate=(3000.0, 3000.0, 3000.0), accel=(200.0, 200.0, 200.0))
 

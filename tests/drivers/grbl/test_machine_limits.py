@@ -14,7 +14,8 @@ from drivers.grbl.passthrough import Passthrough
 from drivers.grbl.peer import GrblPeer
 from drivers.registry import open_controller
 from drivers.state import ControllerLimits, RunState
-from drivers.virtual.machine import MachineConfig, VirtualMachine
+from drivers.virtual.machine import VirtualMachine
+from drivers.virtual.machine_config import MachineConfig
 from sim.gcode.moves import MoveKind, empty_moves
 
 SLOW = dict(max_rate=(500.0, 400.0, 300.0), accel=(20.0, 15.0, 10.0), junction_deviation=0.02)

@@ -10,7 +10,8 @@ import serial
 from drivers.grbl.passthrough import Passthrough
 from drivers.grbl.peer import GrblPeer
 from drivers.state import RunState
-from drivers.virtual.machine import MachineConfig, VirtualMachine
+from drivers.virtual.machine import VirtualMachine
+from drivers.virtual.machine_config import MachineConfig
 
 
 class ScriptedSender:

@@ -19,7 +19,8 @@ from drivers.grbl import passthrough as pt_mod
 from drivers.grbl.passthrough import Passthrough
 from drivers.grbl.peer import GrblPeer
 from drivers.state import Gap, LinkKind, RunState
-from drivers.virtual.machine import MachineConfig, VirtualMachine
+from drivers.virtual.machine import VirtualMachine
+from drivers.virtual.machine_config import MachineConfig
 
 WAIT = 10.0  # generous timeout of every wait, s
 

@@ -17,7 +17,8 @@ import pytest
 from drivers.grbl.passthrough import Passthrough
 from drivers.grbl.peer import GrblPeer
 from drivers.state import LinkKind
-from drivers.virtual.machine import MachineConfig, VirtualMachine
+from drivers.virtual.machine import VirtualMachine
+from drivers.virtual.machine_config import MachineConfig
 
 REPLY_BYTES = 1_100_000   # more than 1 MB back to the sender
 READ_TIMEOUT = 15.0       # s without a byte while a reply is due: the path stalled

@@ -12,7 +12,8 @@ import serial
 
 from drivers.grbl.passthrough import Passthrough
 from drivers.grbl.peer import GrblPeer
-from drivers.virtual.machine import MachineConfig, VirtualMachine
+from drivers.virtual.machine import VirtualMachine
+from drivers.virtual.machine_config import MachineConfig
 
 WAIT = 10.0  # generous timeout of every wait, s
 

@@ -8,7 +8,8 @@ import pytest
 
 from drivers.grbl import protocol as p
 from drivers.grbl.peer import BANNER, GrblPeer
-from drivers.virtual.machine import MachineConfig, VirtualMachine
+from drivers.virtual.machine import VirtualMachine
+from drivers.virtual.machine_config import MachineConfig
 
 
 def make_vm(**kw) -> VirtualMachine:

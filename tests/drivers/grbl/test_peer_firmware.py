@@ -13,7 +13,8 @@ import tty
 import pytest
 
 from drivers.grbl.peer import BANNER, GrblPeer
-from drivers.virtual.machine import MachineConfig, VirtualMachine
+from drivers.virtual.machine import VirtualMachine
+from drivers.virtual.machine_config import MachineConfig
 
 TIMEOUT_S = 10.0  # generous: the suite must pass with both cores busy
 

@@ -9,7 +9,8 @@ import pytest
 from drivers.grbl.peer import GrblPeer
 from drivers.registry import open_controller
 from drivers.state import RunState
-from drivers.virtual.machine import MachineConfig, VirtualMachine
+from drivers.virtual.machine import VirtualMachine
+from drivers.virtual.machine_config import MachineConfig
 from tests.drivers.thread_errors import thread_errors
 
 

@@ -18,7 +18,8 @@ from drivers.grbl.peer import GrblPeer
 from drivers.registry import open_controller
 from drivers.state import NOT_FRESH, MachineState, implausible
 from tests.drivers.thread_errors import thread_errors
-from drivers.virtual.machine import MachineConfig, VirtualMachine
+from drivers.virtual.machine import VirtualMachine
+from drivers.virtual.machine_config import MachineConfig
 
 SESSIONS = 100
 POLLS = 5

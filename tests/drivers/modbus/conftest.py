@@ -6,7 +6,8 @@ import pytest
 
 from drivers.modbus.regmap import load_map
 from drivers.modbus.server import ModbusVirtualServer
-from drivers.virtual.machine import MachineConfig, VirtualMachine
+from drivers.virtual.machine import VirtualMachine
+from drivers.virtual.machine_config import MachineConfig
 
 #: a machine without travel limits: tests place it anywhere
 FREE = MachineConfig(travel_min=None, travel_max=None)

@@ -10,7 +10,8 @@ import drivers.modbus.regmap as regmap_module
 from drivers.modbus.driver import ModbusController
 from drivers.modbus.regmap import parse_map
 from drivers.modbus.server import ModbusVirtualServer
-from drivers.virtual.machine import MachineConfig, VirtualMachine
+from drivers.virtual.machine import VirtualMachine
+from drivers.virtual.machine_config import MachineConfig
 
 GENERIC = Path(regmap_module.__file__).parent / "maps" / "generic.toml"
 

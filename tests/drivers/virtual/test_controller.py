@@ -11,7 +11,7 @@ from drivers.registry import open_controller
 from drivers.state import LinkKind, RunState
 from drivers.virtual.controller import VirtualController
 from drivers.virtual.faults import FaultInjector, FaultPlan, FaultSpecError
-from drivers.virtual.machine import MachineConfig
+from drivers.virtual.machine_config import MachineConfig
 from tests.drivers.virtual.helpers import line, rapid, rows
 
 FREE = MachineConfig(travel_min=None, travel_max=None)
