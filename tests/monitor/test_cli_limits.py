@@ -147,26 +147,26 @@ def test_dry_run_speed_must_be_a_finite_positive_number(tmp_path, capsys, value)
     assert not (tmp_path / "r.sqlite").exists()
 
 
-def test_a_poll_rate_no_loop_can_keep_is_refused(tmp_path, capsys):
-    # poll_hz = 1e9 with --clock sim moved the machine 5 ns a poll: the run never ended
+def _dry_run_polling_at(poll_hz: str, tmp_path, capsys) -> str:
+    """The one-line error of a dry run of the example job with ``poll_hz`` set."""
     job = tmp_path / "job.toml"
-    job.write_text(EXAMPLE.read_text().replace("poll_hz = 50", "poll_hz = 1e9"))
+    job.write_text(EXAMPLE.read_text().replace("poll_hz = 50", f"poll_hz = {poll_hz}"))
     for name in ("face.nc", "tools.tbl", "design.stl"):
         (tmp_path / name).write_bytes((EXAMPLE.parent / name).read_bytes())
     rc = main(["dry-run", str(job), "--clock", "sim", "--quiet", "--run", str(tmp_path / "r.sqlite")])
-    err = one_line_error(capsys, rc)
+    return one_line_error(capsys, rc)
+
+
+def test_a_poll_rate_no_loop_can_keep_is_refused(tmp_path, capsys):
+    # poll_hz = 1e9 with --clock sim moved the machine 5 ns a poll: the run never ended
+    err = _dry_run_polling_at("1e9", tmp_path, capsys)
     assert "[controller] poll_hz" in err and "at most 1000 Hz" in err
 
 
 def test_a_poll_rate_too_slow_to_watch_the_tool_is_refused(tmp_path, capsys):
     # poll_hz = 0.001 was taken: a read every 17 minutes, the tool 80 m further at 5000
     # mm/min between two, and a feed hold up to 17 minutes late
-    job = tmp_path / "job.toml"
-    job.write_text(EXAMPLE.read_text().replace("poll_hz = 50", "poll_hz = 0.001"))
-    for name in ("face.nc", "tools.tbl", "design.stl"):
-        (tmp_path / name).write_bytes((EXAMPLE.parent / name).read_bytes())
-    rc = main(["dry-run", str(job), "--clock", "sim", "--quiet", "--run", str(tmp_path / "r.sqlite")])
-    err = one_line_error(capsys, rc)
+    err = _dry_run_polling_at("0.001", tmp_path, capsys)
     assert "[controller] poll_hz" in err and "at least 1 Hz" in err
 
 
