@@ -35,13 +35,12 @@ import numpy as np
 
 from drivers.state import MachineState, RunState
 from drivers.virtual.machine_config import MachineConfig
-from drivers.virtual.motion_math import arc_points, junction_speed_sqr, limit_by_axis
+from drivers.virtual.motion_math import LEN_EPS, arc_points, junction_speed_sqr, limit_by_axis
 from sim.gcode.moves import COOLANT_FLOOD, COOLANT_MIST, MOVE_DTYPE, MoveKind
 
 #: GRBL's MINIMUM_FEED_RATE (mm/min): no block is planned slower than this
 MIN_FEED_MM_MIN = 1.0
-#: lengths below this (mm) are no motion; speeds below this (mm/s) are standstill
-_LEN_EPS = 1e-9
+#: speeds below this (mm/s) are standstill (lengths: motion_math.LEN_EPS)
 _V_EPS = 1e-9
 
 #: GRBL alarm codes used here
@@ -437,7 +436,7 @@ class VirtualMachine:
     def _move(self, dist: float, blk: _Block) -> None:
         dist = min(max(dist, 0.0), blk.remaining)
         blk.remaining -= dist
-        if blk.remaining <= _LEN_EPS:
+        if blk.remaining <= LEN_EPS:
             blk.remaining = 0.0
             self.position = blk.end.copy()
         else:
@@ -447,7 +446,7 @@ class VirtualMachine:
         """Feed hold / jog cancel: decelerate at the block's acceleration, across blocks."""
         v, a, s = self.speed, blk.accel, blk.remaining
         d_stop = v * v / (2 * a)
-        if d_stop < s - _LEN_EPS:
+        if d_stop < s - LEN_EPS:
             t_stop = v / a
             if budget >= t_stop:
                 self._move(d_stop, blk)
@@ -474,7 +473,7 @@ class VirtualMachine:
         vn = math.sqrt(blk.nominal_sqr)
         ve = min(ve, math.sqrt(v * v + 2 * a * s))
         s_dec = (v * v - ve * ve) / (2 * a)
-        if s <= _LEN_EPS:
+        if s <= LEN_EPS:
             self._move(s, blk)
             self._finish_block()
             return 0.0
@@ -528,7 +527,7 @@ class VirtualMachine:
         self.speed = v
         if budget >= t:
             self._move(d, blk)
-            if blk.remaining <= _LEN_EPS:
+            if blk.remaining <= LEN_EPS:
                 self._finish_block()
             return t
         self._move(v * budget, blk)
@@ -619,7 +618,7 @@ class VirtualMachine:
     def _motion_block(self, row, start: np.ndarray, end: np.ndarray, row_len: float, jog: bool) -> _Block | None:
         delta = end - start
         length = float(np.linalg.norm(delta))
-        if length <= _LEN_EPS:
+        if length <= LEN_EPS:
             return None
         unit = delta / length
         rate_limit = limit_by_axis(self._rate, unit)

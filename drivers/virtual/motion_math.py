@@ -14,8 +14,9 @@ from sim.gcode.moves import Plane
 
 #: GRBL's ARC_ANGULAR_TRAVEL_EPSILON (rad)
 ARC_ANGLE_EPS = 5e-7
-#: an arc of a radius below this (mm) is a point: straight to its end
-_MIN_RADIUS = 1e-9
+#: lengths below this (mm) are no motion (an arc of a smaller radius is a point: straight
+#: to its end); the machine's planner and stepper use it too
+LEN_EPS = 1e-9
 
 _HUGE_SPEED_SQR = 1e30
 
@@ -67,7 +68,7 @@ def arc_points(start: np.ndarray, end: np.ndarray, center: np.ndarray, plane: in
         travel += 2 * math.pi
     extra = (turns - 1) * 2 * math.pi
     travel += -extra if clockwise else extra
-    if radius <= _MIN_RADIUS:
+    if radius <= LEN_EPS:
         return end[None, :].copy()
     denom = math.sqrt(tolerance * (2 * radius - tolerance)) if 2 * radius > tolerance else radius
     # GRBL floors this count, which lets the chord error exceed $12 by ~1 %; ceil keeps it within
